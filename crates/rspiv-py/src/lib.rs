@@ -1,0 +1,13 @@
+//! Thin PyO3 binding: converts arrays (`PyReadonlyArray2` -> `ArrayView2`, `into_pyarray`
+//! back), releases the GIL (`py.detach`) around all work and maps core errors to the Python
+//! exceptions of `rspiv.errors`. No algorithm lives here.
+
+use pyo3::prelude::*;
+
+mod errors;
+
+#[pymodule]
+fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

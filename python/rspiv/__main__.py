@@ -1,0 +1,5 @@
+import sys
+
+from rspiv.cli import main
+
+sys.exit(main())

@@ -1,0 +1,49 @@
+"""The ``rspiv`` command. Each sub-command lives in its own module with a ``register``
+function that adds its parser; this module only assembles them and maps errors to exit codes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# Sub-command modules, in the order they appear in ``rspiv --help``.
+_COMMANDS: list[str] = [
+    # "rspiv.cli.<name>" modules are appended here by each feature.
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from rspiv import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="rspiv",
+        description="Large-sensor PIV with lens-distortion correction.",
+    )
+    parser.add_argument("--version", action="version", version=f"rspiv {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in _COMMANDS:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``rspiv`` command; returns the exit code."""
+    from rspiv.errors import RspivError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (RspivError, ValueError, OSError) as exc:
+        print(f"rspiv {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"rspiv {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

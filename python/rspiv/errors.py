@@ -1,0 +1,29 @@
+"""Exceptions raised by rspiv.
+
+Every error derives from :class:`RspivError`.
+
+- :class:`InvalidInputError` (also a :class:`ValueError`): input that rspiv cannot use: wrong
+  shape, NaN or inf, too few points, degenerate geometry, a corrupt or foreign file.
+- :class:`ConvergenceError` (also an :class:`ArithmeticError`): an iterative method (the inverse
+  map, a fit) did not converge where the caller required it to.
+
+The native module raises these very classes (it looks them up here), so ``except
+rspiv.InvalidInputError`` catches errors from Rust and from Python alike.
+"""
+
+from __future__ import annotations
+
+
+class RspivError(Exception):
+    """Base class of every rspiv error."""
+
+
+class InvalidInputError(RspivError, ValueError):
+    """Input that rspiv cannot use; the message names the input and the problem."""
+
+
+class ConvergenceError(RspivError, ArithmeticError):
+    """An iterative method did not converge; the message says where."""
+
+
+__all__ = ["RspivError", "InvalidInputError", "ConvergenceError"]

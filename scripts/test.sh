@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Every test of the project, from a fresh clone of a fresh machine (the README's test command):
+# formatting and lints, the Rust unit tests of the cores, the Python package built and installed
+# as the README installs it, and pytest.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+export CARGO_TERM_COLOR=never
+python3 -m pip install --quiet --upgrade pip "maturin>=1.9.4,<2"
+
+echo "== cargo fmt"
+cargo fmt --all -- --check
+echo "== cargo clippy"
+cargo clippy --workspace --all-targets --locked -- -D warnings
+echo "== cargo test (cores and CLI)"
+cargo test --workspace --exclude rspiv-py --locked
+
+echo "== pip install .[test]"
+python3 -m pip install --quiet ".[test]"
+echo "== ruff"
+python3 -m ruff check python tests benches
+echo "== pytest"
+# Run from tests/ so that the installed package, not the source tree, is imported.
+cd tests
+python3 -m pytest -q -p no:cacheprovider .
