@@ -1,0 +1,590 @@
+"""The campaign file: a TOML description of one PIV campaign, its schema, loader and writer.
+
+A complete file (every key optional except where noted; defaults shown)::
+
+    [campaign]
+    name = "campaign"
+    description = ""
+
+    [calibration]
+    target = "target.tif"        # calibration target image (omit: no calibration)
+    pitch_mm = 19.51             # marker pitch, and its one-sigma uncertainty
+    pitch_sigma_mm = 0.02
+    model = "P3"                 # "R1" | "R2" | "P3"
+    marker = "dot"               # "dot" | "cross"
+    marker_size_px = 0.0         # 0: estimated from the image
+    monte_carlo_samples = 10000  # 0: no Monte Carlo
+
+    [images]                     # exactly one of glob / pairs / multiframe (required)
+    glob = "raw/*.tif"           # sorted; consecutive files form the pairs (1-2, 3-4, ...)
+    # pairs = [["a0.tif", "b0.tif"], ["a1.tif", "b1.tif"]]
+    # multiframe = "run.tif"     # frames (0, 1), (2, 3), ... of one TIFF
+    max_pairs = 0                # 0: all
+
+    [correction]
+    method = "II"                # "I" (dewarp images, then PIV) | "II" (PIV, then map) | "none"
+    map_displacement = true      # Method II: map displacements through the exact inverse
+    compare_uncorrected = true   # also process without correction (for the report)
+
+    [piv]
+    passes = [[64, 64], [32, 32], [32, 8]]   # interrogation windows [w, h] in px, coarse first
+    overlap = 0.5
+    subpixel = "gauss3"          # "gauss3" | "gauss2d"
+    median_threshold = 2.0       # normalised median test (Westerweel & Scarano 2005)
+    median_epsilon = 0.1
+    deform = false
+    mask = ""                    # optional mask image ("" : none)
+
+    [wall]
+    enabled = true
+    side = "auto"                # "auto" | "top" | "bottom"
+    rotate = true                # remove the target's rotation found from the wall
+    stations = 16                # streamwise stations for the wall fit
+
+    [flow]
+    nu = 1.5e-5                  # kinematic viscosity, m^2/s
+    dt = 0.0                     # pulse separation, s (0: outputs stay in px per pair)
+    u_inf = 0.0                  # free stream, m/s (0: from the profile)
+
+    [statistics]
+    min_count = 10               # vectors with fewer valid samples are left out of profiles
+    use_n_eff = true             # uncertainties from the lag-1 effective sample count
+    fit_offset = true            # fit the wall offset in the composite fit
+    reference_re_theta = 0.0     # DNS station for plots (0: the closest in Re_tau)
+
+    [output]
+    dir = "rspiv-out"
+    netcdf = true
+    csv = true
+    report = true
+
+Paths are relative to the campaign file's folder; the loader makes them absolute. Any error
+(malformed TOML, a wrong type, an unknown key) raises :class:`~rspiv.errors.InvalidInputError`
+with a one-line message naming the file and the key, e.g.
+``campaign.toml: [piv].passes: expected a list of [w, h] pairs, got 'abc'``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+import re
+import tempfile
+from typing import Any
+
+try:  # Python >= 3.11
+    import tomllib as _toml
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as _toml  # type: ignore[no-redef]
+
+from rspiv.errors import InvalidInputError
+
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp")
+
+
+# ---------------------------------------------------------------------------- sections
+@dataclasses.dataclass
+class CalibrationConfig:
+    target: pathlib.Path | None = None
+    pitch_mm: float = 19.51
+    pitch_sigma_mm: float = 0.02
+    model: str = "P3"
+    marker: str = "dot"
+    marker_size_px: float = 0.0
+    monte_carlo_samples: int = 10000
+
+
+@dataclasses.dataclass
+class ImagesConfig:
+    glob: str | None = None
+    pairs: list[tuple[pathlib.Path, pathlib.Path]] | None = None
+    multiframe: pathlib.Path | None = None
+    max_pairs: int = 0
+
+    def pair_files(self) -> list[tuple[pathlib.Path, pathlib.Path]]:
+        """The (frame A, frame B) files for ``glob`` or ``pairs`` (not for ``multiframe``).
+
+        Raises
+        ------
+        InvalidInputError
+            If the glob matches nothing or an odd number of files.
+        """
+        if self.pairs is not None:
+            out = list(self.pairs)
+        elif self.glob is not None:
+            pattern = pathlib.Path(self.glob)
+            files = sorted(pattern.parent.glob(pattern.name))
+            if not files:
+                raise InvalidInputError(f"[images].glob: no file matches {self.glob!r}")
+            if len(files) % 2:
+                raise InvalidInputError(
+                    f"[images].glob: {len(files)} files match {self.glob!r}; "
+                    "pairs need an even count"
+                )
+            out = list(zip(files[0::2], files[1::2], strict=True))
+        else:
+            raise InvalidInputError("[images]: multiframe input has frames, not pair files")
+        return out[: self.max_pairs] if self.max_pairs else out
+
+
+@dataclasses.dataclass
+class CorrectionConfig:
+    method: str = "II"
+    map_displacement: bool = True
+    compare_uncorrected: bool = True
+
+
+@dataclasses.dataclass
+class PIVConfig:
+    passes: list[tuple[int, int]] = dataclasses.field(
+        default_factory=lambda: [(64, 64), (32, 32), (32, 8)]
+    )
+    overlap: float = 0.5
+    subpixel: str = "gauss3"
+    median_threshold: float = 2.0
+    median_epsilon: float = 0.1
+    deform: bool = False
+    mask: pathlib.Path | None = None
+
+
+@dataclasses.dataclass
+class WallConfig:
+    enabled: bool = True
+    side: str = "auto"
+    rotate: bool = True
+    stations: int = 16
+
+
+@dataclasses.dataclass
+class FlowConfig:
+    nu: float = 1.5e-5
+    dt: float = 0.0
+    u_inf: float = 0.0
+
+
+@dataclasses.dataclass
+class StatisticsConfig:
+    min_count: int = 10
+    use_n_eff: bool = True
+    fit_offset: bool = True
+    reference_re_theta: float = 0.0
+
+
+@dataclasses.dataclass
+class OutputConfig:
+    dir: pathlib.Path = dataclasses.field(default_factory=lambda: pathlib.Path("rspiv-out"))
+    netcdf: bool = True
+    csv: bool = True
+    report: bool = True
+
+
+_SECTIONS: dict[str, type] = {
+    "calibration": CalibrationConfig,
+    "images": ImagesConfig,
+    "correction": CorrectionConfig,
+    "piv": PIVConfig,
+    "wall": WallConfig,
+    "flow": FlowConfig,
+    "statistics": StatisticsConfig,
+    "output": OutputConfig,
+}
+
+
+@dataclasses.dataclass
+class CampaignConfig:
+    """A whole campaign (see the module docstring for the file format).
+
+    ``source`` is the file it was read from (None when built in code); paths are absolute
+    after :func:`load_campaign_config`.
+    """
+
+    name: str = "campaign"
+    description: str = ""
+    calibration: CalibrationConfig = dataclasses.field(default_factory=CalibrationConfig)
+    images: ImagesConfig = dataclasses.field(default_factory=ImagesConfig)
+    correction: CorrectionConfig = dataclasses.field(default_factory=CorrectionConfig)
+    piv: PIVConfig = dataclasses.field(default_factory=PIVConfig)
+    wall: WallConfig = dataclasses.field(default_factory=WallConfig)
+    flow: FlowConfig = dataclasses.field(default_factory=FlowConfig)
+    statistics: StatisticsConfig = dataclasses.field(default_factory=StatisticsConfig)
+    output: OutputConfig = dataclasses.field(default_factory=OutputConfig)
+    source: pathlib.Path | None = None
+
+    # ------------------------------------------------------------------ writing
+    def to_dict(self, relative_to: str | os.PathLike | None = None) -> dict[str, Any]:
+        """Plain TOML-ready dict; paths relative to ``relative_to`` where possible."""
+        base = pathlib.Path(relative_to).resolve() if relative_to is not None else None
+
+        def p(v):
+            if v is None:
+                return ""
+            v = pathlib.Path(v)
+            if base is not None:
+                try:
+                    return os.path.relpath(v.resolve(), base)
+                except ValueError:  # other drive on Windows
+                    return str(v)
+            return str(v)
+
+        out: dict[str, Any] = {"campaign": {"name": self.name, "description": self.description}}
+        c = self.calibration
+        cal = {
+            "pitch_mm": c.pitch_mm,
+            "pitch_sigma_mm": c.pitch_sigma_mm,
+            "model": c.model,
+            "marker": c.marker,
+            "marker_size_px": c.marker_size_px,
+            "monte_carlo_samples": c.monte_carlo_samples,
+        }
+        if c.target is not None:
+            cal = {"target": p(c.target), **cal}
+        out["calibration"] = cal
+        im = self.images
+        imd: dict[str, Any] = {}
+        if im.glob is not None:
+            imd["glob"] = p(im.glob)
+        if im.pairs is not None:
+            imd["pairs"] = [[p(a), p(b)] for a, b in im.pairs]
+        if im.multiframe is not None:
+            imd["multiframe"] = p(im.multiframe)
+        imd["max_pairs"] = im.max_pairs
+        out["images"] = imd
+        out["correction"] = dataclasses.asdict(self.correction)
+        pv = dataclasses.asdict(self.piv)
+        pv["passes"] = [[int(w), int(h)] for w, h in self.piv.passes]
+        pv["mask"] = p(self.piv.mask)
+        out["piv"] = pv
+        for name in ("wall", "flow", "statistics"):
+            out[name] = dataclasses.asdict(getattr(self, name))
+        o = dataclasses.asdict(self.output)
+        o["dir"] = p(self.output.dir)
+        out["output"] = o
+        return out
+
+    def to_toml(self, relative_to: str | os.PathLike | None = None) -> str:
+        """The campaign as TOML text (tomli_w when installed, else a small built-in writer)."""
+        data = self.to_dict(relative_to)
+        try:
+            import tomli_w
+        except ModuleNotFoundError:
+            return _dump_toml(data)
+        return tomli_w.dumps(data)
+
+    def save(self, path: str | os.PathLike) -> pathlib.Path:
+        """Write the campaign to ``path`` atomically, paths relative to its folder."""
+        path = pathlib.Path(path)
+        text = self.to_toml(relative_to=path.parent)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write(text)
+            os.replace(tmp, path)
+        except BaseException:
+            pathlib.Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+
+# ---------------------------------------------------------------------------- TOML writer
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        r = repr(v)
+        return r if any(ch in r for ch in ".en") else r + ".0"
+    if isinstance(v, str):
+        esc = v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
+        return f'"{esc}"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _dump_toml(data: dict[str, dict[str, Any]]) -> str:
+    """Minimal TOML writer for the campaign's two-level dict of scalars and lists."""
+    lines: list[str] = []
+    for section, table in data.items():
+        lines.append(f"[{section}]")
+        for k, v in table.items():
+            lines.append(f"{k} = {_toml_value(v)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- loading
+class _Ctx:
+    def __init__(self, fname: str, base: pathlib.Path):
+        self.fname = fname
+        self.base = base
+
+    def err(self, where: str, msg: str) -> InvalidInputError:
+        return InvalidInputError(f"{self.fname}: {where}: {msg}")
+
+    def path(self, where, v, *, image=False, allow_empty=True, tiff=False):
+        if not isinstance(v, str):
+            raise self.err(where, f"expected a path string, got {v!r}")
+        if v == "":
+            if allow_empty:
+                return None
+            raise self.err(where, "expected a path, got an empty string")
+        pth = pathlib.Path(os.path.expanduser(v))
+        if tiff and pth.suffix.lower() not in (".tif", ".tiff"):
+            raise self.err(where, f"expected a multi-frame TIFF (.tif, .tiff), got {v!r}")
+        if image and pth.suffix.lower() not in IMAGE_SUFFIXES:
+            raise self.err(
+                where, f"expected an image file ({', '.join(IMAGE_SUFFIXES)}), got {v!r}"
+            )
+        return pathlib.Path(os.path.normpath(pth if pth.is_absolute() else self.base / pth))
+
+
+def _number(ctx, where, v, *, integer=False, minimum=None, exclusive_min=False, maximum=None):
+    kind = "an integer" if integer else "a number"
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, (int, float))
+        or (integer and not isinstance(v, int))
+    ):
+        raise ctx.err(where, f"expected {kind}, got {v!r}")
+    if v != v or v in (float("inf"), float("-inf")):
+        raise ctx.err(where, f"expected a finite number, got {v!r}")
+    if minimum is not None and (v <= minimum if exclusive_min else v < minimum):
+        rel = ">" if exclusive_min else ">="
+        raise ctx.err(where, f"expected a value {rel} {minimum}, got {v!r}")
+    if maximum is not None and v > maximum:
+        raise ctx.err(where, f"expected a value <= {maximum}, got {v!r}")
+    return int(v) if integer else float(v)
+
+
+def _boolean(ctx, where, v):
+    if not isinstance(v, bool):
+        raise ctx.err(where, f"expected true or false, got {v!r}")
+    return v
+
+
+def _choice(ctx, where, v, options):
+    if not isinstance(v, str) or v not in options:
+        raise ctx.err(where, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
+    return v
+
+
+def _string(ctx, where, v):
+    if not isinstance(v, str):
+        raise ctx.err(where, f"expected a string, got {v!r}")
+    return v
+
+
+def _passes(ctx, where, v):
+    msg = "expected a list of [w, h] pairs"
+    if not isinstance(v, list) or not v:
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    out = []
+    for item in v:
+        if (
+            not isinstance(item, list)
+            or len(item) != 2
+            or not all(isinstance(t, int) and not isinstance(t, bool) for t in item)
+        ):
+            raise ctx.err(where, f"{msg}, got {v!r}")
+        w, h = item
+        if w < 2 or h < 2:
+            raise ctx.err(where, f"window sizes must be >= 2 px, got {item!r}")
+        out.append((w, h))
+    return out
+
+
+# per section: key -> parser(ctx, where, value)
+_PARSERS: dict[str, dict[str, Any]] = {
+    "campaign": {"name": _string, "description": _string},
+    "calibration": {
+        "target": lambda c, w, v: c.path(w, v, image=True),
+        "pitch_mm": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "pitch_sigma_mm": lambda c, w, v: _number(c, w, v, minimum=0),
+        "model": lambda c, w, v: _choice(c, w, v, ("R1", "R2", "P3")),
+        "marker": lambda c, w, v: _choice(c, w, v, ("dot", "cross")),
+        "marker_size_px": lambda c, w, v: _number(c, w, v, minimum=0),
+        "monte_carlo_samples": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+    },
+    "images": {
+        "glob": lambda c, w, v: str(c.path(w, v, image=True, allow_empty=False)),
+        "pairs": None,  # special-cased
+        "multiframe": lambda c, w, v: c.path(w, v, image=True, allow_empty=False, tiff=True),
+        "max_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+    },
+    "correction": {
+        "method": lambda c, w, v: _choice(c, w, v, ("I", "II", "none")),
+        "map_displacement": _boolean,
+        "compare_uncorrected": _boolean,
+    },
+    "piv": {
+        "passes": _passes,
+        "overlap": lambda c, w, v: _number(c, w, v, minimum=0, maximum=0.95),
+        "subpixel": lambda c, w, v: _choice(c, w, v, ("gauss3", "gauss2d")),
+        "median_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "median_epsilon": lambda c, w, v: _number(c, w, v, minimum=0),
+        "deform": _boolean,
+        "mask": lambda c, w, v: c.path(w, v, image=True),
+    },
+    "wall": {
+        "enabled": _boolean,
+        "side": lambda c, w, v: _choice(c, w, v, ("auto", "top", "bottom")),
+        "rotate": _boolean,
+        "stations": lambda c, w, v: _number(c, w, v, integer=True, minimum=2),
+    },
+    "flow": {
+        "nu": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "dt": lambda c, w, v: _number(c, w, v, minimum=0),
+        "u_inf": lambda c, w, v: _number(c, w, v, minimum=0),
+    },
+    "statistics": {
+        "min_count": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "use_n_eff": _boolean,
+        "fit_offset": _boolean,
+        "reference_re_theta": lambda c, w, v: _number(c, w, v, minimum=0),
+    },
+    "output": {
+        "dir": lambda c, w, v: c.path(w, v, allow_empty=False),
+        "netcdf": _boolean,
+        "csv": _boolean,
+        "report": _boolean,
+    },
+}
+
+
+def _parse_pairs(ctx, where, v):
+    msg = "expected a list of [frame_a, frame_b] image paths"
+    if not isinstance(v, list) or not v:
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    out = []
+    for item in v:
+        if not isinstance(item, list) or len(item) != 2:
+            raise ctx.err(where, f"{msg}, got {item!r}")
+        out.append(
+            (
+                ctx.path(where, item[0], image=True, allow_empty=False),
+                ctx.path(where, item[1], image=True, allow_empty=False),
+            )
+        )
+    return out
+
+
+def parse_campaign_config(
+    data: dict[str, Any], *, fname: str = "<campaign>", base: str | os.PathLike = "."
+) -> CampaignConfig:
+    """Validate a parsed TOML dict into a :class:`CampaignConfig` (see the module docstring).
+
+    ``fname`` is used in error messages, ``base`` resolves relative paths.
+    """
+    ctx = _Ctx(fname, pathlib.Path(base).resolve())
+    cfg = CampaignConfig()
+    for section, table in data.items():
+        if section not in _PARSERS:
+            raise ctx.err(f"[{section}]", f"unknown section; expected one of {', '.join(_PARSERS)}")
+        if not isinstance(table, dict):
+            raise ctx.err(f"[{section}]", f"expected a table, got {table!r}")
+        parsers = _PARSERS[section]
+        values: dict[str, Any] = {}
+        for key, val in table.items():
+            where = f"[{section}].{key}"
+            if key not in parsers:
+                raise ctx.err(where, f"unknown key; expected one of {', '.join(parsers)}")
+            parse = _parse_pairs if (section, key) == ("images", "pairs") else parsers[key]
+            values[key] = parse(ctx, where, val)
+        if section == "campaign":
+            for k, v in values.items():
+                setattr(cfg, k, v)
+        else:
+            setattr(cfg, section, _SECTIONS[section](**values))
+    given = [k for k in ("glob", "pairs", "multiframe") if k in data.get("images", {})]
+    if len(given) != 1:
+        raise ctx.err(
+            "[images]",
+            "expected exactly one of glob, pairs, multiframe"
+            + (f", got {', '.join(given)}" if given else ", got none"),
+        )
+    if cfg.correction.method in ("I", "II") and cfg.calibration.target is None:
+        raise ctx.err(
+            "[calibration].target",
+            f"method {cfg.correction.method!r} needs a calibration target (or method = 'none')",
+        )
+    if "dir" not in data.get("output", {}):
+        cfg.output.dir = ctx.base / cfg.output.dir
+    return cfg
+
+
+def _locate_toml_error(text: str, message: str) -> str:
+    """``"[section].key: "`` of the line a TOML syntax error points at, or ``""``."""
+    m = re.search(r"line (\d+)", message)
+    lines = text.splitlines()
+    if m:
+        lineno = min(int(m.group(1)), len(lines))
+    elif "end of document" in message:
+        lineno = len(lines)
+    else:
+        return ""
+    section, key = "", ""
+    for i, line in enumerate(lines[:lineno]):
+        s = line.strip()
+        hm = re.match(r"^\[\s*([^\[\]]+?)\s*\]", s)
+        if hm:
+            section, key = hm.group(1), ""
+            if i == lineno - 1:
+                key = ""
+            continue
+        km = re.match(r"^([A-Za-z0-9_\-\.\"']+)\s*=", s)
+        if km:
+            key = km.group(1).strip("\"'")
+    if not key and not section:
+        return ""
+    if not section:
+        return f"{key}: "
+    return f"[{section}].{key}: " if key else f"[{section}]: "
+
+
+def load_campaign_config(path: str | os.PathLike) -> CampaignConfig:
+    """Read and validate a campaign file.
+
+    Parameters
+    ----------
+    path : path-like
+        The TOML file; relative paths inside it are taken from its folder.
+
+    Raises
+    ------
+    InvalidInputError
+        Missing or unreadable file, malformed TOML, unknown section or key, wrong type or
+        value; the message names the file and the key.
+    """
+    path = pathlib.Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InvalidInputError(f"{path}: cannot read the campaign file ({exc.strerror})") from exc
+    try:
+        data = _toml.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InvalidInputError(f"{path.name}: not UTF-8 text ({exc.reason})") from exc
+    except _toml.TOMLDecodeError as exc:
+        where = _locate_toml_error(raw.decode("utf-8", "replace"), str(exc))
+        raise InvalidInputError(f"{path.name}: {where}malformed TOML: {exc}") from exc
+    cfg = parse_campaign_config(data, fname=path.name, base=path.resolve().parent)
+    cfg.source = path.resolve()
+    return cfg
+
+
+__all__ = [
+    "CalibrationConfig",
+    "CampaignConfig",
+    "CorrectionConfig",
+    "FlowConfig",
+    "ImagesConfig",
+    "OutputConfig",
+    "PIVConfig",
+    "StatisticsConfig",
+    "WallConfig",
+    "load_campaign_config",
+    "parse_campaign_config",
+]

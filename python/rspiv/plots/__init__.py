@@ -1,0 +1,1 @@
+"""Figures (matplotlib, Agg backend, PNG files); import a submodule to use it."""

@@ -1,0 +1,175 @@
+"""Boundary-layer figures: U+(y+) and the Reynolds stresses uu+, vv+, -uv+ in wall units,
+against the Schlatter & Örlü DNS and against other named runs (e.g. "uncorrected").
+
+Uses matplotlib's object API with the Agg canvas (no pyplot, no global backend change), writes
+PNG files atomically.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from rspiv.errors import InvalidInputError
+from rspiv.outputs import atomic_path
+from rspiv.reference import DNSProfile, dns_profile_for_re_tau
+
+_STYLES = ("o", "s", "^", "v", "D", "<", ">", "p")
+_KEYS = ("y_plus", "u_plus", "uu_plus", "vv_plus", "uv_plus")
+
+
+def _profile(name: str, run: Any) -> dict[str, np.ndarray]:
+    """Accept a BoundaryLayerResult or a mapping with the wall-unit columns."""
+    out = {}
+    for k in _KEYS + ("eps_u_plus", "eps_uu_plus", "eps_vv_plus", "eps_uv_plus"):
+        v = run.get(k) if isinstance(run, Mapping) else getattr(run, k, None)
+        if v is None and k in _KEYS:
+            raise InvalidInputError(f"runs[{name!r}]: missing {k!r}")
+        if v is not None:
+            out[k] = np.asarray(v, dtype=np.float64)
+    n = out["y_plus"].size
+    for k, v in out.items():
+        if v.shape != (n,):
+            raise InvalidInputError(f"runs[{name!r}].{k}: expected {n} values, got {v.shape}")
+    return out
+
+
+def _save(fig, path: pathlib.Path, dpi: int) -> pathlib.Path:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    return path
+
+
+def plot_boundary_layer(
+    out_dir: str | os.PathLike,
+    runs: Mapping[str, Any],
+    *,
+    dns: DNSProfile | None | bool = None,
+    prefix: str = "",
+    dpi: int = 120,
+    with_laws: bool = True,
+) -> dict[str, pathlib.Path]:
+    """Write ``mean_velocity.png`` (U+ vs y+) and ``reynolds_stresses.png`` (uu+, vv+, -uv+).
+
+    Parameters
+    ----------
+    out_dir : path-like
+        Folder for the PNG files (created if missing).
+    runs : mapping
+        Run name -> :class:`~rspiv.boundary_layer.BoundaryLayerResult` (or a mapping with
+        ``y_plus, u_plus, uu_plus, vv_plus, uv_plus`` and optional ``eps_*``). The first run is
+        drawn with error bars where uncertainties are present; the others as markers only.
+    dns : DNSProfile, optional
+        Reference profile; default: the vendored station closest in Re_tau to the first run
+        (when it has ``re_tau``), else Re_theta = 4060. ``False`` draws none.
+    prefix : str
+        Prepended to the file names.
+
+    Returns
+    -------
+    dict
+        ``{"mean_velocity": path, "reynolds_stresses": path}``.
+    """
+    from matplotlib.figure import Figure
+
+    if not runs:
+        raise InvalidInputError("runs: at least one run is needed")
+    profiles = {name: _profile(name, run) for name, run in runs.items()}
+    if dns is None:
+        first = next(iter(runs.values()))
+        re_tau = (
+            first.get("re_tau") if isinstance(first, Mapping) else getattr(first, "re_tau", None)
+        )
+        dns = dns_profile_for_re_tau(float(re_tau)) if re_tau else None
+        if dns is None:
+            from rspiv.reference import load_dns
+
+            dns = load_dns(4060)
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    # --- mean velocity
+    fig = Figure(figsize=(6.4, 4.8), layout="constrained")
+    ax = fig.add_subplot()
+    if dns:
+        m = dns.y_plus > 0
+        ax.plot(dns.y_plus[m], dns.u_plus[m], "k-", lw=1.2, label=dns.label())
+    if with_laws:
+        yl = np.geomspace(0.5, 12, 50)
+        ax.plot(yl, yl, "k:", lw=0.8, label="U+ = y+")
+        yg = np.geomspace(20, 5e3, 50)
+        ax.plot(yg, np.log(yg) / 0.41 + 5.0, "k--", lw=0.8, label="ln(y+)/0.41 + 5.0")
+    for i, (name, p) in enumerate(profiles.items()):
+        m = p["y_plus"] > 0
+        mk = _STYLES[i % len(_STYLES)]
+        if i == 0 and "eps_u_plus" in p and np.isfinite(p["eps_u_plus"]).any():
+            ax.errorbar(
+                p["y_plus"][m],
+                p["u_plus"][m],
+                yerr=p["eps_u_plus"][m],
+                fmt=mk,
+                ms=3,
+                mfc="none",
+                capsize=0,
+                elinewidth=0.6,
+                label=name,
+            )
+        else:
+            ax.plot(p["y_plus"][m], p["u_plus"][m], mk, ms=3, mfc="none", label=name)
+    ax.set_xscale("log")
+    y_lo = min(float(np.min(p["y_plus"][p["y_plus"] > 0])) for p in profiles.values())
+    ax.set_xlim(left=min(1.0, 0.8 * y_lo))
+    ax.set_xlabel("$y^+$")
+    ax.set_ylabel("$U^+$")
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=8)
+    paths = {"mean_velocity": _save(fig, out_dir / f"{prefix}mean_velocity.png", dpi)}
+
+    # --- Reynolds stresses
+    fig = Figure(figsize=(6.4, 9.0), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    spec = (
+        ("uu_plus", "eps_uu_plus", 1.0, r"$\overline{u'u'}^+$"),
+        ("vv_plus", "eps_vv_plus", 1.0, r"$\overline{v'v'}^+$"),
+        ("uv_plus", "eps_uv_plus", -1.0, r"$-\overline{u'v'}^+$"),
+    )
+    for ax, (key, ekey, sign, label) in zip(axes, spec, strict=True):
+        if dns:
+            m = dns.y_plus > 0
+            ref = {"uu_plus": dns.uu_plus, "vv_plus": dns.vv_plus, "uv_plus": dns.uv_plus}[key]
+            ax.plot(dns.y_plus[m], sign * ref[m], "k-", lw=1.2, label=dns.label())
+        for i, (name, p) in enumerate(profiles.items()):
+            m = p["y_plus"] > 0
+            mk = _STYLES[i % len(_STYLES)]
+            if i == 0 and ekey in p and np.isfinite(p[ekey]).any():
+                ax.errorbar(
+                    p["y_plus"][m],
+                    sign * p[key][m],
+                    yerr=p[ekey][m],
+                    fmt=mk,
+                    ms=3,
+                    mfc="none",
+                    capsize=0,
+                    elinewidth=0.6,
+                    label=name,
+                )
+            else:
+                ax.plot(p["y_plus"][m], sign * p[key][m], mk, ms=3, mfc="none", label=name)
+        ax.set_ylabel(label)
+        ax.set_xscale("log")
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    axes[0].set_xlim(left=min(1.0, 0.8 * y_lo))
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("$y^+$")
+    paths["reynolds_stresses"] = _save(fig, out_dir / f"{prefix}reynolds_stresses.png", dpi)
+    return paths
+
+
+__all__ = ["plot_boundary_layer"]

@@ -1,0 +1,450 @@
+"""Streaming, mergeable velocity statistics per vector.
+
+:class:`FieldAccumulator` holds, for every vector position of a PIV grid, the running count,
+means and second central moments of ``(u, v)`` (Welford's update for one field, the parallel
+formulas of Chan, Golub & LeVeque 1979 for merging), all in float64. Rejected vectors
+(``valid == False``) are excluded per vector, so the count differs from vector to vector.
+
+Lag-1 statistics
+    To estimate how correlated successive samples are (time-resolved or over-sampled
+    campaigns), the accumulator also keeps, per vector, the bivariate moments of the pairs
+    ``(x_k, x_{k+1})`` of successive *valid* samples of u and of v, in the order the fields were
+    added. A rejected vector breaks the chain at that position; merging never joins two chains
+    (pairs never span shards). :meth:`FieldAccumulator.lag1_correlation` gives
+    ``rho_1 = C_{k,k+1} / M2``, and :meth:`FieldAccumulator.n_eff` the effective number of
+    independent samples ``n (1 - r) / (1 + r)`` (first-order autoregressive model, r clipped to
+    [0, 0.99]) with ``r = rho_1`` for the means and, for the second moments of a Gaussian
+    process, ``r = rho_u^2`` (uu), ``rho_v^2`` (vv), ``rho_u rho_v`` (uv). Independent samples
+    give n_eff ~ n.
+
+Pair ids
+    :meth:`FieldAccumulator.add` may be given the id of the image pair the field came from; the
+    ids are kept in a set. Adding the same id twice, or merging two accumulators that share an
+    id, raises :class:`~rspiv.errors.InvalidInputError` (a campaign must not count a pair twice).
+
+NaN policy
+    With ``valid=None`` a vector counts where both u and v are finite (NaN marks rejection).
+    With an explicit ``valid`` mask, a non-finite u or v at a valid position is an error
+    (:class:`~rspiv.errors.InvalidInputError` with the number of such vectors); non-finite values
+    at rejected positions are ignored.
+
+Covariances use ``ddof=1`` (sample covariances); they are NaN where fewer than two samples.
+Units are those of the inputs; :meth:`FieldAccumulator.to_xarray` records them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Iterable
+
+import numpy as np
+
+from rspiv.errors import InvalidInputError
+
+_STATE = (
+    "count",
+    "mean_u",
+    "mean_v",
+    "m2_uu",
+    "m2_vv",
+    "c_uv",
+    "lag_count_u",
+    "lag_mean_a_u",
+    "lag_mean_b_u",
+    "lag_c_u",
+    "lag_count_v",
+    "lag_mean_a_v",
+    "lag_mean_b_v",
+    "lag_c_v",
+)
+
+
+def _chan_merge_moments(na, ma, nb, mb, n):
+    """Return (delta, weight) for Chan's formulas, safe where n == 0."""
+    delta = mb - ma
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(n > 0, nb / np.where(n > 0, n, 1), 0.0)
+    return delta, frac
+
+
+class FieldAccumulator:
+    """Per-vector running statistics of u and v over many PIV fields.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Shape of the vector grid (``(ny, nx)`` for a PIV field; any shape is accepted).
+
+    Attributes
+    ----------
+    count : ndarray of int64
+        Number of valid samples per vector.
+    mean_u, mean_v : ndarray of float64
+        Means per vector (0 where count == 0).
+    pair_ids : set
+        Ids of the image pairs added (those given to :meth:`add`).
+    n_fields : int
+        Number of fields added (with or without an id).
+    """
+
+    def __init__(self, shape: tuple[int, ...] | int):
+        shape = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
+        if not shape or any(int(s) <= 0 for s in shape):
+            raise InvalidInputError(f"shape: expected positive dimensions, got {shape!r}")
+        self.shape: tuple[int, ...] = tuple(int(s) for s in shape)
+        self.count = np.zeros(self.shape, dtype=np.int64)
+        for name in _STATE[1:]:
+            dtype = np.int64 if name.startswith("lag_count") else np.float64
+            setattr(self, name, np.zeros(self.shape, dtype=dtype))
+        self._last_u = np.zeros(self.shape, dtype=np.float64)
+        self._last_v = np.zeros(self.shape, dtype=np.float64)
+        self._has_last = np.zeros(self.shape, dtype=bool)
+        self.pair_ids: set[Hashable] = set()
+        self.n_fields = 0
+
+    # ------------------------------------------------------------------ input
+    def _check(self, name: str, a) -> np.ndarray:
+        arr = np.asarray(a)
+        if arr.shape != self.shape:
+            raise InvalidInputError(f"{name}: expected shape {self.shape}, got {arr.shape}")
+        return arr
+
+    def add(self, u, v, valid=None, pair_id: Hashable | None = None) -> None:
+        """Add one velocity field.
+
+        Parameters
+        ----------
+        u, v : array_like, shape ``self.shape``
+            Velocity components (any unit, the same for every call).
+        valid : array_like of bool, optional
+            True where the vector is accepted. Default: where u and v are finite.
+        pair_id : hashable, optional
+            Id of the image pair (int or str); a repeated id is refused.
+
+        Raises
+        ------
+        InvalidInputError
+            Wrong shape, a non-boolean mask, NaN/inf at a valid vector, or a repeated pair id.
+        """
+        u = self._check("u", u).astype(np.float64, copy=False)
+        v = self._check("v", v).astype(np.float64, copy=False)
+        finite = np.isfinite(u) & np.isfinite(v)
+        if valid is None:
+            ok = finite
+        else:
+            valid = self._check("valid", valid)
+            if valid.dtype != np.bool_:
+                if not np.issubdtype(valid.dtype, np.integer) or np.any(
+                    (valid != 0) & (valid != 1)
+                ):
+                    raise InvalidInputError(
+                        f"valid: expected a boolean mask, got dtype {valid.dtype}"
+                    )
+                valid = valid.astype(bool)
+            bad = valid & ~finite
+            if bad.any():
+                raise InvalidInputError(
+                    f"u, v: {int(bad.sum())} vector(s) marked valid are NaN or inf; "
+                    "mark them invalid (valid=False) or pass valid=None"
+                )
+            ok = valid
+        if pair_id is not None:
+            if pair_id in self.pair_ids:
+                raise InvalidInputError(f"pair_id: {pair_id!r} was already added")
+        u0 = np.where(ok, u, 0.0)
+        v0 = np.where(ok, v, 0.0)
+
+        # lag-1 pairs (previous valid sample, this sample) where the chain is unbroken
+        lag = ok & self._has_last
+        self._lag_update("u", lag, self._last_u, u0)
+        self._lag_update("v", lag, self._last_v, v0)
+        np.copyto(self._last_u, u0, where=ok)
+        np.copyto(self._last_v, v0, where=ok)
+        self._has_last = ok.copy()
+
+        # Welford update of the means and co-moments, in place; w = 0 leaves a rejected
+        # vector unchanged (u0, v0 are finite there, so 0 * finite = 0)
+        w = ok.astype(np.float64)
+        n_new = self.count + ok
+        inv = w / np.maximum(n_new, 1)
+        du = u0 - self.mean_u
+        du *= w
+        dv = v0 - self.mean_v
+        dv *= w
+        self.mean_u += du * inv
+        self.mean_v += dv * inv
+        du2 = u0 - self.mean_u
+        dv2 = v0 - self.mean_v
+        self.m2_uu += du * du2
+        self.m2_vv += dv * dv2
+        self.c_uv += du * dv2
+        self.count = n_new
+        self.n_fields += 1
+        if pair_id is not None:
+            self.pair_ids.add(pair_id)
+
+    def _lag_update(self, comp: str, mask, a, b) -> None:
+        n = getattr(self, f"lag_count_{comp}")
+        ma = getattr(self, f"lag_mean_a_{comp}")
+        mb = getattr(self, f"lag_mean_b_{comp}")
+        c = getattr(self, f"lag_c_{comp}")
+        w = mask.astype(np.float64)
+        n_new = n + mask
+        inv = w / np.maximum(n_new, 1)
+        da = a - ma
+        da *= w
+        db = b - mb
+        db *= w
+        ma = ma + da * inv
+        mb = mb + db * inv
+        c = c + da * (b - mb)
+        setattr(self, f"lag_count_{comp}", n_new)
+        setattr(self, f"lag_mean_a_{comp}", ma)
+        setattr(self, f"lag_mean_b_{comp}", mb)
+        setattr(self, f"lag_c_{comp}", c)
+
+    # ------------------------------------------------------------------ merge
+    def merge(self, other: FieldAccumulator) -> FieldAccumulator:
+        """Merge ``other`` into ``self`` (in place) and return ``self``.
+
+        Exact (to rounding) in any split and order: the result equals one pass over all the
+        samples. The lag-1 chains are not joined across the two parts, and after a merge the
+        next :meth:`add` starts a new chain.
+
+        Raises
+        ------
+        InvalidInputError
+            If the shapes differ or the two share a pair id.
+        """
+        if not isinstance(other, FieldAccumulator):
+            raise InvalidInputError(f"other: expected a FieldAccumulator, got {type(other)!r}")
+        if other.shape != self.shape:
+            raise InvalidInputError(
+                f"other: shape {other.shape} differs from this accumulator's {self.shape}"
+            )
+        common = self.pair_ids & other.pair_ids
+        if common:
+            shown = sorted(map(repr, common))[:5]
+            raise InvalidInputError(
+                f"merge: {len(common)} pair id(s) in both accumulators (e.g. {', '.join(shown)})"
+            )
+        na, nb = self.count, other.count
+        n = na + nb
+        du, fu = _chan_merge_moments(na, self.mean_u, nb, other.mean_u, n)
+        dv, _ = _chan_merge_moments(na, self.mean_v, nb, other.mean_v, n)
+        w = na * fu  # na * nb / n
+        self.m2_uu = self.m2_uu + other.m2_uu + du * du * w
+        self.m2_vv = self.m2_vv + other.m2_vv + dv * dv * w
+        self.c_uv = self.c_uv + other.c_uv + du * dv * w
+        self.mean_u = self.mean_u + du * fu
+        self.mean_v = self.mean_v + dv * fu
+        self.count = n
+        for comp in ("u", "v"):
+            la, lb = getattr(self, f"lag_count_{comp}"), getattr(other, f"lag_count_{comp}")
+            ln = la + lb
+            da, fa = _chan_merge_moments(
+                la,
+                getattr(self, f"lag_mean_a_{comp}"),
+                lb,
+                getattr(other, f"lag_mean_a_{comp}"),
+                ln,
+            )
+            db, _ = _chan_merge_moments(
+                la,
+                getattr(self, f"lag_mean_b_{comp}"),
+                lb,
+                getattr(other, f"lag_mean_b_{comp}"),
+                ln,
+            )
+            c = getattr(self, f"lag_c_{comp}") + getattr(other, f"lag_c_{comp}") + da * db * la * fa
+            setattr(self, f"lag_c_{comp}", c)
+            setattr(self, f"lag_mean_a_{comp}", getattr(self, f"lag_mean_a_{comp}") + da * fa)
+            setattr(self, f"lag_mean_b_{comp}", getattr(self, f"lag_mean_b_{comp}") + db * fa)
+            setattr(self, f"lag_count_{comp}", ln)
+        self._has_last = np.zeros(self.shape, dtype=bool)
+        self.pair_ids |= other.pair_ids
+        self.n_fields += other.n_fields
+        return self
+
+    @classmethod
+    def merged(cls, parts: Iterable[FieldAccumulator]) -> FieldAccumulator:
+        """A new accumulator holding the merge of ``parts`` (none of them is modified)."""
+        parts = list(parts)
+        if not parts:
+            raise InvalidInputError("parts: nothing to merge")
+        out = cls(parts[0].shape)
+        for p in parts:
+            out.merge(p)
+        return out
+
+    # ------------------------------------------------------------------ results
+    def _cov(self, m2) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.count > 1, m2 / (self.count - 1), np.nan)
+
+    @property
+    def uu(self) -> np.ndarray:
+        """Sample variance of u per vector (ddof=1; NaN where count < 2)."""
+        return self._cov(self.m2_uu)
+
+    @property
+    def vv(self) -> np.ndarray:
+        """Sample variance of v per vector (ddof=1; NaN where count < 2)."""
+        return self._cov(self.m2_vv)
+
+    @property
+    def uv(self) -> np.ndarray:
+        """Sample covariance of u and v per vector (ddof=1; NaN where count < 2)."""
+        return self._cov(self.c_uv)
+
+    def lag1_correlation(self, component: str = "u") -> np.ndarray:
+        """Lag-1 autocorrelation ``rho_1`` of successive valid samples (NaN without pairs)."""
+        if component not in ("u", "v"):
+            raise InvalidInputError(f"component: expected 'u' or 'v', got {component!r}")
+        m2 = self.m2_uu if component == "u" else self.m2_vv
+        nl = getattr(self, f"lag_count_{component}")
+        c = getattr(self, f"lag_c_{component}")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            # both normalised per sample: lag co-moment / (n-1) over variance M2 / (n-1)
+            rho = (c / np.maximum(nl, 1)) / (m2 / np.maximum(self.count, 1))
+        return np.where((nl > 1) & (m2 > 0), rho, np.nan)
+
+    def n_eff(self, quantity: str = "u") -> np.ndarray:
+        """Effective number of independent samples, ``n (1 - r) / (1 + r)``.
+
+        Parameters
+        ----------
+        quantity : {"u", "v", "uu", "vv", "uv"}
+            ``"u"``/``"v"`` for the means (``r = rho_1``); ``"uu"``, ``"vv"``, ``"uv"`` for the
+            second moments (``r = rho_u^2``, ``rho_v^2``, ``rho_u rho_v``: the lag-1
+            correlation of the products of a Gaussian process).
+
+        Notes
+        -----
+        Each rho_1 is clipped to [0, 0.99]; where it is unknown (fewer than two lag pairs) it
+        is taken as 0, so n_eff = n.
+        """
+        if quantity not in ("u", "v", "uu", "vv", "uv"):
+            raise InvalidInputError(
+                f"quantity: expected 'u', 'v', 'uu', 'vv' or 'uv', got {quantity!r}"
+            )
+
+        def rho(comp):
+            r = self.lag1_correlation(comp)
+            return np.clip(np.nan_to_num(r, nan=0.0), 0.0, 0.99)
+
+        if quantity in ("u", "v"):
+            r = rho(quantity)
+        elif quantity == "uv":
+            r = rho("u") * rho("v")
+        else:
+            r = rho(quantity[0]) ** 2
+        return self.count * (1.0 - r) / (1.0 + r)
+
+    def n_eff_all(self) -> dict[str, np.ndarray]:
+        """n_eff of every statistic: keys ``"U", "V", "uu", "vv", "uv"`` (the form
+        :func:`rspiv.boundary_layer.average_along_x` and ``analyse_profile`` accept)."""
+        return {
+            "U": self.n_eff("u"),
+            "V": self.n_eff("v"),
+            "uu": self.n_eff("uu"),
+            "vv": self.n_eff("vv"),
+            "uv": self.n_eff("uv"),
+        }
+
+    # ------------------------------------------------------------------ I/O
+    def __getstate__(self):
+        return self.__dict__.copy()
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+
+    def to_xarray(self, x=None, y=None, velocity_units: str = "m s-1", attrs=None):
+        """The statistics as an :class:`xarray.Dataset` (pivpy-compatible names).
+
+        Variables: ``u``, ``v`` (means), ``uu``, ``vv``, ``uv`` (sample covariances),
+        ``count``, ``n_eff_*`` and the raw accumulator state (``m2_uu`` ...,
+        ``lag_*``, ``pair_id``) so that :meth:`from_xarray` restores it exactly. For a 2D grid the
+        dimensions are ``("y", "x")`` and ``x``, ``y`` (1D, metres or px) become coordinates.
+        """
+        import xarray as xr
+
+        if len(self.shape) == 2:
+            dims = ("y", "x")
+        else:
+            dims = tuple(f"dim_{i}" for i in range(len(self.shape)))
+        su = velocity_units
+        stress_units = {"m s-1": "m2 s-2", "m/s": "m2 s-2", "pix": "pix2", "px": "px2"}.get(
+            su, f"({su})2"
+        )
+        data = {
+            "u": (self.mean_u, "mean streamwise velocity", su),
+            "v": (self.mean_v, "mean wall-normal velocity", su),
+            "uu": (self.uu, "streamwise Reynolds normal stress <u'u'> (ddof=1)", stress_units),
+            "vv": (self.vv, "wall-normal Reynolds normal stress <v'v'> (ddof=1)", stress_units),
+            "uv": (self.uv, "Reynolds shear stress <u'v'> (ddof=1)", stress_units),
+            "count": (self.count, "number of valid samples", "1"),
+            "n_eff_u": (self.n_eff("u"), "effective independent samples of u", "1"),
+            "n_eff_v": (self.n_eff("v"), "effective independent samples of v", "1"),
+            "n_eff_uu": (self.n_eff("uu"), "effective independent samples of uu", "1"),
+            "n_eff_vv": (self.n_eff("vv"), "effective independent samples of vv", "1"),
+            "n_eff_uv": (self.n_eff("uv"), "effective independent samples of uv", "1"),
+        }
+        ds = xr.Dataset()
+        for k, (arr, long_name, units) in data.items():
+            ds[k] = (dims, np.asarray(arr), {"long_name": long_name, "units": units})
+        for k in _STATE[3:]:
+            ds[k] = (dims, getattr(self, k), {"long_name": "accumulator state", "units": "1"})
+        ids = sorted(self.pair_ids, key=lambda t: (type(t).__name__, t))
+        if ids and all(isinstance(i, (int, np.integer)) for i in ids):
+            id_arr = np.asarray(ids, dtype=np.int64)
+        else:
+            id_arr = np.asarray([str(i) for i in ids], dtype=str)
+        ds["pair_id"] = (("pair",), id_arr, {"long_name": "image pair ids accumulated"})
+        if x is not None and len(self.shape) == 2:
+            ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
+        if y is not None and len(self.shape) == 2:
+            ds = ds.assign_coords(y=("y", np.asarray(y, dtype=np.float64)))
+        ds.attrs.update(
+            {
+                "title": "rspiv per-vector velocity statistics",
+                "Conventions": "CF-1.8",
+                "rspiv_accumulator": "FieldAccumulator v1",
+                "n_fields": int(self.n_fields),
+                "velocity_units": su,
+            }
+        )
+        if attrs:
+            ds.attrs.update(attrs)
+        return ds
+
+    @classmethod
+    def from_xarray(cls, ds) -> FieldAccumulator:
+        """Restore an accumulator written by :meth:`to_xarray` (exact round trip)."""
+        missing = [k for k in ("count", "u", "v", *_STATE[3:]) if k not in ds]
+        if missing:
+            raise InvalidInputError(f"dataset: not an rspiv accumulator, missing {missing}")
+        acc = cls(ds["count"].shape)
+        # copies: the accumulator updates its arrays in place
+        acc.count = np.array(ds["count"].values, dtype=np.int64)
+        acc.mean_u = np.array(ds["u"].values, dtype=np.float64)
+        acc.mean_v = np.array(ds["v"].values, dtype=np.float64)
+        for k in _STATE[3:]:
+            dtype = np.int64 if k.startswith("lag_count") else np.float64
+            setattr(acc, k, np.array(ds[k].values, dtype=dtype))
+        if "pair_id" in ds:
+            vals = ds["pair_id"].values
+            if np.issubdtype(vals.dtype, np.integer):
+                acc.pair_ids = {int(i) for i in vals}
+            else:
+                acc.pair_ids = {str(i) for i in vals}
+        acc.n_fields = int(ds.attrs.get("n_fields", 0))
+        return acc
+
+    def __repr__(self) -> str:
+        return (
+            f"FieldAccumulator(shape={self.shape}, fields={self.n_fields}, "
+            f"pairs={len(self.pair_ids)}, max count={int(self.count.max())})"
+        )
+
+
+__all__ = ["FieldAccumulator"]

@@ -1,0 +1,190 @@
+"""Campaign file: loading, defaults, relative paths, round trip, and one-line errors."""
+
+from __future__ import annotations
+
+import pathlib
+
+import pytest
+from rspiv.campaign_config import (
+    CampaignConfig,
+    _dump_toml,
+    load_campaign_config,
+    parse_campaign_config,
+)
+from rspiv.errors import InvalidInputError
+
+FULL = """
+[campaign]
+name = "tbl"
+
+[calibration]
+target = "cal/target.tif"
+pitch_mm = 19.51
+model = "R2"
+
+[images]
+glob = "raw/*.tif"
+max_pairs = 4
+
+[correction]
+method = "I"
+
+[piv]
+passes = [[64, 64], [32, 8]]
+overlap = 0.75
+
+[wall]
+side = "bottom"
+
+[flow]
+nu = 1.5e-5
+dt = 5e-5
+
+[statistics]
+min_count = 3
+
+[output]
+dir = "out"
+"""
+
+
+def _write(tmp_path, text, name="campaign.toml"):
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_full_file_and_relative_paths(tmp_path):
+    cfg = load_campaign_config(_write(tmp_path, FULL))
+    base = tmp_path.resolve()
+    assert cfg.name == "tbl" and cfg.source == base / "campaign.toml"
+    assert cfg.calibration.target == base / "cal" / "target.tif"
+    assert cfg.calibration.model == "R2" and cfg.calibration.pitch_sigma_mm == 0.02
+    assert cfg.images.glob == str(base / "raw" / "*.tif") and cfg.images.max_pairs == 4
+    assert cfg.correction.method == "I" and cfg.correction.map_displacement is True
+    assert cfg.piv.passes == [(64, 64), (32, 8)] and cfg.piv.overlap == 0.75
+    assert cfg.piv.median_threshold == 2.0  # default
+    assert cfg.wall.side == "bottom" and cfg.wall.rotate is True
+    assert cfg.flow.dt == 5e-5 and cfg.statistics.min_count == 3
+    assert cfg.output.dir == base / "out"
+
+
+def test_minimal_file_gets_defaults(tmp_path):
+    cfg = load_campaign_config(
+        _write(tmp_path, '[images]\nmultiframe = "run.tiff"\n[correction]\nmethod = "none"\n')
+    )
+    assert cfg.images.multiframe == tmp_path.resolve() / "run.tiff"
+    assert cfg.piv.passes == [(64, 64), (32, 32), (32, 8)]
+    assert cfg.output.dir == tmp_path.resolve() / "rspiv-out"
+    assert cfg.flow.nu == 1.5e-5
+
+
+def test_pairs_list_and_glob_pairing(tmp_path):
+    for i in range(4):
+        (tmp_path / f"f{i}.png").write_bytes(b"")
+    cfg = load_campaign_config(
+        _write(tmp_path, '[images]\nglob = "f*.png"\n[correction]\nmethod = "none"\n')
+    )
+    pairs = cfg.images.pair_files()
+    assert [(a.name, b.name) for a, b in pairs] == [("f0.png", "f1.png"), ("f2.png", "f3.png")]
+    cfg2 = load_campaign_config(
+        _write(
+            tmp_path,
+            '[images]\npairs = [["a.bmp", "b.bmp"]]\n[correction]\nmethod = "none"\n',
+            "c2.toml",
+        )
+    )
+    assert cfg2.images.pair_files() == [
+        (tmp_path.resolve() / "a.bmp", tmp_path.resolve() / "b.bmp")
+    ]
+
+
+@pytest.mark.parametrize("use_tomli_w", [True, False])
+def test_round_trip_through_toml(tmp_path, use_tomli_w, monkeypatch):
+    cfg = load_campaign_config(_write(tmp_path, FULL))
+    if not use_tomli_w:
+        import sys
+
+        monkeypatch.setitem(sys.modules, "tomli_w", None)  # import fails -> built-in writer
+    out = tmp_path / "sub" / "copy.toml"
+    cfg.save(out)
+    back = load_campaign_config(out)
+    back.source = cfg.source = None
+    assert back == cfg
+    assert "../cal/target.tif" in out.read_text()  # relative to the new file's folder
+
+
+def test_builtin_writer_escapes_strings():
+    text = _dump_toml({"campaign": {"name": 'a "q" \\ b', "description": "x\ny"}})
+    import tomllib
+
+    assert tomllib.loads(text)["campaign"] == {"name": 'a "q" \\ b', "description": "x\ny"}
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        (
+            '[images]\nglob="a*.tif"\n[piv]\npasses = "abc"\n',
+            "campaign.toml: [piv].passes: expected a list of [w, h] pairs, got 'abc'",
+        ),
+        (
+            '[images]\nglob="a*.tif"\n[piv]\npasses = [[32, "8"]]\n',
+            "campaign.toml: [piv].passes: expected a list of [w, h] pairs",
+        ),
+        (
+            '[images]\nglob="a*.tif"\n[piv]\nwindow = 3\n',
+            "campaign.toml: [piv].window: unknown key",
+        ),
+        ('[images]\nglob="a*.tif"\n[pivv]\n', "campaign.toml: [pivv]: unknown section"),
+        (
+            '[images]\nglob="a*.tif"\n[flow]\nnu = "water"\n',
+            "campaign.toml: [flow].nu: expected a number, got 'water'",
+        ),
+        (
+            '[images]\nglob="a*.tif"\n[flow]\nnu = -1.0\n',
+            "campaign.toml: [flow].nu: expected a value >",
+        ),
+        ('[images]\nglob="a*.tif"\n[wall]\nrotate = 1\n', "[wall].rotate: expected true or false"),
+        (
+            '[images]\nglob="a*.tif"\n[correction]\nmethod = "III"\n',
+            "[correction].method: expected one of 'I', 'II', 'none', got 'III'",
+        ),
+        ('[images]\nglob="a*.jpg"\n', "[images].glob: expected an image file"),
+        ('[images]\nglob="a*.tif"\nmultiframe="m.tif"\n', "[images]: expected exactly one of"),
+        ("[piv]\noverlap = 0.5\n", "[images]: expected exactly one of glob, pairs, multiframe"),
+        (
+            '[images]\nglob="a*.tif"\n[correction]\nmethod = "II"\n',
+            "[calibration].target: method 'II' needs a calibration target",
+        ),
+        (
+            '[images]\nglob="a*.tif"\n[statistics]\nmin_count = 2.5\n',
+            "[statistics].min_count: expected an integer",
+        ),
+        # malformed TOML: the message names the key of the offending line
+        (
+            '[images]\nglob="a*.tif"\n[piv]\npasses = [[64, 64]\n',
+            "campaign.toml: [piv].passes: malformed TOML",
+        ),
+        ("[flow]\nnu = 1.5e-5 m2/s\n", "campaign.toml: [flow].nu: malformed TOML"),
+        ("x = = 1\n", "campaign.toml: x: malformed TOML"),
+        ("piv = 3\n", "campaign.toml: [piv]: expected a table, got 3"),
+        ('[images]\nmultiframe = "m.png"\n', "[images].multiframe: expected a multi-frame TIFF"),
+    ],
+)
+def test_errors_name_file_and_key(tmp_path, body, message):
+    with pytest.raises(InvalidInputError) as info:
+        load_campaign_config(_write(tmp_path, body))
+    text = str(info.value)
+    assert message in text and "\n" not in text
+
+
+def test_missing_file_and_in_memory_parse(tmp_path):
+    with pytest.raises(InvalidInputError, match="cannot read"):
+        load_campaign_config(tmp_path / "nope.toml")
+    cfg = parse_campaign_config(
+        {"images": {"pairs": [["a.tif", "b.tif"]]}, "correction": {"method": "none"}},
+        base=tmp_path,
+    )
+    assert cfg.images.pairs[0][0] == pathlib.Path(tmp_path).resolve() / "a.tif"
+    assert isinstance(cfg, CampaignConfig)

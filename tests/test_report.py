@@ -1,0 +1,219 @@
+"""Outputs (NetCDF, CSV, atomic writes), boundary-layer figures, and the Markdown/HTML report."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from rspiv.boundary_layer import analyse_profile
+from rspiv.errors import InvalidInputError
+from rspiv.outputs import (
+    atomic_path,
+    profile_dataset,
+    read_profile_csv,
+    statistics_dataset,
+    write_netcdf,
+    write_profile_csv,
+)
+from rspiv.reference import load_dns
+from rspiv.report import (
+    ReportSection,
+    ReportTable,
+    campaign_report,
+    normalise_table,
+    tbl_characteristics_table,
+    uncertainty_summary,
+    wall_deviation_table,
+    write_report,
+)
+from rspiv.stats import FieldAccumulator
+
+NU = 1.5e-5
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def result():
+    d = load_dns(4060)
+    u_tau = 0.35
+    yp = np.arange(3.0, 0.95 * d.y_plus[-1], 10.0)
+    y = (yp + 1.0) * NU / u_tau
+    cols = [np.interp(yp, d.y_plus, c) for c in (d.u_plus, d.uu_plus, d.vv_plus, d.uv_plus)]
+    return analyse_profile(
+        y,
+        cols[0] * u_tau,
+        cols[1] * u_tau**2,
+        cols[2] * u_tau**2,
+        cols[3] * u_tau**2,
+        NU,
+        n_eff=500.0,
+    )
+
+
+def test_import_rspiv_stays_light():
+    code = (
+        "import sys, rspiv, rspiv.stats, rspiv.boundary_layer, rspiv.report, rspiv.outputs;"
+        "print('matplotlib' in sys.modules, 'xarray' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "False"]
+
+
+def test_profile_csv_round_trip(tmp_path, result):
+    path = write_profile_csv(tmp_path / "profile.csv", result)
+    cols, meta = read_profile_csv(path)
+    np.testing.assert_array_equal(cols["U_plus"], result.u_plus)  # repr precision: exact
+    np.testing.assert_array_equal(cols["eps_uv_plus"], result.eps_uv_plus)
+    assert float(meta["u_tau"]) == result.u_tau
+    with pytest.raises(InvalidInputError, match="'b' has 2 values"):
+        write_profile_csv(tmp_path / "bad.csv", {"a": [1, 2, 3], "b": [1, 2]})
+
+
+def test_atomic_write_leaves_nothing_on_error(tmp_path):
+    dest = tmp_path / "x.nc"
+    dest.write_text("old")
+    with pytest.raises(RuntimeError), atomic_path(dest) as tmp:
+        tmp.write_text("partial")
+        raise RuntimeError("crash")
+    assert dest.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["x.nc"]
+
+
+def test_netcdf_statistics_and_profile(tmp_path, result, rng):
+    import xarray as xr
+
+    acc = FieldAccumulator((4, 3))
+    for k in range(5):
+        acc.add(rng.normal(10, 1, (4, 3)), rng.normal(0, 1, (4, 3)), pair_id=k)
+    ds = statistics_dataset(acc, x=np.arange(3) * 1e-3, y=np.arange(4) * 1e-3, dt=5e-5)
+    p = write_netcdf(ds, tmp_path / "stats.nc")
+    with xr.open_dataset(p, engine="h5netcdf") as back:
+        assert back["u"].attrs["units"] == "m s-1" and back["x"].attrs["axis"] == "X"
+        assert list(back.attrs["variables"]) == ["x", "y", "u", "v"] and back.attrs["dt"] == 5e-5
+        np.testing.assert_array_equal(back["u"].values, acc.mean_u)
+        assert FieldAccumulator.from_xarray(back.load()).pair_ids == set(range(5))
+    q = write_netcdf(profile_dataset(result), tmp_path / "profile.nc")
+    with xr.open_dataset(q, engine="h5netcdf") as back:
+        np.testing.assert_array_equal(back["U_plus"].values, result.u_plus)
+        assert back.attrs["u_tau"] == result.u_tau and back["y"].attrs["units"] == "m"
+
+
+def test_boundary_layer_figures(tmp_path, result):
+    from rspiv.plots.boundary_layer import plot_boundary_layer
+
+    other = {
+        "y_plus": result.y_plus,
+        "u_plus": result.u_plus * 0.9,
+        "uu_plus": result.uu_plus * 0.88,
+        "vv_plus": result.vv_plus,
+        "uv_plus": result.uv_plus,
+    }
+    paths = plot_boundary_layer(tmp_path / "fig", {"P3, Method II": result, "uncorrected": other})
+    assert set(paths) == {"mean_velocity", "reynolds_stresses"}
+    for p in paths.values():
+        assert p.read_bytes()[:8] == PNG and p.stat().st_size > 10_000
+    with pytest.raises(InvalidInputError, match="missing 'uu_plus'"):
+        plot_boundary_layer(tmp_path, {"bad": {"y_plus": [1.0], "u_plus": [1.0]}})
+
+
+def test_write_report_md_and_html(tmp_path, result):
+    from rspiv.plots.boundary_layer import plot_boundary_layer
+
+    figs = plot_boundary_layer(tmp_path / "out" / "figures", {"run": result})
+    outside = tmp_path / "elsewhere" / "wall_profile.png"
+    outside.parent.mkdir()
+    outside.write_bytes(figs["mean_velocity"].read_bytes())
+    paths = write_report(
+        tmp_path / "out",
+        ReportSection(
+            "Boundary layer",
+            text="Profiles in wall units.\n\nSecond <paragraph> & more.",
+            figures=[(figs["mean_velocity"], "U+ against y+"), figs["reynolds_stresses"]],
+            tables=[
+                ReportTable("Boundary-layer characteristics", tbl_characteristics_table(result))
+            ],
+        ),
+        figures={"Wall alignment": [(outside, "wall profile")], "Boundary layer": []},
+        tables={
+            "Maximum wall deviation": wall_deviation_table({"Distorted": 8.7, "custom": 0.1}),
+            "Calibration": {"model": "P3", "RMS (px)": (0.5, 0.4)},
+        },
+        metadata={"campaign": "synthetic", "pairs": 12},
+    )
+    md = paths["markdown"].read_text()
+    page = paths["html"].read_text()
+    assert "![U+ against y+](figures/mean_velocity.png)" in md
+    assert "figures/wall_profile.png" in md  # copied in from outside the report folder
+    assert (tmp_path / "out" / "figures" / "wall_profile.png").exists()
+    assert "<img src='figures/reynolds_stresses.png'" in page
+    assert "Second &lt;paragraph&gt; &amp; more." in page
+    assert "| Distorted | 8.7 | 9 |" in md and "| custom | 0.1 | - |" in md
+    assert "| Sun et al. (paper) | 9.64 | 103 | 0.348 | 2386 |" in md
+    assert f"| this run | {result.u_e:.5g} |" in md
+    assert "| RMS (px) | (0.5, 0.4) |" in md
+    assert page.count("<table>") == 3 and "<h2>Wall alignment</h2>" in page
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "figures",
+        "report.html",
+        "report.md",
+    ]
+    with pytest.raises(InvalidInputError, match="does not exist"):
+        write_report(tmp_path / "o2", figures={"x": [tmp_path / "missing.png"]})
+
+
+def test_normalise_table_forms():
+    assert normalise_table([{"a": 1, "b": 2.5}, {"a": 3}]) == (
+        ["a", "b"],
+        [["1", "2.5"], ["3", "-"]],
+    )
+    assert normalise_table({"r": {"c": None}}) == (["", "c"], [["r", "-"]])
+    with pytest.raises(InvalidInputError):
+        normalise_table(42)
+
+
+def test_campaign_report_assembles_everything(tmp_path, result):
+    other = {
+        "y_plus": result.y_plus,
+        "u_plus": result.u_plus * 0.9,
+        "uu_plus": result.uu_plus,
+        "vv_plus": result.vv_plus,
+        "uv_plus": result.uv_plus,
+    }
+
+    class Uncorrected:  # a result-like object with the attributes the report reads
+        def __init__(self):
+            for k, v in other.items():
+                setattr(self, k, v)
+
+        def summary(self):
+            return {**result.summary(), "u_tau": 0.9 * result.u_tau}
+
+    cal_png = tmp_path / "cal.png"
+    cal_png.write_bytes(PNG + b"\0" * 64)
+    paths = campaign_report(
+        tmp_path / "rep",
+        {"P3, Method II": result, "uncorrected": Uncorrected()},
+        calibration={"magnification M (px/mm)": 34.5, "model": "P3"},
+        wall_deviation={"Distorted": 9.1, "Dewarped by P3 and rotated": 0.6},
+        calibration_figures=[(cal_png, "markers")],
+        metadata={"pairs": 3},
+    )
+    md = paths["markdown"].read_text()
+    for heading in (
+        "## Calibration",
+        "## Wall alignment",
+        "## Boundary layer",
+        "## Acquisition and statistics",
+    ):
+        assert heading in md
+    assert "![markers](figures/cal.png)" in md
+    assert "![Mean streamwise velocity U+(y+)](figures/mean_velocity.png)" in md
+    assert "| Dewarped by P3 and rotated | 0.6 | 0.62 |" in md
+    assert "| magnification M (px/mm) | 34.5 | 34.538 +/- 0.5 |" in md
+    assert f"| uncorrected | {result.u_e:.5g} |" in md
+    unc = uncertainty_summary(result)
+    # n_eff = 500: eps_U/U ~ sqrt(uu/500)/U, a fraction of a percent
+    assert 0.05 < unc["uncertainty of U (%)"] < 2
+    assert unc["uncertainty of uu (%)"] == pytest.approx(100 * np.sqrt(2 / 500), rel=1e-9)
+    assert f"| uncertainty of U (%) | {unc['uncertainty of U (%)']:.4g} | 0.825 |" in md
