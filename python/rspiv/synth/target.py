@@ -1,0 +1,351 @@
+"""Synthetic calibration targets with a known lens distortion: the ground truth of calibration.
+
+Python describes the scene (optics, lens, marker grid); Rust renders the pixels
+(:func:`rspiv._rspiv.render_target`). Coordinates follow the README's pixel frame (x = column,
+y = row, origin at the centre of the top-left pixel, y down).
+
+Scene
+-----
+The target is a square grid of ``n_markers = (13, 7)`` dots at ``pitch_mm``; marker ``(i, j)``
+(``i`` along +x, ``j`` along +y, ``(0, 0)`` the centre marker) lies at ``pitch_mm * (i, j)`` mm in
+the target plane. Its *ideal* image (a perfect lens) is ``c + M R(rotation) pitch (i, j)`` with
+``c`` the sensor centre plus ``grid_offset_px`` and ``M`` the magnification (px/mm); the lens then
+moves it to its *true image position* :meth:`LensDistortion.distort` (or ``mapping.forward``).
+Dots are rendered as isotropic Gaussian blobs of standard deviation ``dot_sigma_mm * M`` centred
+exactly at that position (the true marker position); see ``dewarp_core::target`` for the
+illumination (gradient, vignetting) and camera noise (shot + read noise, 12-bit clipping).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from rspiv import _rspiv
+from rspiv.errors import InvalidInputError
+
+__all__ = [
+    "Optics",
+    "PAPER_OPTICS",
+    "LensDistortion",
+    "paper_lens",
+    "CalibrationTarget",
+    "calibration_target",
+]
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Camera and target of a synthetic calibration (defaults: the paper's, section 3.1).
+
+    Attributes
+    ----------
+    width, height : int
+        Sensor size (px).
+    magnification : float
+        M, px/mm at the sensor centre.
+    pitch_mm : float
+        Marker pitch (mm).
+    n_markers : tuple of int
+        Markers along x and y (odd numbers: a centre marker exists).
+    dot_sigma_mm : float
+        Dot size as the standard deviation of its Gaussian profile (mm).
+    amplitude : float
+        Dot peak above background (counts, before illumination).
+    bit_depth : int
+        Camera bit depth (12: counts in [0, 4095]).
+    """
+
+    width: int = 8864
+    height: int = 5288
+    magnification: float = 34.538
+    pitch_mm: float = 19.51
+    n_markers: tuple[int, int] = (13, 7)
+    dot_sigma_mm: float = 0.5
+    amplitude: float = 2500.0
+    bit_depth: int = 12
+
+    def scaled(self, scale: float) -> Optics:
+        """The same optics on a sensor ``scale`` times smaller in each direction (M scales)."""
+        return dataclasses.replace(
+            self,
+            width=int(round(self.width * scale)),
+            height=int(round(self.height * scale)),
+            magnification=self.magnification * scale,
+        )
+
+
+PAPER_OPTICS = Optics()
+"""The paper's optics: 8864 x 5288 px, M = 34.538 px/mm, 13 x 7 markers at 19.51 mm."""
+
+
+@dataclass(frozen=True)
+class LensDistortion:
+    """Brown-Conrady radial + decentring lens distortion (ideal image px -> distorted image px).
+
+    With ``u = (x - cx) / R``, ``v = (y - cy) / R``, ``r^2 = u^2 + v^2``::
+
+        du = u ((k1 + ka) r^2 + k2 r^4) + 2 p1 u v + p2 (r^2 + 2 u^2)
+        dv = v ((k1 - ka) r^2 + k2 r^4) + p1 (r^2 + 2 v^2) + 2 p2 u v
+        x_d = x + R du,  y_d = y + R dv
+
+    ``k1 > 0`` is pincushion. ``ka`` (default 0, not part of Brown-Conrady) makes the radial term
+    anisotropic (stronger along x than y): a distortion that is not radially symmetric and that
+    a rational R2 model cannot follow, while a bicubic P3 can. Coefficients are dimensionless
+    (relative to ``R``), so :meth:`scaled` keeps the relative distortion on a smaller sensor.
+
+    Attributes
+    ----------
+    k1, k2 : float
+        Radial coefficients.
+    p1, p2 : float
+        Decentring (tangential) coefficients.
+    ka : float
+        Anisotropic radial coefficient.
+    centre : tuple of float
+        Distortion centre (px).
+    radius : float
+        Normalising radius R (px), e.g. the sensor's half diagonal.
+    """
+
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+    centre: tuple[float, float] = (0.0, 0.0)
+    radius: float = 1.0
+    ka: float = 0.0
+
+    def __post_init__(self) -> None:
+        vals = (self.k1, self.k2, self.p1, self.p2, self.ka, *self.centre, self.radius)
+        if not all(np.isfinite(v) for v in vals) or self.radius <= 0:
+            raise InvalidInputError("LensDistortion: coefficients must be finite and radius > 0")
+
+    def distort(self, points_px: npt.ArrayLike) -> np.ndarray:
+        """Ideal (undistorted) image px -> distorted image px; ``(N, 2)`` in and out."""
+        p = np.asarray(points_px, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2:
+            raise InvalidInputError(f"points must have shape (N, 2), got {p.shape}")
+        u = (p[:, 0] - self.centre[0]) / self.radius
+        v = (p[:, 1] - self.centre[1]) / self.radius
+        r2 = u * u + v * v
+        rad = self.k2 * r2 * r2
+        radx = rad + (self.k1 + self.ka) * r2
+        rady = rad + (self.k1 - self.ka) * r2
+        du = u * radx + 2 * self.p1 * u * v + self.p2 * (r2 + 2 * u * u)
+        dv = v * rady + self.p1 * (r2 + 2 * v * v) + 2 * self.p2 * u * v
+        return np.column_stack([p[:, 0] + self.radius * du, p[:, 1] + self.radius * dv])
+
+    def scaled(self, scale: float) -> LensDistortion:
+        """The same lens on a sensor ``scale`` times smaller (centre and radius scale)."""
+        return dataclasses.replace(
+            self,
+            centre=(self.centre[0] * scale, self.centre[1] * scale),
+            radius=self.radius * scale,
+        )
+
+    @property
+    def is_radial(self) -> bool:
+        """True when the distortion is radially symmetric (no decentring)."""
+        return self.p1 == 0.0 and self.p2 == 0.0 and self.ka == 0.0
+
+
+def paper_lens(optics: Optics = PAPER_OPTICS, *, decentring: bool = True) -> LensDistortion:
+    """The default lens: pincushion reaching 8-10 px at the sensor corners (paper: 9 px) plus a
+    small decentring term (up to about 1.7 px at a corner), centre 20 px right and 12 px above the
+    sensor centre (scaled with the sensor: ``optics.width / 8864``).
+    """
+    s = optics.width / PAPER_OPTICS.width
+    cx = 0.5 * (optics.width - 1) + 20.0 * s
+    cy = 0.5 * (optics.height - 1) - 12.0 * s
+    radius = 0.5 * float(np.hypot(optics.width, optics.height))
+    k1 = 8.0 * s / radius  # radial part 8 px at the half-diagonal
+    p1, p2 = (1.0e-4, -0.6e-4) if decentring else (0.0, 0.0)
+    return LensDistortion(k1=k1, k2=0.0, p1=p1, p2=p2, centre=(cx, cy), radius=radius)
+
+
+@dataclass
+class CalibrationTarget:
+    """A rendered target and its ground truth.
+
+    Attributes
+    ----------
+    image : ndarray of uint16, shape (height, width)
+    markers_px : ndarray, shape (n, 2)
+        True image positions (x, y) of the rendered grid markers (px).
+    index : ndarray of int, shape (n, 2)
+        Grid index (i, j) of each marker, (0, 0) the centre marker.
+    spurious_px : ndarray, shape (k, 2)
+        Centres of the spurious blobs (not markers).
+    optics : Optics
+    lens : LensDistortion or None
+    mapping : object or None
+        The Mapping used as the distortion instead of ``lens``.
+    rotation_deg : float
+    grid_offset_px : tuple of float
+    """
+
+    image: np.ndarray
+    markers_px: np.ndarray
+    index: np.ndarray
+    spurious_px: np.ndarray
+    optics: Optics
+    lens: LensDistortion | None
+    mapping: Any
+    rotation_deg: float
+    grid_offset_px: tuple[float, float]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __iter__(self) -> Any:
+        """``image, markers_px = calibration_target(...)`` unpacks the image and the truth."""
+        return iter((self.image, self.markers_px))
+
+    def ideal_px(self, grid_ij: npt.ArrayLike) -> np.ndarray:
+        """Ideal (undistorted) image px of continuous grid coordinates ``(i, j)``."""
+        ij = np.asarray(grid_ij, dtype=np.float64).reshape(-1, 2)
+        o = self.optics
+        th = np.deg2rad(self.rotation_deg)
+        c, s = np.cos(th), np.sin(th)
+        step = o.magnification * o.pitch_mm
+        cx = 0.5 * (o.width - 1) + self.grid_offset_px[0]
+        cy = 0.5 * (o.height - 1) + self.grid_offset_px[1]
+        x = cx + step * (c * ij[:, 0] - s * ij[:, 1])
+        y = cy + step * (s * ij[:, 0] + c * ij[:, 1])
+        return np.column_stack([x, y])
+
+    def true_image_px(self, grid_ij: npt.ArrayLike) -> np.ndarray:
+        """True image px of continuous grid coordinates ``(i, j)`` (the exact mapping)."""
+        ideal = self.ideal_px(grid_ij)
+        if self.mapping is not None:
+            return np.asarray(self.mapping.forward(ideal))
+        if self.lens is not None:
+            return self.lens.distort(ideal)
+        return ideal
+
+
+def calibration_target(
+    mapping: Any = None,
+    rotation_deg: float = 0.0,
+    scale: float = 1.0,
+    noise: bool = True,
+    seed: int = 0,
+    *,
+    lens: LensDistortion | None | str = "paper",
+    optics: Optics = PAPER_OPTICS,
+    missing: list[tuple[int, int]] | tuple[()] = (),
+    spurious: int = 0,
+    grid_offset_px: tuple[float, float] = (0.37, -0.21),
+    read_noise: float = 4.0,
+    gain: float = 0.5,
+) -> CalibrationTarget:
+    """Render a synthetic calibration target (uint16, 12-bit range) with its true markers.
+
+    Parameters
+    ----------
+    mapping : Mapping, optional
+        A distortion given as a mapping (object px = ideal image px -> image px); overrides
+        ``lens``.
+    rotation_deg : float
+        Rotation of the target on the sensor (degrees, counter-clockwise in (x, y)).
+    scale : float
+        Sensor scale in (0, 1]: ``scale = 0.25`` renders a 2216 x 1322 sensor with M / 4 and the
+        same relative distortion (fast tests).
+    noise : bool
+        Camera noise (shot noise of gain ``gain`` and read noise ``read_noise`` counts).
+    seed : int
+        Seed of the noise and of the spurious blobs.
+    lens : LensDistortion, "paper" or None
+        The distortion; ``"paper"`` is :func:`paper_lens` (scaled), ``None`` an ideal lens.
+        A LensDistortion is used as given (give it in the scaled sensor's px).
+    optics : Optics
+        Full-size optics (scaled by ``scale``).
+    missing : list of (i, j)
+        Grid markers left out.
+    spurious : int
+        Number of spurious blobs (random size and brightness, away from every grid site).
+    grid_offset_px : tuple of float
+        Grid centre relative to the sensor centre (px at full scale).
+
+    Returns
+    -------
+    CalibrationTarget
+    """
+    if not (np.isfinite(scale) and 0.05 <= scale <= 1.0):
+        raise InvalidInputError(f"scale must lie in [0.05, 1], got {scale!r}")
+    if not np.isfinite(rotation_deg):
+        raise InvalidInputError(f"rotation_deg must be finite, got {rotation_deg!r}")
+    if not isinstance(spurious, (int, np.integer)) or spurious < 0:
+        raise InvalidInputError(f"spurious must be a non-negative integer, got {spurious!r}")
+    o = optics.scaled(scale) if scale != 1.0 else optics
+    if isinstance(lens, str):
+        if lens != "paper":
+            raise InvalidInputError(f"lens must be a LensDistortion, 'paper' or None, got {lens!r}")
+        lens = paper_lens(o)
+    nx, ny = o.n_markers
+    miss = {(int(a), int(b)) for a, b in missing}
+    ij = np.array(
+        [
+            (i, j)
+            for j in range(-(ny // 2), ny // 2 + 1)
+            for i in range(-(nx // 2), nx // 2 + 1)
+            if (i, j) not in miss
+        ],
+        dtype=np.int64,
+    )
+    tgt = CalibrationTarget(
+        image=np.zeros((0, 0), np.uint16),
+        markers_px=np.zeros((0, 2)),
+        index=ij,
+        spurious_px=np.zeros((0, 2)),
+        optics=o,
+        lens=lens,
+        mapping=mapping,
+        rotation_deg=float(rotation_deg),
+        grid_offset_px=(grid_offset_px[0] * scale, grid_offset_px[1] * scale),
+    )
+    pts = tgt.true_image_px(ij)
+    # Spurious blobs keep away from every grid site, missing ones and a ring beyond the edge
+    # included (a blob there would be indistinguishable from a marker).
+    sites = tgt.true_image_px(
+        [
+            (i, j)
+            for j in range(-(ny // 2) - 1, ny // 2 + 2)
+            for i in range(-(nx // 2) - 1, nx // 2 + 2)
+        ]
+    )
+    dot = o.dot_sigma_mm * o.magnification
+    rng = np.random.default_rng(seed)
+    spur = []
+    step = o.magnification * o.pitch_mm
+    while len(spur) < spurious:
+        p = rng.uniform([4 * dot, 4 * dot], [o.width - 4 * dot, o.height - 4 * dot])
+        if np.min(np.hypot(*(sites - p).T)) > 0.35 * step and all(
+            np.hypot(*(p - q)) > 6 * dot for q in spur
+        ):
+            spur.append(p)
+    spur_arr = np.array(spur, dtype=np.float64).reshape(-1, 2)
+    centres = np.vstack([pts, spur_arr])
+    sig = np.concatenate([np.full(len(pts), dot), dot * rng.uniform(0.6, 1.4, size=len(spur_arr))])
+    amp = np.concatenate(
+        [np.full(len(pts), o.amplitude), o.amplitude * rng.uniform(0.5, 1.0, len(spur_arr))]
+    )
+    full = float(2**o.bit_depth - 1)
+    tgt.image = _rspiv.render_target(
+        o.height,
+        o.width,
+        np.ascontiguousarray(centres),
+        sig,
+        amp,
+        gain=gain if noise else 0.0,
+        read_noise=read_noise if noise else 0.0,
+        full_scale=full,
+        seed=int(seed),
+    )
+    tgt.markers_px = pts
+    tgt.spurious_px = spur_arr
+    tgt.extra["dot_sigma_px"] = dot
+    return tgt
