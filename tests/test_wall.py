@@ -1,0 +1,137 @@
+"""Wall alignment from the mirror symmetry of the mean profile (rspiv.wall)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rspiv.errors import InvalidInputError
+from rspiv.wall import Wall, find_wall, mirror_shift_positions
+
+
+def _profile(d: np.ndarray) -> np.ndarray:
+    """A TBL-like mean displacement (px) at |distance| d from the wall: linear sublayer, steep
+    buffer, slow outer growth; mirrored about the wall by construction."""
+    d = np.abs(d)
+    return 18.0 * np.tanh(d / 5.0) + 6.0 * np.tanh(d / 40.0)
+
+
+def _mirrored(y: np.ndarray, x: np.ndarray, wall: np.ndarray) -> np.ndarray:
+    return _profile(y[:, None] - wall[None, :])
+
+
+@pytest.mark.parametrize("dy", [1.0, 4.0])
+def test_straight_tilted_wall_positions_and_angle(dy):
+    x = np.arange(40) * 220.0 + 16.0
+    y = np.arange(0.0, 240.0, dy) + 3.0
+    angle = 0.04
+    wall = 121.37 + x * np.tan(np.deg2rad(angle))
+    w = find_wall(_mirrored(y, x, wall), y=y, x=x)
+    assert isinstance(w, Wall)
+    assert np.max(np.abs(w.position_px - wall)) < 0.05
+    assert abs(w.angle_deg - angle) < 0.001
+    assert w.rotation_deg == w.angle_deg  # see Wall.rotation_deg
+    assert w.max_deviation_px == pytest.approx(np.ptp(wall), abs=0.05)
+    assert w.straightness_px < 0.05
+    assert np.all(w.peak_correlation > 0.99)
+    np.testing.assert_allclose(w.line(x), wall, atol=0.05)
+
+
+def test_parabolic_distortion_deviation_is_recovered():
+    # The raw image: wall bent by the lens (parabola, ~9 px) plus the 0.04 degree tilt.
+    x = np.linspace(16.0, 8848.0, 60)
+    y = np.arange(4800.0, 5200.0, 4.0)
+    xc = 4432.0
+    bend = 9.0 * ((x - xc) / xc) ** 2
+    wall = 5000.3 + x * np.tan(np.deg2rad(0.04)) + bend
+    w = find_wall(_mirrored(y, x, wall), y=y, x=x)
+    assert np.max(np.abs(w.position_px - wall)) < 0.05
+    assert w.max_deviation_px == pytest.approx(np.ptp(wall), abs=0.05)
+    # The line through a symmetric parabola keeps the tilt.
+    slope = np.polyfit(x, wall, 1)[0]
+    assert abs(w.angle_deg - np.degrees(np.arctan(slope))) < 0.001
+    resid = wall - np.polyval(np.polyfit(x, wall, 1), x)
+    assert w.straightness_px == pytest.approx(np.max(np.abs(resid)), abs=0.05)
+
+
+def test_band_restricts_rows_and_noise_is_tolerated(rng):
+    x = np.arange(30) * 100.0
+    y = np.arange(0.0, 400.0, 2.0)
+    wall = 300.6 - x * np.tan(np.deg2rad(0.5))
+    u = _mirrored(y, x, wall)
+    # Unrelated structure far from the wall (outside the band) must not matter.
+    u[:40] += 50.0 * np.sin(y[:40, None] / 3.0)
+    stack = u[None] + 0.05 * rng.standard_normal((50, *u.shape))
+    w = find_wall(stack, y=y, x=x, band=(220.0, 380.0))
+    assert np.max(np.abs(w.position_px - wall)) < 0.05
+    assert abs(w.angle_deg + 0.5) < 0.002
+
+
+def test_field_input_with_invalid_vectors_and_stations():
+    class Field:
+        pass
+
+    x = np.arange(64) * 16.0 + 16
+    y = np.arange(0.0, 300.0, 4.0) + 2
+    wall = 150.25 + 0.001 * x
+    f = Field()
+    f.x, f.y = np.meshgrid(x, y)
+    f.u = _mirrored(y, x, wall)
+    f.valid = np.ones(f.u.shape, bool)
+    f.valid[10, 5] = False
+    f.u[10, 5] = 1e6  # an outlier flagged invalid must be ignored
+    w = find_wall(f, stations=8)
+    assert w.x_px.shape == (8,)
+    true = 150.25 + 0.001 * w.x_px
+    assert np.max(np.abs(w.position_px - true)) < 0.05
+    # A sequence of fields averages them.
+    w2 = find_wall([f, f])
+    assert np.max(np.abs(w2.position_px - (150.25 + 0.001 * x))) < 0.05
+
+
+def test_outlier_station_is_rejected():
+    x = np.arange(20) * 50.0
+    y = np.arange(0.0, 200.0)
+    wall = 100.0 + 0.002 * x
+    u = _mirrored(y, x, wall)
+    u[:, 7] = _profile(y - 130.0)  # one station sees a different "wall"
+    w = find_wall(u, y=y, x=x)
+    assert np.isnan(w.position_px[7])
+    assert abs(w.slope - 0.002) < 1e-5
+    w_all = find_wall(u, y=y, x=x, reject=None)
+    assert w_all.position_px[7] == pytest.approx(130.0, abs=0.05)
+
+
+def test_mirror_shift_positions_index_units():
+    n = 101
+    idx = np.arange(n, dtype=float)
+    centres = np.array([30.0, 50.5, 61.23, 70.77])
+    prof = _profile(idx[:, None] - centres[None, :])
+    pos, rho = mirror_shift_positions(prof)
+    np.testing.assert_allclose(pos, centres, atol=0.02)
+    assert np.all(rho > 0.99)
+
+
+def test_invalid_inputs():
+    with pytest.raises(InvalidInputError):
+        find_wall(np.zeros((3, 4)))
+    with pytest.raises(InvalidInputError):
+        find_wall(np.zeros((10, 4)), y=np.r_[0:9, 20.0])
+    with pytest.raises(InvalidInputError):
+        find_wall(np.zeros(10))
+    with pytest.raises(InvalidInputError):
+        mirror_shift_positions(np.full((10, 2), np.nan))
+
+
+def test_wall_figures_are_written(tmp_path):
+    from rspiv.plots.wall import wall_profile, wall_shape
+
+    x = np.arange(30) * 100.0
+    y = np.arange(0.0, 200.0, 2.0)
+    bent = 100.0 + 2e-6 * (x - 1500.0) ** 2
+    w_raw = find_wall(_mirrored(y, x, bent), y=y, x=x)
+    w_flat = find_wall(_mirrored(y, x, np.full_like(x, 100.0)), y=y, x=x)
+    p = wall_shape({"distorted": w_raw, "corrected": w_flat}, tmp_path / "wall.png")
+    assert p.stat().st_size > 10_000
+    u = _mirrored(y, x, bent)[:, 3]
+    q = wall_profile(u, y, w_raw.position_px[3], tmp_path / "profile.png")
+    assert q.stat().st_size > 5_000
