@@ -1,0 +1,67 @@
+"""Tiny synthetic campaigns shared by the scale-out, merge and resume tests.
+
+``rspiv.demo``'s scene at the smallest scale (0.1: an 886 x 528 px sensor at the paper's
+magnification), no Monte Carlo and no report, so that a pair takes about half a second and the
+preparation (calibration, wall pilot) a few seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import shutil
+
+import numpy as np
+
+SCALE = 0.1
+
+
+def make_campaign(directory: pathlib.Path, pairs: int, seed: int = 2386) -> pathlib.Path:
+    """Write a synthetic campaign (``campaign.toml`` with output folder ``out``)."""
+    from rspiv.campaign_config import load_campaign_config
+    from rspiv.demo import DEFAULT_SCENE, synth_campaign
+
+    scene = dataclasses.replace(
+        DEFAULT_SCENE, scale=SCALE, pairs=pairs, monte_carlo_samples=0, seed=seed
+    )
+    path = synth_campaign(directory, scene=scene)
+    cfg = load_campaign_config(path)
+    cfg.output.report = False
+    cfg.calibration.monte_carlo_samples = 0
+    return cfg.save(path)
+
+
+def prepared_copy(src_out: pathlib.Path, dst_out: pathlib.Path) -> pathlib.Path:
+    """A fresh output folder sharing ``src_out``'s prepared context (calibration and wall
+    angle computed once), without its checkpoints, log or outputs."""
+    dst_out.mkdir(parents=True, exist_ok=True)
+    for name in ("context.json", "calibration.json"):
+        if (src_out / name).is_file():
+            shutil.copy2(src_out / name, dst_out / name)
+    return dst_out
+
+
+STAT_FIELDS = ("mean_u", "mean_v", "uu", "vv", "uv")
+
+
+def assert_same_statistics(a, b, rtol: float = 1e-12, lag: bool = True) -> None:
+    """Two FieldAccumulators hold the same statistics: identical pair ids and counts, every
+    statistic equal to ``rtol`` relative to the largest magnitude of that field (so that values
+    crossing zero, e.g. uv, are compared on the field's scale), NaN at the same places."""
+    assert a.pair_ids == b.pair_ids
+    np.testing.assert_array_equal(a.count, b.count)
+    names = list(STAT_FIELDS)
+    if lag:
+        np.testing.assert_array_equal(a.lag_count_u, b.lag_count_u)
+        np.testing.assert_array_equal(a.lag_count_v, b.lag_count_v)
+        names += ["lag_c_u", "lag_c_v", "lag_mean_a_u", "lag_mean_b_v"]
+    for name in names:
+        x = np.asarray(getattr(a, name), float)
+        y = np.asarray(getattr(b, name), float)
+        np.testing.assert_array_equal(np.isnan(x), np.isnan(y), err_msg=name)
+        scale = np.nanmax(np.abs(x)) if np.isfinite(x).any() else 0.0
+        np.testing.assert_allclose(y, x, rtol=rtol, atol=rtol * scale, err_msg=name)
+    if lag:
+        for q in ("u", "uu", "uv"):
+            x = a.n_eff(q)
+            np.testing.assert_allclose(b.n_eff(q), x, rtol=rtol, atol=rtol * np.max(x))

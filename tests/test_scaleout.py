@@ -1,0 +1,354 @@
+"""Dask scale-out (rspiv.scaleout) against the local run of the same tiny synthetic campaign.
+
+The reference is :meth:`Campaign.run` (one sequential pass); the Dask runs use a LocalCluster of
+2 worker processes of 1 thread (loopback, no dashboard). The statistics must agree to 1e-12
+relative (rounding of Chan's merge against Welford's update), including the lag-1 moments behind
+n_eff (adjacent chunks join their chains).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import pathlib
+import shutil
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+from rspiv.campaign import Campaign
+from scaleout_cases import assert_same_statistics, make_campaign, prepared_copy
+
+distributed = pytest.importorskip("distributed")
+
+from rspiv import scaleout  # noqa: E402
+from rspiv.scaleout import run_dask  # noqa: E402
+
+N_PAIRS = 6
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory) -> pathlib.Path:
+    d = tmp_path_factory.mktemp("scaleout")
+    make_campaign(d, N_PAIRS)
+    return d
+
+
+@pytest.fixture(scope="module")
+def local(synth):
+    """The local (sequential) run: the reference."""
+    return Campaign.load(synth / "campaign.toml", progress=False, checkpoint_every=2).run()
+
+
+@pytest.fixture(scope="module")
+def client():
+    with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
+        with distributed.Client(cluster) as c:
+            yield c
+
+
+def _camp(synth, out, **kw):
+    return Campaign.load(synth / "campaign.toml", progress=False, out_dir=out, **kw)
+
+
+def _events(out: pathlib.Path) -> list[dict]:
+    return [json.loads(x) for x in (out / "run_log.jsonl").read_text().splitlines()]
+
+
+def _u_tau(res, run):
+    return res.analyses[run].result.u_tau
+
+
+def test_two_workers_give_the_local_statistics(synth, local, client, tmp_path):
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    res = run_dask(_camp(synth, out, checkpoint_every=2), client, chunk_size=2, progress_interval=0)
+    assert res.n_done == N_PAIRS and not res.skipped
+    assert set(res.accumulators) == set(local.accumulators) == {"method_II", "uncorrected"}
+    for run, ref in local.accumulators.items():
+        assert_same_statistics(ref, res.accumulators[run], rtol=1e-12)
+        # the analysis downstream agrees too; the profile fit (wall position, fitted offset)
+        # amplifies the 1e-14 differences of the statistics about 1e5-fold
+        assert _u_tau(res, run) == pytest.approx(_u_tau(local, run), rel=1e-7)
+    # the outputs of a local run are all there
+    for run in local.accumulators:
+        assert (out / f"statistics_{run}.nc").is_file() and (out / f"profile_{run}.csv").is_file()
+    # work was really spread: both worker processes returned chunks
+    info = res.info["dask"]
+    assert info["workers"] == 2 and info["worker_processes_seen"] == 2 and info["chunks"] == 3
+    # progress: pairs done, failed and throughput, in the run log
+    ev = _events(out)
+    assert [e["event"] for e in ev].count("pair") == N_PAIRS
+    prog = [e for e in ev if e["event"] == "progress"]
+    assert prog and prog[-1]["done"] == N_PAIRS and prog[-1]["failed"] == 0
+    assert prog[-1]["pairs_per_min"] > 0
+    summ = [e for e in ev if e["event"] == "dask_summary"][0]
+    assert summ["pairs_done"] == N_PAIRS and summ["pairs_failed"] == 0
+    assert summ["pairs_per_min"] > 0
+    # the workers' rayon pools were sized before their first task: 2 cores / 2 workers
+    envs = client.run(lambda: os.environ.get("RAYON_NUM_THREADS"))
+    assert set(envs.values()) == {"1"}
+
+
+def test_chunks_merged_out_of_order_join_exactly(synth, local):
+    """The ordered merge itself, without Dask: chunks arriving in any order give one pass."""
+    from rspiv.campaign import PairContext
+    from rspiv.scaleout import _OrderedMerge, _Segment, process_chunk
+    from rspiv.stats import FieldAccumulator
+
+    camp = _camp(synth, local.out_dir)
+    ctx = PairContext.from_dict(json.loads((local.out_dir / "context.json").read_text())["context"])
+    pairs = camp.pairs()
+    gx, _ = ctx.grid()
+    results = {lo: process_chunk(ctx, pairs[lo:hi]) for lo, hi in ((0, 1), (1, 3), (3, 6))}
+    for order in ((3, 0, 1), (1, 3, 0), (0, 1, 3)):
+        m = _OrderedMerge(
+            _Segment(0, 0, {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}, None, [])
+        )
+        his = {0: 1, 1: 3, 3: 6}
+        for lo in order:
+            r = results[lo]
+            # fresh copies: merging works in place
+            m.add(_Segment(lo, his[lo], copy.deepcopy(r.accumulators), r.first, list(r.done)))
+        assert m.pending() == 0
+        for run, ref in local.accumulators.items():
+            assert_same_statistics(ref, m.prefix.accs[run], rtol=1e-12)
+
+
+def test_existing_cluster_gets_rayon_threads_from_the_plugin(synth, local, tmp_path, monkeypatch):
+    """On a cluster rspiv did not start, a worker plugin sets RAYON_NUM_THREADS to the host's
+    cores divided by the workers on that host before the first task."""
+    monkeypatch.delenv("RAYON_NUM_THREADS", raising=False)
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    with (
+        distributed.LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+        ) as cluster,
+        distributed.Client(cluster) as c,
+    ):
+        assert set(c.run(lambda: os.environ.get("RAYON_NUM_THREADS")).values()) == {None}
+        res = run_dask(_camp(synth, out), c.scheduler.address, chunk_size=3)
+        envs = c.run(lambda: os.environ.get("RAYON_NUM_THREADS"))
+    cores = len(os.sched_getaffinity(0))
+    assert set(envs.values()) == {str(max(1, cores // 2))}
+    for run, ref in local.accumulators.items():
+        assert_same_statistics(ref, res.accumulators[run], rtol=1e-12)
+
+
+def test_worker_killed_mid_campaign(synth, local, tmp_path):
+    """SIGKILL of a busy worker: Dask restarts it, its chunk is recomputed elsewhere and the
+    campaign completes with the local statistics, every pair counted once."""
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    killed: dict = {}
+
+    def killer(client):
+        deadline = time.monotonic() + 60
+        log = out / "run_log.jsonl"
+        while time.monotonic() < deadline:
+            if log.is_file() and '"event": "pair"' in log.read_text():
+                busy = [w for w, ts in client.processing().items() if ts]
+                if busy:
+                    pids = client.run(os.getpid, workers=busy[:1])
+                    ((addr, pid),) = pids.items()
+                    killed["n_pairs_before"] = log.read_text().count('"event": "pair"')
+                    os.kill(pid, signal.SIGKILL)
+                    killed["pid"] = pid
+                    return
+            time.sleep(0.02)
+
+    with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
+        with distributed.Client(cluster) as c:
+            t = threading.Thread(target=killer, args=(c,), daemon=True)
+            t.start()
+            res = run_dask(_camp(synth, out, checkpoint_every=1), c, chunk_size=1)
+            t.join(5)
+            pids_after = set(c.run(os.getpid).values())
+    assert "pid" in killed, "the worker was not killed during the campaign"
+    assert killed["n_pairs_before"] < N_PAIRS
+    assert killed["pid"] not in pids_after
+    assert res.n_done == N_PAIRS and not res.skipped
+    assert [e["event"] for e in _events(out)].count("pair") == N_PAIRS
+    for run, ref in local.accumulators.items():
+        assert_same_statistics(ref, res.accumulators[run], rtol=1e-12)
+
+
+def test_bad_pair_is_skipped_and_logged_under_dask(synth, local, client, tmp_path):
+    """A truncated frame: skipped, logged with its reason, absent from the statistics, which
+    equal the local run of the same broken campaign."""
+    d = tmp_path / "broken"
+    shutil.copytree(synth, d, ignore=shutil.ignore_patterns("out"))
+    bad = d / "raw" / "pair_00002_b.tif"
+    bad.write_bytes(bad.read_bytes()[:300])
+    ref = Campaign.load(
+        d / "campaign.toml", progress=False, out_dir=prepared_copy(local.out_dir, d / "ref")
+    ).run()
+    out = prepared_copy(local.out_dir, d / "dask")
+    res = run_dask(_camp(d, out), client, chunk_size=2)
+    assert set(res.skipped) == set(ref.skipped) == {2}
+    ev = [e for e in _events(out) if e["event"] == "skipped"]
+    assert len(ev) == 1 and ev[0]["pair_id"] == 2 and "pair_00002_b.tif" in ev[0]["reason"]
+    for run, acc in ref.accumulators.items():
+        assert 2 not in res.accumulators[run].pair_ids
+        assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)
+
+
+def test_dask_resumes_an_interrupted_local_run(synth, local, client, tmp_path, monkeypatch):
+    """A local run interrupted after 3 pairs, resumed on Dask: the checkpoint's pairs are not
+    recomputed and the statistics (lag-1 chains included) are those of one uninterrupted pass."""
+    from rspiv import campaign as campaign_mod
+
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    real = campaign_mod.process_pair
+    calls = []
+
+    def interrupting(ctx, pair):
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        calls.append(pair.pair_id)
+        return real(ctx, pair)
+
+    monkeypatch.setattr(campaign_mod, "process_pair", interrupting)
+    with pytest.raises(KeyboardInterrupt):
+        _camp(synth, out, checkpoint_every=1).run()
+    monkeypatch.setattr(campaign_mod, "process_pair", real)
+    res = run_dask(_camp(synth, out, checkpoint_every=1), client, chunk_size=2)
+    assert res.n_resumed == 3
+    ev = _events(out)
+    starts = [i for i, e in enumerate(ev) if e["event"] == "start"]
+    redone = {e["pair_id"] for e in ev[starts[-1] :] if e["event"] == "pair"}
+    assert redone == set(range(3, N_PAIRS))
+    for run, ref in local.accumulators.items():
+        assert_same_statistics(ref, res.accumulators[run], rtol=1e-12)
+
+
+def test_cli_process_dask_local(synth, local, tmp_path, capsys):
+    from rspiv.cli import main
+
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    rc = main(
+        [
+            "process",
+            str(synth / "campaign.toml"),
+            "-o",
+            str(out),
+            "-q",
+            "--dask",
+            "local",
+            "--dask-workers",
+            "2",
+            "--rayon-threads",
+            "1",
+        ]
+    )
+    assert rc == 0
+    assert f"{N_PAIRS} of {N_PAIRS} pair(s) processed" in capsys.readouterr().out
+    import xarray as xr
+
+    for run in local.accumulators:
+        with (
+            xr.open_dataset(out / f"statistics_{run}.nc", engine="h5netcdf") as a,
+            xr.open_dataset(local.out_dir / f"statistics_{run}.nc", engine="h5netcdf") as b,
+        ):
+            for k in ("u", "uu", "uv"):
+                x = b[k].values
+                np.testing.assert_allclose(
+                    a[k].values, x, rtol=1e-12, atol=1e-12 * np.nanmax(np.abs(x))
+                )
+
+
+def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, monkeypatch):
+    """A pair whose processing kills the worker process every time: its chunk is split into
+    single pairs, the deadly pair is recorded as failed and left out, the others are merged."""
+    import dask
+    from rspiv.campaign import PairContext
+
+    def deadly(ctx, pairs):  # a local function: pickled by value to the workers
+        import os
+
+        from rspiv.scaleout import process_chunk as real
+
+        if any(p.pair_id == 3 for p in pairs):
+            os._exit(1)
+        return real(ctx, pairs)
+
+    monkeypatch.setattr(scaleout, "process_chunk", deadly)
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
+            with distributed.Client(cluster) as c:
+                res = run_dask(_camp(synth, out), c, chunk_size=2)
+    assert set(res.skipped) == {3} and "worker died" in res.skipped[3]
+    assert res.info["dask"]["pairs_failed"] == 1 and res.n_done == N_PAIRS - 1
+    ev = _events(out)
+    assert [e["pair_id"] for e in ev if e["event"] == "failed"] == [3]
+    assert [e["pairs"] for e in ev if e["event"] == "chunk_split"] == [[2, 3]]
+    # the statistics are one pass over the other pairs
+    monkeypatch.undo()
+    ctx = PairContext.from_dict(json.loads((local.out_dir / "context.json").read_text())["context"])
+    pairs = [p for p in _camp(synth, out).pairs() if p.pair_id != 3]
+    ref = scaleout.process_chunk(ctx, pairs)
+    for run, acc in ref.accumulators.items():
+        assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)
+
+
+def test_dask_shards_merge_to_the_local_statistics(synth, local, client, tmp_path):
+    """--shard with --dask: each shard's partial file, merged, gives the local statistics."""
+    from rspiv.merge import merge_files, read_part
+
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    for shard in ("2/2", "1/2"):
+        res = run_dask(_camp(synth, out, shard=shard), client, chunk_size=1)
+        assert not res.analyses and res.n_pairs == N_PAIRS // 2
+    parts = sorted((out / "shards").glob("statistics_method_II.shard-*-of-2.nc"))
+    merged = read_part(merge_files(parts, tmp_path / "m.nc")["method_II"]).accumulator
+    assert_same_statistics(local.accumulators["method_II"], merged, rtol=1e-12, lag=False)
+
+
+def test_interrupted_client_keeps_chunks_merged_out_of_order(
+    synth, local, client, tmp_path, monkeypatch
+):
+    """Pair 0 is slow, so pairs 1.. finish first and wait beside the empty prefix; the client is
+    interrupted. The restarted run recomputes pair 0 and the pairs never merged, not the
+    out-of-order ones saved beside the checkpoint, and gives the local statistics."""
+
+    def slow_first(ctx, pairs):  # a local function: pickled by value to the workers
+        import time
+
+        from rspiv.scaleout import process_chunk as real
+
+        if pairs[0].pair_id == 0:
+            time.sleep(8.0)
+        return real(ctx, pairs)
+
+    real_save = scaleout._save_segments
+
+    def save_then_interrupt(path, ctx, shard, todo, merger):
+        real_save(path, ctx, shard, todo, merger)
+        if sum(sg.hi - sg.lo for lo, sg in merger.by_lo.items() if lo) >= 2:
+            raise KeyboardInterrupt
+
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    monkeypatch.setattr(scaleout, "process_chunk", slow_first)
+    monkeypatch.setattr(scaleout, "_save_segments", save_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_dask(_camp(synth, out, checkpoint_every=1), client, chunk_size=1)
+    monkeypatch.undo()
+    seg_file = out / "checkpoint" / "dask_segments.pkl"
+    assert seg_file.is_file()
+    n_before = len(_events(out))
+    res = run_dask(_camp(synth, out, checkpoint_every=1), client, chunk_size=1)
+    ev = _events(out)[n_before:]
+    resumed = [e for e in ev if e["event"] == "resumed_segments"]
+    assert resumed and resumed[0]["pairs"] >= 2
+    redone = {e["pair_id"] for e in ev if e["event"] == "pair"}
+    assert 0 in redone and len(redone) == N_PAIRS - resumed[0]["pairs"]
+    assert res.info["dask"]["pairs_from_segments"] == resumed[0]["pairs"]
+    assert not seg_file.exists()  # removed once everything joined the checkpoint
+    for run, ref in local.accumulators.items():
+        assert_same_statistics(ref, res.accumulators[run], rtol=1e-12)
