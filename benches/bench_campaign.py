@@ -1,0 +1,170 @@
+"""Campaign throughput: pairs per minute, peak memory and the time per stage (read, dewarp, PIV,
+statistics) of ``rspiv process`` on synthetic campaigns (rspiv.demo's scene), for Method II,
+Method I and the uncorrected processing, at the demo scale and on full 47 MP pairs.
+
+Each configuration runs in its own subprocess; its peak memory (VmHWM) is reported for the
+preparation (calibration of the target, wall pilot) and, reset in between, for the pair loop.
+Side by side, the same pair through OpenPIV (``openpiv.pyprocess.extended_search_area_piv``,
+one pass of 32 x 32 px windows, 50 % overlap, plus its sig2noise validation), the peer's
+per-pair cost for a *single* pass without any distortion correction.
+
+Usage::
+
+    python benches/bench_campaign.py [--scales 0.4 1.0] [--pairs 4] [--workdir /tmp/rspiv-bench]
+
+Prints a Markdown table (for benches/RESULTS.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import subprocess
+import sys
+import time
+
+CHILD = r"""
+import json, sys, time, pathlib
+from rspiv.campaign import Campaign
+from rspiv.campaign_config import load_campaign_config
+toml, method, out = sys.argv[1], sys.argv[2], sys.argv[3]
+cfg = load_campaign_config(toml)
+cfg.correction.method = method
+cfg.correction.compare_uncorrected = False
+cfg.calibration.monte_carlo_samples = 0
+cfg.output.report = False
+def hwm_mb():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+t0 = time.perf_counter()
+camp = Campaign(cfg, progress=False, out_dir=out, pilot_pairs=1)
+t1 = time.perf_counter()
+camp.prepare()
+prepare_s = time.perf_counter() - t1
+prepare_peak = hwm_mb()
+with open("/proc/self/clear_refs", "w") as f:  # reset the peak RSS (VmHWM) for the loop
+    f.write("5")
+res = camp.run()  # reuses the prepared context
+wall = time.perf_counter() - t0
+t = res.timings
+n = res.n_done
+print(json.dumps({
+    "pairs": n, "total_s": wall,
+    "loop_s": sum(t.get(k, 0.0) for k in ("read", "dewarp", "piv", "statistics")),
+    "read": t.get("read", 0.0) / n, "dewarp": t.get("dewarp", 0.0) / n,
+    "piv": t.get("piv", 0.0) / n, "statistics": t.get("statistics", 0.0) / n,
+    "prepare_s": prepare_s, "analysis_s": t.get("analysis", 0.0),
+    "peak_rss_mb": hwm_mb(), "prepare_peak_mb": prepare_peak,
+}))
+"""
+
+PEER = r"""
+import json, sys, time, tifffile, numpy as np
+from openpiv import pyprocess, validation
+a = tifffile.imread(sys.argv[1]).astype(np.int32)
+b = tifffile.imread(sys.argv[2]).astype(np.int32)
+t0 = time.perf_counter()
+u, v, s2n = pyprocess.extended_search_area_piv(a, b, window_size=32, overlap=16,
+                                                search_area_size=32, sig2noise_method="peak2peak")
+flags = validation.sig2noise_val(s2n, threshold=1.05)
+dt = time.perf_counter() - t0
+import rspiv
+t0 = time.perf_counter()
+f = rspiv.piv(a.astype(np.uint16), b.astype(np.uint16), [(32, 32)], overlap=0.5)
+dr = time.perf_counter() - t0
+print(json.dumps({"openpiv_s": dt, "rspiv_1pass_s": dr, "vectors": int(u.size)}))
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scales", type=float, nargs="+", default=[0.4, 1.0])
+    ap.add_argument("--pairs", type=int, default=4)
+    ap.add_argument("--workdir", default="/tmp/rspiv-bench-campaign")
+    ap.add_argument("--methods", nargs="+", default=["II", "I", "none"])
+    ap.add_argument("--no-peer", action="store_true")
+    args = ap.parse_args()
+
+    import dataclasses
+
+    from rspiv.demo import DEFAULT_SCENE, synth_campaign
+
+    rows = []
+    peers = []
+    for scale in args.scales:
+        d = pathlib.Path(args.workdir) / f"scale-{scale:g}"
+        toml = d / "campaign.toml"
+        if not toml.is_file() or len(list((d / "raw").glob("*.tif"))) != 2 * args.pairs:
+            t0 = time.perf_counter()
+            scene = dataclasses.replace(
+                DEFAULT_SCENE, scale=scale, pairs=args.pairs, monte_carlo_samples=0
+            )
+            synth_campaign(d, scene=scene)
+            print(
+                f"# synthesised {args.pairs} pairs at scale {scale:g} in "
+                f"{time.perf_counter() - t0:.0f} s",
+                file=sys.stderr,
+            )
+        shape = json.loads((d / "truth.json").read_text())["image_shape"]
+        mp = shape[0] * shape[1] / 1e6
+        for method in args.methods:
+            out = d / f"out-{method}"
+            if out.exists():
+                import shutil
+
+                shutil.rmtree(out)
+            r = subprocess.run(
+                [sys.executable, "-c", CHILD, str(toml), method, str(out)],
+                capture_output=True,
+                text=True,
+            )
+            if r.returncode != 0:
+                print(r.stderr, file=sys.stderr)
+                continue
+            m = json.loads(r.stdout.strip().splitlines()[-1])
+            m.update(scale=scale, mp=mp, method=method, per_min=60.0 * m["pairs"] / m["loop_s"])
+            rows.append(m)
+            print(f"# {scale:g} {method}: {m}", file=sys.stderr)
+        if not args.no_peer:
+            raw = sorted((d / "raw").glob("*.tif"))
+            r = subprocess.run(
+                [sys.executable, "-c", PEER, str(raw[0]), str(raw[1])],
+                capture_output=True,
+                text=True,
+            )
+            if r.returncode == 0:
+                p = json.loads(r.stdout.strip().splitlines()[-1])
+                p.update(scale=scale, mp=mp)
+                peers.append(p)
+            else:
+                print(r.stderr, file=sys.stderr)
+
+    print(
+        "| sensor | method | pairs/min | read s | dewarp s | PIV s | statistics s | "
+        "prepare s | peak RSS MB, loop | peak RSS MB, prepare |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for m in rows:
+        label = {"II": "Method II", "I": "Method I", "none": "uncorrected"}[m["method"]]
+        print(
+            f"| {m['mp']:.1f} MP (scale {m['scale']:g}) | {label} | {m['per_min']:.1f} | "
+            f"{m['read']:.2f} | {m['dewarp']:.2f} | {m['piv']:.2f} | {m['statistics']:.3f} | "
+            f"{m['prepare_s']:.1f} | {m['peak_rss_mb']:.0f} | {m['prepare_peak_mb']:.0f} |"
+        )
+    if peers:
+        print()
+        print("| sensor | OpenPIV 1 pass 32x32 (s) | rspiv 1 pass 32x32 (s) | ratio |")
+        print("|---|---|---|---|")
+        for p in peers:
+            print(
+                f"| {p['mp']:.1f} MP | {p['openpiv_s']:.2f} | {p['rspiv_1pass_s']:.2f} | "
+                f"{p['openpiv_s'] / p['rspiv_1pass_s']:.1f}x |"
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,105 @@
+"""``rspiv process campaign.toml [--shard i/n] [-o DIR] [--checkpoint-every K]``.
+
+Runs a whole campaign (:class:`rspiv.Campaign`): calibration, wall alignment, PIV of every
+pair, streaming statistics, boundary-layer analysis, NetCDF/CSV outputs and the report. A rich
+progress bar on a terminal, plain log lines otherwise. Restarting the same command resumes from
+``OUT/checkpoint/``; ``--shard i/n`` processes the i-th of n slices and writes partial
+statistics for a later merge.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _process(args: argparse.Namespace) -> int:
+    from rspiv.campaign import Campaign
+
+    camp = Campaign.load(
+        args.campaign,
+        shard=args.shard,
+        checkpoint_every=args.checkpoint_every,
+        pilot_pairs=args.pilot_pairs,
+        extra_methods=tuple(args.also_method or ()),
+        out_dir=args.output,
+        progress=not args.quiet,
+    )
+    if getattr(args, "dask", None):
+        from rspiv.scaleout import run_from_args
+
+        res = run_from_args(camp, args)
+    else:
+        res = camp.run()
+    print(
+        f"{res.n_done} of {res.n_pairs} pair(s) processed"
+        + (f" ({res.n_resumed} from the checkpoint)" if res.n_resumed else "")
+        + (
+            f", {len(res.skipped)} skipped (see {res.out_dir / 'run_log.jsonl'})"
+            if res.skipped
+            else ""
+        )
+    )
+    for a in res.analyses.values():
+        if a.result is not None:
+            s = a.result.summary()
+            print(
+                f"  {a.run.label}: u_tau = {s['u_tau']:.4g} m/s, Re_tau = {s['re_tau']:.4g}, "
+                f"delta99 = {1e3 * s['delta99']:.4g} mm"
+            )
+        elif a.error:
+            print(f"  {a.run.label}: {a.error}")
+    for name, path in res.files.items():
+        if not name.startswith("report"):
+            print(f"wrote {path}")
+    if res.report is not None:
+        print(f"report: {res.report}")
+    return 0 if res.n_done else 1
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "process",
+        help="run a PIV campaign described by a TOML file",
+        description="Calibrate, align the wall, run PIV on every pair, accumulate statistics, "
+        "analyse the boundary layer and write NetCDF, CSV and the report. Re-running resumes "
+        "from the checkpoint.",
+    )
+    p.add_argument("campaign", help="campaign file (TOML)")
+    p.add_argument("-o", "--output", default=None, help="output folder (default: [output].dir)")
+    p.add_argument(
+        "--shard",
+        default=None,
+        metavar="I/N",
+        help="process the I-th of N slices of the pairs (1-based) and write partial statistics",
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=25,
+        metavar="K",
+        help="pairs between checkpoints (default 25)",
+    )
+    p.add_argument(
+        "--pilot-pairs", type=int, default=4, help="pairs used to find the wall angle (default 4)"
+    )
+    p.add_argument(
+        "--also-method",
+        action="append",
+        choices=["I", "II"],
+        help="also process with this correction method (comparison)",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    try:  # the Dask scale-out options (issue 7), when that module is present
+        from rspiv.scaleout import add_arguments
+    except ImportError:  # pragma: no cover
+        pass
+    else:
+        add_arguments(p)
+    p.set_defaults(func=_process)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from rspiv.cli import main
+
+    sys.exit(main(["process", *sys.argv[1:]]))

@@ -1,0 +1,164 @@
+"""Method II (PIV on the raw frames, vectors mapped to the object frame): geometry against exact
+answers, and end to end on particle images rendered through a known distortion."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import rspiv
+from rspiv import _rspiv
+from rspiv.method2 import (
+    grid_for_windows,
+    map_displacements,
+    piv_vectors,
+    position_only_bias,
+)
+from rspiv.synth import PAPER_OPTICS, paper_lens
+
+SHAPE = (400, 640)  # (h, w), small sensor
+U_OBJ, V_OBJ = 9.0, 1.5  # uniform object displacement, px
+
+
+@pytest.fixture(scope="module")
+def lens():
+    o = dataclasses.replace(PAPER_OPTICS, width=SHAPE[1], height=SHAPE[0])
+    base = paper_lens(o)
+    # 20x the paper's relative distortion so the position-only bias is clearly measurable
+    return dataclasses.replace(base, k1=20 * base.k1, p1=5 * base.p1)
+
+
+@pytest.fixture(scope="module")
+def mapping(lens):
+    h, w = SHAPE
+    gx, gy = np.meshgrid(np.linspace(0, w - 1, 13), np.linspace(0, h - 1, 9))
+    obj = np.column_stack([gx.ravel(), gy.ravel()])
+    return rspiv.fit_mapping(obj, lens.distort(obj), "p3", center_index=len(obj) // 2)
+
+
+@pytest.fixture(scope="module")
+def frames(lens):
+    """Particles moving by a uniform object displacement, imaged through the lens."""
+    h, w = SHAPE
+    rng = np.random.default_rng(7)
+    n = int(0.03 * (h + 60) * (w + 60))
+    xm = rng.uniform(-30, w + 30, n)
+    ym = rng.uniform(-30, h + 30, n)
+    out = []
+    for k, s in enumerate((-0.5, 0.5)):
+        p = lens.distort(np.column_stack([xm + s * U_OBJ, ym + s * V_OBJ]))
+        out.append(
+            _rspiv.render_particles(
+                h,
+                w,
+                np.ascontiguousarray(p[:, 0]),
+                np.ascontiguousarray(p[:, 1]),
+                np.full(n, 2500.0),
+                np.array([2.5]),
+                40.0,
+                4095,
+                11 + k,
+            )
+        )
+    return out
+
+
+@pytest.mark.parametrize(
+    "shape, window, overlap",
+    [((400, 640), (32, 8), 0.5), ((257, 301), (32, 32), 0.5), ((100, 130), (16, 8), 0.25)],
+)
+def test_grid_matches_piv(shape, window, overlap):
+    rng = np.random.default_rng(0)
+    a = rng.random(shape).astype(np.float32)
+    f = rspiv.piv(a, a, [window], overlap=overlap)
+    gx, gy = grid_for_windows(shape, window, overlap)
+    np.testing.assert_array_equal(gx, f.x)
+    np.testing.assert_array_equal(gy, f.y)
+
+
+def test_full_mapping_inverts_exact_displacements(mapping):
+    """d = F(X + D/2) - F(X - D/2) mapped back through F^-1 gives D (to the inverse's 1e-6 px)."""
+    rng = np.random.default_rng(3)
+    X = rng.uniform([50, 50], [590, 350], (500, 2))
+    D = rng.uniform(-20, 20, (500, 2))
+    ends = mapping.forward(np.concatenate([X - D / 2, X + D / 2]))
+    d = ends[500:] - ends[:500]
+    centre = mapping.forward(X)
+    # the window centre is F(X); the exact midpoint differs at O(D^2 F''): use it here
+    mid = 0.5 * (ends[500:] + ends[:500])
+    got = map_displacements(mapping, mid, d, "full")
+    np.testing.assert_allclose(got, D, atol=1e-5)
+    # positions-only keeps d: its error is exactly position_only_bias
+    pos = map_displacements(mapping, centre, d, "positions")
+    np.testing.assert_allclose(pos - D, position_only_bias(mapping, X, D), atol=1e-9)
+    assert np.abs(pos - D).max() > 0.05  # the distortion is strong enough to matter
+
+
+def test_nonfinite_rows_stay_nan(mapping):
+    d = np.array([[1.0, 2.0], [np.nan, 0.0]])
+    p = np.array([[300.0, 200.0], [310.0, 200.0]])
+    out = map_displacements(mapping, p, d, "full")
+    assert np.all(np.isfinite(out[0])) and np.all(np.isnan(out[1]))
+
+
+@pytest.mark.parametrize("deformation, noise", [("symmetric", 0.1), ("offset", 0.3)])
+def test_piv_vectors_recovers_object_displacement(frames, mapping, deformation, noise):
+    a, b = frames
+    f = piv_vectors(a, b, mapping, passes=[(64, 64), (32, 32), (32, 8)], deformation=deformation)
+    gx, gy = grid_for_windows(SHAPE, (32, 8), 0.5)
+    np.testing.assert_array_equal(f.x, gx)
+    assert f.grid is not None and f.window == (32, 8)
+    ok = f.valid
+    assert ok.mean() > 0.9
+    # PIV outliers that pass validation are rare (the edge windows); the rest is accurate
+    out = np.abs(f.u - U_OBJ) > 1.0
+    assert np.mean(out[ok]) < 0.002
+    ok &= ~out
+    assert abs(np.mean(f.u[ok]) - U_OBJ) < 0.02
+    assert abs(np.mean(f.v[ok]) - V_OBJ) < 0.02
+    # random error: window offset (whole-pixel shifts) vs symmetric image deformation
+    assert np.std(f.u[ok] - U_OBJ) < noise
+
+
+def test_positions_only_leaves_the_predicted_bias(frames, mapping):
+    a, b = frames
+    full = piv_vectors(a, b, mapping, mapping="full", deformation="symmetric")
+    pos = piv_vectors(a, b, mapping, mapping="positions", deformation="symmetric")
+    ok = full.valid & pos.valid
+    ok &= (np.abs(full.u - U_OBJ) < 1.0) & (np.abs(pos.u - U_OBJ) < 1.0)  # rare outliers
+    X = np.column_stack([pos.x[ok], pos.y[ok]])
+    bias = position_only_bias(mapping, X, np.tile([U_OBJ, V_OBJ], (len(X), 1)))
+    err_pos = pos.u[ok] - U_OBJ
+    err_full = full.u[ok] - U_OBJ
+    # the measured error of the position-only correction follows the predicted bias
+    assert abs(np.mean(err_pos - bias[:, 0])) < 0.02
+    assert np.corrcoef(err_pos, bias[:, 0])[0, 1] > 0.8
+    assert np.abs(np.mean(err_full)) < 0.2 * np.abs(np.mean(bias[:, 0]))
+
+
+def test_methods_agree_on_the_object_grid(frames, mapping):
+    """Method I (dewarp, then PIV) and Method II give the same field at the same points."""
+    from rspiv.dewarp import dewarp
+
+    a, b = frames
+    da = dewarp(a, mapping)
+    db = dewarp(b, mapping)
+    f1 = rspiv.piv(da, db, [(64, 64), (32, 32), (32, 8)], deformation="offset")
+    f2 = piv_vectors(a, b, mapping)
+    np.testing.assert_array_equal(f1.x, f2.x)
+    ok = f1.valid & f2.valid & (np.abs(f1.u - U_OBJ) < 1.0) & (np.abs(f2.u - U_OBJ) < 1.0)
+    assert abs(np.mean(f1.u[ok]) - np.mean(f2.u[ok])) < 0.02
+    assert abs(np.mean(f1.v[ok]) - np.mean(f2.v[ok])) < 0.02
+
+
+def test_bad_input(frames, mapping):
+    a, b = frames
+    with pytest.raises(rspiv.InvalidInputError, match="full"):
+        piv_vectors(a, b, mapping, mapping="vectors")
+    with pytest.raises(rspiv.InvalidInputError, match="Calibration or Mapping"):
+        piv_vectors(a, b, object())
+    with pytest.raises(rspiv.InvalidInputError):
+        piv_vectors(a, b[:, :-1], mapping)
+    with pytest.raises(rspiv.InvalidInputError, match="passes"):
+        piv_vectors(a, b, mapping, passes=[])
