@@ -2,7 +2,28 @@
 //!
 //! Coordinates: pixel frame with x = column, y = row, origin at the centre of the top-left
 //! pixel, y growing downward; displacements (u, v) follow the same axes, in pixels.
+//!
+//! A window `(w, h)` is `w` px wide (along x, columns) and `h` px tall (along y, rows): `(32, 8)`
+//! is 32 px streamwise by 8 px wall-normal when the flow runs along x.
+//!
+//! - [`multipass::piv`]: multipass PIV on a regular grid (window deformation or offset,
+//!   validation, masks);
+//! - [`multipass::piv_at`]: the same at arbitrary image positions with given predictors
+//!   (Method II);
+//! - [`correlate::Correlator`]: one window pair's normalised FFT cross-correlation;
+//! - [`synth::render_particles`]: synthetic particle images.
 
+pub mod correlate;
 pub mod error;
+pub mod grid;
+pub mod image;
+pub mod multipass;
+pub mod synth;
+pub mod validate;
 
+pub use correlate::{Correlator, Peak, SubPixel};
 pub use error::PivError;
+pub use grid::Grid;
+pub use image::{GridField, Pixel};
+pub use multipass::{piv, piv_at, Interpolation, Mode, Pass, PivField, PivSettings, Predictor};
+pub use synth::render_particles;

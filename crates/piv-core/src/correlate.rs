@@ -1,0 +1,595 @@
+//! FFT cross-correlation of one window pair, zero-padded (linear, no wrap-around inside the
+//! search range), normalised by the window energies, with peak finding, sub-pixel estimation,
+//! peak ratio and correlation coefficient.
+//!
+//! A window is `w` px wide (along x, columns) and `h` px tall (along y, rows). Both real windows
+//! travel through one complex 2D FFT (`a + i b`); the cross-spectrum `conj(A) B` is separated
+//! from it by Hermitian symmetry, and one inverse FFT gives the correlation
+//! `R(tx, ty) = sum a(x, y) b(x + tx, y + ty) / sqrt(E_a E_b)` (means removed), whose peak is
+//! the displacement of B relative to A. The padded size is the smallest 2^a 3^b 5^c length
+//! `>= w + w/2` (and likewise for `h`), which keeps every lag `|t| <= w/2` free of wrap-around.
+//! The peak is searched in `|tx| <= w/2 - 1`, `|ty| <= h/2 - 1`.
+//!
+//! FFT plans are cached per padded shape and shared between threads ([`plans`]); each thread
+//! owns a [`Correlator`] (its scratch buffers), so correlating a window allocates nothing.
+
+use rustfft::num_complex::Complex32;
+use rustfft::{Fft, FftPlanner};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
+/// Sub-pixel peak estimator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SubPixel {
+    /// Independent 3-point Gaussian fits along x and y (parabolic where a value is <= 0).
+    #[default]
+    Gauss3,
+    /// Least-squares 2D Gaussian over the 3 x 3 neighbourhood (9 points, Nobach & Honkanen
+    /// 2005), which also handles elliptic peaks tilted by a shear; falls back to `Gauss3`
+    /// where a value is <= 0.
+    Gauss2d,
+}
+
+/// The outcome of correlating one window pair.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Peak {
+    /// Displacement of B relative to A along x, px (sub-pixel).
+    pub dx: f64,
+    /// Displacement along y, px.
+    pub dy: f64,
+    /// Normalised correlation at the integer peak (correlation coefficient, <= 1).
+    pub coef: f64,
+    /// Highest peak over the second-highest local maximum (>= 1; capped at 1000).
+    pub ratio: f64,
+    /// `false` when a window was blank (zero variance) or the highest value of the search
+    /// region is not a local maximum (the peak lies beyond the search range).
+    pub ok: bool,
+}
+
+impl Peak {
+    /// A failed correlation.
+    pub const FAILED: Peak = Peak {
+        dx: 0.0,
+        dy: 0.0,
+        coef: 0.0,
+        ratio: 0.0,
+        ok: false,
+    };
+}
+
+/// FFT plans of one padded shape.
+pub struct Plans {
+    pub pw: usize,
+    pub ph: usize,
+    fwd_w: Arc<dyn Fft<f32>>,
+    fwd_h: Arc<dyn Fft<f32>>,
+    inv_w: Arc<dyn Fft<f32>>,
+    inv_h: Arc<dyn Fft<f32>>,
+    scratch_len: usize,
+}
+
+/// Smallest 2^a 3^b 5^c at least `n`.
+pub fn nice_len(n: usize) -> usize {
+    let mut m = n.max(1);
+    loop {
+        let mut k = m;
+        for p in [2, 3, 5] {
+            while k % p == 0 {
+                k /= p;
+            }
+        }
+        if k == 1 {
+            return m;
+        }
+        m += 1;
+    }
+}
+
+/// The shared, cached plans for a `pw` x `ph` padded transform.
+pub fn plans(pw: usize, ph: usize) -> Arc<Plans> {
+    type Cache = Mutex<HashMap<(usize, usize), Arc<Plans>>>;
+    static CACHE: OnceLock<Cache> = OnceLock::new();
+    let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
+    let mut map = cache.lock().unwrap_or_else(|e| e.into_inner());
+    map.entry((pw, ph))
+        .or_insert_with(|| {
+            let mut planner = FftPlanner::<f32>::new();
+            let fwd_w = planner.plan_fft_forward(pw);
+            let fwd_h = planner.plan_fft_forward(ph);
+            let inv_w = planner.plan_fft_inverse(pw);
+            let inv_h = planner.plan_fft_inverse(ph);
+            let scratch_len = [&fwd_w, &fwd_h, &inv_w, &inv_h]
+                .iter()
+                .map(|f| f.get_inplace_scratch_len())
+                .max()
+                .unwrap_or(0);
+            Arc::new(Plans {
+                pw,
+                ph,
+                fwd_w,
+                fwd_h,
+                inv_w,
+                inv_h,
+                scratch_len,
+            })
+        })
+        .clone()
+}
+
+/// Per-thread correlation engine for one window shape; reuse it for every window.
+pub struct Correlator {
+    /// Window width (px along x).
+    pub w: usize,
+    /// Window height (px along y).
+    pub h: usize,
+    /// Peak search half-ranges.
+    sx: usize,
+    sy: usize,
+    plans: Arc<Plans>,
+    buf: Vec<Complex32>,
+    buf2: Vec<Complex32>,
+    scratch: Vec<Complex32>,
+    /// Window of frame A, row-major `h` x `w`; fill it before [`Correlator::correlate`].
+    pub wa: Vec<f32>,
+    /// Window of frame B.
+    pub wb: Vec<f32>,
+    corr: Vec<f32>,
+    cw: usize,
+    ch: usize,
+}
+
+impl Correlator {
+    /// A correlator for `w` x `h` windows (w along x). Requires `w, h >= 4`.
+    pub fn new(w: usize, h: usize) -> Correlator {
+        let sx = (w / 2).saturating_sub(1).max(1);
+        let sy = (h / 2).saturating_sub(1).max(1);
+        let pw = nice_len(w + sx + 1);
+        let ph = nice_len(h + sy + 1);
+        let plans = plans(pw, ph);
+        let cw = 2 * sx + 3;
+        let ch = 2 * sy + 3;
+        Correlator {
+            w,
+            h,
+            sx,
+            sy,
+            scratch: vec![Complex32::default(); plans.scratch_len],
+            plans,
+            buf: vec![Complex32::default(); pw * ph],
+            buf2: vec![Complex32::default(); pw * ph],
+            wa: vec![0.0; w * h],
+            wb: vec![0.0; w * h],
+            corr: vec![0.0; cw * ch],
+            cw,
+            ch,
+        }
+    }
+
+    /// Peak search half-ranges (sx, sy) in px.
+    pub fn search(&self) -> (usize, usize) {
+        (self.sx, self.sy)
+    }
+
+    /// The normalised correlation around zero lag from the last call of [`Self::correlate`]:
+    /// `(2 sy + 3)` rows of `(2 sx + 3)` lags, lag 0 at the centre.
+    pub fn plane(&self) -> (&[f32], usize, usize) {
+        (&self.corr, self.cw, self.ch)
+    }
+
+    /// Correlate `wa` with `wb` and locate the peak.
+    pub fn correlate(&mut self, sub: SubPixel) -> Peak {
+        let (w, h) = (self.w, self.h);
+        let n = (w * h) as f32;
+        let ma = sum8(&self.wa) / n;
+        let mb = sum8(&self.wb) / n;
+        let ea = sq_dev8(&self.wa, ma) as f64;
+        let eb = sq_dev8(&self.wb, mb) as f64;
+        if !(ea > 1e-12 && eb > 1e-12 && ea.is_finite() && eb.is_finite()) {
+            return Peak::FAILED;
+        }
+        let pl = &*self.plans;
+        let (pw, ph) = (pl.pw, pl.ph);
+        // 1. a + i b into the first h rows, zero padding to pw columns
+        let zero = Complex32::default();
+        for ((row, ra), rb) in self
+            .buf
+            .chunks_exact_mut(pw)
+            .zip(self.wa.chunks_exact(w))
+            .zip(self.wb.chunks_exact(w))
+        {
+            for ((o, &a), &b) in row.iter_mut().zip(ra).zip(rb) {
+                *o = Complex32::new(a - ma, b - mb);
+            }
+            row[w..].fill(zero);
+        }
+        // 2. row FFTs of the non-zero rows
+        pl.fwd_w
+            .process_with_scratch(&mut self.buf[..h * pw], &mut self.scratch);
+        // 3. transpose into buf2 (pw rows of ph), padding rows h.. with zeros
+        transpose_into(&self.buf[..h * pw], h, pw, &mut self.buf2, ph);
+        // 4. column FFTs
+        pl.fwd_h
+            .process_with_scratch(&mut self.buf2, &mut self.scratch);
+        // 5. cross-spectrum conj(A) B from Z = A + i B, into buf (same transposed layout)
+        for kx in 0..pw {
+            let mkx = if kx == 0 { 0 } else { pw - kx };
+            let zrow = &self.buf2[kx * ph..(kx + 1) * ph];
+            let mrow = &self.buf2[mkx * ph..(mkx + 1) * ph];
+            let orow = &mut self.buf[kx * ph..(kx + 1) * ph];
+            // ky = 0 pairs with 0, ky pairs with ph - ky
+            let spec = |z: Complex32, zm: Complex32| {
+                let zm = zm.conj();
+                let a = (z + zm) * 0.5;
+                let d = z - zm; // = 2 i B
+                let b = Complex32::new(d.im * 0.5, -d.re * 0.5);
+                a.conj() * b
+            };
+            orow[0] = spec(zrow[0], mrow[0]);
+            for ((o, &z), &zm) in orow[1..]
+                .iter_mut()
+                .zip(&zrow[1..])
+                .zip(mrow[1..].iter().rev())
+            {
+                *o = spec(z, zm);
+            }
+        }
+        // 6. inverse along y
+        pl.inv_h
+            .process_with_scratch(&mut self.buf[..pw * ph], &mut self.scratch);
+        // 7. gather the lag rows -sy-1 ..= sy+1 into buf2 rows, inverse along x
+        let (sx, sy) = (self.sx, self.sy);
+        let nrows = self.ch;
+        // lag rows -sy-1 ..= -1 sit at the end of each column, 0 ..= sy+1 at its start
+        let (neg, pos) = (sy + 1, sy + 2);
+        for (kx, col) in self.buf.chunks_exact(ph).enumerate() {
+            for (t, v) in col[ph - neg..].iter().chain(&col[..pos]).enumerate() {
+                self.buf2[t * pw + kx] = *v;
+            }
+        }
+        pl.inv_w
+            .process_with_scratch(&mut self.buf2[..nrows * pw], &mut self.scratch);
+        // 8. normalised plane: lags tx = -sx-1 ..= sx+1
+        let norm = (1.0 / ((pw * ph) as f64 * (ea * eb).sqrt())) as f32;
+        let cw = self.cw;
+        for (out, row) in self
+            .corr
+            .chunks_exact_mut(cw)
+            .zip(self.buf2.chunks_exact(pw))
+        {
+            // negative lags -sx-1 ..= -1 sit at the end of the row
+            let (neg, pos) = out.split_at_mut(sx + 1);
+            for (o, v) in neg.iter_mut().zip(&row[pw - sx - 1..]) {
+                *o = v.re * norm;
+            }
+            for (o, v) in pos.iter_mut().zip(&row[..sx + 2]) {
+                *o = v.re * norm;
+            }
+        }
+        find_peak(&self.corr, self.cw, self.ch, w, h, sub)
+    }
+}
+
+/// Sum with 8 independent accumulators (vectorises).
+#[inline]
+fn sum8(x: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let mut it = x.chunks_exact(8);
+    for c in &mut it {
+        for k in 0..8 {
+            acc[k] += c[k];
+        }
+    }
+    acc.iter().sum::<f32>() + it.remainder().iter().sum::<f32>()
+}
+
+/// Sum of squared deviations from `m` with 8 accumulators.
+#[inline]
+fn sq_dev8(x: &[f32], m: f32) -> f32 {
+    let mut acc = [0.0f32; 8];
+    let mut it = x.chunks_exact(8);
+    for c in &mut it {
+        for k in 0..8 {
+            let d = c[k] - m;
+            acc[k] += d * d;
+        }
+    }
+    acc.iter().sum::<f32>()
+        + it.remainder()
+            .iter()
+            .map(|v| (v - m) * (v - m))
+            .sum::<f32>()
+}
+
+/// Write the transpose of `src` (`rows` x `cols`) into `dst` as `cols` rows of `stride`,
+/// zero-filling each destination row beyond `rows`.
+fn transpose_into(
+    src: &[Complex32],
+    rows: usize,
+    cols: usize,
+    dst: &mut [Complex32],
+    stride: usize,
+) {
+    const B: usize = 8;
+    for dr in dst.chunks_exact_mut(stride) {
+        dr[rows..].fill(Complex32::default());
+    }
+    for r0 in (0..rows).step_by(B) {
+        let r1 = (r0 + B).min(rows);
+        for c in 0..cols {
+            let drow = &mut dst[c * stride..c * stride + rows];
+            for r in r0..r1 {
+                drow[r] = src[r * cols + c];
+            }
+        }
+    }
+}
+
+/// Locate the peak in a plane of `ch` rows of `cw` lags (lag 0 at the centre, a one-lag border
+/// around the search region), with sub-pixel refinement and peak ratio. The sub-pixel fit uses
+/// the plane divided by the overlap fraction `(1 - |tx|/w)(1 - |ty|/h)` of the two windows at
+/// each lag, which removes the bias of linear correlation towards zero displacement
+/// (Westerweel 1997); the integer peak, its height and the peak ratio use the plane itself.
+pub fn find_peak(corr: &[f32], cw: usize, ch: usize, w: usize, h: usize, sub: SubPixel) -> Peak {
+    let at = |c: usize, r: usize| corr[r * cw + c];
+    let (hx, hy) = ((cw / 2) as f32, (ch / 2) as f32);
+    let (fw, fh) = (w as f32, h as f32);
+    let unbiased = |c: usize, r: usize| {
+        let ox = 1.0 - (c as f32 - hx).abs() / fw;
+        let oy = 1.0 - (r as f32 - hy).abs() / fh;
+        corr[r * cw + c] / (ox * oy)
+    };
+    // primary peak inside the border
+    let (mut pc, mut pr, mut best) = (1usize, 1usize, f32::NEG_INFINITY);
+    for r in 1..ch - 1 {
+        for c in 1..cw - 1 {
+            let v = at(c, r);
+            if v > best {
+                best = v;
+                pc = c;
+                pr = r;
+            }
+        }
+    }
+    if !best.is_finite() {
+        return Peak::FAILED;
+    }
+    // second-highest local maximum outside the peak's 3 x 3 neighbourhood
+    let mut second = f32::NEG_INFINITY;
+    for r in 1..ch - 1 {
+        for c in 1..cw - 1 {
+            if r.abs_diff(pr) <= 1 && c.abs_diff(pc) <= 1 {
+                continue;
+            }
+            let v = at(c, r);
+            if v <= second {
+                continue;
+            }
+            let is_max = (r - 1..=r + 1)
+                .all(|rr| (c - 1..=c + 1).all(|cc| (rr == r && cc == c) || at(cc, rr) <= v));
+            if is_max {
+                second = v;
+            }
+        }
+    }
+    let ratio = if best <= 0.0 {
+        1.0
+    } else if second <= best * 1e-3 {
+        1000.0
+    } else {
+        (best / second) as f64
+    };
+    // a peak on the search border is kept only if it is a true local maximum (the plane has
+    // one exact lag beyond the search range on every side)
+    let on_border = (pr - 1..=pr + 1)
+        .any(|rr| (pc - 1..=pc + 1).any(|cc| (rr, cc) != (pr, pc) && at(cc, rr) > best));
+    let (ox, oy) = match sub {
+        SubPixel::Gauss3 => gauss3_2(&unbiased, pc, pr),
+        SubPixel::Gauss2d => {
+            gauss9(&unbiased, pc, pr).unwrap_or_else(|| gauss3_2(&unbiased, pc, pr))
+        }
+    };
+    let cx = (cw / 2) as f64;
+    let cy = (ch / 2) as f64;
+    Peak {
+        dx: pc as f64 - cx + ox,
+        dy: pr as f64 - cy + oy,
+        coef: best as f64,
+        ratio,
+        ok: !on_border,
+    }
+}
+
+/// 3-point estimator along one axis; Gaussian when all values are positive, else parabolic.
+#[inline]
+pub fn gauss3(m: f32, c: f32, p: f32) -> f64 {
+    let (m, c, p) = (m as f64, c as f64, p as f64);
+    let off = if m > 0.0 && c > 0.0 && p > 0.0 {
+        let (lm, lc, lp) = (m.ln(), c.ln(), p.ln());
+        let den = 2.0 * (lm - 2.0 * lc + lp);
+        if den < 0.0 {
+            (lm - lp) / den
+        } else {
+            0.0
+        }
+    } else {
+        let den = 2.0 * (m - 2.0 * c + p);
+        if den < 0.0 {
+            (m - p) / den
+        } else {
+            0.0
+        }
+    };
+    off.clamp(-0.5, 0.5)
+}
+
+fn gauss3_2(at: &impl Fn(usize, usize) -> f32, c: usize, r: usize) -> (f64, f64) {
+    (
+        gauss3(at(c - 1, r), at(c, r), at(c + 1, r)),
+        gauss3(at(c, r - 1), at(c, r), at(c, r + 1)),
+    )
+}
+
+/// Least-squares fit of `ln R = a + b x + c y + d x^2 + e x y + f y^2` to the 3 x 3
+/// neighbourhood; the vertex of the fitted paraboloid. `None` if a value is <= 0 or the fit is
+/// not a maximum.
+fn gauss9(at: &impl Fn(usize, usize) -> f32, c: usize, r: usize) -> Option<(f64, f64)> {
+    let mut c10 = 0.0;
+    let mut c01 = 0.0;
+    let mut c11 = 0.0;
+    let mut c20 = 0.0;
+    let mut c02 = 0.0;
+    for j in -1i32..=1 {
+        for i in -1i32..=1 {
+            let v = at((c as i32 + i) as usize, (r as i32 + j) as usize) as f64;
+            if v <= 0.0 {
+                return None;
+            }
+            let l = v.ln();
+            let (x, y) = (i as f64, j as f64);
+            c10 += x * l / 6.0;
+            c01 += y * l / 6.0;
+            c11 += x * y * l / 4.0;
+            c20 += (3.0 * x * x - 2.0) * l / 6.0;
+            c02 += (3.0 * y * y - 2.0) * l / 6.0;
+        }
+    }
+    // ln R ~ const + c10 x + c01 y + c20 x^2 + c11 x y + c02 y^2
+    let det = 4.0 * c20 * c02 - c11 * c11;
+    if !(c20 < 0.0 && det > 0.0) {
+        return None;
+    }
+    let x0 = (c11 * c01 - 2.0 * c10 * c02) / det;
+    let y0 = (c11 * c10 - 2.0 * c01 * c20) / det;
+    if x0.abs() > 1.0 || y0.abs() > 1.0 {
+        return None;
+    }
+    Some((x0, y0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn gaussian_blob(w: usize, h: usize, cx: f64, cy: f64) -> Vec<f32> {
+        let mut v = vec![0.0f32; w * h];
+        for r in 0..h {
+            for c in 0..w {
+                let dx = c as f64 - cx;
+                let dy = r as f64 - cy;
+                v[r * w + c] = (-(dx * dx + dy * dy) / 2.0).exp() as f32;
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn nice_lengths() {
+        assert_eq!(nice_len(97), 100);
+        assert_eq!(nice_len(48), 48);
+        assert_eq!(nice_len(13), 15);
+        assert_eq!(nice_len(7), 8);
+    }
+
+    #[test]
+    fn gauss3_exact_on_gaussian() {
+        let d: f64 = 0.3;
+        let g = |x: f64| (-(x - d) * (x - d) / 1.7).exp() as f32;
+        assert!((gauss3(g(-1.0), g(0.0), g(1.0)) - d).abs() < 1e-5);
+    }
+
+    #[test]
+    fn gauss9_exact_on_tilted_gaussian() {
+        let (x0, y0) = (0.27, -0.41);
+        let f = |i: usize, j: usize| {
+            let x = i as f64 - 1.0 - x0;
+            let y = j as f64 - 1.0 - y0;
+            (-(0.8 * x * x + 0.5 * x * y + 0.6 * y * y)).exp() as f32
+        };
+        let (ex, ey) = gauss9(&f, 1, 1).unwrap();
+        assert!(
+            (ex - x0).abs() < 1e-5 && (ey - y0).abs() < 1e-5,
+            "{ex} {ey}"
+        );
+    }
+
+    #[test]
+    fn integer_shift_of_random_pattern_is_found_exactly() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let (w, h) = (32usize, 8usize);
+        let big_w = w + 40;
+        let big_h = h + 40;
+        let img: Vec<f32> = (0..big_w * big_h).map(|_| rng.random::<f32>()).collect();
+        for (sx, sy) in [(0i32, 0i32), (3, 1), (-5, -2), (7, 3), (-14, 0), (-15, -3)] {
+            let mut c = Correlator::new(w, h);
+            for r in 0..h {
+                for col in 0..w {
+                    let (ra, ca) = (r + 20, col + 20);
+                    c.wa[r * w + col] = img[ra * big_w + ca];
+                    // B(x) = A(x - s): pattern moved by +s
+                    let (rb, cb) = ((ra as i32 - sy) as usize, (ca as i32 - sx) as usize);
+                    c.wb[r * w + col] = img[rb * big_w + cb];
+                }
+            }
+            let p = c.correlate(SubPixel::Gauss3);
+            assert!(p.ok, "{sx} {sy} {p:?}");
+            assert!(
+                (p.dx - sx as f64).abs() < 0.2 && (p.dy - sy as f64).abs() < 0.2,
+                "{sx} {sy} {p:?}"
+            );
+            if sx == 0 && sy == 0 {
+                assert!((p.coef - 1.0).abs() < 1e-4, "{p:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn no_wrap_around_and_subpixel_blob() {
+        let (w, h) = (32usize, 32usize);
+        let mut c = Correlator::new(w, h);
+        c.wa.copy_from_slice(&gaussian_blob(w, h, 15.0, 15.0));
+        c.wb.copy_from_slice(&gaussian_blob(w, h, 17.3, 14.4));
+        let p = c.correlate(SubPixel::Gauss3);
+        // the integer peak of an isolated blob moved by (2.3, -0.6); sub-pixel accuracy is
+        // tested on particle patterns (the overlap correction assumes homogeneous seeding)
+        assert!(
+            p.ok && (p.dx - 2.3).abs() < 0.5 && (p.dy + 0.6).abs() < 0.5,
+            "{p:?}"
+        );
+        // linear correlation: the plane equals the direct sum at a few lags
+        let (plane, cw, ch) = c.plane();
+        let (wa, wb) = (c.wa.clone(), c.wb.clone());
+        let ma = wa.iter().sum::<f32>() as f64 / (w * h) as f64;
+        let mb = wb.iter().sum::<f32>() as f64 / (w * h) as f64;
+        let ea: f64 = wa.iter().map(|&a| (a as f64 - ma).powi(2)).sum();
+        let eb: f64 = wb.iter().map(|&b| (b as f64 - mb).powi(2)).sum();
+        for (tx, ty) in [(0i32, 0i32), (5, -3), (-16, 16), (16, -16), (-3, 9)] {
+            let mut s = 0.0f64;
+            for r in 0..h as i32 {
+                for col in 0..w as i32 {
+                    let (r2, c2) = (r + ty, col + tx);
+                    if r2 < 0 || c2 < 0 || r2 >= h as i32 || c2 >= w as i32 {
+                        continue;
+                    }
+                    s += (wa[(r * w as i32 + col) as usize] as f64 - ma)
+                        * (wb[(r2 * w as i32 + c2) as usize] as f64 - mb);
+                }
+            }
+            let expect = s / (ea * eb).sqrt();
+            let got =
+                plane[((ty + (ch / 2) as i32) as usize) * cw + (tx + (cw / 2) as i32) as usize];
+            assert!(
+                (got as f64 - expect).abs() < 1e-5,
+                "{tx} {ty} {got} {expect}"
+            );
+        }
+    }
+
+    #[test]
+    fn blank_window_fails_cleanly() {
+        let mut c = Correlator::new(16, 16);
+        c.wa.fill(3.0);
+        c.wb.fill(1.0);
+        assert!(!c.correlate(SubPixel::Gauss3).ok);
+    }
+}

@@ -1,0 +1,144 @@
+//! Vector validation: normalised median test (Westerweel & Scarano 2005) and replacement of
+//! rejected vectors from their valid neighbours.
+
+use ndarray::Array2;
+
+/// Fewest usable neighbours for the median test.
+pub const MIN_NEIGHBOURS: usize = 6;
+
+/// Normalised median test over the 3 x 3 neighbourhood. `usable[j, i]` says which vectors may
+/// serve as neighbours (and be tested). A vector fails when, for u or v,
+/// `|x0 - median(x_n)| / (median(|x_n - median(x_n)|) + eps) > threshold`.
+/// Vectors with fewer than 6 usable neighbours (image edges and corners, holes) are not tested:
+/// a one-sided neighbourhood in a strong gradient has a near-zero residual median and would
+/// reject good vectors. Returns `true` = outlier.
+pub fn median_test(
+    u: &Array2<f64>,
+    v: &Array2<f64>,
+    usable: &Array2<bool>,
+    eps: f64,
+    threshold: f64,
+) -> Array2<bool> {
+    let (ny, nx) = u.dim();
+    let mut out = Array2::from_elem((ny, nx), false);
+    let mut nu = [0.0f64; 8];
+    let mut nv = [0.0f64; 8];
+    let mut res = [0.0f64; 8];
+    for j in 0..ny {
+        for i in 0..nx {
+            if !usable[[j, i]] {
+                continue;
+            }
+            let mut k = 0;
+            for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+                for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+                    if (jj, ii) != (j, i) && usable[[jj, ii]] {
+                        nu[k] = u[[jj, ii]];
+                        nv[k] = v[[jj, ii]];
+                        k += 1;
+                    }
+                }
+            }
+            if k < MIN_NEIGHBOURS {
+                continue;
+            }
+            let ru = normalised_residual(u[[j, i]], &mut nu[..k], &mut res[..k], eps);
+            let rv = normalised_residual(v[[j, i]], &mut nv[..k], &mut res[..k], eps);
+            out[[j, i]] = ru > threshold || rv > threshold;
+        }
+    }
+    out
+}
+
+fn median(x: &mut [f64]) -> f64 {
+    x.sort_unstable_by(|a, b| a.total_cmp(b));
+    let n = x.len();
+    if n % 2 == 1 {
+        x[n / 2]
+    } else {
+        0.5 * (x[n / 2 - 1] + x[n / 2])
+    }
+}
+
+fn normalised_residual(x0: f64, nb: &mut [f64], res: &mut [f64], eps: f64) -> f64 {
+    let m = median(nb);
+    for (r, x) in res.iter_mut().zip(nb.iter()) {
+        *r = (x - m).abs();
+    }
+    let rm = median(res);
+    (x0 - m).abs() / (rm + eps)
+}
+
+/// Replace every vector with `good[j, i] == false` by the mean of its good 3 x 3 neighbours,
+/// sweeping until all are filled (newly filled vectors count as good in the next sweep). With no
+/// good vector at all the field is set to zero.
+pub fn replace(u: &mut Array2<f64>, v: &mut Array2<f64>, good: &Array2<bool>) {
+    let (ny, nx) = u.dim();
+    let mut g = good.clone();
+    if !g.iter().any(|&b| b) {
+        u.fill(0.0);
+        v.fill(0.0);
+        return;
+    }
+    loop {
+        let mut filled = Vec::new();
+        for j in 0..ny {
+            for i in 0..nx {
+                if g[[j, i]] {
+                    continue;
+                }
+                let (mut su, mut sv, mut n) = (0.0, 0.0, 0usize);
+                for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+                    for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+                        if g[[jj, ii]] {
+                            su += u[[jj, ii]];
+                            sv += v[[jj, ii]];
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    filled.push((j, i, su / n as f64, sv / n as f64));
+                }
+            }
+        }
+        if filled.is_empty() {
+            break;
+        }
+        for (j, i, a, b) in filled {
+            u[[j, i]] = a;
+            v[[j, i]] = b;
+            g[[j, i]] = true;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn single_outlier_is_found_and_replaced() {
+        let mut u = Array2::from_shape_fn((5, 6), |(j, i)| 0.1 * i as f64 + 0.05 * j as f64);
+        let mut v = Array2::from_elem((5, 6), 1.0);
+        u[[2, 3]] = 5.0;
+        let usable = Array2::from_elem((5, 6), true);
+        let bad = median_test(&u, &v, &usable, 0.1, 2.0);
+        assert_eq!(bad.iter().filter(|&&b| b).count(), 1);
+        assert!(bad[[2, 3]]);
+        let good = bad.mapv(|b| !b);
+        replace(&mut u, &mut v, &good);
+        assert!((u[[2, 3]] - (0.3 + 0.1)).abs() < 1e-12, "{}", u[[2, 3]]);
+    }
+
+    #[test]
+    fn replace_fills_holes() {
+        let mut u = Array2::from_elem((4, 4), 2.0);
+        let mut v = Array2::from_elem((4, 4), -1.0);
+        let mut good = Array2::from_elem((4, 4), false);
+        good[[0, 0]] = true;
+        u[[3, 3]] = f64::NAN;
+        replace(&mut u, &mut v, &good);
+        assert!(u.iter().all(|&x| x == 2.0) && v.iter().all(|&x| x == -1.0));
+    }
+}

@@ -1,0 +1,222 @@
+"""PIV engine: accuracy against synthetic ground truth, OpenPIV agreement, API and errors."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import openpiv
+import pytest
+import rspiv
+from rspiv.synth import particle_pair
+
+
+def _uniform_ramp_pair(h=384, w=1024, seed=11):
+    """True displacement uniform over [0, 1) px in both components across the image."""
+
+    def disp(x, y):
+        return x / w, y / h
+
+    a, b = particle_pair((h, w), disp, density=0.03, diameter=2.5, noise=0.05, seed=seed)
+    return a, b, disp
+
+
+def test_subpixel_bias_rms_and_no_peak_locking():
+    a, b, disp = _uniform_ramp_pair()
+    f = rspiv.piv(a, b, passes=[(64, 64), (32, 32)])
+    tu, tv = disp(f.x, f.y)
+    true = np.concatenate([tu.ravel(), tv.ravel()])
+    meas = np.concatenate([f.u.ravel(), f.v.ravel()])
+    err = meas - true
+    # RMS error at 32 x 32 windows, per component
+    rms_u = np.sqrt(np.mean((f.u - tu) ** 2))
+    rms_v = np.sqrt(np.mean((f.v - tv) ** 2))
+    assert rms_u <= 0.03 and rms_v <= 0.03, (rms_u, rms_v)
+    # bias curve: mean error per 0.1 px bin of the true displacement; peak locking would show
+    # as a systematic S-shaped bias pulling towards 0 and 1
+    bins = np.clip((true * 10).astype(int), 0, 9)
+    bias = np.array([err[bins == k].mean() for k in range(10)])
+    assert np.all(np.abs(bias) <= 0.02), bias
+    # histogram of the fractional part of the measurement: flat within 25 % per bin
+    # (about 190 samples per bin; a peak-locked estimator empties the middle bins)
+    frac = np.mod(meas, 1.0)
+    hist, _ = np.histogram(frac, bins=10, range=(0, 1))
+    expected = len(frac) / 10
+    assert np.all(np.abs(hist - expected) <= 0.25 * expected), hist
+    # peak-locking degree (Christensen 2004): 1 - (min bin / max bin) of the central histogram
+    assert 1 - hist.min() / hist.max() < 0.4, hist
+
+
+def test_single_pass_32x32_unbiased():
+    a, b = particle_pair((256, 256), (0.3, -0.7), seed=2)
+    f = rspiv.piv(a, b, passes=[(32, 32)])
+    assert abs(f.u.mean() - 0.3) < 0.01 and abs(f.v.mean() + 0.7) < 0.01
+    assert np.sqrt(np.mean((f.u - 0.3) ** 2 + (f.v + 0.7) ** 2)) < 0.05
+
+
+def test_sinusoidal_shear_multipass_deformation():
+    # L = 8 window heights of the final 32 x 32 windows
+    h = w = 512
+    amp, length = 1.0, 8 * 32
+
+    def disp(x, y):
+        return amp * np.sin(2 * np.pi * y / length), 0 * x
+
+    a, b = particle_pair((h, w), disp, seed=3)
+    f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 32)], deformation="symmetric")
+    tu, tv = disp(f.x, f.y)
+    rms = np.sqrt(np.mean((f.u - tu) ** 2 + (f.v - tv) ** 2))
+    assert rms <= 0.05, rms
+    # a single pass without deformation is much worse: the window averages the shear
+    g = rspiv.piv(a, b, passes=[(32, 32)])
+    rms1 = np.sqrt(np.mean((g.u - tu) ** 2 + (g.v - tv) ** 2))
+    assert rms1 > rms
+
+
+def test_boundary_layer_rectangular_windows_resolve_the_wall():
+    delta, u_inf = 10.0, 8.0
+
+    def disp(x, y):
+        return u_inf * (1 - np.exp(-np.maximum(y, 0) / delta)), 0 * x
+
+    a, b = particle_pair((256, 768), disp, seed=4)
+    errs = {}
+    for name, passes in {
+        "32x32": [(64, 64), (32, 32)],
+        "32x8": [(64, 64), (32, 32), (32, 8)],
+    }.items():
+        f = rspiv.piv(a, b, passes=passes)
+        tu, _ = disp(f.x, f.y)
+        near = f.y < 40
+        errs[name] = float(np.sqrt(np.mean((f.u - tu)[near] ** 2)))
+    print("near-wall RMS error (px):", errs)
+    assert errs["32x8"] < 0.8 * errs["32x32"], errs
+
+
+def test_agrees_with_openpiv_windef_on_its_test_images():
+    from openpiv import tools, windef
+
+    data = os.path.join(os.path.dirname(openpiv.__file__), "data", "test1")
+    fa = tools.imread(os.path.join(data, "exp1_001_a.bmp"))
+    fb = tools.imread(os.path.join(data, "exp1_001_b.bmp"))
+    s = windef.PIVSettings()
+    s.windowsizes = (64, 32)
+    s.overlap = (32, 16)
+    s.num_iterations = 2
+    s.show_plot = False
+    s.save_plot = False
+    x, y, u, v, flags = windef.simple_multipass(fa, fb, s)
+    # back to image coordinates: simple_multipass returns y up and v up
+    xo, yo, uo, vo = tools.transform_coordinates(x, y, u, v)
+    ours = rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)])
+    from scipy.interpolate import RegularGridInterpolator
+
+    pts = np.stack([yo.ravel(), xo.ravel()], axis=-1)
+    inside = (
+        (pts[:, 0] >= ours.y[0, 0])
+        & (pts[:, 0] <= ours.y[-1, 0])
+        & (pts[:, 1] >= ours.x[0, 0])
+        & (pts[:, 1] <= ours.x[0, -1])
+    )
+    pts = pts[inside]
+    iu = RegularGridInterpolator((ours.y[:, 0], ours.x[0, :]), ours.u)(pts)
+    iv = RegularGridInterpolator((ours.y[:, 0], ours.x[0, :]), ours.v)(pts)
+    du = np.abs(iu - uo.ravel()[inside])
+    dv = np.abs(iv - vo.ravel()[inside])
+    print("median |du|, |dv| vs openpiv.windef:", np.median(du), np.median(dv))
+    assert np.median(du) <= 0.1 and np.median(dv) <= 0.1
+
+
+def test_offset_mode_and_gauss2d_and_dtypes():
+    a, b = particle_pair((192, 192), (2.4, 1.1), seed=5)
+    ref = rspiv.piv(a, b, passes=[(64, 64), (32, 32)])
+    for kw in ({"deformation": "offset"}, {"subpixel": "gauss2d"}):
+        f = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], **kw)
+        assert np.sqrt(np.mean((f.u - 2.4) ** 2 + (f.v - 1.1) ** 2)) < 0.05
+    # Keys bicubic deformation works but leaves the interpolation bias the B-spline avoids
+    keys = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], interpolation="keys")
+    e_keys = np.sqrt(np.mean((keys.u - 2.4) ** 2 + (keys.v - 1.1) ** 2))
+    e_ref = np.sqrt(np.mean((ref.u - 2.4) ** 2 + (ref.v - 1.1) ** 2))
+    assert e_ref < e_keys < 0.1, (e_ref, e_keys)
+    for dt in (np.float32, np.float64, np.int32):
+        f = rspiv.piv(a.astype(dt), b.astype(dt), passes=[(64, 64), (32, 32)])
+        np.testing.assert_allclose(f.u, ref.u, atol=1e-3)
+
+
+def test_mask_flags_vectors_without_computing_them():
+    a, b = particle_pair((160, 160), (1.0, 0.5), seed=6)
+    mask = np.zeros(a.shape, bool)
+    mask[:, :60] = True
+    f = rspiv.piv(a, b, passes=[(32, 32)], mask=mask)
+    inside = np.round(f.x) < 60
+    assert np.array_equal(f.masked, inside)
+    assert np.all(np.isnan(f.u[inside])) and not np.any(f.valid[inside])
+    assert np.all(np.abs(f.u[~inside] - 1.0) < 0.1)
+
+
+def test_piv_at_points_and_predictors():
+    def disp(x, y):
+        return 6.0 + 0.01 * y, -1.5 + 0 * x
+
+    a, b = particle_pair((256, 256), disp, seed=7)
+    grid = rspiv.piv(a, b, passes=[(64, 64), (32, 32)])
+    pts = np.array([[100.3, 80.7], [150.0, 120.25], [60.5, 200.0]])
+    tu, tv = disp(pts[:, 0], pts[:, 1])
+    # with a per-point predictor (offset) and with the grid field (deformation)
+    for pred in (np.stack([tu + 0.4, tv - 0.3], -1), grid):
+        f = rspiv.piv_at(a, b, pts, window=(32, 32), predictor=pred, iterations=2)
+        assert f.shape == (3,)
+        assert np.all(np.abs(f.u - tu) < 0.1) and np.all(np.abs(f.v - tv) < 0.1), (f.u, f.v)
+    # structured points with multipass windows and no predictor
+    ys, xs = np.mgrid[60:200:20, 60:200:20].astype(float)
+    f = rspiv.piv_at(a, b, np.stack([xs, ys], -1), window=[(64, 64), (32, 8)], iterations=2)
+    assert f.shape == xs.shape and f.grid is None
+    assert np.sqrt(np.mean((f.u - disp(xs, ys)[0]) ** 2)) < 0.1
+
+
+def test_to_xarray_is_pivpy_like():
+    a, b = particle_pair((128, 160), (1.0, 0.0), seed=8)
+    f = rspiv.piv(a, b, passes=[(32, 32), (32, 8)])
+    ds = f.to_xarray()
+    assert set(("u", "v", "chc")) <= set(ds.data_vars)
+    assert ds.u.dims == ("y", "x") and ds.sizes["x"] == f.shape[1]
+    np.testing.assert_array_equal(ds.x.values, f.x[0])
+    assert f.window == (32, 8) and f.x.shape == f.peak_ratio.shape
+
+
+def test_rectangular_window_orientation():
+    # (w, h) = (32, 8): 32 px along x, 8 px along y -> vectors every 16 px in x, 4 px in y
+    a, b = particle_pair((64, 128), (0.5, 0.0), seed=9)
+    f = rspiv.piv(a, b, passes=[(32, 8)], overlap=0.5)
+    assert f.x[0, 1] - f.x[0, 0] == 16 and f.y[1, 0] - f.y[0, 0] == 4
+    assert f.x[0, 0] == pytest.approx(15.5) and f.y[0, 0] == pytest.approx(3.5)
+
+
+def test_render_particles_contract():
+    img = rspiv._rspiv.render_particles(
+        20, 30, np.array([10.2]), np.array([7.6]), np.array([1000.0]), np.array([3.0]), 0.0, 4095, 1
+    )
+    assert img.dtype == np.uint16 and img.shape == (20, 30)
+    total = img.astype(float).sum()
+    assert abs(total - 1000 * np.pi * 9 / 8) / total < 0.01
+    yy, xx = np.mgrid[:20, :30]
+    assert abs((img * xx).sum() / total - 10.2) < 0.02
+    a1, _ = particle_pair((64, 64), (1, 1), seed=3)
+    a2, _ = particle_pair((64, 64), (1, 1), seed=3)
+    assert np.array_equal(a1, a2) and a1.max() <= 4095
+
+
+@pytest.mark.parametrize(
+    "fa, fb, kw, msg",
+    [
+        (np.zeros((64, 64)), np.zeros((64, 65)), {}, "differ in shape"),
+        (np.zeros((64, 64)), np.zeros((64, 64)), {"passes": [(128, 32)]}, "larger than the image"),
+        (np.zeros((2, 64, 64)), np.zeros((2, 64, 64)), {}, "2D"),
+        (np.full((64, 64), np.nan), np.zeros((64, 64)), {"passes": [(32, 32)]}, "NaN"),
+        (np.zeros((64, 64)), np.zeros((64, 64)), {"passes": [(32, 32)], "overlap": 1.5}, "overlap"),
+        (np.zeros((64, 64)), np.zeros((64, 64)), {"deformation": "warp"}, "deformation"),
+    ],
+)
+def test_bad_input_raises_invalid_input(fa, fb, kw, msg):
+    with pytest.raises(rspiv.InvalidInputError, match=msg):
+        rspiv.piv(fa, fb, **kw)
