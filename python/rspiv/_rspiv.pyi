@@ -9,5 +9,193 @@ import numpy.typing as npt
 
 __version__: str
 
+# -- mapping models (crates/rspiv-py/src/mapping.rs) -----------------------------------------
 
+class NativeMapping:
+    """Native half of ``rspiv.Mapping`` (object px -> image px); immutable."""
 
+    @property
+    def model(self) -> str: ...
+    @property
+    def coefficients(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def centre_object(self) -> tuple[float, float]: ...
+    @property
+    def centre_image(self) -> tuple[float, float]: ...
+    @property
+    def scale(self) -> float: ...
+    @property
+    def rotation(self) -> float: ...
+    @property
+    def residuals(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def covariance(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def stats(self) -> dict[str, object]: ...
+    def forward(self, pts: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]: ...
+    def forward_jacobian(self, pts: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]: ...
+    def inverse(
+        self, pts: npt.NDArray[np.float64]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]: ...
+    def with_rotation(self, theta_rad: float) -> NativeMapping: ...
+    def to_json(self) -> str: ...
+    @staticmethod
+    def from_json(text: str) -> NativeMapping: ...
+
+def fit_mapping(
+    object_px: npt.NDArray[np.float64],
+    image_px: npt.NDArray[np.float64],
+    model: str = "p3",
+    center_index: int | None = None,
+    scale: float | None = None,
+) -> NativeMapping: ...
+def bench_fit_normalized(
+    model: str,
+    obj_hat: npt.NDArray[np.float64],
+    img_hat: npt.NDArray[np.float64],
+    n_points: int,
+    repeats: int = 1000,
+    warm_start: list[float] | None = None,
+) -> float:
+    """Seconds per allocation-free refit (FitWorkspace), cycling over stacked data sets."""
+
+# -- calibration (crates/rspiv-py/src/calibration.rs) ---------------------------------------------
+def render_target(
+    height: int,
+    width: int,
+    centres: npt.NDArray[np.float64],
+    sigma_px: npt.NDArray[np.float64],
+    amplitude: npt.NDArray[np.float64],
+    background: float = 200.0,
+    gradient: tuple[float, float] = (0.08, -0.05),
+    vignetting: float = 0.15,
+    gain: float = 0.5,
+    read_noise: float = 4.0,
+    full_scale: float = 4095.0,
+    seed: int = 0,
+) -> npt.NDArray[np.uint16]:
+    """Render Gaussian dots centred at ``centres`` (N, 2) image px, with illumination and noise."""
+
+def detect_markers(
+    image: npt.NDArray[np.generic],
+    marker: str = "dot",
+    size_px: float | None = None,
+    threshold: float = 0.25,
+    min_snr: float = 8.0,
+    dark: bool = False,
+) -> dict[str, object]:
+    """Markers of a target image (uint8/uint16/float32/float64): keys ``image_px`` (N, 2),
+    ``cov_px2`` (N, 2, 2), ``amplitude``, ``width_px``, ``strength`` (N,), ``size_px``,
+    ``downsample``."""
+
+def index_grid(
+    points_px: npt.NDArray[np.float64], centre: tuple[float, float], tol: float = 0.3
+) -> tuple[
+    npt.NDArray[np.int32], npt.NDArray[np.bool_], int, tuple[float, float], tuple[float, float]
+]:
+    """Grid index (N, 2), found mask (N,), origin row, grid steps a1 and a2 (px)."""
+
+def monte_carlo(
+    object_px: npt.NDArray[np.float64],
+    image_px: npt.NDArray[np.float64],
+    model: str,
+    n: int,
+    sigma_image_px: float,
+    sigma_object_px: float,
+    centre_index: int,
+    scale: float | None = None,
+    seed: int = 0,
+    hist_bins: int = 0,
+    hist_half_range_px: float = 2.0,
+    keep_samples: bool = False,
+    threads: int | None = None,
+) -> dict[str, object]:
+    """Monte Carlo study: keys ``n_ok``, ``n_failed``, ``mean_px`` (M, 2), ``cov_px2`` (M, 2, 2),
+    ``radius99_px``, ``within1``, ``within2`` (M,), ``nominal_px`` (M, 2), and ``hist``
+    (M, bins, bins) / ``samples`` (n_ok, M, 2) float32 when asked."""
+
+# -- remap / dewarp (crates/rspiv-py/src/remap.rs) -------------------------------------------
+
+def dewarp_image(
+    image: npt.NDArray[np.uint16] | npt.NDArray[np.float32],
+    mapping_json: str,
+    out_shape: tuple[int, int] | None = None,
+    sampling: str = "auto",
+    tol: float = 1e-3,
+    step: int = 16,
+    fill: float = 0.0,
+    out_dtype: str = "float32",
+) -> npt.NDArray[np.float32] | npt.NDArray[np.uint16]:
+    """``out[y, x] = image(F(x, y))`` with F the mapping (JSON text, object px -> image px),
+    Keys bicubic (a = -0.5), ``fill`` outside the image. ``sampling``: "auto" (coarsest grid
+    within ``tol`` px), "exact" (per pixel) or "grid" (every ``step`` px). ``out_dtype``:
+    "float32" or "uint16" (rounded, clipped)."""
+
+def remap_coords(
+    image: npt.NDArray[np.uint16] | npt.NDArray[np.float32],
+    map_x: npt.NDArray[np.float64] | npt.NDArray[np.float32],
+    map_y: npt.NDArray[np.float64] | npt.NDArray[np.float32],
+    fill: float = 0.0,
+    out_dtype: str = "float32",
+) -> npt.NDArray[np.float32] | npt.NDArray[np.uint16]:
+    """Keys-bicubic remap at precomputed source positions ``(map_x, map_y)`` (image px); the
+    maps' shape is the output shape."""
+
+# --- piv-core (PIV engine; windows are (w, h): w px along x, h px along y) -------------------
+
+def piv(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    windows: list[tuple[int, int]],
+    overlaps: list[float],
+    iterations: list[int],
+    deformation: str = "symmetric",
+    subpixel: str = "gauss3",
+    interpolation: str = "bspline",
+    validate: bool = True,
+    median_eps: float = 0.1,
+    median_threshold: float = 2.0,
+    min_peak_ratio: float = 0.0,
+    mask: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, object]:
+    """Multipass PIV; frames uint8/uint16/float32/float64 of one dtype. Returns a dict with
+    x, y, u, v, peak_ratio, coef (float64), valid, replaced, masked (bool), all (ny, nx), and
+    grid = (x0, y0, dx, dy)."""
+
+def piv_at(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    windows: list[tuple[int, int]],
+    iterations: int = 1,
+    predictor_u: npt.NDArray[np.float64] | None = None,
+    predictor_v: npt.NDArray[np.float64] | None = None,
+    field_grid: tuple[float, float, float, float] | None = None,
+    field_u: npt.NDArray[np.float64] | None = None,
+    field_v: npt.NDArray[np.float64] | None = None,
+    subpixel: str = "gauss3",
+    interpolation: str = "bspline",
+    validate: bool = True,
+    median_eps: float = 0.1,
+    median_threshold: float = 2.0,
+    min_peak_ratio: float = 0.0,
+    mask: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, object]:
+    """PIV at points x, y (one 2D shape) with per-point predictors (window offset) or a grid
+    predictor field (deformation); same dict as ``piv`` with grid = None."""
+
+def render_particles(
+    height: int,
+    width: int,
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    intensity: npt.NDArray[np.float64],
+    diameter: npt.NDArray[np.float64],
+    noise_sigma: float,
+    max_count: int = 4095,
+    seed: int = 0,
+) -> npt.NDArray[np.uint16]:
+    """Gaussian particles (e^-2 diameter, px; peak intensity, counts) integrated over the pixel
+    area, plus Gaussian noise (counts), rounded and clipped to [0, max_count]. ``diameter`` holds
+    one value or one per particle. Deterministic for a seed whatever the thread count."""

@@ -47,6 +47,8 @@ pub fn convergence(py: Python<'_>, msg: impl Into<String>) -> PyErr {
 pub fn dewarp_err(py: Python<'_>, e: dewarp_core::DewarpError) -> PyErr {
     match e {
         dewarp_core::DewarpError::InvalidInput(msg) => invalid_input(py, msg),
+        dewarp_core::DewarpError::NotConverged(msg) => convergence(py, msg),
+        dewarp_core::DewarpError::Io(msg) => pyo3::exceptions::PyOSError::new_err(msg),
     }
 }
 

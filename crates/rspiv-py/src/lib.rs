@@ -4,10 +4,18 @@
 
 use pyo3::prelude::*;
 
+mod calibration;
 mod errors;
+mod mapping;
+mod piv;
+mod remap;
 
 #[pymodule]
 fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    piv::register(m)?;
+    mapping::register(m)?;
+    calibration::register(m)?;
+    remap::register(m)?;
     Ok(())
 }

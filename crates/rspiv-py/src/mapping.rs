@@ -9,6 +9,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::time::Instant;
 
+/// Inverse-map result: (object points, converged flag per point).
+type InverseResult<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>);
+
 fn check_n2(py: Python<'_>, name: &str, a: &ArrayView2<f64>) -> PyResult<()> {
     if a.ncols() != 2 {
         return Err(invalid_input(
@@ -75,7 +78,7 @@ impl PyMapping {
         &self,
         py: Python<'py>,
         pts: PyReadonlyArray2<'py, f64>,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>)> {
+    ) -> PyResult<InverseResult<'py>> {
         let v = pts.as_array();
         check_n2(py, "points", &v)?;
         let (out, ok) = py.detach(|| self.inner.inverse_many(v));

@@ -11,6 +11,15 @@ import sys
 # Sub-command modules, in the order they appear in ``rspiv --help``.
 _COMMANDS: list[str] = [
     # "rspiv.cli.<name>" modules are appended here by each feature.
+    "rspiv.cli.mapping",
+    "rspiv.cli.calibrate",
+    "rspiv.cli.piv",
+    "rspiv.cli.dewarp",
+    "rspiv.cli.wall",
+    "rspiv.cli.process",
+    "rspiv.cli.merge",
+    "rspiv.cli.synth",
+    "rspiv.cli.demo",
 ]
 
 

@@ -2,4 +2,25 @@
 boundary-layer campaigns. Python describes the scene; Rust renders the pixels.
 """
 
+from rspiv.synth.particles import particle_pair
+from rspiv.synth.target import (
+    PAPER_OPTICS,
+    CalibrationTarget,
+    LensDistortion,
+    Optics,
+    calibration_target,
+    paper_lens,
+)
+from rspiv.synth.tbl import TBLFlow, TBLTruth, tbl_pair, tbl_scene
+
 __all__: list[str] = []
+__all__ += [
+    "PAPER_OPTICS",
+    "Optics",
+    "LensDistortion",
+    "paper_lens",
+    "CalibrationTarget",
+    "calibration_target",
+]
+__all__ += ["particle_pair"]
+__all__ += ["TBLFlow", "TBLTruth", "tbl_pair", "tbl_scene"]
