@@ -545,6 +545,52 @@ class CampaignResult:
         return self.analyses[name].result
 
 
+@dataclasses.dataclass
+class RunState:
+    """The state of a run between :meth:`Campaign.open_run` and :meth:`Campaign.finish_run`.
+
+    Shared by the local run loop (:meth:`Campaign.run`) and the Dask one
+    (:func:`rspiv.scaleout.run_dask`), which differ only in how they process ``todo``.
+
+    Attributes
+    ----------
+    log : RunLog
+        The run log (``OUT/run_log.jsonl``).
+    all_pairs : list of PairSpec
+        The campaign's full pair list.
+    sel : list of PairSpec
+        The pairs of this shard.
+    t_start : float
+        ``time.perf_counter()`` at the start of the run, s.
+    ctx : PairContext or None
+        The prepared context (set by :meth:`Campaign.begin_run`).
+    t_prepare : float
+        Time spent in :meth:`Campaign.prepare`, s.
+    accs : dict of str to FieldAccumulator
+        The accumulators per run, from the checkpoint or new; the run loop updates them.
+    finished : set of int
+        Ids of the pairs in ``accs``.
+    timings : dict of str to float
+        Time per stage summed over the pairs, s.
+    n_resumed : int
+        Pairs of ``sel`` already finished at the start (from the checkpoint).
+    todo : list of PairSpec
+        Pairs of ``sel`` still to process.
+    """
+
+    log: RunLog
+    all_pairs: list[PairSpec]
+    sel: list[PairSpec]
+    t_start: float
+    ctx: PairContext | None = None
+    t_prepare: float = 0.0
+    accs: dict[str, FieldAccumulator] = dataclasses.field(default_factory=dict)
+    finished: set[int] = dataclasses.field(default_factory=set)
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+    n_resumed: int = 0
+    todo: list[PairSpec] = dataclasses.field(default_factory=list)
+
+
 # ---------------------------------------------------------------------------- campaign
 class Campaign:
     """A campaign: configuration, pair list, and the run loop.
@@ -564,6 +610,9 @@ class Campaign:
         Progress bar / status lines on stderr.
     out_dir : path, optional
         Override ``[output].dir``.
+    log : callable, optional
+        Receives the campaign's messages (one line each); default: the progress display's
+        ``log`` once a run starts. Kept in the attribute ``log_fn``.
     """
 
     def __init__(
@@ -592,7 +641,7 @@ class Campaign:
         self.out_dir = (
             pathlib.Path(out_dir) if out_dir is not None else pathlib.Path(config.output.dir)
         )
-        self._log_fn = log
+        self.log_fn = log
         self.calibration = None
         self.info: dict[str, Any] = {}
 
@@ -644,8 +693,8 @@ class Campaign:
         return tuple(out)
 
     def _log(self, msg: str) -> None:
-        if self._log_fn is not None:
-            self._log_fn(msg)
+        if self.log_fn is not None:
+            self.log_fn(msg)
 
     # ------------------------------------------------------------------ prepare
     def _config_hash(self) -> str:
@@ -827,12 +876,38 @@ class Campaign:
         return out
 
     # ------------------------------------------------------------------ checkpoints
-    def _ckpt_path(self) -> pathlib.Path:
+    def checkpoint_path(self) -> pathlib.Path:
+        """The checkpoint file of this campaign and shard.
+
+        Returns
+        -------
+        pathlib.Path
+            ``OUT/checkpoint/state.pkl``, or ``state.shard-I-of-N.pkl`` for shard I of N.
+        """
         i, n = self.shard
         name = "state.pkl" if n == 1 else f"state.shard-{i}-of-{n}.pkl"
         return self.out_dir / "checkpoint" / name
 
-    def _save_checkpoint(self, ctx, accs, finished, timings) -> None:
+    def save_checkpoint(
+        self,
+        ctx: PairContext,
+        accs: dict[str, FieldAccumulator],
+        finished: set[int],
+        timings: dict[str, float],
+    ) -> None:
+        """Write the checkpoint (:meth:`checkpoint_path`) atomically.
+
+        Parameters
+        ----------
+        ctx : PairContext
+            The prepared context; its fingerprint is stored to refuse another configuration.
+        accs : dict of str to FieldAccumulator
+            The accumulators per run, holding exactly the pairs of ``finished``.
+        finished : set of int
+            Ids of the pairs in ``accs``.
+        timings : dict of str to float
+            Time per stage summed over the pairs, s.
+        """
         state = {
             "format": CHECKPOINT_FORMAT,
             "version": CHECKPOINT_VERSION,
@@ -842,10 +917,30 @@ class Campaign:
             "accumulators": accs,
             "timings": timings,
         }
-        atomic_write_bytes(self._ckpt_path(), pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
+        atomic_write_bytes(
+            self.checkpoint_path(), pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+        )
 
-    def _load_checkpoint(self, ctx):
-        path = self._ckpt_path()
+    def load_checkpoint(self, ctx: PairContext) -> dict[str, Any] | None:
+        """Read the checkpoint written by :meth:`save_checkpoint`.
+
+        Parameters
+        ----------
+        ctx : PairContext
+            The prepared context; the checkpoint must have been written for its fingerprint.
+
+        Returns
+        -------
+        dict or None
+            The state (keys ``accumulators``, ``finished``, ``timings``, ``shard``, ...), or
+            None when there is no checkpoint.
+
+        Raises
+        ------
+        InvalidInputError
+            The checkpoint is corrupt or belongs to another configuration.
+        """
+        path = self.checkpoint_path()
         if not path.is_file():
             return None
         try:
@@ -864,54 +959,178 @@ class Campaign:
         return state
 
     # ------------------------------------------------------------------ run
-    def run(self) -> CampaignResult:
-        """Run (or resume) the campaign; see the module docstring."""
-        from rspiv.progress import Progress
+    def open_run(self, t_start: float | None = None) -> RunState:
+        """Start a run: check that the output folder is writable, open the run log and select
+        this shard's pairs.
 
-        t_start = time.perf_counter()
+        Parameters
+        ----------
+        t_start : float, optional
+            ``time.perf_counter()`` at which the run started (default: now); the ``total``
+            timing is measured from it.
+
+        Returns
+        -------
+        RunState
+            With ``log``, ``all_pairs``, ``sel`` and ``t_start`` set; :meth:`begin_run`
+            fills the rest.
+
+        Raises
+        ------
+        InvalidInputError
+            The output folder is not writable, or the campaign has no image pairs.
+        """
+        if t_start is None:
+            t_start = time.perf_counter()
         _check_writable(self.out_dir)
         log = RunLog(self.out_dir / "run_log.jsonl")
         all_pairs = self.pairs()
         if not all_pairs:
             raise InvalidInputError("the campaign has no image pairs")
         sel = [all_pairs[k] for k in shard_slice(len(all_pairs), self.shard)]
-        with Progress(len(sel), "pairs", enabled=self.show_progress) as prog:
-            if self._log_fn is None:
-                self._log_fn = prog.log
-            t0 = time.perf_counter()
-            ctx = self.prepare(all_pairs)
-            t_prepare = time.perf_counter() - t0
-            gx, _ = ctx.grid()
-            state = self._load_checkpoint(ctx)
-            if state is not None:
-                accs = state["accumulators"]
-                finished = set(state["finished"])
-                timings = dict(state.get("timings", {}))
-            else:
-                accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
-                finished = set()
-                timings = {k: 0.0 for k in STAGES}
-            n_resumed = sum(1 for p in sel if p.pair_id in finished)
-            todo = [p for p in sel if p.pair_id not in finished]
-            log.write(
-                "start",
-                pairs=len(sel),
-                resumed=n_resumed,
-                shard=list(self.shard),
-                runs=[r.name for r in ctx.runs],
-                fingerprint=ctx.fingerprint(),
+        return RunState(log=log, all_pairs=all_pairs, sel=sel, t_start=t_start)
+
+    def begin_run(self, state: RunState, progress) -> None:
+        """Prepare the run and resume it from the checkpoint.
+
+        Routes the campaign's messages to ``progress`` (unless a ``log`` callable was given),
+        runs :meth:`prepare`, loads the checkpoint (:meth:`load_checkpoint`) or starts new
+        accumulators, and lists the pairs still to do.
+
+        Parameters
+        ----------
+        state : RunState
+            From :meth:`open_run`; ``ctx``, ``t_prepare``, ``accs``, ``finished``,
+            ``timings``, ``n_resumed`` and ``todo`` are set in place.
+        progress : rspiv.progress.Progress
+            The run's progress display (entered).
+        """
+        if self.log_fn is None:
+            self.log_fn = progress.log
+        t0 = time.perf_counter()
+        ctx = self.prepare(state.all_pairs)
+        state.t_prepare = time.perf_counter() - t0
+        state.ctx = ctx
+        gx, _ = ctx.grid()
+        ckpt = self.load_checkpoint(ctx)
+        if ckpt is not None:
+            state.accs = ckpt["accumulators"]
+            state.finished = set(ckpt["finished"])
+            state.timings = dict(ckpt.get("timings", {}))
+        else:
+            state.accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
+            state.finished = set()
+            state.timings = {k: 0.0 for k in STAGES}
+        state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)
+        state.todo = [p for p in state.sel if p.pair_id not in state.finished]
+
+    def announce_run(self, state: RunState, progress, **start_extra: Any) -> None:
+        """Write the ``start`` record of the run log and report the pairs resumed.
+
+        Parameters
+        ----------
+        state : RunState
+            After :meth:`begin_run`.
+        progress : rspiv.progress.Progress
+            The run's progress display; advanced by the pairs resumed.
+        **start_extra
+            Further fields of the ``start`` record (e.g. ``dask={...}``).
+        """
+        ctx = state.ctx
+        state.log.write(
+            "start",
+            pairs=len(state.sel),
+            resumed=state.n_resumed,
+            shard=list(self.shard),
+            runs=[r.name for r in ctx.runs],
+            fingerprint=ctx.fingerprint(),
+            **start_extra,
+        )
+        if state.n_resumed:
+            progress.log(
+                f"resuming: {state.n_resumed} finished pair(s) skipped "
+                f"(checkpoint {self.checkpoint_path()})"
             )
-            if n_resumed:
-                prog.log(
-                    f"resuming: {n_resumed} finished pair(s) skipped "
-                    f"(checkpoint {self._ckpt_path()})"
-                )
-                prog.advance(n_resumed)
+            progress.advance(state.n_resumed)
+
+    def finish_run(
+        self,
+        state: RunState,
+        skipped: dict[int, str],
+        *,
+        failed: dict[int, str] | None = None,
+    ) -> CampaignResult:
+        """End a run: write the shard file (sharded run) or analyse and write the outputs,
+        then the ``end`` record of the run log.
+
+        Parameters
+        ----------
+        state : RunState
+            After the run loop: ``accs``, ``finished`` and ``timings`` hold the pairs done.
+        skipped : dict of int to str
+            Pairs that could not be read, with the reason.
+        failed : dict of int to str, optional
+            Pairs whose processing raised (Dask run), with the reason. They count as skipped
+            in the result and are reported separately in the ``end`` record.
+
+        Returns
+        -------
+        CampaignResult
+
+        Raises
+        ------
+        InvalidInputError
+            No pair of an unsharded run could be processed.
+        """
+        all_skipped = {**skipped, **failed} if failed is not None else skipped
+        n_done = sum(1 for p in state.sel if p.pair_id in state.finished)
+        result = CampaignResult(
+            out_dir=self.out_dir,
+            context=state.ctx,
+            accumulators=state.accs,
+            analyses={},
+            n_pairs=len(state.sel),
+            n_done=n_done,
+            n_resumed=state.n_resumed,
+            skipped=all_skipped,
+            timings={**state.timings, "prepare": state.t_prepare},
+            files={},
+            wall_deviation=dict(self.info.get("wall_deviation", {})),
+            info=self.info,
+        )
+        t0 = time.perf_counter()
+        if self.shard[1] > 1:
+            self.write_shard(result)
+        elif n_done == 0:
+            what = "skipped" if failed is None else "skipped or failed"
+            raise InvalidInputError(
+                f"no image pair could be processed ({len(all_skipped)} {what}; see "
+                f"{self.out_dir / 'run_log.jsonl'})"
+            )
+        else:
+            self.analyse_result(result)
+        result.timings["analysis"] = time.perf_counter() - t0
+        result.timings["total"] = time.perf_counter() - state.t_start
+        end: dict[str, Any] = {"done": n_done, "skipped": len(skipped)}
+        if failed is not None:
+            end["failed"] = len(failed)
+        state.log.write("end", **end, timings={k: round(v, 3) for k, v in result.timings.items()})
+        return result
+
+    def run(self) -> CampaignResult:
+        """Run (or resume) the campaign; see the module docstring."""
+        from rspiv.progress import Progress
+
+        st = self.open_run()
+        with Progress(len(st.sel), "pairs", enabled=self.show_progress) as prog:
+            self.begin_run(st, prog)
+            self.announce_run(st, prog)
+            ctx, accs, finished, timings, log = st.ctx, st.accs, st.finished, st.timings, st.log
             skipped: dict[int, str] = {}
             since = 0
             consistent = True  # the accumulators hold whole pairs only
             try:
-                for p in todo:
+                for p in st.todo:
                     r = process_pair(ctx, p)
                     for k, v in r.timings.items():
                         timings[k] = timings.get(k, 0.0) + v
@@ -938,50 +1157,17 @@ class Campaign:
                     prog.advance()
                     since += 1
                     if since >= self.checkpoint_every:
-                        self._save_checkpoint(ctx, accs, finished, timings)
+                        self.save_checkpoint(ctx, accs, finished, timings)
                         log.write("checkpoint", finished=len(finished))
                         since = 0
             except KeyboardInterrupt:
                 if consistent:  # keep what is done: a restart resumes from here
-                    self._save_checkpoint(ctx, accs, finished, timings)
+                    self.save_checkpoint(ctx, accs, finished, timings)
                     log.write("interrupted", finished=len(finished))
                 raise
-            self._save_checkpoint(ctx, accs, finished, timings)
+            self.save_checkpoint(ctx, accs, finished, timings)
             log.write("checkpoint", finished=len(finished))
-        n_done = sum(1 for p in sel if p.pair_id in finished)
-        result = CampaignResult(
-            out_dir=self.out_dir,
-            context=ctx,
-            accumulators=accs,
-            analyses={},
-            n_pairs=len(sel),
-            n_done=n_done,
-            n_resumed=n_resumed,
-            skipped=skipped,
-            timings={**timings, "prepare": t_prepare},
-            files={},
-            wall_deviation=dict(self.info.get("wall_deviation", {})),
-            info=self.info,
-        )
-        t0 = time.perf_counter()
-        if self.shard[1] > 1:
-            self._write_shard(result)
-        elif n_done == 0:
-            raise InvalidInputError(
-                f"no image pair could be processed ({len(skipped)} skipped; see "
-                f"{self.out_dir / 'run_log.jsonl'})"
-            )
-        else:
-            self._analyse(result)
-        result.timings["analysis"] = time.perf_counter() - t0
-        result.timings["total"] = time.perf_counter() - t_start
-        log.write(
-            "end",
-            done=n_done,
-            skipped=len(skipped),
-            timings={k: round(v, 3) for k, v in result.timings.items()},
-        )
-        return result
+        return self.finish_run(st, skipped)
 
     # ------------------------------------------------------------------ outputs
     def analyse(
@@ -1013,11 +1199,19 @@ class Campaign:
             info=self.info,
         )
         t0 = time.perf_counter()
-        self._analyse(res)
+        self.analyse_result(res)
         res.timings["analysis"] = time.perf_counter() - t0
         return res
 
-    def _write_shard(self, res: CampaignResult) -> None:
+    def write_shard(self, res: CampaignResult) -> None:
+        """Write the accumulators of a sharded run, one NetCDF file per run.
+
+        Parameters
+        ----------
+        res : CampaignResult
+            The result of this shard; the paths written are added to ``res.files``
+            (``shard_<run>``: ``OUT/shards/statistics_<run>.shard-I-of-N.nc``).
+        """
         from rspiv.outputs import write_netcdf
 
         i, n = self.shard
@@ -1038,7 +1232,17 @@ class Campaign:
             path = self.out_dir / "shards" / f"statistics_{name}.shard-{i}-of-{n}.nc"
             res.files[f"shard_{name}"] = write_netcdf(ds, path)
 
-    def _analyse(self, res: CampaignResult) -> None:
+    def analyse_result(self, res: CampaignResult) -> None:
+        """Analyse the accumulators of ``res`` and write the campaign's outputs.
+
+        Finds the walls, fits the profiles, writes the NetCDF/CSV files, figures and report,
+        and fills ``res.analyses`` and ``res.files`` in place.
+
+        Parameters
+        ----------
+        res : CampaignResult
+            A result whose ``accumulators`` hold every run of ``res.context``.
+        """
         from rspiv.outputs import (
             profile_dataset,
             statistics_dataset,

@@ -308,7 +308,7 @@ def merge_campaign(campaign, *, progress: bool = False):
             )
         ids = acc.pair_ids
         accs[run.name] = acc
-    ckpt = camp._ckpt_path()
+    ckpt = camp.checkpoint_path()
     if ckpt.is_file():
         try:
             old = set(pickle.loads(ckpt.read_bytes()).get("finished", []))
@@ -319,5 +319,5 @@ def merge_campaign(campaign, *, progress: bool = False):
                 f"{ckpt}: an unsharded checkpoint with other pairs exists; delete it to analyse "
                 "the merged shards"
             )
-    camp._save_checkpoint(ctx, accs, set(ids), {})
+    camp.save_checkpoint(ctx, accs, set(ids), {})
     return camp.run()

@@ -60,9 +60,7 @@ from rspiv.campaign import (
     CampaignResult,
     PairContext,
     PairSpec,
-    RunLog,
     process_pair,
-    shard_slice,
 )
 from rspiv.errors import InvalidInputError
 from rspiv.stats import FieldAccumulator
@@ -479,7 +477,6 @@ def run_dask(
         raise InvalidInputError(
             "--dask needs dask.distributed: pip install 'rspiv[dask]'"
         ) from None
-    from rspiv.campaign import _check_writable  # the campaign's own check
     from rspiv.progress import Progress
 
     t_start = time.perf_counter()
@@ -506,7 +503,6 @@ def run_dask(
             progress_interval,
             t_start,
             Progress,
-            _check_writable,
             as_completed,
             KilledWorker,
         )
@@ -524,57 +520,35 @@ def _run(
     progress_interval,
     t_start,
     Progress,
-    _check_writable,
     as_completed,
     KilledWorker,
 ) -> CampaignResult:
     camp = campaign
-    _check_writable(camp.out_dir)
-    log = RunLog(camp.out_dir / "run_log.jsonl")
-    all_pairs = camp.pairs()
-    if not all_pairs:
-        raise InvalidInputError("the campaign has no image pairs")
-    sel = [all_pairs[k] for k in shard_slice(len(all_pairs), camp.shard)]
-    with Progress(len(sel), "pairs", enabled=camp.show_progress) as prog:
-        if camp._log_fn is None:
-            camp._log_fn = prog.log
-        t0 = time.perf_counter()
-        ctx = camp.prepare(all_pairs)
-        t_prepare = time.perf_counter() - t0
+    st = camp.open_run(t_start)
+    with Progress(len(st.sel), "pairs", enabled=camp.show_progress) as prog:
+        camp.begin_run(st, prog)
+        ctx, accs, finished, timings, todo, log = (
+            st.ctx,
+            st.accs,
+            st.finished,
+            st.timings,
+            st.todo,
+            st.log,
+        )
         gx, _ = ctx.grid()
-        state = camp._load_checkpoint(ctx)
-        if state is not None:
-            accs = state["accumulators"]
-            finished = set(state["finished"])
-            timings = dict(state.get("timings", {}))
-        else:
-            accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
-            finished = set()
-            timings = {k: 0.0 for k in STAGES}
-        n_resumed = sum(1 for p in sel if p.pair_id in finished)
-        todo = [p for p in sel if p.pair_id not in finished]
         n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
         if chunk_size is None:
             chunk_size = max(1, min(camp.checkpoint_every, math.ceil(len(todo) / (4 * n_workers))))
         chunk_size = max(1, int(chunk_size))
-        log.write(
-            "start",
-            pairs=len(sel),
-            resumed=n_resumed,
-            shard=list(camp.shard),
-            runs=[r.name for r in ctx.runs],
-            fingerprint=ctx.fingerprint(),
+        camp.announce_run(
+            st,
+            prog,
             dask={
                 "scheduler": client.scheduler.address,
                 "workers": n_workers,
                 "chunk_size": chunk_size,
             },
         )
-        if n_resumed:
-            prog.log(
-                f"resuming: {n_resumed} finished pair(s) skipped (checkpoint {camp._ckpt_path()})"
-            )
-            prog.advance(n_resumed)
         prog.log(
             f"dask: {n_workers} worker(s) at {client.scheduler.address}, "
             f"{len(todo)} pair(s) in chunks of {chunk_size}"
@@ -619,7 +593,7 @@ def _run(
                 return
             pre = merger.prefix
             fin = finished | set(pre.done)
-            camp._save_checkpoint(ctx, pre.accs, fin, timings)
+            camp.save_checkpoint(ctx, pre.accs, fin, timings)
             _save_segments(seg_path, ctx, camp.shard, todo, merger)
             log.write(
                 "checkpoint",
@@ -712,12 +686,9 @@ def _run(
             raise AssertionError(f"{merger.pending()} segment(s) not joined")
         t_map = time.perf_counter() - t_map
         pre = merger.prefix
-        accs = pre.accs
+        st.accs = pre.accs
         finished |= set(pre.done)
         checkpoint(force=True)
-    # pairs that failed count as skipped for the campaign (left out of the statistics)
-    all_skipped = {**skipped, **failed}
-    n_done = sum(1 for p in sel if p.pair_id in finished)
     dask_info = {
         "workers": n_workers,
         "worker_processes_seen": len(workers_seen),
@@ -735,40 +706,8 @@ def _run(
         **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in dask_info.items()},
     )
     camp.info["dask"] = dask_info
-    result = CampaignResult(
-        out_dir=camp.out_dir,
-        context=ctx,
-        accumulators=accs,
-        analyses={},
-        n_pairs=len(sel),
-        n_done=n_done,
-        n_resumed=n_resumed,
-        skipped=all_skipped,
-        timings={**timings, "prepare": t_prepare},
-        files={},
-        wall_deviation=dict(camp.info.get("wall_deviation", {})),
-        info=camp.info,
-    )
-    t0 = time.perf_counter()
-    if camp.shard[1] > 1:
-        camp._write_shard(result)
-    elif n_done == 0:
-        raise InvalidInputError(
-            f"no image pair could be processed ({len(all_skipped)} skipped or failed; see "
-            f"{camp.out_dir / 'run_log.jsonl'})"
-        )
-    else:
-        camp._analyse(result)
-    result.timings["analysis"] = time.perf_counter() - t0
-    result.timings["total"] = time.perf_counter() - t_start
-    log.write(
-        "end",
-        done=n_done,
-        skipped=len(skipped),
-        failed=len(failed),
-        timings={k: round(v, 3) for k, v in result.timings.items()},
-    )
-    return result
+    # pairs that failed count as skipped for the campaign (left out of the statistics)
+    return camp.finish_run(st, skipped, failed=failed)
 
 
 # ---------------------------------------------------------------------------- CLI hook
