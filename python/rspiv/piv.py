@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -175,6 +176,9 @@ def piv(
     overlap: float | Sequence[float] = 0.5,
     deformation: str = "symmetric",
     mask=None,
+    calibration: Any = None,
+    method: str | None = None,
+    mapping: str = "full",
     *,
     iterations: int | Sequence[int] = 1,
     subpixel: str = "gauss3",
@@ -185,6 +189,22 @@ def piv(
     min_peak_ratio: float = 0.0,
 ) -> PivField:
     """Multipass PIV of a frame pair on a regular grid.
+
+    Without ``calibration`` the field is in the image frame (px). With a ``calibration`` and a
+    ``method`` the lens distortion is corrected and the field lies on the regular object grid
+    (the grid of the last pass on object-frame images of the frames' shape), ``x``, ``y``, ``u``,
+    ``v`` in object px:
+
+    - ``method="images"`` (Method I): both frames (and the mask) are dewarped with the
+      calibration (:func:`rspiv.dewarp`), then the regular PIV runs on them; vectors centred in
+      the zero fill (object points imaged outside the sensor) are not computed (masked).
+    - ``method="vectors"`` (Method II): PIV on the raw frames at the images of the object grid,
+      displacements mapped to the object frame (:func:`rspiv.method2.piv_vectors`, with
+      ``mapping``).
+
+    Windows that reach past the image edge (after offset and deformation) or whose content is
+    blank (zero variance, e.g. zero fill) are not correlated: ``valid`` is False and ``replaced``
+    True (their value is interpolated from the valid neighbours).
 
     Parameters
     ----------
@@ -201,6 +221,13 @@ def piv(
         symmetric sub-pixel window offset.
     mask : ndarray of bool, optional
         Same shape as the frames, True = excluded; vectors centred on it are not computed.
+    calibration : Calibration or Mapping, optional
+        Object px -> image px; requires ``method``.
+    method : {"images", "vectors"}, optional
+        Distortion correction with ``calibration``: Method I (dewarp the images) or Method II
+        (map the vectors); see above. Requires ``calibration``.
+    mapping : {"full", "positions"}
+        Method II's displacement mapping (:mod:`rspiv.method2`); ignored by Method I.
     iterations : int or sequence of int
         Correlation iterations per pass (each re-deforms with the latest field).
     subpixel : {"gauss3", "gauss2d"}
@@ -224,8 +251,55 @@ def piv(
     ------
     InvalidInputError
         Frames not 2D, of different shapes, with NaN/inf, windows larger than the image, bad
-        settings.
+        settings; ``method`` without ``calibration`` (or the reverse), an unknown ``method`` or
+        ``mapping``.
     """
+    if mapping not in ("full", "positions"):
+        raise InvalidInputError(f'mapping must be "full" or "positions", got {mapping!r}')
+    if method is not None or calibration is not None:
+        if method not in ("images", "vectors"):
+            raise InvalidInputError(f'method must be "images" or "vectors", got {method!r}')
+        if calibration is None:
+            raise InvalidInputError(f"method={method!r} needs a calibration")
+        kw = dict(
+            iterations=iterations,
+            subpixel=subpixel,
+            interpolation=interpolation,
+            validate=validate,
+            median_eps=median_eps,
+            median_threshold=median_threshold,
+            min_peak_ratio=min_peak_ratio,
+        )
+        if method == "vectors":
+            from rspiv.method2 import piv_vectors
+
+            ov = _per_pass(overlap, len(list(passes)), "overlap", float)
+            return piv_vectors(
+                frame_a,
+                frame_b,
+                calibration,
+                passes,
+                ov[-1],
+                mapping=mapping,
+                deformation="offset" if deformation == "offset" else "symmetric",
+                subpixel=subpixel,
+                median_threshold=median_threshold,
+                median_eps=median_eps,
+                mask=mask,
+            )
+        from rspiv.dewarp import dewarp
+
+        a0, b0 = _frames(frame_a, frame_b)
+        from rspiv.method2 import _mapping_of
+
+        m = _mapping_of(calibration)
+        da = dewarp(a0, m)
+        db = dewarp(b0, m)
+        # object pixels imaged outside the sensor (zero fill): True
+        fill = dewarp(np.ones(a0.shape, np.float32), m) < 0.5
+        if mask is not None:
+            fill |= dewarp(_mask(mask, a0.shape).astype(np.float32), m, fill=1.0) > 0.5
+        return piv(da, db, passes, overlap, deformation, fill, **kw)
     a, b = _frames(frame_a, frame_b)
     windows = [_window(p) for p in passes]
     if not windows:
@@ -297,7 +371,12 @@ def piv_at(
     Returns
     -------
     PivField
-        Arrays of shape ``points.shape[:-1]``; ``grid`` is None.
+        Arrays of shape ``points.shape[:-1]``; ``grid`` is None. Points centred outside the
+        image are masked; points whose window (either frame, after offset or deformation)
+        reaches past the image edge (``[-0.5, w - 0.5] x [-0.5, h - 0.5]``), or whose window is
+        blank (zero variance, e.g. zero fill), are not correlated: ``valid`` False, ``coef``
+        and ``peak_ratio`` 0, their value interpolated from the valid neighbours and
+        ``replaced`` True.
     """
     a, b = _frames(frame_a, frame_b)
     pts = np.asarray(points, dtype=np.float64)

@@ -136,6 +136,9 @@ pub struct Correlator {
     corr: Vec<f32>,
     cw: usize,
     ch: usize,
+    /// Per-pixel variance at or below which a window is blank and not correlated (besides the
+    /// relative floor of [`Correlator::correlate`]); 0 by default.
+    pub min_var: f32,
 }
 
 impl Correlator {
@@ -162,6 +165,7 @@ impl Correlator {
             corr: vec![0.0; cw * ch],
             cw,
             ch,
+            min_var: 0.0,
         }
     }
 
@@ -177,6 +181,13 @@ impl Correlator {
     }
 
     /// Correlate `wa` with `wb` and locate the peak.
+    ///
+    /// Fails ([`Peak::FAILED`]) when a window holds a non-finite value (a sample outside the
+    /// image, see [`crate::image::deform_pair`]) or has (near) zero variance: per-pixel variance
+    /// `<= 1e-8 mean^2 + 1e-12 + min_var` (a constant window up to f32 rounding: zero fill,
+    /// blank or saturated regions; PIV sets `min_var` relative to the frames' variance). A window only partly in the zero fill of a dewarped frame is
+    /// correlated (its fill is indistinguishable from a dark, clipped background); exclude the
+    /// fill with a mask to drop such windows.
     pub fn correlate(&mut self, sub: SubPixel) -> Peak {
         let (w, h) = (self.w, self.h);
         let n = (w * h) as f32;
@@ -184,7 +195,12 @@ impl Correlator {
         let mb = sum8(&self.wb) / n;
         let ea = sq_dev8(&self.wa, ma) as f64;
         let eb = sq_dev8(&self.wb, mb) as f64;
-        if !(ea > 1e-12 && eb > 1e-12 && ea.is_finite() && eb.is_finite()) {
+        let floor = self.min_var as f64;
+        let blank = |e: f64, m: f32| {
+            let m = m as f64;
+            !(e.is_finite() && m.is_finite()) || e / n as f64 <= 1e-8 * m * m + 1e-12 + floor
+        };
+        if blank(ea, ma) || blank(eb, mb) {
             return Peak::FAILED;
         }
         let pl = &*self.plans;

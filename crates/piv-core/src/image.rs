@@ -379,7 +379,23 @@ pub struct Source<'s, 'a, 'c, T: Pixel, U: Pixel> {
     pub wf: Weights,
 }
 
-/// Sample the window pair into `wa`, `wb` (row-major, `h` rows of `w`).
+/// Tolerance (px) of the inside test of [`inside`].
+const INSIDE_EPS: f64 = 1e-6;
+
+/// Is the position (x, y) inside the image, `[-0.5, width - 0.5] x [-0.5, height - 0.5]` (the
+/// area of its pixels, README's convention)?
+#[inline(always)]
+pub fn inside(x: f64, y: f64, width: usize, height: usize) -> bool {
+    x >= -0.5 - INSIDE_EPS
+        && y >= -0.5 - INSIDE_EPS
+        && x <= width as f64 - 0.5 + INSIDE_EPS
+        && y <= height as f64 - 0.5 + INSIDE_EPS
+}
+
+/// Sample the window pair into `wa`, `wb` (row-major, `h` rows of `w`). Returns `false` when
+/// the sample position of any pixel of either window (after offset and deformation) lies
+/// outside the image (see [`inside`]): such a window pair must not be correlated (its samples
+/// outside are zeros).
 pub fn sample_pair<T: Pixel, U: Pixel>(
     src: &Source<'_, '_, '_, T, U>,
     w: usize,
@@ -387,15 +403,26 @@ pub fn sample_pair<T: Pixel, U: Pixel>(
     spec: &WindowSpec<'_>,
     wa: &mut [f32],
     wb: &mut [f32],
-) {
+) -> bool {
+    let (iw, ih) = (src.a.width, src.a.height);
+    let (rw, rh) = ((w - 1) as f64, (h - 1) as f64);
     match spec.field {
         None => {
             let (ax, ay) = (spec.left - spec.du / 2.0, spec.top - spec.dv / 2.0);
             let (bx, by) = (spec.left + spec.du / 2.0, spec.top + spec.dv / 2.0);
+            let ok = inside(ax, ay, iw, ih)
+                && inside(ax + rw, ay + rh, iw, ih)
+                && inside(bx, by, iw, ih)
+                && inside(bx + rw, by + rh, iw, ih);
+            if !ok {
+                return false;
+            }
             sample_shift(src.a, src.ia, src.wf, w, h, ax, ay, wa);
             sample_shift(src.b, src.ib, src.wf, w, h, bx, by, wb);
+            true
         }
         Some(f) => {
+            let mut ok = true;
             for r in 0..h {
                 let y = spec.top + r as f64;
                 let row_y = f.row(y);
@@ -405,10 +432,12 @@ pub fn sample_pair<T: Pixel, U: Pixel>(
                     let (fu, fv) = f.at_row(&row_y, x);
                     let hu = 0.5 * (fu + spec.du);
                     let hv = 0.5 * (fv + spec.dv);
+                    ok &= inside(x - hu, y - hv, iw, ih) && inside(x + hu, y + hv, iw, ih);
                     *oa = src.ia.interp(x - hu, y - hv, src.wf);
                     *ob = src.ib.interp(x + hu, y + hv, src.wf);
                 }
             }
+            ok
         }
     }
 }
@@ -416,7 +445,9 @@ pub fn sample_pair<T: Pixel, U: Pixel>(
 /// Deform a whole frame pair symmetrically by the field `f`: `A'(p) = A(p - f(p)/2)`,
 /// `B'(p) = B(p + f(p)/2)`, sampled from `ia`, `ib` with kernel `wf` (rows in parallel). Windows
 /// of a regular grid are then plain copies of the deformed images, which costs one
-/// interpolation per pixel instead of one per pixel and overlapping window.
+/// interpolation per pixel instead of one per pixel and overlapping window. A pixel whose
+/// source position lies outside its frame (see [`inside`]) is set to NaN, so that a window
+/// containing it fails to correlate (its energy is not finite) instead of correlating zeros.
 pub fn deform_pair<U: Pixel>(
     ia: &Img<'_, U>,
     ib: &Img<'_, U>,
@@ -436,8 +467,17 @@ pub fn deform_pair<U: Pixel>(
                 let xf = x as f64;
                 let (fu, fv) = f.at_row(&row, xf);
                 let (hu, hv) = (0.5 * fu, 0.5 * fv);
-                *oa = ia.interp(xf - hu, yf - hv, wf);
-                *ob = ib.interp(xf + hu, yf + hv, wf);
+                let (xa, ya, xb, yb) = (xf - hu, yf - hv, xf + hu, yf + hv);
+                *oa = if inside(xa, ya, w, h) {
+                    ia.interp(xa, ya, wf)
+                } else {
+                    f32::NAN
+                };
+                *ob = if inside(xb, yb, w, h) {
+                    ib.interp(xb, yb, wf)
+                } else {
+                    f32::NAN
+                };
             }
         });
     let wrap = |v: Vec<f32>| Img {

@@ -17,6 +17,14 @@
 //! peak-ratio threshold); rejected ones are replaced from their neighbours. Vectors inside the
 //! mask are neither computed nor used as neighbours; they are filled for the predictor only and
 //! reported as NaN.
+//!
+//! Windows that cannot be correlated are never reported `valid`: a window of either frame that
+//! is not entirely inside the image after its offset and deformation (the sample position of
+//! every pixel in `[-0.5, width - 0.5] x [-0.5, height - 0.5]`; on the regular grid, a window
+//! holding a deformed-frame pixel whose source lies outside the frame), and a window whose content has (near) zero variance in either frame
+//! (zero fill of a dewarped frame, blank regions; see [`Correlator::correlate`]). Such vectors
+//! get `valid = false`, `replaced = true` and a value interpolated from their valid neighbours
+//! (used as the predictor of the next pass), `peak_ratio = coef = 0`.
 
 use crate::correlate::{Correlator, Peak, SubPixel};
 use crate::error::{PivError, Result};
@@ -232,13 +240,18 @@ fn sweep<T: Pixel, U: Pixel>(
     skip: &[bool],
     base: Option<&GridField>,
     sub: SubPixel,
+    floor: f32,
 ) -> Vec<Peak> {
     let hw = (w as f64 - 1.0) / 2.0;
     let hh = (h as f64 - 1.0) / 2.0;
     (0..xs.len())
         .into_par_iter()
         .map_init(
-            || Correlator::new(w, h),
+            || {
+                let mut c = Correlator::new(w, h);
+                c.min_var = floor;
+                c
+            },
             |c, k| {
                 if skip[k] {
                     return Peak::FAILED;
@@ -251,7 +264,10 @@ fn sweep<T: Pixel, U: Pixel>(
                     field: base,
                 };
                 let (wa, wb) = (&mut c.wa, &mut c.wb);
-                sample_pair(src, w, h, &spec, wa, wb);
+                if !sample_pair(src, w, h, &spec, wa, wb) {
+                    // a window reaching past the image edge is not correlated
+                    return Peak::FAILED;
+                }
                 c.correlate(sub)
             },
         )
@@ -263,6 +279,31 @@ struct Frames<'a, T: Pixel> {
     a: Img<'a, T>,
     b: Img<'a, T>,
     coeffs: Option<(Img<'static, f32>, Img<'static, f32>)>,
+    /// Per-pixel variance below which a window counts as blank: [`BLANK_VARIANCE`] times the
+    /// larger variance of the two frames.
+    floor: f32,
+}
+
+/// A window whose per-pixel variance is below this fraction of its frame's variance is blank
+/// (zero fill of a dewarped frame, including the interpolation's ringing next to its edge;
+/// regions without signal): it is not correlated. Camera noise alone is far above it.
+pub const BLANK_VARIANCE: f64 = 1e-6;
+
+/// Per-pixel variance of a frame (f64 accumulation, rows in parallel).
+fn frame_variance<T: Pixel>(img: &Img<'_, T>) -> f64 {
+    let n = (img.width * img.height) as f64;
+    let (s, s2) = img
+        .slice()
+        .par_chunks(img.width.max(1))
+        .map(|row| {
+            row.iter().fold((0.0f64, 0.0f64), |(s, s2), p| {
+                let v = p.to_f32() as f64;
+                (s + v, s2 + v * v)
+            })
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let m = s / n;
+    (s2 / n - m * m).max(0.0)
 }
 
 impl<'a, T: Pixel> Frames<'a, T> {
@@ -273,7 +314,13 @@ impl<'a, T: Pixel> Frames<'a, T> {
             Interpolation::BSpline => Some((bspline_coeffs(&a), bspline_coeffs(&b))),
             Interpolation::Keys => None,
         };
-        Ok(Frames { a, b, coeffs })
+        let floor = (BLANK_VARIANCE * frame_variance(&a).max(frame_variance(&b))) as f32;
+        Ok(Frames {
+            a,
+            b,
+            coeffs,
+            floor,
+        })
     }
 
     /// The frames deformed symmetrically by `f` (see [`deform_pair`]).
@@ -282,7 +329,12 @@ impl<'a, T: Pixel> Frames<'a, T> {
             Some((ca, cb)) => deform_pair(ca, cb, bspline_weights, f),
             None => deform_pair(&self.a, &self.b, keys_weights, f),
         };
-        Frames { a, b, coeffs: None }
+        Frames {
+            a,
+            b,
+            coeffs: None,
+            floor: self.floor,
+        }
     }
 
     fn sweep(
@@ -306,7 +358,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
                     ib: cb,
                     wf: bspline_weights,
                 };
-                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub)
+                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
             }
             None => {
                 let src = Source {
@@ -316,7 +368,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
                     ib: &self.b,
                     wf: keys_weights,
                 };
-                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub)
+                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
             }
         }
     }
@@ -704,6 +756,150 @@ mod tests {
         .unwrap();
         let (e, _) = rms(&f, d);
         assert!(e < 0.05, "rms {e}");
+    }
+
+    /// Largest error of the valid vectors against `disp`, and the number of valid ones.
+    fn worst_valid(f: &PivField, disp: impl Fn(f64, f64) -> (f64, f64)) -> (f64, usize) {
+        let mut worst = 0.0f64;
+        let mut n = 0;
+        for ((x, y), ((u, v), ok)) in f.x.iter().zip(&f.y).zip(f.u.iter().zip(&f.v).zip(&f.valid)) {
+            if *ok {
+                let (tu, tv) = disp(*x, *y);
+                worst = worst.max((u - tu).abs()).max((v - tv).abs());
+                n += 1;
+            }
+        }
+        (worst, n)
+    }
+
+    #[test]
+    fn piv_at_windows_past_the_edge_are_invalid() {
+        // uniform flow; points from well inside to beyond the right and bottom edges
+        let d = |_: f64, _: f64| (3.0, 2.0);
+        let (a, b) = pair(128, 128, d);
+        let xs = [
+            40.0, 80.0, 100.0, 110.0, 114.0, 115.0, 116.0, 116.5, 127.4, 130.0,
+        ];
+        let x = Array2::from_shape_fn((1, xs.len()), |(_, i)| xs[i]);
+        let y = Array2::from_shape_fn((1, xs.len()), |(_, i)| 20.0 + 10.0 * i as f64);
+        let s = PivSettings {
+            validate: false,
+            ..PivSettings::default()
+        };
+        let u = Array2::from_elem(x.dim(), 3.0);
+        let v = Array2::from_elem(x.dim(), 2.0);
+        let (w, h) = (24usize, 24usize);
+        for pred in [
+            Predictor::Zero,
+            Predictor::PerPoint {
+                u: u.view(),
+                v: v.view(),
+            },
+        ] {
+            let (pu, pv) = match pred {
+                Predictor::Zero => (0.0, 0.0),
+                _ => (3.0, 2.0),
+            };
+            let f = piv_at(
+                a.view(),
+                b.view(),
+                x.view(),
+                y.view(),
+                pred,
+                None,
+                &[(w, h)],
+                1,
+                &s,
+            )
+            .unwrap();
+            for i in 0..xs.len() {
+                let (cx, cy) = (f.x[[0, i]], f.y[[0, i]]);
+                let (l, t) = (cx - (w as f64 - 1.0) / 2.0, cy - (h as f64 - 1.0) / 2.0);
+                let fits = |dx: f64, dy: f64| {
+                    l + dx >= -0.5
+                        && t + dy >= -0.5
+                        && l + dx + (w - 1) as f64 <= 127.5
+                        && t + dy + (h - 1) as f64 <= 127.5
+                };
+                let expect = fits(-pu / 2.0, -pv / 2.0) && fits(pu / 2.0, pv / 2.0);
+                assert_eq!(f.valid[[0, i]], expect, "{pred:?} point {i} ({cx}, {cy})");
+                if !expect {
+                    assert!(!f.valid[[0, i]] && (f.masked[[0, i]] || f.replaced[[0, i]]));
+                    assert_eq!(f.coef[[0, i]], 0.0);
+                }
+            }
+            // centre beyond the image: not computed
+            assert!(f.masked[[0, xs.len() - 1]] && f.u[[0, xs.len() - 1]].is_nan());
+            let (worst, n) = worst_valid(&f, d);
+            assert!(n >= 4 && worst < 0.1, "{pred:?}: {n} valid, worst {worst}");
+        }
+    }
+
+    #[test]
+    fn deformed_windows_past_the_edge_are_invalid() {
+        // a 6 px shift: after the first pass the deformed border windows sample 3 px outside
+        let d = |_: f64, _: f64| (6.0, -5.0);
+        let (a, b) = pair(128, 128, d);
+        let s = PivSettings {
+            passes: vec![Pass::new(32, 32), Pass::new(32, 32)],
+            ..PivSettings::default()
+        };
+        let f = piv(a.view(), b.view(), None, &s).unwrap();
+        let (ny, nx) = f.u.dim();
+        for j in 0..ny {
+            for i in 0..nx {
+                let edge = i == 0 || j == 0 || i == nx - 1 || j == ny - 1;
+                // the grid windows touch the image border: the deformation pushes the edge
+                // rows/columns out of the image
+                let (l, t) = (f.x[[j, i]] - 15.5, f.y[[j, i]] - 15.5);
+                let out = l < 2.5 || t < 2.0 || l + 31.0 > 127.0 - 2.5 || t + 31.0 > 127.0 - 2.0;
+                if out {
+                    assert!(!f.valid[[j, i]] && f.replaced[[j, i]], "({j}, {i})");
+                }
+                if !edge {
+                    assert!(f.valid[[j, i]], "({j}, {i})");
+                }
+            }
+        }
+        let (worst, n) = worst_valid(&f, d);
+        assert!(n >= 9 && worst < 0.1, "{n} valid, worst {worst}");
+    }
+
+    #[test]
+    fn zero_filled_half_is_blank_and_vectors_clear_of_it_are_right() {
+        let d = |_: f64, _: f64| (1.5, 0.5);
+        let (mut a, mut b) = pair(128, 160, d);
+        a.slice_mut(ndarray::s![.., 80..]).fill(0);
+        b.slice_mut(ndarray::s![.., 80..]).fill(0);
+        for passes in [
+            vec![Pass::new(32, 32)],
+            vec![Pass::new(32, 32), Pass::new(16, 16)],
+        ] {
+            let s = PivSettings {
+                passes,
+                ..PivSettings::default()
+            };
+            let f = piv(a.view(), b.view(), None, &s).unwrap();
+            let hw = (s.passes.last().unwrap().w as f64 - 1.0) / 2.0;
+            let mut clear = f.clone();
+            for (((x, ok), c), cl) in
+                f.x.iter()
+                    .zip(&f.valid)
+                    .zip(&f.coef)
+                    .zip(clear.valid.iter_mut())
+            {
+                // windows entirely inside the zero fill, also after the deformation by 0.75 px
+                // and the interpolation kernel (2 px): blank, not correlated
+                if x - hw - 0.75 - 2.0 >= 80.0 - 0.5 {
+                    assert!(!ok && *c == 0.0, "x {x}");
+                }
+                // windows clear of the fill (3 px margin for the interpolation kernel)
+                *cl = *ok && x + hw + 0.75 + 3.0 < 80.0;
+            }
+            let (worst, n) = worst_valid(&clear, d);
+            assert!(n >= 6 && worst < 0.1, "{n} clear valid, worst {worst}");
+            // (windows straddling the fill edge are correlated: see `Correlator::correlate`)
+        }
     }
 
     #[test]
