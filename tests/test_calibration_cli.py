@@ -3,7 +3,6 @@ codes, and nothing written on error."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 
 import numpy as np
@@ -21,18 +20,6 @@ def target_tif(tmp_path_factory):
     p = d / "target.tif"
     tifffile.imwrite(p, tg.image)
     return p, tg
-
-
-@pytest.fixture(scope="session")
-def engine(repo_root):
-    cargo = shutil.which("cargo")
-    if cargo is not None:
-        subprocess.run([cargo, "build", "-q", "-p", "rspiv-engine"], cwd=repo_root, check=True)
-        return str(repo_root / "target" / "debug" / "rspiv-engine")
-    exe = shutil.which("rspiv-engine")
-    if exe is None:
-        pytest.fail("neither cargo nor an installed rspiv-engine is available")
-    return exe
 
 
 def test_calibrate_and_montecarlo_commands(target_tif, tmp_path, capsys):

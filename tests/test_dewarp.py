@@ -172,24 +172,6 @@ def test_cli_dewarp_and_wall(tmp_path, capsys):
     assert main(["dewarp", str(cal_path), str(tmp_path / "missing.tif"), "-o", str(out)]) == 2
 
 
-@pytest.fixture(scope="module")
-def engine():
-    """The rspiv-engine binary, built (or brought up to date) by cargo."""
-    import pathlib
-    import shutil
-    import subprocess
-
-    repo = pathlib.Path(__file__).resolve().parents[1]
-    cargo = shutil.which("cargo")
-    if cargo:
-        subprocess.run([cargo, "build", "-q", "-p", "rspiv-engine"], cwd=repo, check=True)
-        return str(repo / "target" / "debug" / "rspiv-engine")
-    exe = shutil.which("rspiv-engine")
-    if exe is None:
-        pytest.fail("neither cargo nor an installed rspiv-engine is available")
-    return exe
-
-
 def test_engine_dewarp_matches_python(engine, mapping, tmp_path, rng):
     import subprocess
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import shutil
 import subprocess
 import sys
 
@@ -15,19 +14,6 @@ import numpy as np
 import pytest
 import rspiv
 import rspiv.cli
-
-
-@pytest.fixture(scope="session")
-def engine(repo_root):
-    """The rspiv-engine binary, built (or brought up to date) by cargo."""
-    cargo = shutil.which("cargo")
-    if cargo is not None:
-        subprocess.run([cargo, "build", "-q", "-p", "rspiv-engine"], cwd=repo_root, check=True)
-        return str(repo_root / "target" / "debug" / "rspiv-engine")
-    exe = shutil.which("rspiv-engine")
-    if exe is None:
-        pytest.fail("neither cargo nor an installed rspiv-engine is available")
-    return exe
 
 
 def _run_engine(engine, *args):

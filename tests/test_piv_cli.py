@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import shutil
 import subprocess
 
 import numpy as np
@@ -59,14 +57,8 @@ def test_cli_piv_writes_netcdf(pair_files, tmp_path):
     assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(out), "--passes", "6"]) == 2
 
 
-def test_engine_binary_piv(pair_files, tmp_path, repo_root):
-    exe = shutil.which("rspiv-engine") or os.path.join(
-        repo_root, "target", "release", "rspiv-engine"
-    )
-    if not os.path.exists(exe):
-        exe = os.path.join(repo_root, "target", "debug", "rspiv-engine")
-    if not os.path.exists(exe):
-        subprocess.run(["cargo", "build", "-q", "-p", "rspiv-engine"], cwd=repo_root, check=True)
+def test_engine_binary_piv(pair_files, tmp_path, engine):
+    exe = engine
     d, a, b = pair_files
     out = tmp_path / "f.csv"
     r = subprocess.run(

@@ -29,7 +29,7 @@ import numpy.typing as npt
 from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 
-__all__ = ["dewarp", "remap"]
+__all__ = ["check_calibration_shape", "dewarp", "remap"]
 
 
 def _image(image: npt.ArrayLike) -> np.ndarray:
@@ -62,6 +62,24 @@ def _mapping_json(mapping: Any) -> str | None:
     if hasattr(mapping, "to_json") and hasattr(mapping, "forward"):
         return mapping.to_json()
     return None
+
+
+def check_calibration_shape(calibration: Any, shape: tuple[int, ...], what: str = "image") -> None:
+    """Raise if ``calibration`` is a :class:`rspiv.Calibration` made for another sensor size.
+
+    A bare :class:`rspiv.Mapping` (or JSON text, callable) does not know its sensor: no check.
+    """
+    from rspiv.calibration import Calibration
+
+    if not isinstance(calibration, Calibration):
+        return
+    want = tuple(int(v) for v in calibration.image_shape)
+    got = tuple(int(v) for v in shape)
+    if got != want:
+        raise InvalidInputError(
+            f"{what} shape (h, w) = {got} differs from the calibration's image_shape {want}: "
+            "the calibration was made for another sensor size and does not cover this image"
+        )
 
 
 def _default_shape(mapping: Any, image: np.ndarray) -> tuple[int, int]:
@@ -118,11 +136,13 @@ def dewarp(
     Raises
     ------
     InvalidInputError
-        Unknown kernel or dtype, bad shapes, or a mapping that is none of the above.
+        Unknown kernel or dtype, bad shapes, an image whose shape differs from a Calibration's
+        ``image_shape``, or a mapping that is none of the above.
     """
     if kernel != "keys":
         raise InvalidInputError(f"kernel must be 'keys', got {kernel!r}")
     img = _image(image)
+    check_calibration_shape(mapping, img.shape)
     dt = _out_dtype(out_dtype)
     shape = tuple(output_shape) if output_shape is not None else _default_shape(mapping, img)
     if len(shape) != 2 or min(shape) < 1:

@@ -252,7 +252,7 @@ def piv(
     InvalidInputError
         Frames not 2D, of different shapes, with NaN/inf, windows larger than the image, bad
         settings; ``method`` without ``calibration`` (or the reverse), an unknown ``method`` or
-        ``mapping``.
+        ``mapping``; frames whose shape differs from a Calibration's ``image_shape``.
     """
     if mapping not in ("full", "positions"):
         raise InvalidInputError(f'mapping must be "full" or "positions", got {mapping!r}')
@@ -261,6 +261,10 @@ def piv(
             raise InvalidInputError(f'method must be "images" or "vectors", got {method!r}')
         if calibration is None:
             raise InvalidInputError(f"method={method!r} needs a calibration")
+        from rspiv.dewarp import check_calibration_shape
+
+        check_calibration_shape(calibration, np.shape(frame_a), "frame_a")
+        check_calibration_shape(calibration, np.shape(frame_b), "frame_b")
         kw = dict(
             iterations=iterations,
             subpixel=subpixel,
