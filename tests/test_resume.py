@@ -1,6 +1,8 @@
 """Fault tolerance of a local campaign: ``rspiv process`` killed with SIGKILL at random moments
-(delays from a seeded RNG) and restarted gives bit-identical statistics to an uninterrupted run,
-never recomputes a pair its checkpoint holds, and keeps a corrupt pair out of the statistics.
+(after a seeded-random number of finished pairs plus a seeded-random delay, so that the kill
+lands mid-pair or mid-checkpoint whatever the machine's speed) and restarted gives
+bit-identical statistics to an uninterrupted run, never recomputes a pair its checkpoint holds,
+and keeps a corrupt pair out of the statistics.
 """
 
 from __future__ import annotations
@@ -10,13 +12,14 @@ import pickle
 import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 from rspiv.campaign import Campaign
 from scaleout_cases import make_campaign, prepared_copy
 
-N_PAIRS = 8
+N_PAIRS = 10
 BAD = 5  # pair with a truncated frame
 STATE = (
     "count",
@@ -50,6 +53,23 @@ def _events(out):
     return [json.loads(x) for x in p.read_text().splitlines() if x.strip()]
 
 
+def _kill_at_random_moment(proc, out, n_before: int, pairs: int, delay: float) -> None:
+    """SIGKILL ``proc`` once this attempt has logged ``pairs`` finished pairs, ``delay`` seconds
+    later (the log is polled every 5 ms; a half-written last line is ignored)."""
+    deadline = time.monotonic() + 120.0
+    while proc.poll() is None and time.monotonic() < deadline:
+        try:
+            done = sum(1 for e in _events(out)[n_before:] if e["event"] == "pair")
+        except json.JSONDecodeError:
+            done = -1
+        if done >= pairs:
+            time.sleep(delay)
+            break
+        time.sleep(0.005)
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+
+
 def _finished(out) -> set[int]:
     p = out / "checkpoint" / "state.pkl"
     return set(pickle.loads(p.read_bytes())["finished"]) if p.is_file() else set()
@@ -66,11 +86,9 @@ def test_sigkill_at_random_moments_then_resume(case, tmp_path):
         held = _finished(out)
         n_before = len(_events(out))
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        if k < 4:  # SIGKILL after a random delay
-            try:
-                proc.wait(timeout=float(rng.uniform(0.5, 4.0)))
-            except subprocess.TimeoutExpired:
-                proc.send_signal(signal.SIGKILL)
+        if k < 4:  # SIGKILL after 0 or 1 finished pairs plus a random delay of up to 50 ms
+            pairs, delay = int(rng.integers(0, 2)), float(rng.uniform(0.0, 0.05))
+            _kill_at_random_moment(proc, out, n_before, pairs, delay)
         rc = proc.wait(timeout=120)
         attempts.append((held, n_before, rc == -signal.SIGKILL))
         if k == 4:
