@@ -70,7 +70,7 @@ class DemoScene:
     """
 
     scale: float = 0.4
-    pairs: int = 12
+    pairs: int = 24
     seed: int = 2386
     u_inf_px: float = 20.0
     density: float = 0.03

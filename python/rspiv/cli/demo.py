@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the exact truth and write the report.",
     )
     p.add_argument("-o", "--output", default="rspiv-demo", help="folder (default rspiv-demo)")
-    p.add_argument("--pairs", type=int, default=None, help="number of pairs (default 12)")
+    p.add_argument("--pairs", type=int, default=None, help="number of pairs (default 24)")
     p.add_argument("--scale", type=float, default=None, help="scene scale (default 0.4)")
     p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=_demo)
