@@ -20,7 +20,9 @@ Run: ``python benches/bench_fit.py`` (after ``maturin develop --release``).
 
 from __future__ import annotations
 
+import pathlib
 import platform
+import sys
 import time
 
 import numpy as np
@@ -28,85 +30,31 @@ import rspiv
 from rspiv import _rspiv
 from scipy.optimize import least_squares
 
+# The independent NumPy models and the known coefficients are the tests' ground truth.
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+from mapping_cases import (  # noqa: E402
+    coeff_jacobian,
+    eval_model,
+    linear_start,
+    p3_basis,
+    truth_coefficients,
+)
+
 S = 8423.924
 SIGMA_I, SIGMA_O = 0.057, 0.380
 SETS = 64
 
 
 def truth(model):
-    k = 0.0088
-    if model == "r1":
-        return np.array([1.0004, 0.0003, 2e-4, -0.0002, 0.9997, -3e-4, 0.0025, -0.0015])
-    if model == "r2":
-        return np.array(
-            [1.0004, 0.0003, 2e-4, 1.5e-4, -1e-4, 0.5e-4, -0.0002, 0.9997, -3e-4, -0.5e-4]
-            + [1.2e-4, 2e-4, 0.0004, -0.0003, -k, 0.0, -k]
-        )
-    return np.array(
-        [2e-4, 1.0004, 0.0003, 1.5e-4, -1e-4, 0.5e-4, k, 0.0, k, 0.0]
-        + [-3e-4, -0.0002, 0.9997, -0.5e-4, 1.2e-4, 2e-4, 0.0, k, 0.0, k]
-    )
+    return truth_coefficients(model)
 
 
-def p3_basis(x, y):
-    return np.stack([np.ones_like(x), x, y, x * x, x * y, y * y, x**3, x * x * y, x * y * y, y**3])
-
-
-def model_eval(model, c, x, y):
-    if model == "r1":
-        d = c[6] * x + c[7] * y + 1.0
-        return (c[0] * x + c[1] * y + c[2]) / d, (c[3] * x + c[4] * y + c[5]) / d
-    if model == "r2":
-        phi = np.stack([x, y, np.ones_like(x), x * x, x * y, y * y])
-        d = 1.0 + c[12:17] @ np.stack([x, y, x * x, x * y, y * y])
-        return (c[0:6] @ phi) / d, (c[6:12] @ phi) / d
-    b = p3_basis(x, y)
-    return c[:10] @ b, c[10:] @ b
-
-
-def model_jac(model, c, x, y):
-    n = x.size
+def numpy_linear_fit(model, oh, ih):
+    """numpy's fit: P3 in one lstsq with both right-hand sides; R1/R2 the linearised start."""
     if model == "p3":
-        b = p3_basis(x, y).T
-        j = np.zeros((2 * n, 20))
-        j[:n, :10] = b
-        j[n:, 10:] = b
-        return j
-    fx, fy = model_eval(model, c, x, y)
-    if model == "r1":
-        phi = np.stack([x, y, np.ones_like(x)]).T
-        psi = np.stack([x, y]).T
-        d = c[6] * x + c[7] * y + 1.0
-    else:
-        phi = np.stack([x, y, np.ones_like(x), x * x, x * y, y * y]).T
-        psi = np.stack([x, y, x * x, x * y, y * y]).T
-        d = 1.0 + psi @ c[12:17]
-    q, r = phi.shape[1], psi.shape[1]
-    j = np.zeros((2 * n, 2 * q + r))
-    j[:n, :q] = phi / d[:, None]
-    j[n:, q : 2 * q] = phi / d[:, None]
-    j[:n, 2 * q :] = -fx[:, None] * psi / d[:, None]
-    j[n:, 2 * q :] = -fy[:, None] * psi / d[:, None]
-    return j
-
-
-def linear_solve(model, oh, ih):
-    x, y = oh[:, 0], oh[:, 1]
-    if model == "p3":
+        x, y = oh[:, 0], oh[:, 1]
         return np.linalg.lstsq(p3_basis(x, y).T, ih, rcond=None)[0].T.ravel()
-    if model == "r1":
-        phi = np.column_stack([x, y, np.ones_like(x)])
-        psi = np.column_stack([x, y])
-    else:
-        phi = np.column_stack([x, y, np.ones_like(x), x * x, x * y, y * y])
-        psi = np.column_stack([x, y, x * x, x * y, y * y])
-    q, r, n = phi.shape[1], psi.shape[1], x.size
-    a = np.zeros((2 * n, 2 * q + r))
-    a[:n, :q] = phi
-    a[n:, q : 2 * q] = phi
-    a[:n, 2 * q :] = -ih[:, [0]] * psi
-    a[n:, 2 * q :] = -ih[:, [1]] * psi
-    return np.linalg.lstsq(a, np.concatenate([ih[:, 0], ih[:, 1]]), rcond=None)[0]
+    return linear_start(model, oh, ih)
 
 
 def data(model, rng):
@@ -114,8 +62,8 @@ def data(model, rng):
     i, j = np.meshgrid(np.arange(13) - 6.0, np.arange(7) - 3.0)
     oh = np.column_stack([i.ravel() * pitch, j.ravel() * pitch])
     c = truth(model)
-    fx, fy = model_eval(model, c, oh[:, 0], oh[:, 1])
-    f0 = model_eval(model, c, np.zeros(1), np.zeros(1))
+    fx, fy = eval_model(model, c, oh[:, 0], oh[:, 1])
+    f0 = eval_model(model, c, np.zeros(1), np.zeros(1))
     ih = np.column_stack([fx - f0[0][0], fy - f0[1][0]])
     objs, imgs = [], []
     for _ in range(SETS):
@@ -169,13 +117,13 @@ def bench_model(model, rng):
         im = imgs[k]
 
         def fun(c):
-            fx, fy = model_eval(model, c, x, y)
+            fx, fy = eval_model(model, c, x, y)
             return np.concatenate([fx - im[:, 0], fy - im[:, 1]])
 
-        return least_squares(fun, start, jac=lambda c: model_jac(model, c, x, y), method="lm")
+        return least_squares(fun, start, jac=lambda c: coeff_jacobian(model, c, x, y), method="lm")
 
     def numpy_fit(k):
-        return linear_solve(model, objs[k], imgs[k])
+        return numpy_linear_fit(model, objs[k], imgs[k])
 
     t_api = per_fit(api_fit, SETS)
     t_scipy = per_fit(scipy_fit, SETS, 0.3)
