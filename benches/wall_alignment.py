@@ -7,9 +7,10 @@ lens (:func:`rspiv.synth.paper_lens`) with the wall at 0.04 degree to the target
 synthetic target through the same lens. Steps, as in the paper:
 
 1. calibrate (P3) from the target image;
-2. PIV (64 -> 32 -> 32 x 8 px windows, 50 % overlap) of the raw frames in a band around the
-   wall; the wall from the reflection symmetry: its deviation is compared with the rendered one
-   (the wall line pushed through the lens);
+2. PIV (64 -> 32 -> 32 x 8 px windows, 50 % overlap, 75 % for the last pass: a vector row
+   every 2 px, see :mod:`rspiv.wall`) of the raw frames in a band around the wall; the wall
+   from the reflection symmetry: its deviation is compared with the rendered one (the wall
+   line pushed through the lens);
 3. dewarp the frames with the calibration (Method I), PIV, find the wall: the angle is the
    target misalignment (0.04 degree);
 4. rotate the calibration by the measured angle, dewarp, PIV, find the wall again: straight and
@@ -63,7 +64,7 @@ def main() -> None:
             if mapping is not None:
                 a, b = dewarp(a, mapping), dewarp(b, mapping)
             a, b = np.ascontiguousarray(a[r0:r1]), np.ascontiguousarray(b[r0:r1])
-            f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=0.5)
+            f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=[0.5, 0.5, 0.75])
             out.append(dataclasses.replace(f, y=f.y + r0))
         return out
 

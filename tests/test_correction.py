@@ -106,7 +106,9 @@ def _wall_check(seed0: int, scale: float = 0.5, n_pairs: int = 8, stations: int 
             if cal_or_none is not None:
                 a, b = rspiv.dewarp(a, cal_or_none), rspiv.dewarp(b, cal_or_none)
             a, b = np.ascontiguousarray(a[r0:r1]), np.ascontiguousarray(b[r0:r1])
-            f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=0.5)
+            # 75 % final overlap: a vector row every 2 px, so the mirror estimate does not
+            # lock to the rows (rspiv.wall module docstring)
+            f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=[0.5, 0.5, 0.75])
             fields.append(dataclasses.replace(f, y=f.y + r0))
         return find_wall(fields, band=band, stations=stations)
 
@@ -121,11 +123,10 @@ def _wall_check(seed0: int, scale: float = 0.5, n_pairs: int = 8, stations: int 
 
 
 def test_wall_alignment_half_scale_raw_deviation_and_angle_p3():
-    # Paper Table 4 at half scale. Checked over seed sets 0, 20, 40: raw deviation minus
-    # rendered 0.162 / 0.123 / 0.184 px, angle error -0.0023 / -0.0029 / -0.0035 degree.
-    # The corrected deviation <= 0.3 px of the full sensor is NOT asserted here: at half scale
-    # it is 0.208 / 0.312 / 0.371 px (the angle after dewarping is biased low by ~0.003 degree
-    # at this scale, 0.00016 at full scale), so only the full-size bench checks it.
+    # Paper Table 4 at half scale. With the final pass at 50 % overlap (a row every 4 px) the
+    # mirror estimate locked to the rows: corrected deviation 0.21-0.55 px and the angle
+    # 0.003-0.005 degree low, depending on the seed; at 75 % (every 2 px) seed sets 0 / 20 /
+    # 40 give 0.16 / 0.17 / 0.20 px and +0.0005 / +0.0001 / -0.0015 degree.
     w_raw, rendered_dev, w_dw, w_rot = _wall_check(seed0=0)
     print(
         f"raw deviation {w_raw.max_deviation_px:.3f} px (rendered {rendered_dev:.3f} px); "
@@ -138,3 +139,4 @@ def test_wall_alignment_half_scale_raw_deviation_and_angle_p3():
     assert abs(w_dw.angle_deg - 0.04) <= 0.005
     # Rotating the calibration by the measured angle removes the tilt: the wall is level.
     assert w_rot.max_deviation_px < 0.25 * w_dw.max_deviation_px
+    assert w_rot.max_deviation_px <= 0.3  # the limit (paper: 0.62 px)

@@ -19,7 +19,7 @@ from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.piv import PivField, piv, piv_at
 from rspiv.reference import load_dns
 from rspiv.stats import FieldAccumulator
-from rspiv.wall import Wall, find_wall
+from rspiv.wall import Wall, WallTable, find_wall, wall_table
 
 __all__ = ["__version__", "RspivError", "InvalidInputError", "ConvergenceError"]
 __all__ += ["FieldAccumulator", "CampaignConfig", "load_campaign_config", "analyse_profile"]
@@ -29,3 +29,4 @@ __all__ += ["PivField", "piv", "piv_at"]
 __all__ += ["Calibration", "calibrate", "MonteCarloResult", "monte_carlo"]
 __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]
+__all__ += ["WallTable", "wall_table"]

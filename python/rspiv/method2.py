@@ -16,6 +16,18 @@ image displacement ``d`` is mapped back to the object frame:
   ``|d| * |J(F^-1) - I|`` (about 0.08 px at 32 px displacement in the paper); see
   :func:`position_only_bias`.
 
+Cost. The predictor passes (all but the last window size) are a plain :func:`rspiv.piv` of the
+raw frames, the same work as Method I's first passes on the dewarped frames. The final pass
+runs once per point (``iterations=1``, as every pass of :func:`rspiv.piv` by default) with the
+same deformation as Method I's final pass; Method II saves the two dewarps but builds the
+B-spline coefficients of the raw frames a second time (``piv_at`` is a separate call). With
+``deformation="offset"`` (the campaign's default) the final windows are shifted by the
+predictor as in Method I's offset pass, and one 47 MP pair costs about as much as Method I
+(1.04x); with ``"symmetric"`` each final window at its fractional image position is deformed
+pixel by pixel, where Method I deforms the whole pair once (1.7x). When the uncorrected field of
+the same pair is computed anyway (the campaign's comparison run), pass it as ``predictor``: the
+final pass is then all Method II adds. ``benches/bench_method2.py`` measures these.
+
 All maps are vectorised (one call of ``Mapping.forward``/``inverse`` per field, no Python loop
 over windows). Coordinates: README pixel frame (x = column, y = row down); ``u``, ``v`` along x
 and y in object px.
@@ -156,8 +168,9 @@ def piv_vectors(
     object_shape: tuple[int, int] | None = None,
     predictor: PivField | None = None,
     deformation: str = "offset",
-    iterations: int = 2,
+    iterations: int = 1,
     subpixel: str = "gauss3",
+    interpolation: str = "bspline",
     median_threshold: float = 2.0,
     median_eps: float = 0.1,
     mask=None,
@@ -187,8 +200,12 @@ def piv_vectors(
     deformation : {"offset", "symmetric"}
         How the final windows follow the predictor: offset by it (interpolated bilinearly at
         each point) or deformed by it (:func:`rspiv.piv_at` with a grid field).
-    iterations, subpixel, median_threshold, median_eps, mask
-        As for :func:`rspiv.piv` / :func:`rspiv.piv_at`.
+    iterations : int
+        Correlation iterations of the final pass (1, as each pass of :func:`rspiv.piv`: a
+        second iteration doubles the final pass's cost for an RMS gain of ~2 %).
+    subpixel, interpolation, median_threshold, median_eps, mask
+        As for :func:`rspiv.piv` / :func:`rspiv.piv_at` (both the predictor and the final
+        pass).
 
     Returns
     -------
@@ -201,6 +218,8 @@ def piv_vectors(
     passes = [tuple(int(t) for t in p) for p in passes]
     if not passes:
         raise InvalidInputError("passes is empty")
+    if deformation not in ("offset", "symmetric"):
+        raise InvalidInputError(f'deformation must be "offset" or "symmetric", got {deformation!r}')
     a = np.asarray(frame_a)
     shape = tuple(object_shape) if object_shape is not None else a.shape
     gx, gy = grid_for_windows(shape, passes[-1], overlap)
@@ -215,12 +234,14 @@ def piv_vectors(
             deformation=deformation,
             mask=mask,
             subpixel=subpixel,
+            interpolation=interpolation,
             median_threshold=median_threshold,
             median_eps=median_eps,
         )
     pred: Any = predictor
     if predictor is not None and deformation == "offset":
         pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
+    # deformation "symmetric": piv_at deforms each window by the predictor field
     f = piv_at(
         frame_a,
         frame_b,
@@ -231,6 +252,7 @@ def piv_vectors(
         mask=mask,
         validate=True,
         subpixel=subpixel,
+        interpolation=interpolation,
         median_eps=median_eps,
         median_threshold=median_threshold,
     )
