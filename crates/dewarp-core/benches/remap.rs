@@ -2,8 +2,9 @@
 //! evaluated per pixel ("exact") and on the auto-chosen coarse grid (<= 1e-3 px).
 //!
 //! The map is a paper-like lens: a cubic pincushion reaching ~9 px at the corner of the full
-//! 8864 x 5288 sensor, a small decentring term and a 0.04 degree rotation. Run with
-//! `cargo bench -p dewarp-core --bench remap`.
+//! 8864 x 5288 sensor, a small decentring term and a 0.04 degree rotation. Output float32, plus
+//! uint16 for the full sensor (the issue-5 case). Run with
+//! `cargo bench -p dewarp-core --bench remap` (one case: append e.g. `-- u16_to_u16`).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use dewarp_core::remap::{remap, MapSampling, RemapOptions};
@@ -55,6 +56,22 @@ fn bench_remap(c: &mut Criterion) {
             );
         }
     }
+    g.finish();
+
+    // The issue-5 case: full sensor, auto grid, u16 out (as `benches/bench_dewarp.py`).
+    let mut g = c.benchmark_group("remap_keys_u16_to_u16");
+    g.sample_size(10);
+    let (h, w) = (5288usize, 8864usize);
+    let img = image(h, w);
+    let map = lens(h, w);
+    g.throughput(Throughput::Elements((h * w) as u64));
+    let opts = RemapOptions::default();
+    g.bench_function(BenchmarkId::new("auto_grid", format!("{w}x{h}")), |b| {
+        b.iter(|| {
+            let out: Array2<u16> = remap(img.view(), &map, &opts).unwrap();
+            black_box(out)
+        })
+    });
     g.finish();
 }
 
