@@ -6,7 +6,11 @@
 //! travel through one complex 2D FFT (`a + i b`); the cross-spectrum `conj(A) B` is separated
 //! from it by Hermitian symmetry, and one inverse FFT gives the correlation
 //! `R(tx, ty) = sum a(x, y) b(x + tx, y + ty) / sqrt(E_a E_b)` (means removed), whose peak is
-//! the displacement of B relative to A. The padded size is the smallest 2^a 3^b 5^c length
+//! the displacement of B relative to A. `R` is real, so its spectrum is Hermitian: only the
+//! columns `kx = 0 ..= pw/2` are formed and inverted along y, and the lag rows the peak search
+//! needs are inverted along x two at a time (`r1 + i r2` from the Hermitian extensions of their
+//! half spectra), about half the inverse work of a full complex transform. On x86-64 with AVX2
+//! the loops around the FFTs run in 8 lanes (same arithmetic, same results). The padded size is the smallest 2^a 3^b 5^c length
 //! `>= w + w/2` (and likewise for `h`), which keeps every lag `|t| <= w/2` free of wrap-around.
 //! The peak is searched in `|tx| <= w/2 - 1`, `|ty| <= h/2 - 1`.
 //!
@@ -134,6 +138,8 @@ pub struct Correlator {
     /// Window of frame B.
     pub wb: Vec<f32>,
     corr: Vec<f32>,
+    /// Scratch plane of the peak search.
+    hm: Vec<f32>,
     cw: usize,
     ch: usize,
     /// Per-pixel variance at or below which a window is blank and not correlated (besides the
@@ -163,6 +169,7 @@ impl Correlator {
             wa: vec![0.0; w * h],
             wb: vec![0.0; w * h],
             corr: vec![0.0; cw * ch],
+            hm: vec![0.0; cw * ch],
             cw,
             ch,
             min_var: 0.0,
@@ -189,6 +196,29 @@ impl Correlator {
     /// correlated (its fill is indistinguishable from a dark, clipped background); exclude the
     /// fill with a mask to drop such windows.
     pub fn correlate(&mut self, sub: SubPixel) -> Peak {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { self.correlate_avx2(sub) };
+            }
+        }
+        self.correlate_impl(sub)
+    }
+
+    /// [`Self::correlate_impl`] compiled for AVX2 (8-lane loops around the FFTs; rustfft picks
+    /// its own kernels at run time). No FMA: the results are the same as without AVX2.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn correlate_avx2(&mut self, sub: SubPixel) -> Peak {
+        self.correlate_impl(sub)
+    }
+
+    #[inline(always)]
+    fn correlate_impl(&mut self, sub: SubPixel) -> Peak {
         let (w, h) = (self.w, self.h);
         let n = (w * h) as f32;
         let ma = sum8(&self.wa) / n;
@@ -226,20 +256,23 @@ impl Correlator {
         // 4. column FFTs
         pl.fwd_h
             .process_with_scratch(&mut self.buf2, &mut self.scratch);
-        // 5. cross-spectrum conj(A) B from Z = A + i B, into buf (same transposed layout)
-        for kx in 0..pw {
+        // 5. cross-spectrum conj(A) B from Z = A + i B, into buf (same transposed layout), for
+        // kx = 0 ..= pw/2 only: the correlation is real, so its spectrum is Hermitian and the
+        // other half is never needed
+        let nk = pw / 2 + 1;
+        // with A = (Z + conj(Zm)) / 2 and B = (Z - conj(Zm)) / 2i (Zm = Z at -k):
+        // 2 conj(A) B = Im(Z Zm) + i (|Zm|^2 - |Z|^2) / 2 (the 2 is undone in `norm`)
+        let spec = |z: Complex32, zm: Complex32| {
+            Complex32::new(
+                z.re * zm.im + z.im * zm.re,
+                0.5 * ((zm.re * zm.re + zm.im * zm.im) - (z.re * z.re + z.im * z.im)),
+            )
+        };
+        for (kx, orow) in self.buf[..nk * ph].chunks_exact_mut(ph).enumerate() {
             let mkx = if kx == 0 { 0 } else { pw - kx };
             let zrow = &self.buf2[kx * ph..(kx + 1) * ph];
             let mrow = &self.buf2[mkx * ph..(mkx + 1) * ph];
-            let orow = &mut self.buf[kx * ph..(kx + 1) * ph];
             // ky = 0 pairs with 0, ky pairs with ph - ky
-            let spec = |z: Complex32, zm: Complex32| {
-                let zm = zm.conj();
-                let a = (z + zm) * 0.5;
-                let d = z - zm; // = 2 i B
-                let b = Complex32::new(d.im * 0.5, -d.re * 0.5);
-                a.conj() * b
-            };
             orow[0] = spec(zrow[0], mrow[0]);
             for ((o, &z), &zm) in orow[1..]
                 .iter_mut()
@@ -249,44 +282,84 @@ impl Correlator {
                 *o = spec(z, zm);
             }
         }
-        // 6. inverse along y
+        // 6. inverse along y of those columns: c(kx, ty), Hermitian in kx for every ty
         pl.inv_h
-            .process_with_scratch(&mut self.buf[..pw * ph], &mut self.scratch);
-        // 7. gather the lag rows -sy-1 ..= sy+1 into buf2 rows, inverse along x
+            .process_with_scratch(&mut self.buf[..nk * ph], &mut self.scratch);
+        // 7. lag rows ty = -sy-1 ..= sy+1 (ty < 0 at the end of each column), two at a time:
+        // X = H1 + i H2 with H the Hermitian extension of a row's half spectrum, whose inverse
+        // along x is r1 + i r2 (the real correlation rows)
         let (sx, sy) = (self.sx, self.sy);
-        let nrows = self.ch;
-        // lag rows -sy-1 ..= -1 sit at the end of each column, 0 ..= sy+1 at its start
-        let (neg, pos) = (sy + 1, sy + 2);
-        for (kx, col) in self.buf.chunks_exact(ph).enumerate() {
-            for (t, v) in col[ph - neg..].iter().chain(&col[..pos]).enumerate() {
-                self.buf2[t * pw + kx] = *v;
+        let ch = self.ch;
+        let lag_at = |t: usize| {
+            if t <= sy {
+                ph - (sy + 1) + t
+            } else {
+                t - (sy + 1)
+            }
+        };
+        let npairs = ch.div_ceil(2);
+        let half = &self.buf[..nk * ph];
+        // kx = 1 ..= np pair with pw - kx; kx = 0 (and pw/2 for even pw) pair with themselves
+        let np = (pw - 1) / 2;
+        for (p, x) in self.buf2[..npairs * pw].chunks_exact_mut(pw).enumerate() {
+            let i1 = lag_at(2 * p);
+            // an odd last row has no partner: read row i1 again, weighted 0
+            let (i2, s2) = if 2 * p + 1 < ch {
+                (lag_at(2 * p + 1), 1.0)
+            } else {
+                (i1, 0.0)
+            };
+            let (x0, rest) = x.split_at_mut(1);
+            let (mid, tail) = rest.split_at_mut(np);
+            // self-paired frequencies of a Hermitian row are real
+            x0[0] = Complex32::new(half[i1].re, half[i2].re * s2);
+            if pw % 2 == 0 {
+                let col = &half[(pw / 2) * ph..];
+                tail[0] = Complex32::new(col[i1].re, col[i2].re * s2);
+            }
+            let t = tail.len();
+            for ((o, m), col) in mid
+                .iter_mut()
+                .zip(tail[t - np..].iter_mut().rev())
+                .zip(half[ph..].chunks_exact(ph))
+            {
+                let (c1, c2) = (col[i1], col[i2] * s2);
+                *o = Complex32::new(c1.re - c2.im, c1.im + c2.re);
+                // X[pw - kx] = conj(c1) + i conj(c2)
+                *m = Complex32::new(c1.re + c2.im, c2.re - c1.im);
             }
         }
         pl.inv_w
-            .process_with_scratch(&mut self.buf2[..nrows * pw], &mut self.scratch);
-        // 8. normalised plane: lags tx = -sx-1 ..= sx+1
-        let norm = (1.0 / ((pw * ph) as f64 * (ea * eb).sqrt())) as f32;
+            .process_with_scratch(&mut self.buf2[..npairs * pw], &mut self.scratch);
+        // 8. normalised plane: lags tx = -sx-1 ..= sx+1 (negative ones at the end of a row)
+        let norm = (0.5 / ((pw * ph) as f64 * (ea * eb).sqrt())) as f32;
         let cw = self.cw;
-        for (out, row) in self
-            .corr
-            .chunks_exact_mut(cw)
-            .zip(self.buf2.chunks_exact(pw))
-        {
-            // negative lags -sx-1 ..= -1 sit at the end of the row
-            let (neg, pos) = out.split_at_mut(sx + 1);
-            for (o, v) in neg.iter_mut().zip(&row[pw - sx - 1..]) {
+        for (rows, y) in self.corr.chunks_mut(2 * cw).zip(self.buf2.chunks_exact(pw)) {
+            let (r1, r2) = rows.split_at_mut(cw);
+            let (neg, pos) = (&y[pw - sx - 1..], &y[..sx + 2]);
+            let (n1, p1) = r1.split_at_mut(sx + 1);
+            for (o, v) in n1.iter_mut().zip(neg) {
                 *o = v.re * norm;
             }
-            for (o, v) in pos.iter_mut().zip(&row[..sx + 2]) {
+            for (o, v) in p1.iter_mut().zip(pos) {
                 *o = v.re * norm;
+            }
+            if !r2.is_empty() {
+                let (n2, p2) = r2.split_at_mut(sx + 1);
+                for (o, v) in n2.iter_mut().zip(neg) {
+                    *o = v.im * norm;
+                }
+                for (o, v) in p2.iter_mut().zip(pos) {
+                    *o = v.im * norm;
+                }
             }
         }
-        find_peak(&self.corr, self.cw, self.ch, w, h, sub)
+        find_peak_with(&self.corr, &mut self.hm, cw, ch, w, h, sub)
     }
 }
 
 /// Sum with 8 independent accumulators (vectorises).
-#[inline]
+#[inline(always)]
 fn sum8(x: &[f32]) -> f32 {
     let mut acc = [0.0f32; 8];
     let mut it = x.chunks_exact(8);
@@ -299,7 +372,7 @@ fn sum8(x: &[f32]) -> f32 {
 }
 
 /// Sum of squared deviations from `m` with 8 accumulators.
-#[inline]
+#[inline(always)]
 fn sq_dev8(x: &[f32], m: f32) -> f32 {
     let mut acc = [0.0f32; 8];
     let mut it = x.chunks_exact(8);
@@ -318,6 +391,7 @@ fn sq_dev8(x: &[f32], m: f32) -> f32 {
 
 /// Write the transpose of `src` (`rows` x `cols`) into `dst` as `cols` rows of `stride`,
 /// zero-filling each destination row beyond `rows`.
+#[inline(always)]
 fn transpose_into(
     src: &[Complex32],
     rows: usize,
@@ -325,18 +399,33 @@ fn transpose_into(
     dst: &mut [Complex32],
     stride: usize,
 ) {
-    const B: usize = 8;
+    let dst = &mut dst[..cols * stride];
     for dr in dst.chunks_exact_mut(stride) {
         dr[rows..].fill(Complex32::default());
     }
-    for r0 in (0..rows).step_by(B) {
-        let r1 = (r0 + B).min(rows);
-        for c in 0..cols {
-            let drow = &mut dst[c * stride..c * stride + rows];
-            for r in r0..r1 {
-                drow[r] = src[r * cols + c];
-            }
+    // four source rows at a time: each destination row gets four contiguous values
+    let mut blocks = src[..rows * cols].chunks_exact(4 * cols);
+    let mut r0 = 0;
+    for b in &mut blocks {
+        let (s0, rest) = b.split_at(cols);
+        let (s1, rest) = rest.split_at(cols);
+        let (s2, s3) = rest.split_at(cols);
+        for ((((d, &x0), &x1), &x2), &x3) in
+            dst.chunks_exact_mut(stride).zip(s0).zip(s1).zip(s2).zip(s3)
+        {
+            let d = &mut d[r0..r0 + 4];
+            d[0] = x0;
+            d[1] = x1;
+            d[2] = x2;
+            d[3] = x3;
         }
+        r0 += 4;
+    }
+    for s in blocks.remainder().chunks_exact(cols) {
+        for (d, &x) in dst.chunks_exact_mut(stride).zip(s) {
+            d[r0] = x;
+        }
+        r0 += 1;
     }
 }
 
@@ -345,7 +434,49 @@ fn transpose_into(
 /// the plane divided by the overlap fraction `(1 - |tx|/w)(1 - |ty|/h)` of the two windows at
 /// each lag, which removes the bias of linear correlation towards zero displacement
 /// (Westerweel 1997); the integer peak, its height and the peak ratio use the plane itself.
+/// Allocates a scratch plane: [`Correlator::correlate`] uses its own instead.
 pub fn find_peak(corr: &[f32], cw: usize, ch: usize, w: usize, h: usize, sub: SubPixel) -> Peak {
+    let mut hm = vec![0.0f32; cw * ch];
+    find_peak_with(corr, &mut hm, cw, ch, w, h, sub)
+}
+
+/// `a` if it is greater than `b`, else `b` (one `maxps`; a NaN `a` is skipped).
+#[inline(always)]
+fn gt_max(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The maximum of `x` (NaN skipped; -inf if empty), with 8 independent lanes.
+#[inline(always)]
+fn max8(x: &[f32]) -> f32 {
+    let mut acc = [f32::NEG_INFINITY; 8];
+    let mut it = x.chunks_exact(8);
+    for c in &mut it {
+        for k in 0..8 {
+            acc[k] = gt_max(c[k], acc[k]);
+        }
+    }
+    let m = acc.iter().fold(f32::NEG_INFINITY, |m, &a| gt_max(a, m));
+    it.remainder().iter().fold(m, |m, &a| gt_max(a, m))
+}
+
+/// [`find_peak`] with a scratch plane `hm` of `cw * ch` values.
+#[inline(always)]
+fn find_peak_with(
+    corr: &[f32],
+    hm: &mut [f32],
+    cw: usize,
+    ch: usize,
+    w: usize,
+    h: usize,
+    sub: SubPixel,
+) -> Peak {
+    let corr = &corr[..cw * ch];
+    let hm = &mut hm[..cw * ch];
     let at = |c: usize, r: usize| corr[r * cw + c];
     let (hx, hy) = ((cw / 2) as f32, (ch / 2) as f32);
     let (fw, fh) = (w as f32, h as f32);
@@ -354,38 +485,51 @@ pub fn find_peak(corr: &[f32], cw: usize, ch: usize, w: usize, h: usize, sub: Su
         let oy = 1.0 - (r as f32 - hy).abs() / fh;
         corr[r * cw + c] / (ox * oy)
     };
-    // primary peak inside the border
+    let n = cw - 2;
+    // primary peak inside the border (the first of equal values in row-major order)
     let (mut pc, mut pr, mut best) = (1usize, 1usize, f32::NEG_INFINITY);
-    for r in 1..ch - 1 {
-        for c in 1..cw - 1 {
-            let v = at(c, r);
-            if v > best {
-                best = v;
-                pc = c;
-                pr = r;
-            }
+    for (r, row) in corr.chunks_exact(cw).enumerate().take(ch - 1).skip(1) {
+        let inner = &row[1..cw - 1];
+        let m = max8(inner);
+        if m > best {
+            best = m;
+            pr = r;
+            pc = 1 + inner.iter().position(|&v| v == m).unwrap_or(0);
         }
     }
     if !best.is_finite() {
         return Peak::FAILED;
     }
-    // second-highest local maximum outside the peak's 3 x 3 neighbourhood
+    // second-highest local maximum outside the peak's 3 x 3 neighbourhood: maximum of the
+    // 3 x 3 neighbourhoods, separably (rows first: hm[r cw + i] for column i + 1)
+    for (o, row) in hm.chunks_exact_mut(cw).zip(corr.chunks_exact(cw)) {
+        for (((o, &a), &b), &c) in o[..n]
+            .iter_mut()
+            .zip(&row[..n])
+            .zip(&row[1..n + 1])
+            .zip(&row[2..])
+        {
+            *o = gt_max(gt_max(a, b), c);
+        }
+    }
+    // then along y, in place into the first n values of row r - 1 (rows r - 1, r, r + 1 are
+    // still the horizontal maxima when row r is reached), keeping the value where it is a
+    // local maximum (at least its neighbourhood's maximum) and -inf elsewhere
     let mut second = f32::NEG_INFINITY;
     for r in 1..ch - 1 {
-        for c in 1..cw - 1 {
-            if r.abs_diff(pr) <= 1 && c.abs_diff(pc) <= 1 {
-                continue;
-            }
-            let v = at(c, r);
-            if v <= second {
-                continue;
-            }
-            let is_max = (r - 1..=r + 1)
-                .all(|rr| (c - 1..=c + 1).all(|cc| (rr == r && cc == c) || at(cc, rr) <= v));
-            if is_max {
-                second = v;
-            }
+        let (up, rest) = hm[(r - 1) * cw..].split_at_mut(cw);
+        let (mid, dn) = rest.split_at(cw);
+        let v = &corr[r * cw + 1..r * cw + 1 + n];
+        let up = &mut up[..n];
+        for (((u, &m), &d), &x) in up.iter_mut().zip(&mid[..n]).zip(&dn[..n]).zip(v) {
+            let mx = gt_max(gt_max(*u, m), d);
+            *u = if x >= mx { x } else { f32::NEG_INFINITY };
         }
+        if r.abs_diff(pr) <= 1 {
+            // not the peak's own neighbourhood: columns pc-1 ..= pc+1 (indices pc-2 ..= pc)
+            up[pc.saturating_sub(2)..(pc + 1).min(n)].fill(f32::NEG_INFINITY);
+        }
+        second = gt_max(max8(up), second);
     }
     let ratio = if best <= 0.0 {
         1.0
@@ -598,6 +742,173 @@ mod tests {
                 (got as f64 - expect).abs() < 1e-5,
                 "{tx} {ty} {got} {expect}"
             );
+        }
+    }
+
+    /// The normalised linear correlation by its definition (f64), at lag (tx, ty).
+    fn direct(wa: &[f32], wb: &[f32], w: usize, h: usize, tx: i32, ty: i32) -> f64 {
+        let n = (w * h) as f64;
+        let ma = wa.iter().map(|&a| a as f64).sum::<f64>() / n;
+        let mb = wb.iter().map(|&b| b as f64).sum::<f64>() / n;
+        let ea: f64 = wa.iter().map(|&a| (a as f64 - ma).powi(2)).sum();
+        let eb: f64 = wb.iter().map(|&b| (b as f64 - mb).powi(2)).sum();
+        let (wi, hi) = (w as i32, h as i32);
+        let mut s = 0.0f64;
+        for r in 0..hi {
+            for c in 0..wi {
+                let (r2, c2) = (r + ty, c + tx);
+                if r2 < 0 || c2 < 0 || r2 >= hi || c2 >= wi {
+                    continue;
+                }
+                s += (wa[(r * wi + c) as usize] as f64 - ma)
+                    * (wb[(r2 * wi + c2) as usize] as f64 - mb);
+            }
+        }
+        s / (ea * eb).sqrt()
+    }
+
+    #[test]
+    fn whole_plane_equals_direct_sum_for_even_and_odd_padding() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        // padded sizes: 48x48, 48x12 (h = 8), 192x48, 96x96, 15x9 (odd), 18x18, 25x12
+        for (w, h) in [
+            (32usize, 32usize),
+            (32, 8),
+            (128, 32),
+            (64, 64),
+            (10, 6),
+            (12, 12),
+            (16, 8),
+            (17, 7),
+        ] {
+            let mut c = Correlator::new(w, h);
+            let (pw, ph) = (c.plans.pw, c.plans.ph);
+            // a correlated pair: B = A shifted by (2, 1) plus noise
+            let big: Vec<f32> = (0..(w + 4) * (h + 4))
+                .map(|_| rng.random::<f32>() * 100.0)
+                .collect();
+            for r in 0..h {
+                for col in 0..w {
+                    c.wa[r * w + col] = big[(r + 2) * (w + 4) + col + 2];
+                    c.wb[r * w + col] = big[(r + 1) * (w + 4) + col] + 10.0 * rng.random::<f32>();
+                }
+            }
+            let p = c.correlate(SubPixel::Gauss3);
+            assert!(p.ok, "{w}x{h} (padded {pw}x{ph}) {p:?}");
+            let (plane, cw, ch) = c.plane();
+            let (sx, sy) = c.search();
+            assert_eq!((cw, ch), (2 * sx + 3, 2 * sy + 3));
+            let mut worst = 0.0f64;
+            for j in 0..ch {
+                for i in 0..cw {
+                    let (tx, ty) = (i as i32 - (sx + 1) as i32, j as i32 - (sy + 1) as i32);
+                    let e = direct(&c.wa, &c.wb, w, h, tx, ty);
+                    worst = worst.max((plane[j * cw + i] as f64 - e).abs());
+                }
+            }
+            assert!(
+                worst < 2e-6,
+                "{w}x{h} (padded {pw}x{ph}): max error {worst}"
+            );
+        }
+    }
+
+    /// The peak search written plainly (reference for the vectorised one).
+    fn find_peak_plain(corr: &[f32], cw: usize, ch: usize, sub: SubPixel) -> Peak {
+        let at = |c: usize, r: usize| corr[r * cw + c];
+        let (mut pc, mut pr, mut best) = (1usize, 1usize, f32::NEG_INFINITY);
+        for r in 1..ch - 1 {
+            for c in 1..cw - 1 {
+                if at(c, r) > best {
+                    (best, pc, pr) = (at(c, r), c, r);
+                }
+            }
+        }
+        let mut second = f32::NEG_INFINITY;
+        for r in 1..ch - 1 {
+            for c in 1..cw - 1 {
+                if r.abs_diff(pr) <= 1 && c.abs_diff(pc) <= 1 {
+                    continue;
+                }
+                let v = at(c, r);
+                let is_max = (r - 1..=r + 1)
+                    .all(|rr| (c - 1..=c + 1).all(|cc| (rr == r && cc == c) || at(cc, rr) <= v));
+                if is_max && v > second {
+                    second = v;
+                }
+            }
+        }
+        let on_border = (pr - 1..=pr + 1)
+            .any(|rr| (pc - 1..=pc + 1).any(|cc| (rr, cc) != (pr, pc) && at(cc, rr) > best));
+        let ratio = if best <= 0.0 {
+            1.0
+        } else if second <= best * 1e-3 {
+            1000.0
+        } else {
+            (best / second) as f64
+        };
+        // the windows are as large as the plane here
+        let (hx, hy) = ((cw / 2) as f32, (ch / 2) as f32);
+        let unbiased = |c: usize, r: usize| {
+            let ox = 1.0 - (c as f32 - hx).abs() / cw as f32;
+            let oy = 1.0 - (r as f32 - hy).abs() / ch as f32;
+            at(c, r) / (ox * oy)
+        };
+        let (ox, oy) = match sub {
+            SubPixel::Gauss3 => gauss3_2(&unbiased, pc, pr),
+            SubPixel::Gauss2d => {
+                gauss9(&unbiased, pc, pr).unwrap_or_else(|| gauss3_2(&unbiased, pc, pr))
+            }
+        };
+        Peak {
+            dx: pc as f64 - hx as f64 + ox,
+            dy: pr as f64 - hy as f64 + oy,
+            coef: best as f64,
+            ratio,
+            ok: !on_border,
+        }
+    }
+
+    #[test]
+    fn peak_search_matches_plain_scan() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        for case in 0..600 {
+            let cw = 3 + rng.random_range(0..40usize);
+            let ch = 3 + rng.random_range(0..20usize);
+            // coarse levels make ties and plateaus common
+            let levels = [4.0f32, 16.0, 1e6][case % 3];
+            let mut corr: Vec<f32> = (0..cw * ch)
+                .map(|_| (rng.random::<f32>() * levels).floor() / levels - 0.3)
+                .collect();
+            if case % 5 == 0 {
+                // a dominant peak, sometimes on the search border
+                let (c, r) = (rng.random_range(1..cw - 1), rng.random_range(1..ch - 1));
+                corr[r * cw + c] = 2.0;
+            }
+            let sub = [SubPixel::Gauss3, SubPixel::Gauss2d][case % 2];
+            let p = find_peak(&corr, cw, ch, cw, ch, sub);
+            assert_eq!(p, find_peak_plain(&corr, cw, ch, sub), "case {case}");
+        }
+    }
+
+    #[test]
+    fn portable_and_avx2_paths_agree_exactly() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        for (w, h) in [(32usize, 32usize), (32, 8), (10, 6), (128, 32)] {
+            let mut c = Correlator::new(w, h);
+            for v in c.wa.iter_mut().chain(c.wb.iter_mut()) {
+                *v = rng.random::<f32>() * 4095.0;
+            }
+            for sub in [SubPixel::Gauss3, SubPixel::Gauss2d] {
+                let p = c.correlate(sub);
+                let plane = c.plane().0.to_vec();
+                let q = c.correlate_impl(sub);
+                assert_eq!(p, q, "{w}x{h}");
+                assert_eq!(plane, c.plane().0, "{w}x{h}");
+            }
         }
     }
 
