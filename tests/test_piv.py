@@ -288,3 +288,44 @@ def test_zero_filled_half_frame_is_blank():
         np.sqrt(np.mean(err**2)),
         err.max(),
     )
+
+
+def test_windows_reaching_into_zero_fill_are_flagged_interior_unchanged():
+    # a dewarped pair's zero fill (object points imaged outside the sensor): columns from 200
+    # on are 0 in both frames; the particles move by (1.5, 0.5) px everywhere else
+    a, b = particle_pair((192, 320), (1.5, 0.5), seed=21)
+    af, bf = a.copy(), b.copy()
+    af[:, 200:] = 0
+    bf[:, 200:] = 0
+    ref = rspiv.piv(a, b, passes=[(32, 32)])
+    f = rspiv.piv(af, bf, passes=[(32, 32)])
+    left = f.x - 15.5
+    fill = np.clip(left + 32 - 200, 0, 32) / 32  # fraction of the window in the fill
+    assert ((fill > 0) & (fill < 1)).sum() >= 6
+    # the rule (multipass.rs, signal_fraction): blocks of 4 x 4 px entirely in the fill are
+    # blank; more than a quarter of the window blank -> not correlated, flagged
+    blank = sum((left + 4 * k >= 200).astype(float) for k in range(8)) / 8
+    np.testing.assert_array_equal(f.valid, blank <= 0.25)
+    assert not f.valid[fill > 0.45].any() and np.all(f.coef[blank > 0.25] == 0.0)
+    assert np.all(f.replaced[blank > 0.25])
+    # the valid ones, windows part-way into the fill included (correlated over their image
+    # part), are not pulled towards zero: before, windows half in the fill came back valid
+    part = f.valid & (fill > 0)
+    assert part.sum() >= 6 and abs(f.u[part].mean() - 1.5) < 0.05, f.u[part]
+    assert np.hypot(f.u - 1.5, f.v - 0.5)[f.valid].max() < 0.2
+    # windows clear of the fill are unchanged
+    clear = fill == 0
+    np.testing.assert_array_equal(f.u[clear], ref.u[clear])
+    np.testing.assert_array_equal(f.v[clear], ref.v[clear])
+    np.testing.assert_array_equal(f.valid[clear], ref.valid[clear])
+    # piv_at at the same points (one iteration: no offset) follows the same rule
+    g = rspiv.piv_at(af, bf, np.stack([f.x, f.y], -1), window=(32, 32), iterations=1)
+    np.testing.assert_array_equal(g.valid, f.valid)
+    np.testing.assert_array_equal(g.u[g.valid], f.u[f.valid])
+    # multipass with deformation: windows mostly in the fill flagged, the ones clear of it
+    # right (the deformed fill edge is not stationary: see signal_fraction's docs)
+    m = rspiv.piv(af, bf, passes=[(64, 64), (32, 32)])
+    inside = np.zeros_like(clear)
+    inside[1:-1, 1:-1] = True  # the border windows are deformed past the image edge
+    assert not m.valid[fill > 0.45].any() and m.valid[clear & inside].all()
+    assert np.hypot(m.u - 1.5, m.v - 0.5)[clear & inside].max() < 0.1
