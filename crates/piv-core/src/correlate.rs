@@ -192,9 +192,9 @@ impl Correlator {
     /// Fails ([`Peak::FAILED`]) when a window holds a non-finite value (a sample outside the
     /// image, see [`crate::image::deform_pair`]) or has (near) zero variance: per-pixel variance
     /// `<= 1e-8 mean^2 + 1e-12 + min_var` (a constant window up to f32 rounding: zero fill,
-    /// blank or saturated regions; PIV sets `min_var` relative to the frames' variance). A window only partly in the zero fill of a dewarped frame is
-    /// correlated (its fill is indistinguishable from a dark, clipped background); exclude the
-    /// fill with a mask to drop such windows.
+    /// blank or saturated regions; PIV sets `min_var` relative to the frames' variance). Windows
+    /// only partly blank (e.g. part-way into the zero fill of a dewarped frame) are handled
+    /// before this call by the multipass's signal-fraction rule (`crate::multipass`).
     pub fn correlate(&mut self, sub: SubPixel) -> Peak {
         #[cfg(target_arch = "x86_64")]
         {

@@ -25,11 +25,12 @@ fn settings(
 ) -> PyResult<PivSettings> {
     let interpolation = match interpolation {
         "bspline" => Interpolation::BSpline,
+        "bspline3" => Interpolation::BSpline3,
         "keys" | "bicubic" => Interpolation::Keys,
         other => {
             return Err(invalid_input(
                 py,
-                format!("interpolation {other:?}: use \"bspline\" or \"keys\""),
+                format!("interpolation {other:?}: use \"bspline\", \"bspline3\" or \"keys\""),
             ))
         }
     };
