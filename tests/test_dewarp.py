@@ -163,8 +163,10 @@ def test_cli_dewarp_and_wall(tmp_path, capsys):
     rot = str(tmp_path / "rot.json")
     rc = main(["wall", str(tmp_path / "a.tif"), str(tmp_path / "b.tif"), "--band",
                str(t.wall_y0_px - 40), str(t.wall_y0_px + 30), "--stations", "6",
-               "--calibration", str(cal_path), "--write-rotated", rot])  # fmt: skip
+               "--calibration", str(cal_path), "--write-rotated", rot,
+               "--figure", str(tmp_path / "wall.png")])  # fmt: skip
     assert rc == 0
+    assert (tmp_path / "wall.png").stat().st_size > 0
     text = capsys.readouterr().out
     assert "angle" in text and "max deviation" in text
     assert rspiv.Calibration.load(rot).mapping.rotation != 0.0
