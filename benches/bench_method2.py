@@ -1,21 +1,23 @@
 """Method II (PIV on the raw frames, vectors mapped) against Method I (dewarp, then PIV) for one
 47 MP pair: wall time per stage, the ratio, and the accuracy of each against the truth.
 
-    python benches/bench_method2.py [--scale 1.0] [--deformation offset|symmetric]
-                                    [--iterations2] [--seed 0]
+    python benches/bench_method2.py [--scale 1.0] [--deformation both|offset|symmetric]
+                                    [--two-calls] [--iterations2] [--seed 0]
 
 Ground truth: a boundary-layer pair (:func:`rspiv.synth.tbl_pair`, 8864 x 5288 px at scale 1)
 rendered through the paper-like lens; the calibration is the P3 mapping fitted to that lens
 (no target detection, so only the correction is timed). Both methods use the same passes
-(64 x 64 -> 32 x 32 -> 32 x 8 px, 50 % overlap), the same deformation and one iteration per
-pass, and give vectors on the same regular object grid.
+(64 x 64 -> 32 x 32 -> 32 x 8 px, 50 % overlap), the same deformation (both by default, one
+after the other) and one iteration per pass, and give vectors on the same regular object grid.
 
-Stages. Method I: dewarp A and B (Keys, full precision), PIV of all passes; the first passes
+Stages. Method I, as ``rspiv.piv(method="images")`` runs it: dewarp A and B (Keys, full
+precision), dewarp of a ones-image (the zero-fill mask), PIV of all passes; the first passes
 alone are timed separately so that the final pass's share is their difference. Method II:
-the predictor passes (all but the last) on the raw frames, then the final pass at the images of
-the object grid and the mapping of the vectors (:func:`rspiv.method2.piv_vectors` given that
-predictor). ``--iterations2`` also times Method II's final pass with two iterations (the
-default before: it doubled that pass).
+:func:`rspiv.method2.piv_vectors` without a predictor (one native call: the predictor passes
+on the raw frames and the final pass at the images of the object grid on one prepared pair,
+then the mapping of the vectors); the predictor passes alone are timed separately (info).
+``--two-calls`` also times the final pass alone given the predictor (``piv_at``, the path of
+the campaign's comparison run); ``--iterations2`` the one call with two final iterations.
 
 Accuracy: RMS of |d - d_true| (object px) over valid vectors at least 40 px (scaled) from the
 wall and 64 px from the frame edges, for each method, and between the methods.
@@ -34,18 +36,15 @@ PASSES = [(64, 64), (32, 32), (32, 8)]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scale", type=float, default=1.0)
-    ap.add_argument("--deformation", choices=["offset", "symmetric"], default="offset")
+    ap.add_argument("--deformation", choices=["offset", "symmetric", "both"], default="both")
     ap.add_argument("--iterations2", action="store_true",
                     help="also time Method II's final pass with 2 iterations")  # fmt: skip
-    ap.add_argument("--keys", action="store_true",
-                    help="also time Method II's final pass with Keys interpolation (no B-spline "
-                    "prefilter of the raw frames)")  # fmt: skip
+    ap.add_argument("--two-calls", action="store_true",
+                    help="also time the final pass alone given the predictor (piv_at)")  # fmt: skip
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
     import rspiv
-    from rspiv.dewarp import dewarp
-    from rspiv.method2 import grid_for_windows, piv_vectors
     from rspiv.synth import PAPER_OPTICS, paper_lens, tbl_pair
 
     s = args.scale
@@ -57,11 +56,21 @@ def main() -> None:
     gx, gy = np.meshgrid(np.linspace(0, w - 1, 25), np.linspace(0, h - 1, 17))
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     cal = rspiv.fit_mapping(obj, lens.distort(obj), "p3", center_index=len(obj) // 2)
-    dfm = args.deformation
+    dfms = ["offset", "symmetric"] if args.deformation == "both" else [args.deformation]
     dt = time.perf_counter() - t0
     print(f"pair {w} x {h} px ({w * h / 1e6:.1f} MP), rendered in {dt:.1f} s; "
-          f"passes {PASSES}, deformation {dfm}, 1 iteration per pass")  # fmt: skip
+          f"passes {PASSES}, deformation {dfms}, 1 iteration per pass")  # fmt: skip
 
+    for dfm in dfms:
+        run(a, b, truth, cal, dfm, s, args)
+
+
+def run(a, b, truth, cal, dfm, s, args) -> None:
+    import rspiv
+    from rspiv.dewarp import dewarp
+    from rspiv.method2 import grid_for_windows, piv_vectors
+
+    h, w = a.shape
     times: dict[str, float] = {}
 
     def timed(name, fn):
@@ -70,37 +79,39 @@ def main() -> None:
         times[name] = time.perf_counter() - t
         return out
 
-    # Method I
+    # Method I, stage by stage as rspiv.piv(method="images") runs it
     dw = [timed("I dewarp A", lambda: dewarp(a, cal)), timed("I dewarp B", lambda: dewarp(b, cal))]
-    timed("I first passes (info)", lambda: rspiv.piv(*dw, PASSES[:-1], deformation=dfm))
-    f1 = timed("I PIV, all passes", lambda: rspiv.piv(*dw, PASSES, deformation=dfm))
+    fill = timed("I dewarp ones (fill mask)",
+                 lambda: dewarp(np.ones(a.shape, np.float32), cal) < 0.5)  # fmt: skip
+    timed("I first passes (info)",
+          lambda: rspiv.piv(*dw, PASSES[:-1], deformation=dfm, mask=fill))  # fmt: skip
+    f1 = timed("I PIV, all passes", lambda: rspiv.piv(*dw, PASSES, deformation=dfm, mask=fill))
     dw.clear()
-    # Method II
-    pred = timed("II predictor (first passes, raw)",
-                 lambda: rspiv.piv(a, b, PASSES[:-1], deformation=dfm))  # fmt: skip
-    f2 = timed("II final pass + mapping",
-               lambda: piv_vectors(a, b, cal, PASSES, predictor=pred, deformation=dfm))  # fmt: skip
+    # Method II: one native call (predictor passes + final pass on one prepared pair)
+    timed("II predictor alone (info)", lambda: rspiv.piv(a, b, PASSES[:-1], deformation=dfm))
+    f2 = timed("II piv_vectors (one call)",
+               lambda: piv_vectors(a, b, cal, PASSES, deformation=dfm))  # fmt: skip
+    if args.two_calls:
+        pred = rspiv.piv(a, b, PASSES[:-1], deformation=dfm)
+        timed("II final pass, given predictor (info)",
+              lambda: piv_vectors(a, b, cal, PASSES, predictor=pred, deformation=dfm))  # fmt: skip
     if args.iterations2:
-        timed("II final pass, 2 iterations (before)",
-              lambda: piv_vectors(a, b, cal, PASSES, predictor=pred, deformation=dfm,
-                                  iterations=2))  # fmt: skip
+        timed("II one call, final 2 iterations (info)",
+              lambda: piv_vectors(a, b, cal, PASSES, deformation=dfm, iterations=2))  # fmt: skip
 
-    f_keys = None
-    if args.keys:
-        f_keys = timed("II final pass + mapping, Keys",
-                       lambda: piv_vectors(a, b, cal, PASSES, predictor=pred, deformation=dfm,
-                                           interpolation="keys"))  # fmt: skip
-
-    t_i = times["I dewarp A"] + times["I dewarp B"] + times["I PIV, all passes"]
-    t_ii = times["II predictor (first passes, raw)"] + times["II final pass + mapping"]
+    t_i = sum(times[k] for k in ("I dewarp A", "I dewarp B", "I dewarp ones (fill mask)",
+                                 "I PIV, all passes"))  # fmt: skip
+    t_ii = times["II piv_vectors (one call)"]
     final_i = times["I PIV, all passes"] - times["I first passes (info)"]
-    print(f"\n{'stage':40s} {'wall time [s]':>13s}")
+    final_ii = t_ii - times["II predictor alone (info)"]
+    print(f"\n[{dfm}] {'stage':40s} {'wall time [s]':>13s}")
     for k, v in times.items():
-        print(f"{k:40s} {v:13.2f}")
-    print(f"{'I final pass (all - first passes)':40s} {final_i:13.2f}")
-    print(f"{'Method I total (dewarps + PIV)':40s} {t_i:13.2f}")
-    print(f"{'Method II total (predictor + final)':40s} {t_ii:13.2f}")
-    print(f"{'II / I':40s} {t_ii / t_i:13.3f}")
+        print(f"[{dfm}] {k:40s} {v:13.2f}")
+    print(f"[{dfm}] {'I final pass (all - first passes)':40s} {final_i:13.2f}")
+    print(f"[{dfm}] {'II final pass + mapping (call - pred.)':40s} {final_ii:13.2f}")
+    print(f"[{dfm}] {'Method I total (3 dewarps + PIV)':40s} {t_i:13.2f}")
+    print(f"[{dfm}] {'Method II total (one call)':40s} {t_ii:13.2f}")
+    print(f"[{dfm}] {'II / I':40s} {t_ii / t_i:13.3f}")
 
     # Accuracy against the truth on the shared object grid.
     gx, gy = grid_for_windows((h, w), PASSES[-1], 0.5)
@@ -117,11 +128,8 @@ def main() -> None:
     both = far & f1.valid & f2.valid
     d12 = float(np.sqrt(np.mean(((f1.u - f2.u) ** 2 + (f1.v - f2.v) ** 2)[both])))
     (r1, n1), (r2, n2) = rms(f1), rms(f2)
-    print(f"\nRMS vs truth: Method I {r1:.4f} px ({n1} vectors), Method II {r2:.4f} px "
+    print(f"[{dfm}] RMS vs truth: Method I {r1:.4f} px ({n1} vectors), Method II {r2:.4f} px "
           f"({n2} vectors); between them {d12:.4f} px")  # fmt: skip
-    if f_keys is not None:
-        rk, nk = rms(f_keys)
-        print(f"Method II with a Keys final pass: {rk:.4f} px ({nk} vectors)")
 
 
 if __name__ == "__main__":

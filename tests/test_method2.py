@@ -234,3 +234,47 @@ def test_final_pass_does_method_I_work_at_method_I_accuracy(frames, mapping, def
     print(deformation, "I", r1, "II 1 it", r_one, "II 2 it", r_two)
     assert r_one < 1.15 * r1 + 0.005
     assert r_one < 1.15 * r_two + 0.005
+
+
+@pytest.mark.parametrize("deformation", ["offset", "symmetric"])
+@pytest.mark.parametrize("with_mask", [False, True])
+def test_one_native_call_equals_predictor_then_piv_at(frames, mapping, deformation, with_mask):
+    """piv_vectors without a predictor (one native call: predictor passes and final pass on one
+    prepared pair) gives the vectors of the two-call path (rspiv.piv of passes[:-1], then
+    rspiv.piv_at with that field), masked predictor vectors included."""
+    a, b = frames
+    passes = [(64, 64), (32, 32), (32, 8)]
+    mask = None
+    if with_mask:
+        mask = np.zeros(SHAPE, bool)
+        mask[150:230, 250:330] = True
+    kw = dict(deformation=deformation, mask=mask, predictor_overlap=[0.5, 0.25])
+    one = piv_vectors(a, b, mapping, passes, **kw)
+    pred = rspiv.piv(a, b, passes[:-1], overlap=[0.5, 0.25], deformation=deformation, mask=mask)
+    assert not with_mask or pred.masked.any()
+    two = piv_vectors(a, b, mapping, passes, deformation=deformation, mask=mask, predictor=pred)
+    for k in ("valid", "replaced", "masked"):
+        np.testing.assert_array_equal(getattr(one, k), getattr(two, k))
+    assert one.valid.mean() > 0.85
+    np.testing.assert_allclose(one.u, two.u, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(one.v, two.v, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(one.peak_ratio, two.peak_ratio, rtol=1e-9, atol=1e-12)
+    # another predictor overlap is really forwarded (a different predictor)
+    other = piv_vectors(a, b, mapping, passes, deformation=deformation, mask=mask)
+    assert not np.array_equal(other.u, one.u, equal_nan=True)
+
+
+def test_piv_contract_forwards_settings_to_method_II(frames, mapping):
+    """rspiv.piv(method="vectors") passes per-pass overlaps, iterations, interpolation,
+    validate and min_peak_ratio on to piv_vectors."""
+    a, b = frames
+    passes = [(64, 64), (32, 32), (32, 8)]
+    kw = dict(interpolation="bspline3", validate=False, min_peak_ratio=1.2)
+    f = rspiv.piv(a, b, passes, [0.25, 0.5, 0.5], "symmetric", calibration=mapping,
+                  method="vectors", iterations=[1, 2, 2], **kw)  # fmt: skip
+    g = piv_vectors(a, b, mapping, passes, 0.5, deformation="symmetric", iterations=2,
+                    predictor_overlap=[0.25, 0.5], predictor_iterations=[1, 2], **kw)  # fmt: skip
+    np.testing.assert_array_equal(f.u, g.u)
+    np.testing.assert_array_equal(f.valid, g.valid)
+    base = piv_vectors(a, b, mapping, passes, 0.5, deformation="symmetric")
+    assert not np.array_equal(f.u, base.u, equal_nan=True)

@@ -185,6 +185,28 @@ def piv_at(
     """PIV at points x, y (one 2D shape) with per-point predictors (window offset) or a grid
     predictor field (deformation); same dict as ``piv`` with grid = None."""
 
+def piv_final_points(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    windows: list[tuple[int, int]],
+    overlaps: list[float],
+    iterations: list[int],
+    deformation: str = "symmetric",
+    subpixel: str = "gauss3",
+    interpolation: str = "bspline",
+    validate: bool = True,
+    median_eps: float = 0.1,
+    median_threshold: float = 2.0,
+    min_peak_ratio: float = 0.0,
+    mask: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, object]:
+    """Method II's PIV in one call on one prepared pair: all passes but the last as ``piv`` on
+    the regular grid (the predictor), the last (its window and iterations) at the points x, y
+    deformed ("symmetric") or offset ("offset") by that field. The final field's dict (as
+    ``piv_at``) with the predictor's dict (as ``piv``; None for one pass) under "predictor"."""
+
 def render_particles(
     height: int,
     width: int,

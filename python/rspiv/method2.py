@@ -16,17 +16,24 @@ image displacement ``d`` is mapped back to the object frame:
   ``|d| * |J(F^-1) - I|`` (about 0.08 px at 32 px displacement in the paper); see
   :func:`position_only_bias`.
 
-Cost. The predictor passes (all but the last window size) are a plain :func:`rspiv.piv` of the
-raw frames, the same work as Method I's first passes on the dewarped frames. The final pass
-runs once per point (``iterations=1``, as every pass of :func:`rspiv.piv` by default) with the
-same deformation as Method I's final pass; Method II saves the two dewarps but builds the
-B-spline coefficients of the raw frames a second time (``piv_at`` is a separate call). With
-``deformation="offset"`` (the campaign's default) the final windows are shifted by the
-predictor as in Method I's offset pass, and one 47 MP pair costs about as much as Method I
-(1.04x); with ``"symmetric"`` each final window at its fractional image position is deformed
-pixel by pixel, where Method I deforms the whole pair once (1.7x). When the uncorrected field of
-the same pair is computed anyway (the campaign's comparison run), pass it as ``predictor``: the
-final pass is then all Method II adds. ``benches/bench_method2.py`` measures these.
+Cost. Without a given predictor, :func:`piv_vectors` is one native call on one prepared frame
+pair (``rspiv._rspiv.piv_final_points``): the predictor passes (all but the last window size,
+a plain :func:`rspiv.piv` of the raw frames, the same work as Method I's first passes on the
+dewarped frames) and the final pass at the image points share the frames' B-spline
+coefficients. The final pass runs once per point (``iterations=1``, as every pass of
+:func:`rspiv.piv` by default). With ``deformation="offset"`` (the campaign's default) the
+final windows are shifted by the predictor as in Method I's offset pass; with
+``"symmetric"`` the raw pair is deformed once by the predictor (as Method I deforms the
+dewarped pair) and each window is read at its fractional position with a common sub-pixel
+shift of both frames (``piv_core::Predictor::Field``). Method II saves the three
+dewarps (both frames and the fill mask). Measured on one 47 MP pair (2 cores, loaded machine,
+``python benches/bench_method2.py --scale 1.0``): offset 8.5 s against 9.6 s for Method I
+(II/I 0.89; before the single call 0.77-1.04), symmetric 10.3 s against 9.9 s (II/I 1.03;
+before 1.69-1.79, when each final window was interpolated pixel by pixel), at the same
+accuracy (RMS vs truth 0.095 / 0.095 px offset, 0.050 / 0.053 px symmetric, Method I / II).
+When the uncorrected field of the same pair is computed anyway (the campaign's comparison
+run), pass it as ``predictor``: the final pass (:func:`rspiv.piv_at`, which builds the
+coefficients again) is then all Method II adds.
 
 All maps are vectorised (one call of ``Mapping.forward``/``inverse`` per field, no Python loop
 over windows). Coordinates: README pixel frame (x = column, y = row down); ``u``, ``v`` along x
@@ -40,8 +47,9 @@ from typing import Any
 
 import numpy as np
 
+from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
-from rspiv.piv import PivField, piv, piv_at
+from rspiv.piv import PivField, _frames, _mask, _per_pass, piv_at
 
 __all__ = ["grid_for_windows", "piv_vectors", "position_only_bias", "map_displacements"]
 
@@ -157,6 +165,37 @@ def _sample_field(field: PivField, points: np.ndarray) -> np.ndarray:
     return np.column_stack(out)
 
 
+def _piv_final_points(
+    frame_a,
+    frame_b,
+    points: np.ndarray,
+    passes: list[tuple[int, int]],
+    overlaps: list[float],
+    iterations: list[int],
+    final_iterations: int,
+    *,
+    deformation: str,
+    mask,
+    **kw: Any,
+) -> PivField:
+    """The predictor passes on the regular grid and the final pass at ``points`` (ny, nx, 2) in
+    one native call on one prepared frame pair (see :func:`piv_vectors`)."""
+    a, b = _frames(frame_a, frame_b)
+    d = _rspiv.piv_final_points(
+        a,
+        b,
+        np.ascontiguousarray(points[..., 0], dtype=np.float64),
+        np.ascontiguousarray(points[..., 1], dtype=np.float64),
+        list(passes),
+        [*overlaps, 0.5],
+        [*iterations, int(final_iterations)],
+        deformation=deformation,
+        mask=_mask(mask, a.shape),
+        **kw,
+    )
+    return PivField._from_native(d, passes[-1])
+
+
 def piv_vectors(
     frame_a,
     frame_b,
@@ -174,6 +213,10 @@ def piv_vectors(
     median_threshold: float = 2.0,
     median_eps: float = 0.1,
     mask=None,
+    predictor_overlap: float | Sequence[float] = 0.5,
+    predictor_iterations: int | Sequence[int] = 1,
+    validate: bool = True,
+    min_peak_ratio: float = 0.0,
 ) -> PivField:
     """Method II: PIV on the raw frames at ``F(object grid)``, vectors mapped to the object frame.
 
@@ -203,9 +246,17 @@ def piv_vectors(
     iterations : int
         Correlation iterations of the final pass (1, as each pass of :func:`rspiv.piv`: a
         second iteration doubles the final pass's cost for an RMS gain of ~2 %).
-    subpixel, interpolation, median_threshold, median_eps, mask
+    subpixel, interpolation, median_threshold, median_eps, mask, validate, min_peak_ratio
         As for :func:`rspiv.piv` / :func:`rspiv.piv_at` (both the predictor and the final
         pass).
+    predictor_overlap, predictor_iterations : float or sequence, int or sequence
+        Overlap and iterations of the predictor passes (one value or one per pass of
+        ``passes[:-1]``); unused with a given ``predictor``.
+
+    Without a given ``predictor`` the predictor passes and the final pass run in one native
+    call on one prepared frame pair (``rspiv._rspiv.piv_final_points``: the frames'
+    interpolation coefficients are built once); with one, the final pass is
+    :func:`rspiv.piv_at`. Both give the same vectors.
 
     Returns
     -------
@@ -225,37 +276,44 @@ def piv_vectors(
     gx, gy = grid_for_windows(shape, passes[-1], overlap)
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     img = m.forward(obj)
-    if predictor is None and len(passes) > 1:
-        predictor = piv(
+    if predictor is None:
+        f = _piv_final_points(
             frame_a,
             frame_b,
-            passes[:-1],
-            overlap=0.5,
+            img.reshape(gx.shape + (2,)),
+            passes,
+            _per_pass(predictor_overlap, len(passes) - 1, "predictor_overlap", float),
+            _per_pass(predictor_iterations, len(passes) - 1, "predictor_iterations", int),
+            int(iterations),
             deformation=deformation,
-            mask=mask,
             subpixel=subpixel,
             interpolation=interpolation,
-            median_threshold=median_threshold,
+            validate=bool(validate),
             median_eps=median_eps,
+            median_threshold=median_threshold,
+            min_peak_ratio=min_peak_ratio,
+            mask=mask,
         )
-    pred: Any = predictor
-    if predictor is not None and deformation == "offset":
-        pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
-    # deformation "symmetric": piv_at deforms each window by the predictor field
-    f = piv_at(
-        frame_a,
-        frame_b,
-        img.reshape(gx.shape + (2,)),
-        window=passes[-1],
-        predictor=pred,
-        iterations=iterations,
-        mask=mask,
-        validate=True,
-        subpixel=subpixel,
-        interpolation=interpolation,
-        median_eps=median_eps,
-        median_threshold=median_threshold,
-    )
+    else:
+        pred: Any = predictor
+        if deformation == "offset":
+            pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
+        # deformation "symmetric": piv_at deforms each window by the predictor field
+        f = piv_at(
+            frame_a,
+            frame_b,
+            img.reshape(gx.shape + (2,)),
+            window=passes[-1],
+            predictor=pred,
+            iterations=iterations,
+            mask=mask,
+            validate=bool(validate),
+            subpixel=subpixel,
+            interpolation=interpolation,
+            median_eps=median_eps,
+            median_threshold=median_threshold,
+            min_peak_ratio=min_peak_ratio,
+        )
     d = np.column_stack([f.u.ravel(), f.v.ravel()])
     dob = map_displacements(m, img, d, mapping).reshape(gx.shape + (2,))
     lost = ~np.all(np.isfinite(dob), axis=-1) & ~f.masked

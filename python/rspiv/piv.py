@@ -280,7 +280,9 @@ def piv(
         if method == "vectors":
             from rspiv.method2 import piv_vectors
 
-            ov = _per_pass(overlap, len(list(passes)), "overlap", float)
+            n = len(list(passes))
+            ov = _per_pass(overlap, n, "overlap", float)
+            it = _per_pass(iterations, n, "iterations", int)
             return piv_vectors(
                 frame_a,
                 frame_b,
@@ -289,9 +291,15 @@ def piv(
                 ov[-1],
                 mapping=mapping,
                 deformation="offset" if deformation == "offset" else "symmetric",
+                iterations=it[-1],
+                predictor_overlap=ov[:-1],
+                predictor_iterations=it[:-1],
                 subpixel=subpixel,
+                interpolation=interpolation,
+                validate=validate,
                 median_threshold=median_threshold,
                 median_eps=median_eps,
+                min_peak_ratio=min_peak_ratio,
                 mask=mask,
             )
         from rspiv.dewarp import dewarp
@@ -364,7 +372,10 @@ def piv_at(
     predictor : None, array_like (..., 2) or PivField
         None: zero. An array of ``(u, v)`` per point: the windows are offset symmetrically by it
         (sub-pixel). A grid :class:`PivField` (e.g. from :func:`piv` on the same frames): the
-        windows are deformed by it (symmetric, interpolated with ``interpolation``).
+        windows are deformed by it (symmetric, interpolated with ``interpolation``): the first
+        iteration deforms the whole pair once and reads each window at its fractional position
+        with a common sub-pixel shift of both frames (Keys; a filter applied to both windows
+        alike does not move the correlation peak); later iterations interpolate each window.
     iterations : int
         Iterations per window size; each re-offsets the windows by the latest result.
     mask : ndarray of bool, optional

@@ -25,5 +25,7 @@ pub use correlate::{Correlator, Peak, SubPixel};
 pub use error::PivError;
 pub use grid::Grid;
 pub use image::{GridField, Pixel};
-pub use multipass::{piv, piv_at, Interpolation, Mode, Pass, PivField, PivSettings, Predictor};
+pub use multipass::{
+    piv, piv_at, piv_with_final_points, Interpolation, Mode, Pass, PivField, PivSettings, Predictor,
+};
 pub use synth::render_particles;

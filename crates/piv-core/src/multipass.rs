@@ -16,7 +16,9 @@
 //!
 //! On the regular grid of [`piv`] the deformation is applied to the whole frame pair once per
 //! iteration (one interpolation per pixel) and the windows are copied from the deformed pair; at
-//! arbitrary points ([`piv_at`]) each window is sampled on its own.
+//! arbitrary points ([`piv_at`]) the first correlation with a field predictor reads the windows
+//! from the pair deformed once (a common sub-pixel shift of both windows, see
+//! [`Predictor::Field`]); later iterations sample each window on its own.
 //!
 //! After every iteration the vectors go through the normalised median test (and an optional
 //! peak-ratio threshold); rejected ones are replaced from their neighbours. Vectors inside the
@@ -738,12 +740,27 @@ pub fn piv<T: Pixel>(
     check_pair(&frame_a, &frame_b)?;
     let dim = frame_a.dim();
     check_mask(&mask, dim)?;
-    let grids = s
-        .passes
+    let grids = grids_of(s, dim)?;
+    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+    grid_passes(&frames, dim, &mask, s, grids)
+}
+
+/// The grids of the passes of `s` on frames of shape `dim` (rows, columns).
+fn grids_of(s: &PivSettings, dim: (usize, usize)) -> Result<Vec<Grid>> {
+    s.passes
         .iter()
         .map(|p| Grid::for_windows(dim.1, dim.0, p.w, p.h, p.overlap))
-        .collect::<Result<Vec<_>>>()?;
-    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+        .collect()
+}
+
+/// The passes of [`piv`] on prepared frames (inputs checked, `grids` from [`grids_of`]).
+fn grid_passes<T: Pixel>(
+    frames: &Frames<'_, T>,
+    dim: (usize, usize),
+    mask: &Option<ArrayView2<'_, bool>>,
+    s: &PivSettings,
+    grids: Vec<Grid>,
+) -> Result<PivField> {
     let mut pred: Option<GridField> = None;
     let mut last = None;
     for (pass, grid) in s.passes.iter().zip(grids) {
@@ -760,7 +777,7 @@ pub fn piv<T: Pixel>(
         let skip: Vec<bool> = xs
             .iter()
             .zip(&ys)
-            .map(|(&x, &y)| excluded(&mask, dim, x, y))
+            .map(|(&x, &y)| excluded(mask, dim, x, y))
             .collect();
         for _ in 0..pass.iterations {
             // the deformation predictor: the latest field averaged over this pass's window
@@ -836,7 +853,15 @@ pub enum Predictor<'a> {
         v: ArrayView2<'a, f64>,
     },
     /// A regular-grid field (e.g. a previous [`piv`] on the same frames): the windows are
-    /// deformed by it (symmetric, see [`Interpolation`]).
+    /// deformed by it (symmetric, see [`Interpolation`]). The first correlation deforms the
+    /// whole pair once on the pixel lattice (as [`piv`] does) and reads each window at its
+    /// fractional position from the deformed pair with Keys: both windows of a pair are
+    /// shifted by the same fraction, a linear shift-invariant filter applied to both, which
+    /// widens the correlation peak but does not move it (the interpolation bias that the
+    /// quintic B-spline keeps small is a bias of the relative shift of the two frames). It
+    /// costs one interpolation per pixel plus a constant-shift copy per window, instead of a
+    /// deformed interpolation per pixel and overlapping window. Later iterations (a per-point
+    /// residual offset on top of the field) sample each window on its own.
     Field(&'a GridField),
 }
 
@@ -862,7 +887,25 @@ pub fn piv_at<T: Pixel>(
 ) -> Result<PivField> {
     check_pair(&frame_a, &frame_b)?;
     let dim = frame_a.dim();
-    check_mask(&mask, dim)?;
+    let settings = check_at(dim, &x, &y, &predictor, &mask, windows, iterations, s)?;
+    let frames = Frames::new(frame_a, frame_b, settings.interpolation)?;
+    at_points(
+        &frames, dim, x, y, predictor, &mask, windows, iterations, &settings,
+    )
+}
+
+/// Check the inputs of [`piv_at`] other than the frames; returns its settings.
+fn check_at(
+    dim: (usize, usize),
+    x: &ArrayView2<'_, f64>,
+    y: &ArrayView2<'_, f64>,
+    predictor: &Predictor<'_>,
+    mask: &Option<ArrayView2<'_, bool>>,
+    windows: &[(usize, usize)],
+    iterations: usize,
+    s: &PivSettings,
+) -> Result<PivSettings> {
+    check_mask(mask, dim)?;
     if x.dim() != y.dim() {
         return Err(PivError::InvalidInput(format!(
             "points: x {:?} and y {:?} differ in shape",
@@ -900,7 +943,21 @@ pub fn piv_at<T: Pixel>(
             ));
         }
     }
-    let frames = Frames::new(frame_a, frame_b, settings.interpolation)?;
+    Ok(settings)
+}
+
+/// The passes of [`piv_at`] on prepared frames (inputs checked by [`check_at`]).
+fn at_points<T: Pixel>(
+    frames: &Frames<'_, T>,
+    dim: (usize, usize),
+    x: ArrayView2<'_, f64>,
+    y: ArrayView2<'_, f64>,
+    predictor: Predictor<'_>,
+    mask: &Option<ArrayView2<'_, bool>>,
+    windows: &[(usize, usize)],
+    iterations: usize,
+    settings: &PivSettings,
+) -> Result<PivField> {
     let shape = x.dim();
     let n = x.len();
     let xs: Vec<f64> = x.iter().copied().collect();
@@ -908,7 +965,7 @@ pub fn piv_at<T: Pixel>(
     let skip: Vec<bool> = xs
         .iter()
         .zip(&ys)
-        .map(|(&x, &y)| excluded(&mask, dim, x, y))
+        .map(|(&x, &y)| excluded(mask, dim, x, y))
         .collect();
     let (base, mut du, mut dv): (Option<&GridField>, Vec<f64>, Vec<f64>) = match predictor {
         Predictor::Zero => (None, vec![0.0; n], vec![0.0; n]),
@@ -924,9 +981,18 @@ pub fn piv_at<T: Pixel>(
         None => (vec![0.0; n], vec![0.0; n]),
     };
     let mut last = None;
+    // the pair deformed once by the field predictor (see `Predictor::Field`)
+    let mut deformed: Option<Frames<'static, f32>> = None;
     for &(w, h) in windows {
         for _ in 0..iterations {
-            let peaks = frames.sweep(w, h, &xs, &ys, &du, &dv, &skip, base, settings.subpixel);
+            let no_offset = du.iter().chain(&dv).all(|&d| d == 0.0);
+            let peaks =
+                match base {
+                    Some(f) if no_offset => deformed
+                        .get_or_insert_with(|| frames.deformed(f))
+                        .sweep(w, h, &xs, &ys, &du, &dv, &skip, None, settings.subpixel),
+                    _ => frames.sweep(w, h, &xs, &ys, &du, &dv, &skip, base, settings.subpixel),
+                };
             let mut u = Array2::from_shape_fn(shape, |(j, i)| {
                 let k = j * shape.1 + i;
                 bu[k] + du[k] + peaks[k].dx
@@ -935,7 +1001,7 @@ pub fn piv_at<T: Pixel>(
                 let k = j * shape.1 + i;
                 bv[k] + dv[k] + peaks[k].dy
             });
-            let (valid, replaced) = validate_replace(&mut u, &mut v, &peaks, &skip, &settings);
+            let (valid, replaced) = validate_replace(&mut u, &mut v, &peaks, &skip, settings);
             for k in 0..n {
                 let (j, i) = (k / shape.1, k % shape.1);
                 du[k] = u[[j, i]] - bu[k];
@@ -956,6 +1022,117 @@ pub fn piv_at<T: Pixel>(
         valid,
         replaced,
     ))
+}
+
+/// Method II's PIV in one call on one prepared frame pair: the passes of `s` but the last run
+/// as [`piv`] on the regular grid (the predictor), then the last pass (its window and
+/// iterations; its overlap is ignored) runs as [`piv_at`] at the image points `(x, y)` with that
+/// field as predictor: deformed by it ([`Predictor::Field`]) for [`Mode::Deform`], offset by
+/// it interpolated at each point ([`Predictor::PerPoint`]) for [`Mode::Offset`]. The frames'
+/// interpolation coefficients and variance are computed once for both stages. Vectors of the
+/// predictor that are not computed (mask) take the mean of the computed ones.
+///
+/// Gives the same vectors as [`piv`] with the first passes followed by [`piv_at`] with that
+/// predictor. Returns `(predictor, final)`; `predictor` is `None` when `s` has one pass (the
+/// final pass then has no predictor).
+pub fn piv_with_final_points<T: Pixel>(
+    frame_a: ArrayView2<'_, T>,
+    frame_b: ArrayView2<'_, T>,
+    x: ArrayView2<'_, f64>,
+    y: ArrayView2<'_, f64>,
+    mask: Option<ArrayView2<'_, bool>>,
+    s: &PivSettings,
+) -> Result<(Option<PivField>, PivField)> {
+    s.check()?;
+    check_pair(&frame_a, &frame_b)?;
+    let dim = frame_a.dim();
+    let last = *s.passes.last().expect("checked: non-empty");
+    let windows = [(last.w, last.h)];
+    // the final pass's checks before any work (the predictor shape is checked below)
+    let settings_at = check_at(
+        dim,
+        &x,
+        &y,
+        &Predictor::Zero,
+        &mask,
+        &windows,
+        last.iterations,
+        s,
+    )?;
+    let mut first = s.clone();
+    first.passes.pop();
+    let grids = grids_of(&first, dim)?;
+    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+    if first.passes.is_empty() {
+        let f = at_points(
+            &frames,
+            dim,
+            x,
+            y,
+            Predictor::Zero,
+            &mask,
+            &windows,
+            last.iterations,
+            &settings_at,
+        )?;
+        return Ok((None, f));
+    }
+    let pred = grid_passes(&frames, dim, &mask, &first, grids)?;
+    let grid = pred.grid.expect("grid passes give a grid field");
+    let fill = |a: &Array2<f64>| {
+        let (sum, n) = a
+            .iter()
+            .filter(|p| p.is_finite())
+            .fold((0.0, 0usize), |(s, n), &p| (s + p, n + 1));
+        let m = if n > 0 { sum / n as f64 } else { 0.0 };
+        a.mapv(|p| if p.is_finite() { p } else { m })
+    };
+    let gf = GridField {
+        grid,
+        u: fill(&pred.u),
+        v: fill(&pred.v),
+    };
+    let f = match s.mode {
+        Mode::Deform => at_points(
+            &frames,
+            dim,
+            x,
+            y,
+            Predictor::Field(&gf),
+            &mask,
+            &windows,
+            last.iterations,
+            &settings_at,
+        )?,
+        Mode::Offset => {
+            let finite = |p: f64| if p.is_finite() { p } else { 0.0 };
+            let (pu, pv): (Vec<f64>, Vec<f64>) = x
+                .iter()
+                .zip(y.iter())
+                .map(|(&x, &y)| {
+                    let (u, v) = gf.at(x, y);
+                    (finite(u), finite(v))
+                })
+                .unzip();
+            let pu = Array2::from_shape_vec(x.dim(), pu).expect("shape");
+            let pv = Array2::from_shape_vec(x.dim(), pv).expect("shape");
+            at_points(
+                &frames,
+                dim,
+                x,
+                y,
+                Predictor::PerPoint {
+                    u: pu.view(),
+                    v: pv.view(),
+                },
+                &mask,
+                &windows,
+                last.iterations,
+                &settings_at,
+            )?
+        }
+    };
+    Ok((Some(pred), f))
 }
 
 #[cfg(test)]
@@ -1047,6 +1224,100 @@ mod tests {
         .unwrap();
         let (e, _) = rms(&f, d);
         assert!(e < 0.05, "rms {e}");
+    }
+
+    /// The one-call Method II path equals `piv` of the first passes followed by `piv_at` with
+    /// that field (deformed) or its values at the points (offset), and measures the truth.
+    #[test]
+    fn final_points_in_one_call_equal_the_two_calls() {
+        let d = |x: f64, y: f64| (3.0 + 0.02 * y, 1.0 - 0.01 * x);
+        let (a, b) = pair(160, 200, d);
+        // fractional points, some near the edge, one outside the image and one masked
+        let x = Array2::from_shape_fn((6, 9), |(j, i)| 10.3 + 22.0 * i as f64 + 0.7 * j as f64);
+        let mut y = Array2::from_shape_fn((6, 9), |(j, i)| 12.6 + 27.0 * j as f64 - 0.3 * i as f64);
+        y[[0, 0]] = -5.0;
+        let mut mask = Array2::from_elem((160, 200), false);
+        mask.slice_mut(ndarray::s![60..70, 100..115]).fill(true);
+        for mode in [Mode::Deform, Mode::Offset] {
+            let s = PivSettings {
+                passes: vec![Pass::new(48, 48), Pass::new(32, 32), Pass::new(32, 8)],
+                mode,
+                ..PivSettings::default()
+            };
+            let (pred, one) = piv_with_final_points(
+                a.view(),
+                b.view(),
+                x.view(),
+                y.view(),
+                Some(mask.view()),
+                &s,
+            )
+            .unwrap();
+            let pred = pred.unwrap();
+            let mut first = s.clone();
+            first.passes.pop();
+            let p2 = piv(a.view(), b.view(), Some(mask.view()), &first).unwrap();
+            assert!(p2
+                .u
+                .iter()
+                .zip(&pred.u)
+                .all(|(p, q)| p == q || p.is_nan() && q.is_nan()));
+            // the two-call path of rspiv.method2: masked predictor vectors take the mean
+            let mean = |a: &Array2<f64>| {
+                let f: Vec<f64> = a.iter().copied().filter(|p| p.is_finite()).collect();
+                f.iter().sum::<f64>() / f.len() as f64
+            };
+            let (mu, mv) = (mean(&p2.u), mean(&p2.v));
+            assert!(p2.masked.iter().any(|&m| m));
+            let gf = GridField {
+                grid: p2.grid.unwrap(),
+                u: p2.u.mapv(|p| if p.is_finite() { p } else { mu }),
+                v: p2.v.mapv(|p| if p.is_finite() { p } else { mv }),
+            };
+            let pu = Array2::from_shape_fn(x.dim(), |ji| gf.at(x[ji], y[ji]).0);
+            let pv = Array2::from_shape_fn(x.dim(), |ji| gf.at(x[ji], y[ji]).1);
+            let pr = match mode {
+                Mode::Deform => Predictor::Field(&gf),
+                Mode::Offset => Predictor::PerPoint {
+                    u: pu.view(),
+                    v: pv.view(),
+                },
+            };
+            let two = piv_at(
+                a.view(),
+                b.view(),
+                x.view(),
+                y.view(),
+                pr,
+                Some(mask.view()),
+                &[(32, 8)],
+                1,
+                &s,
+            )
+            .unwrap();
+            let same = |p: &Array2<f64>, q: &Array2<f64>| {
+                p.iter()
+                    .zip(q)
+                    .all(|(p, q)| p == q || p.is_nan() && q.is_nan())
+            };
+            assert!(same(&one.u, &two.u) && same(&one.v, &two.v), "{mode:?}");
+            assert_eq!(one.valid, two.valid);
+            assert_eq!(one.masked, two.masked);
+            assert!(one.masked[[0, 0]]);
+            let (e, n) = worst_valid(&one, d);
+            assert!(n > 30 && e < 0.15, "{mode:?}: worst {e} over {n}");
+        }
+        // one pass: no predictor
+        let s = PivSettings {
+            passes: vec![Pass::new(32, 32)],
+            ..PivSettings::default()
+        };
+        let (pred, _) =
+            piv_with_final_points(a.view(), b.view(), x.view(), y.view(), None, &s).unwrap();
+        assert!(pred.is_none());
+        // bad points
+        let y2 = Array2::zeros((2, 2));
+        assert!(piv_with_final_points(a.view(), b.view(), x.view(), y2.view(), None, &s).is_err());
     }
 
     /// Largest error of the valid vectors against `disp`, and the number of valid ones.
@@ -1341,6 +1612,83 @@ mod tests {
             bias.push(bu.abs().max(bv.abs()));
         }
         assert!(bias[0] < 0.01 && bias[0] < 0.6 * bias[1], "{bias:?}");
+    }
+
+    /// The field predictor's first correlation reads the windows from the pair deformed once
+    /// (a common sub-pixel shift of both windows): as accurate against the truth as sampling
+    /// each deformed window on its own, with the same outside-the-image rule in the interior.
+    #[test]
+    fn field_predictor_on_the_deformed_pair_matches_per_window_sampling() {
+        let d = |x: f64, y: f64| (5.3 + 0.01 * y, -2.7 + 0.008 * x);
+        let (a, b) = pair(160, 240, d);
+        let grid = Grid::for_windows(240, 160, 16, 16, 0.5).unwrap();
+        let field = GridField {
+            grid,
+            u: Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
+                let (x, y) = grid.xy(j, i);
+                d(x, y).0
+            }),
+            v: Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
+                let (x, y) = grid.xy(j, i);
+                d(x, y).1
+            }),
+        };
+        let x = Array2::from_shape_fn((12, 10), |(j, i)| 30.37 + 19.1 * i as f64 + 0.13 * j as f64);
+        let y = Array2::from_shape_fn((12, 10), |(j, i)| 20.71 + 10.3 * j as f64 - 0.21 * i as f64);
+        let s = PivSettings::default();
+        let fast = piv_at(
+            a.view(),
+            b.view(),
+            x.view(),
+            y.view(),
+            Predictor::Field(&field),
+            None,
+            &[(32, 8)],
+            1,
+            &s,
+        )
+        .unwrap();
+        // the per-window sampler on the same points
+        let frames = Frames::new(a.view(), b.view(), Interpolation::BSpline).unwrap();
+        let (xs, ys): (Vec<f64>, Vec<f64>) =
+            (x.iter().copied().collect(), y.iter().copied().collect());
+        let n = xs.len();
+        let zeros = vec![0.0; n];
+        let skip = vec![false; n];
+        let peaks = frames.sweep(
+            32,
+            8,
+            &xs,
+            &ys,
+            &zeros,
+            &zeros,
+            &skip,
+            Some(&field),
+            s.subpixel,
+        );
+        let (mut e_fast, mut e_slow, mut diff, mut m) = (0.0, 0.0, 0.0f64, 0);
+        for k in 0..n {
+            let (tu, tv) = d(xs[k], ys[k]);
+            let (bu, bv) = field.at(xs[k], ys[k]);
+            let (fu, fv) = (fast.u.as_slice().unwrap()[k], fast.v.as_slice().unwrap()[k]);
+            assert_eq!(fast.valid.as_slice().unwrap()[k], peaks[k].ok, "point {k}");
+            if !peaks[k].ok {
+                continue;
+            }
+            let (su, sv) = (bu + peaks[k].dx, bv + peaks[k].dy);
+            e_fast += (fu - tu).powi(2) + (fv - tv).powi(2);
+            e_slow += (su - tu).powi(2) + (sv - tv).powi(2);
+            diff = diff.max((fu - su).abs().max((fv - sv).abs()));
+            m += 1;
+        }
+        let (e_fast, e_slow) = ((e_fast / m as f64).sqrt(), (e_slow / m as f64).sqrt());
+        println!("rms fast {e_fast} per-window {e_slow}; largest difference {diff}; {m} valid");
+        assert!(m > 100, "{m}");
+        assert!(
+            e_fast < 0.05 && e_fast < 1.2 * e_slow + 0.005,
+            "{e_fast} vs {e_slow}"
+        );
+        assert!(diff < 0.05, "largest difference {diff}");
     }
 
     #[test]

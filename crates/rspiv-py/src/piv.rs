@@ -1,4 +1,4 @@
-//! Binding of piv-core: `piv`, `piv_at`, `render_particles`.
+//! Binding of piv-core: `piv`, `piv_at`, `piv_final_points`, `render_particles`.
 //!
 //! Frames may be uint8, uint16, float32 or float64 (both of one dtype); they are read in place
 //! (no copy for C-contiguous arrays). All work runs with the GIL released.
@@ -161,6 +161,13 @@ trait Runner: Sync {
         iterations: usize,
         s: &PivSettings,
     ) -> Result<PivField, PivError>;
+    fn piv_final_points(
+        &self,
+        x: ArrayView2<'_, f64>,
+        y: ArrayView2<'_, f64>,
+        mask: Option<ArrayView2<'_, bool>>,
+        s: &PivSettings,
+    ) -> Result<(Option<PivField>, PivField), PivError>;
 }
 
 impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
@@ -182,6 +189,15 @@ impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
         s: &PivSettings,
     ) -> Result<PivField, PivError> {
         piv_core::piv_at(self.0, self.1, x, y, pred, mask, windows, iterations, s)
+    }
+    fn piv_final_points(
+        &self,
+        x: ArrayView2<'_, f64>,
+        y: ArrayView2<'_, f64>,
+        mask: Option<ArrayView2<'_, bool>>,
+        s: &PivSettings,
+    ) -> Result<(Option<PivField>, PivField), PivError> {
+        piv_core::piv_with_final_points(self.0, self.1, x, y, mask, s)
     }
 }
 
@@ -237,6 +253,71 @@ fn piv<'py>(
     let mask = mask.as_ref().map(|m| m.as_array());
     let field = with_frames(py, &fr, |r| r.piv(mask, &s))?;
     field_dict(py, field)
+}
+
+/// Method II's PIV in one call: the passes but the last on the regular grid (the predictor),
+/// the last at the points (x, y) on the same prepared frames (see
+/// `piv_core::piv_with_final_points`). Returns the final field's dict with the predictor's
+/// dict (or None for one pass) under "predictor".
+#[pyfunction]
+#[pyo3(signature = (frame_a, frame_b, x, y, windows, overlaps, iterations, deformation="symmetric",
+    subpixel="gauss3", interpolation="bspline", validate=true, median_eps=0.1,
+    median_threshold=2.0, min_peak_ratio=0.0, mask=None))]
+fn piv_final_points<'py>(
+    py: Python<'py>,
+    frame_a: &Bound<'py, PyAny>,
+    frame_b: &Bound<'py, PyAny>,
+    x: PyReadonlyArray2<'py, f64>,
+    y: PyReadonlyArray2<'py, f64>,
+    windows: Vec<(usize, usize)>,
+    overlaps: Vec<f64>,
+    iterations: Vec<usize>,
+    deformation: &str,
+    subpixel: &str,
+    interpolation: &str,
+    validate: bool,
+    median_eps: f64,
+    median_threshold: f64,
+    min_peak_ratio: f64,
+    mask: Option<PyReadonlyArray2<'py, bool>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    if overlaps.len() != windows.len() || iterations.len() != windows.len() {
+        return Err(invalid_input(
+            py,
+            "windows, overlaps and iterations must have one entry per pass",
+        ));
+    }
+    let mut s = settings(
+        py,
+        deformation,
+        subpixel,
+        interpolation,
+        validate,
+        median_eps,
+        median_threshold,
+        min_peak_ratio,
+    )?;
+    s.passes = windows
+        .iter()
+        .zip(&overlaps)
+        .zip(&iterations)
+        .map(|((&(w, h), &overlap), &iterations)| Pass {
+            w,
+            h,
+            overlap,
+            iterations,
+        })
+        .collect();
+    let fr = frames(frame_a, frame_b)?;
+    let (xv, yv) = (x.as_array(), y.as_array());
+    let mask = mask.as_ref().map(|m| m.as_array());
+    let (pred, field) = with_frames(py, &fr, |r| r.piv_final_points(xv, yv, mask, &s))?;
+    let d = field_dict(py, field)?;
+    match pred {
+        Some(p) => d.set_item("predictor", field_dict(py, p)?)?,
+        None => d.set_item("predictor", py.None())?,
+    }
+    Ok(d)
 }
 
 /// PIV at given points (arrays x, y of one shape) with a predictor; returns a dict of arrays.
@@ -385,6 +466,7 @@ fn render_particles<'py>(
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(piv, m)?)?;
     m.add_function(wrap_pyfunction!(piv_at, m)?)?;
+    m.add_function(wrap_pyfunction!(piv_final_points, m)?)?;
     m.add_function(wrap_pyfunction!(render_particles, m)?)?;
     Ok(())
 }
