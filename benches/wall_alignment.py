@@ -1,6 +1,7 @@
 """Wall alignment end to end on synthetic reflection images (paper section 3.2, Table 4).
 
     python benches/wall_alignment.py [--scale 1.0] [--pairs 4] [--stations 16] [--png wall.png]
+                                     [--table]
 
 Ground truth: boundary-layer pairs (:func:`rspiv.synth.tbl_pair`) rendered through the paper-like
 lens (:func:`rspiv.synth.paper_lens`) with the wall at 0.04 degree to the target's frame, and a
@@ -35,6 +36,9 @@ def main() -> None:
     ap.add_argument("--stations", type=int, default=16)
     ap.add_argument("--angle", type=float, default=0.04, help="wall angle in the target frame")
     ap.add_argument("--png", default=None, help="write the wall-shape figure (paper Fig. 8)")
+    ap.add_argument(
+        "--table", action="store_true", help="also print rspiv.wall_table's five rows (Table 4)"
+    )
     args = ap.parse_args()
 
     import rspiv
@@ -87,6 +91,12 @@ def main() -> None:
           f"largest station error {np.nanmax(np.abs(w_raw.position_px - ry)):.3f} px")  # fmt: skip
     print(f"angle after dewarping {w_dw.angle_deg:.5f} deg (rendered {args.angle} deg): "
           f"error {abs(w_dw.angle_deg - args.angle):.5f} deg")  # fmt: skip
+    if args.table:
+        t1 = time.perf_counter()
+        table = rspiv.wall_table([p[:2] for p in pairs], cal, band=band, stations=args.stations)
+        print("rspiv.wall_table (the paper's Table 4; Method I, R2 and P3 from the same markers):")
+        print(table.format())
+        print(f"wall_table {time.perf_counter() - t1:.1f} s")
     print(f"total {time.perf_counter() - t0:.1f} s")
     if args.png:
         from rspiv.plots.wall import wall_shape
