@@ -1094,15 +1094,7 @@ mod avx2 {
                 t = _mm256_add_ps(t, eight);
                 i += 8;
             }
-            if full < n {
-                let (mut sx, mut sy) = ([0.0f64; 8], [0.0f64; 8]);
-                for m in full..n {
-                    sx[m - full] = dx.mul_add(m as f64, ax);
-                    sy[m - full] = dy.mul_add(m as f64, ay);
-                }
-                let r = n - full;
-                scalar_row(data, h, w, &sx[..r], &sy[..r], fill, &mut out[full..n]);
-            }
+            linear_tail(data, h, w, (ax, dx, ay, dy), fill, full, out);
             return contiguous;
         }
         let (axv, dxv) = (_mm256_set1_pd(ax), _mm256_set1_pd(dx));
@@ -1124,16 +1116,32 @@ mod avx2 {
             t = _mm256_add_pd(t, eight);
             i += 8;
         }
-        if i < n {
-            let (mut sx, mut sy) = ([0.0f64; 8], [0.0f64; 8]);
-            for m in i..n {
-                sx[m - i] = dx.mul_add(m as f64, ax);
-                sy[m - i] = dy.mul_add(m as f64, ay);
-            }
-            let r = n - i;
-            scalar_row(data, h, w, &sx[..r], &sy[..r], fill, &mut out[i..n]);
-        }
+        linear_tail(data, h, w, (ax, dx, ay, dy), fill, i, out);
         contiguous
+    }
+
+    /// Pixels `from..` (fewer than 8) of a span whose source positions are linear in the pixel
+    /// index `m` (`x = ax + m dx`, `y = ay + m dy`), through the scalar kernel.
+    fn linear_tail<T: Sample, O: OutSample>(
+        data: &[T],
+        h: usize,
+        w: usize,
+        (ax, dx, ay, dy): (f64, f64, f64, f64),
+        fill: O,
+        from: usize,
+        out: &mut [O],
+    ) {
+        let n = out.len();
+        if from >= n {
+            return;
+        }
+        let (mut sx, mut sy) = ([0.0f64; 8], [0.0f64; 8]);
+        for m in from..n {
+            sx[m - from] = dx.mul_add(m as f64, ax);
+            sy[m - from] = dy.mul_add(m as f64, ay);
+        }
+        let r = n - from;
+        scalar_row(data, h, w, &sx[..r], &sy[..r], fill, &mut out[from..n]);
     }
 
     /// [`CoordGrid`]'s coordinates fed straight into the kernel, one grid cell at a time (no

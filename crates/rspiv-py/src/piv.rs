@@ -66,6 +66,32 @@ fn settings(
     })
 }
 
+/// One [`Pass`] per window size, from the per-pass lists of the Python call.
+fn passes(
+    py: Python<'_>,
+    windows: &[(usize, usize)],
+    overlaps: &[f64],
+    iterations: &[usize],
+) -> PyResult<Vec<Pass>> {
+    if overlaps.len() != windows.len() || iterations.len() != windows.len() {
+        return Err(invalid_input(
+            py,
+            "windows, overlaps and iterations must have one entry per pass",
+        ));
+    }
+    Ok(windows
+        .iter()
+        .zip(overlaps)
+        .zip(iterations)
+        .map(|((&(w, h), &overlap), &iterations)| Pass {
+            w,
+            h,
+            overlap,
+            iterations,
+        })
+        .collect())
+}
+
 fn field_dict<'py>(py: Python<'py>, f: PivField) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("x", f.x.into_pyarray(py))?;
@@ -222,12 +248,6 @@ fn piv<'py>(
     min_peak_ratio: f64,
     mask: Option<PyReadonlyArray2<'py, bool>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    if overlaps.len() != windows.len() || iterations.len() != windows.len() {
-        return Err(invalid_input(
-            py,
-            "windows, overlaps and iterations must have one entry per pass",
-        ));
-    }
     let mut s = settings(
         py,
         deformation,
@@ -238,17 +258,7 @@ fn piv<'py>(
         median_threshold,
         min_peak_ratio,
     )?;
-    s.passes = windows
-        .iter()
-        .zip(&overlaps)
-        .zip(&iterations)
-        .map(|((&(w, h), &overlap), &iterations)| Pass {
-            w,
-            h,
-            overlap,
-            iterations,
-        })
-        .collect();
+    s.passes = passes(py, &windows, &overlaps, &iterations)?;
     let fr = frames(frame_a, frame_b)?;
     let mask = mask.as_ref().map(|m| m.as_array());
     let field = with_frames(py, &fr, |r| r.piv(mask, &s))?;
@@ -281,12 +291,6 @@ fn piv_final_points<'py>(
     min_peak_ratio: f64,
     mask: Option<PyReadonlyArray2<'py, bool>>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    if overlaps.len() != windows.len() || iterations.len() != windows.len() {
-        return Err(invalid_input(
-            py,
-            "windows, overlaps and iterations must have one entry per pass",
-        ));
-    }
     let mut s = settings(
         py,
         deformation,
@@ -297,17 +301,7 @@ fn piv_final_points<'py>(
         median_threshold,
         min_peak_ratio,
     )?;
-    s.passes = windows
-        .iter()
-        .zip(&overlaps)
-        .zip(&iterations)
-        .map(|((&(w, h), &overlap), &iterations)| Pass {
-            w,
-            h,
-            overlap,
-            iterations,
-        })
-        .collect();
+    s.passes = passes(py, &windows, &overlaps, &iterations)?;
     let fr = frames(frame_a, frame_b)?;
     let (xv, yv) = (x.as_array(), y.as_array());
     let mask = mask.as_ref().map(|m| m.as_array());
