@@ -165,6 +165,10 @@ def test_bad_input(frames, mapping):
         piv_vectors(a, b[:, :-1], mapping)
     with pytest.raises(rspiv.InvalidInputError, match="passes"):
         piv_vectors(a, b, mapping, passes=[])
+    with pytest.raises(rspiv.InvalidInputError, match="deformation"):
+        piv_vectors(a, b, mapping, deformation="warp")
+    with pytest.raises(rspiv.InvalidInputError, match="predictor_overlap"):
+        piv_vectors(a, b, mapping, predictor_overlap=[0.5, 0.5, 0.5])
 
 
 def _err(f, valid_only=True):
