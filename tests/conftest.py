@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import pathlib
 import shutil
 import subprocess
@@ -36,3 +37,44 @@ def engine() -> str:
     if exe is None:
         pytest.fail("neither cargo nor an installed rspiv-engine is available")
     return exe
+
+
+# ---------------------------------------------------------------------------- skips
+# CI (scripts/test.sh sets RSPIV_STRICT_SKIPS=1) tests what it claims: a test that skips fails
+# the run unless it was skipped on purpose, i.e. its reason starts with "on purpose:" (for a
+# skip that is right on every machine, e.g. a platform-only check). Every reason is printed.
+ON_PURPOSE = "on purpose:"
+_skips: list[tuple[str, str, bool]] = []  # (test id, reason, on purpose)
+
+
+def _skip_reason(report) -> str:
+    lr = report.longrepr
+    text = lr[2] if isinstance(lr, tuple) and len(lr) == 3 else str(lr)
+    return text.removeprefix("Skipped: ").strip()
+
+
+def pytest_runtest_logreport(report):
+    if report.skipped and not hasattr(report, "wasxfail"):
+        reason = _skip_reason(report)
+        _skips.append((report.nodeid, reason, reason.startswith(ON_PURPOSE)))
+
+
+def pytest_terminal_summary(terminalreporter):
+    if not _skips:
+        return
+    terminalreporter.section("skipped tests")
+    for nodeid, reason, ok in _skips:
+        tag = "on purpose" if ok else "NOT ON PURPOSE"
+        terminalreporter.write_line(f"{tag}: {nodeid}: {reason}")
+    n_bad = sum(not ok for _, _, ok in _skips)
+    if n_bad and os.environ.get("RSPIV_STRICT_SKIPS", "") not in ("", "0"):
+        terminalreporter.write_line(
+            f"RSPIV_STRICT_SKIPS: {n_bad} test(s) skipped not on purpose: the run fails"
+        )
+
+
+def pytest_sessionfinish(session, exitstatus):
+    strict = os.environ.get("RSPIV_STRICT_SKIPS", "") not in ("", "0")
+    bad = [s for s in _skips if not s[2]]
+    if strict and bad and session.exitstatus == 0:
+        session.exitstatus = 1  # reported by pytest_terminal_summary
