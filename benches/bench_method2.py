@@ -13,7 +13,7 @@ after the other) and one iteration per pass, and give vectors on the same regula
 Stages. Method I, as ``rspiv.piv(method="images")`` runs it: dewarp A and B (Keys, full
 precision), dewarp of a ones-image (the zero-fill mask), PIV of all passes; the first passes
 alone are timed separately so that the final pass's share is their difference. Method II:
-:func:`rspiv.method2.piv_vectors` without a predictor (one native call: the predictor passes
+:func:`rspiv.correction.piv_vectors` without a predictor (one native call: the predictor passes
 on the raw frames and the final pass at the images of the object grid on one prepared pair,
 then the mapping of the vectors); the predictor passes alone are timed separately (info).
 ``--two-calls`` also times the final pass alone given the predictor (``piv_at``, the path of
@@ -68,7 +68,7 @@ def main() -> None:
 def run(a, b, truth, cal, dfm, s, args) -> None:
     import rspiv
     from rspiv.dewarp import dewarp
-    from rspiv.method2 import grid_for_windows, piv_vectors
+    from rspiv.correction import grid_for_windows, piv_vectors
 
     h, w = a.shape
     times: dict[str, float] = {}

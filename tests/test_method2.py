@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import rspiv
 from rspiv import _rspiv
-from rspiv.method2 import (
+from rspiv.correction import (
     grid_for_windows,
     map_displacements,
     piv_vectors,

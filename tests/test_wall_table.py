@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import rspiv
 from rspiv.synth import PAPER_OPTICS, calibration_target, paper_lens, tbl_pair
-from rspiv.wall import WallTable, refit, wall_table
+from rspiv.wall_table import WallTable, refit, wall_table
 
 SCALE = 0.3
 ANGLE = 0.04

@@ -14,18 +14,20 @@ from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.dewarp import dewarp
 from rspiv.errors import ConvergenceError, InvalidInputError, RspivError
 from rspiv.mapping import Mapping, fit_mapping
-from rspiv.method2 import piv_vectors
+from rspiv.correction import piv_vectors
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.piv import PivField, piv, piv_at
+from rspiv.settings import PivSettings
 from rspiv.reference import load_dns
 from rspiv.stats import FieldAccumulator
-from rspiv.wall import Wall, WallTable, find_wall, wall_table
+from rspiv.wall import Wall, find_wall
+from rspiv.wall_table import WallTable, wall_table
 
 __all__ = ["__version__", "RspivError", "InvalidInputError", "ConvergenceError"]
 __all__ += ["FieldAccumulator", "CampaignConfig", "load_campaign_config", "analyse_profile"]
 __all__ += ["BoundaryLayerResult", "load_dns"]
 __all__ += ["Mapping", "fit_mapping"]
-__all__ += ["PivField", "piv", "piv_at"]
+__all__ += ["PivField", "PivSettings", "piv", "piv_at"]
 __all__ += ["Calibration", "calibrate", "MonteCarloResult", "monte_carlo"]
 __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]

@@ -27,6 +27,7 @@ import numpy.typing as npt
 
 from rspiv import _rspiv
 from rspiv.errors import InvalidInputError, RspivError
+from rspiv.io import read_image
 from rspiv.mapping import MODELS, Mapping, fit_mapping
 
 __all__ = [
@@ -35,47 +36,10 @@ __all__ = [
     "CalibrationReport",
     "calibrate",
     "compare_models",
-    "read_image",
 ]
 
 FORMAT = "rspiv-calibration"
 VERSION = 1
-
-
-def read_image(image: Any) -> np.ndarray:
-    """A 2D image from an array or a file path (TIFF via tifffile; PNG/BMP via Pillow).
-
-    Raises InvalidInputError naming the file for unreadable, truncated or non-2D images.
-    """
-    if isinstance(image, (str, os.PathLike)):
-        path = pathlib.Path(image)
-        if not path.is_file():
-            raise InvalidInputError(f"{path}: no such file")
-        try:
-            if path.suffix.lower() in (".tif", ".tiff"):
-                import tifffile
-
-                arr = tifffile.imread(path)
-            else:
-                from PIL import Image
-
-                with Image.open(path) as im:
-                    im.load()
-                    arr = np.asarray(im)
-        except Exception as exc:  # noqa: BLE001 - any decoder failure is a bad file
-            raise InvalidInputError(f"{path}: cannot read the image ({exc})") from None
-        name = str(path)
-    else:
-        arr = np.asarray(image)
-        name = "image"
-    if arr.ndim != 2:
-        raise InvalidInputError(f"{name}: a 2D grey image is required, got shape {arr.shape}")
-    if arr.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
-        arr = arr.astype(np.float64)
-    arr = np.ascontiguousarray(arr)
-    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
-        raise InvalidInputError(f"{name}: contains NaN or inf")
-    return arr
 
 
 @dataclass

@@ -173,7 +173,7 @@ class PairContext:
 
     def grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Window centres (px) of the final pass, shape (ny, nx) each (same for every run)."""
-        from rspiv.method2 import grid_for_windows
+        from rspiv.correction import grid_for_windows
 
         return grid_for_windows(self.object_shape, self.passes[-1], self.overlap)
 
@@ -373,7 +373,7 @@ def process_pair(context: PairContext, pair: PairSpec) -> PairResult:
                 t["piv"] += time.perf_counter() - t0
                 fields[run.name] = _field_arrays(f, context, True)
             elif run.method == "II":
-                from rspiv.method2 import piv_vectors
+                from rspiv.correction import piv_vectors
 
                 t0 = time.perf_counter()
                 f = piv_vectors(
@@ -738,7 +738,8 @@ class Campaign:
         cal = None
         image_shape = None
         if cfg.calibration.target is not None:
-            from rspiv.calibration import calibrate, read_image
+            from rspiv.calibration import calibrate
+            from rspiv.io import read_image
 
             t0 = time.perf_counter()
             image = read_image(cfg.calibration.target)

@@ -167,7 +167,7 @@ def synth_campaign(
     import tifffile
 
     from rspiv.campaign_config import CampaignConfig
-    from rspiv.method2 import grid_for_windows
+    from rspiv.correction import grid_for_windows
     from rspiv.outputs import atomic_write_text, write_netcdf
     from rspiv.stats import FieldAccumulator
     from rspiv.synth.target import calibration_target

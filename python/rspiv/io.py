@@ -1,16 +1,22 @@
-"""Reading PIV images.
+"""Reading images: the one reader of rspiv (PIV frames, calibration targets, masks).
 
-TIFF (single or multi-frame, via tifffile), PNG and BMP (via matplotlib's Pillow reader) are
-read as 2D arrays ``image[y, x]`` of their native dtype (uint8/uint16 kept, not rescaled).
-Errors raise :class:`rspiv.InvalidInputError` naming the file.
+TIFF (single or multi-frame, via tifffile), PNG and BMP (via Pillow) are read as C-contiguous 2D
+arrays ``image[y, x]``. uint8, uint16, float32 and float64 keep their dtype (not rescaled); other
+dtypes become float64; colour images become grey (0.299 R + 0.587 G + 0.114 B, float32). Arrays
+pass through the same rules, so every entry point accepts a file or an array alike. Errors raise
+:class:`rspiv.InvalidInputError` naming the file: missing, unreadable or truncated files, a frame
+out of range, images that are not 2D, float images with NaN or inf.
 """
 
 from __future__ import annotations
 
 import os
 import pathlib
+from typing import Any
 
 import numpy as np
+import tifffile
+from PIL import Image
 
 from rspiv.errors import InvalidInputError
 
@@ -18,6 +24,7 @@ __all__ = ["read_image", "read_pair"]
 
 _TIFF = {".tif", ".tiff"}
 _PIL = {".png", ".bmp"}
+_NATIVE = (np.uint8, np.uint16, np.float32, np.float64)
 
 
 def _grey(arr: np.ndarray, name: str) -> np.ndarray:
@@ -26,51 +33,59 @@ def _grey(arr: np.ndarray, name: str) -> np.ndarray:
         arr = rgb @ np.array([0.299, 0.587, 0.114], dtype=np.float32)
     if arr.ndim != 2:
         raise InvalidInputError(f"{name}: expected a grey 2D image, got shape {arr.shape}")
+    if arr.dtype.type not in _NATIVE:
+        arr = arr.astype(np.float64)
+    arr = np.ascontiguousarray(arr)
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise InvalidInputError(f"{name}: contains NaN or inf")
     return arr
 
 
-def read_image(path: str | os.PathLike, frame: int = 0) -> np.ndarray:
-    """Read one grey image.
-
-    Parameters
-    ----------
-    path : str or path-like
-        A ``.tif``/``.tiff``, ``.png`` or ``.bmp`` file.
-    frame : int
-        Page of a multi-frame TIFF (0-based); must be 0 for other formats.
-
-    Returns
-    -------
-    ndarray, 2D, ``image[y, x]``
-    """
-    p = pathlib.Path(path)
+def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
     name = str(p)
     if not p.is_file():
         raise InvalidInputError(f"{name}: no such file")
     ext = p.suffix.lower()
     try:
         if ext in _TIFF:
-            import tifffile
-
             with tifffile.TiffFile(p) as tf:
                 n = len(tf.pages)
                 if not 0 <= frame < n:
                     raise InvalidInputError(f"{name}: frame {frame} out of range ({n} frames)")
-                arr = tf.pages[frame].asarray()
-        elif ext in _PIL:
+                return tf.pages[frame].asarray()
+        if ext in _PIL:
             if frame != 0:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
-            from PIL import Image
-
             with Image.open(p) as im:
-                arr = np.asarray(im)
-        else:
-            raise InvalidInputError(f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP)")
+                im.load()
+                return np.asarray(im)
     except InvalidInputError:
         raise
-    except Exception as exc:  # corrupt or foreign file
+    except Exception as exc:  # corrupt, truncated or foreign file
         raise InvalidInputError(f"{name}: cannot read image: {exc}") from exc
-    return _grey(np.asarray(arr), name)
+    raise InvalidInputError(f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP)")
+
+
+def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
+    """Read one grey image from a file, or check an array by the same rules.
+
+    Parameters
+    ----------
+    source : str, path-like or array_like
+        A ``.tif``/``.tiff``, ``.png`` or ``.bmp`` file, or an image array.
+    frame : int
+        Page of a multi-frame TIFF (0-based); must be 0 for other formats and arrays.
+
+    Returns
+    -------
+    ndarray, 2D, ``image[y, x]``, C-contiguous (module docstring for the dtypes)
+    """
+    if isinstance(source, (str, os.PathLike)):
+        p = pathlib.Path(source)
+        return _grey(np.asarray(_read_file(p, int(frame))), str(p))
+    if frame != 0:
+        raise InvalidInputError(f"image array: frame {frame} requested from a single image")
+    return _grey(np.asarray(source), "image")
 
 
 def read_pair(path_a, path_b=None) -> tuple[np.ndarray, np.ndarray]:

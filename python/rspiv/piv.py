@@ -1,4 +1,5 @@
-"""Multigrid / multipass FFT cross-correlation PIV.
+"""Multigrid / multipass FFT cross-correlation PIV: the user-facing :func:`piv` and
+:func:`piv_at`.
 
 Coordinates follow the pixel frame of the README: x = column (right), y = row (down), origin at
 the centre of the top-left pixel; displacements ``u`` (along x) and ``v`` (along y, positive
@@ -7,166 +8,25 @@ downward) are in pixels.
 Windows are given as ``(w, h)``: ``w`` px wide along x and ``h`` px tall along y, so ``(32, 8)``
 is 32 px streamwise by 8 px wall-normal when the flow runs along x (the paper's final window).
 
-The work runs in Rust (``rspiv._rspiv``) with the GIL released: FFT cross-correlation of the
-zero-padded windows normalised by their energies, 3-point Gaussian sub-pixel peak (or a 9-point
-2D Gaussian fit), symmetric image deformation (quintic B-spline) or window offset from pass to pass,
-normalised median test (Westerweel & Scarano 2005) with replacement after every pass.
+The keyword arguments are a thin shim over :class:`rspiv.PivSettings`; the native driver is
+:mod:`rspiv.multipass` and the distortion correction (``calibration`` and ``method``)
+:mod:`rspiv.correction`. :class:`PivField` (:mod:`rspiv.field`) is re-exported here.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from rspiv import _rspiv
+from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
+from rspiv.field import PivField
+from rspiv.multipass import run_grid, run_points
+from rspiv.settings import PivSettings, parse_mapping_mode, parse_method
 
 __all__ = ["PivField", "piv", "piv_at"]
-
-_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
-
-
-@dataclass(frozen=True)
-class PivField:
-    """A PIV vector field; every array has the same 2D shape ``(ny, nx)``.
-
-    Attributes
-    ----------
-    x, y : ndarray of float64
-        Window centres, px (pixel frame).
-    u, v : ndarray of float64
-        Displacement along x (right) and y (down), px. Replaced vectors hold the interpolated
-        value; vectors not computed (``masked``) are NaN.
-    valid : ndarray of bool
-        Passed the final validation (correlation found, median test, peak ratio).
-    replaced : ndarray of bool
-        Rejected by the final validation and replaced from the neighbours.
-    masked : ndarray of bool
-        Not computed: centre inside the mask or outside the image.
-    peak_ratio : ndarray of float64
-        Highest correlation peak over the second-highest (capped at 1000).
-    coef : ndarray of float64
-        Correlation coefficient: height of the normalised correlation peak.
-    window : tuple of int
-        Final window ``(w, h)`` in px (w along x).
-    grid : tuple of float or None
-        ``(x0, y0, dx, dy)`` of the regular grid (``x = x0 + i dx``), None for :func:`piv_at`.
-    """
-
-    x: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
-    v: np.ndarray
-    valid: np.ndarray
-    replaced: np.ndarray
-    masked: np.ndarray
-    peak_ratio: np.ndarray
-    coef: np.ndarray
-    window: tuple[int, int]
-    grid: tuple[float, float, float, float] | None
-
-    @classmethod
-    def _from_native(cls, d: dict, window: tuple[int, int], shape=None) -> PivField:
-        keys = ("x", "y", "u", "v", "valid", "replaced", "masked", "peak_ratio", "coef")
-        arrays = {k: d[k] if shape is None else d[k].reshape(shape) for k in keys}
-        grid = None if d["grid"] is None else tuple(float(g) for g in d["grid"])
-        return cls(**arrays, window=tuple(window), grid=grid)
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        """Shape of the vector arrays."""
-        return self.u.shape
-
-    def to_xarray(self):
-        """The field as an :class:`xarray.Dataset` compatible with pivpy.
-
-        Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
-        ``peak_ratio``, ``coef``, ``valid``, ``replaced``, ``masked``; dims ``(y, x)``. For a
-        grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
-        arbitrary points (:func:`piv_at`) the dims are indexed 0..n-1 and the positions are the
-        2D coordinates ``x_px``, ``y_px``.
-        """
-        import xarray as xr
-
-        chc = np.where(self.masked, -1, np.where(self.valid, 1, 0)).astype(np.int8)
-        dims = ("y", "x")
-        data = {
-            "u": (dims, self.u, {"units": "pix", "long_name": "displacement along x"}),
-            "v": (dims, self.v, {"units": "pix", "long_name": "displacement along y (down)"}),
-            "chc": (dims, chc, {"long_name": "1 valid, 0 replaced, -1 not computed"}),
-            "peak_ratio": (dims, self.peak_ratio),
-            "coef": (dims, self.coef),
-            "valid": (dims, self.valid),
-            "replaced": (dims, self.replaced),
-            "masked": (dims, self.masked),
-        }
-        if self.grid is not None:
-            coords = {
-                "x": ("x", self.x[0, :], {"units": "pix"}),
-                "y": ("y", self.y[:, 0], {"units": "pix"}),
-            }
-        else:
-            coords = {
-                "x_px": (dims, self.x, {"units": "pix"}),
-                "y_px": (dims, self.y, {"units": "pix"}),
-            }
-        ds = xr.Dataset(data, coords=coords)
-        ds.attrs.update(
-            {
-                "variables": "['x', 'y', 'u', 'v']",
-                "units": "['pix', 'pix', 'pix/dt', 'pix/dt']",
-                "window_w_h_px": list(self.window),
-                "conventions": "pixel frame: x right, y down, origin at the top-left pixel centre",
-            }
-        )
-        return ds
-
-
-def _frames(frame_a, frame_b) -> tuple[np.ndarray, np.ndarray]:
-    a = np.asarray(frame_a)
-    b = np.asarray(frame_b)
-    for name, f in (("frame_a", a), ("frame_b", b)):
-        if f.ndim != 2:
-            raise InvalidInputError(f"{name} must be a 2D array, got {f.ndim} dimension(s)")
-        if f.dtype.kind not in "uif" or f.dtype.kind == "c":
-            raise InvalidInputError(f"{name} has unsupported dtype {f.dtype}")
-    if a.shape != b.shape:
-        raise InvalidInputError(
-            f"frame_a {a.shape} and frame_b {b.shape} differ in shape (rows, columns)"
-        )
-    if a.dtype != b.dtype or a.dtype.type not in _DTYPES:
-        a = a.astype(np.float32)
-        b = b.astype(np.float32)
-    return a, b
-
-
-def _mask(mask, shape) -> np.ndarray | None:
-    if mask is None:
-        return None
-    m = np.asarray(mask, dtype=bool)
-    if m.shape != shape:
-        raise InvalidInputError(f"mask {m.shape} differs in shape from the frames {shape}")
-    return m
-
-
-def _window(w) -> tuple[int, int]:
-    try:
-        ww, hh = (int(v) for v in w)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"window {w!r} is not a (w, h) pair of integers") from exc
-    return ww, hh
-
-
-def _per_pass(value, n: int, name: str, cast) -> list:
-    if np.ndim(value) == 0:
-        return [cast(value)] * n
-    vals = [cast(v) for v in value]
-    if len(vals) != n:
-        raise InvalidInputError(f"{name} has {len(vals)} entries for {n} passes")
-    return vals
 
 
 def piv(
@@ -187,6 +47,7 @@ def piv(
     median_eps: float = 0.1,
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
+    settings: PivSettings | None = None,
 ) -> PivField:
     """Multipass PIV of a frame pair on a regular grid.
 
@@ -199,8 +60,13 @@ def piv(
       calibration (:func:`rspiv.dewarp`), then the regular PIV runs on them; vectors centred in
       the zero fill (object points imaged outside the sensor) are not computed (masked).
     - ``method="vectors"`` (Method II): PIV on the raw frames at the images of the object grid,
-      displacements mapped to the object frame (:func:`rspiv.method2.piv_vectors`, with
+      displacements mapped to the object frame (:func:`rspiv.correction.piv_vectors`, with
       ``mapping``).
+
+    The keywords are a shim over :class:`rspiv.PivSettings` (the one vocabulary shared with the
+    campaign file and the Rust CLI); pass ``settings=`` to give them as one object instead
+    (the window/validation keywords must then be left at their defaults). The correction itself
+    is :func:`rspiv.correction.correct`.
 
     Windows that reach past the image edge (after offset and deformation) or whose content is
     blank (zero variance, e.g. zero fill) are not correlated: ``valid`` is False and ``replaced``
@@ -223,11 +89,11 @@ def piv(
         Same shape as the frames, True = excluded; vectors centred on it are not computed.
     calibration : Calibration or Mapping, optional
         Object px -> image px; requires ``method``.
-    method : {"images", "vectors"}, optional
+    method : {"images", "vectors"} or {"I", "II"}, optional
         Distortion correction with ``calibration``: Method I (dewarp the images) or Method II
-        (map the vectors); see above. Requires ``calibration``.
+        (map the vectors); see above (any case). Requires ``calibration``.
     mapping : {"full", "positions"}
-        Method II's displacement mapping (:mod:`rspiv.method2`); ignored by Method I.
+        Method II's displacement mapping (:mod:`rspiv.correction`); ignored by Method I.
     iterations : int or sequence of int
         Correlation iterations per pass (each re-deforms with the latest field).
     subpixel : {"gauss3", "gauss2d"}
@@ -245,6 +111,8 @@ def piv(
         Noise level (px) and threshold of the normalised median test.
     min_peak_ratio : float
         Reject vectors whose peak ratio is below this (0 disables).
+    settings : PivSettings, optional
+        All of the above PIV settings as one object (overrides the keywords).
 
     Returns
     -------
@@ -257,87 +125,30 @@ def piv(
         settings; ``method`` without ``calibration`` (or the reverse), an unknown ``method`` or
         ``mapping``; frames whose shape differs from a Calibration's ``image_shape``.
     """
-    if mapping not in ("full", "positions"):
-        raise InvalidInputError(f'mapping must be "full" or "positions", got {mapping!r}')
-    if method is not None or calibration is not None:
-        if method not in ("images", "vectors"):
-            raise InvalidInputError(f'method must be "images" or "vectors", got {method!r}')
-        if calibration is None:
-            raise InvalidInputError(f"method={method!r} needs a calibration")
-        from rspiv.dewarp import check_calibration_shape
-
-        check_calibration_shape(calibration, np.shape(frame_a), "frame_a")
-        check_calibration_shape(calibration, np.shape(frame_b), "frame_b")
-        kw = dict(
+    mapping = parse_mapping_mode(mapping)
+    if settings is None:
+        settings = PivSettings(
+            passes=tuple(passes),
+            overlap=overlap,
             iterations=iterations,
-            subpixel=subpixel,
+            deformation=deformation,
             interpolation=interpolation,
+            subpixel=subpixel,
             validate=validate,
             median_eps=median_eps,
             median_threshold=median_threshold,
             min_peak_ratio=min_peak_ratio,
         )
-        if method == "vectors":
-            from rspiv.method2 import piv_vectors
-
-            n = len(list(passes))
-            ov = _per_pass(overlap, n, "overlap", float)
-            it = _per_pass(iterations, n, "iterations", int)
-            return piv_vectors(
-                frame_a,
-                frame_b,
-                calibration,
-                passes,
-                ov[-1],
-                mapping=mapping,
-                deformation="offset" if deformation == "offset" else "symmetric",
-                iterations=it[-1],
-                predictor_overlap=ov[:-1],
-                predictor_iterations=it[:-1],
-                subpixel=subpixel,
-                interpolation=interpolation,
-                validate=validate,
-                median_threshold=median_threshold,
-                median_eps=median_eps,
-                min_peak_ratio=min_peak_ratio,
-                mask=mask,
-            )
-        from rspiv.dewarp import dewarp
-
-        a0, b0 = _frames(frame_a, frame_b)
-        from rspiv.method2 import _mapping_of
-
-        m = _mapping_of(calibration)
-        da = dewarp(a0, m)
-        db = dewarp(b0, m)
-        # object pixels imaged outside the sensor (zero fill): True
-        fill = dewarp(np.ones(a0.shape, np.float32), m) < 0.5
-        if mask is not None:
-            fill |= dewarp(_mask(mask, a0.shape).astype(np.float32), m, fill=1.0) > 0.5
-        return piv(da, db, passes, overlap, deformation, fill, **kw)
-    a, b = _frames(frame_a, frame_b)
-    windows = [_window(p) for p in passes]
-    if not windows:
-        raise InvalidInputError("passes is empty")
-    n = len(windows)
-    overlaps = _per_pass(overlap, n, "overlap", float)
-    iters = _per_pass(iterations, n, "iterations", int)
-    d = _rspiv.piv(
-        a,
-        b,
-        windows,
-        overlaps,
-        iters,
-        deformation=deformation,
-        subpixel=subpixel,
-        interpolation=interpolation,
-        validate=validate,
-        median_eps=median_eps,
-        median_threshold=median_threshold,
-        min_peak_ratio=min_peak_ratio,
-        mask=_mask(mask, a.shape),
-    )
-    return PivField._from_native(d, windows[-1])
+    elif not isinstance(settings, PivSettings):
+        raise InvalidInputError(f"settings must be an rspiv.PivSettings, got {type(settings)}")
+    if method is not None or calibration is not None:
+        which = parse_method(method) if method is not None else None
+        if which not in ("I", "II"):
+            raise InvalidInputError(f'method must be "images" or "vectors", got {method!r}')
+        if calibration is None:
+            raise InvalidInputError(f"method={method!r} needs a calibration")
+        return correct(frame_a, frame_b, calibration, which, settings, mapping=mapping, mask=mask)
+    return run_grid(frame_a, frame_b, settings, mask)
 
 
 def piv_at(
@@ -396,62 +207,23 @@ def piv_at(
         and ``peak_ratio`` 0, their value interpolated from the valid neighbours and
         ``replaced`` True.
     """
-    a, b = _frames(frame_a, frame_b)
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim not in (2, 3) or pts.shape[-1] != 2:
-        raise InvalidInputError(f"points must have shape (N, 2) or (ny, nx, 2), got {pts.shape}")
-    if not np.all(np.isfinite(pts)):
-        raise InvalidInputError("points contain NaN or inf")
-    out_shape = pts.shape[:-1]
-    grid_pts = pts if pts.ndim == 3 else pts[np.newaxis, :, :]
-    x = np.ascontiguousarray(grid_pts[..., 0])
-    y = np.ascontiguousarray(grid_pts[..., 1])
-    if validate is None:
-        validate = pts.ndim == 3
-    if np.ndim(window) == 1:
-        windows = [_window(window)]
-    else:
-        windows = [_window(w) for w in window]
-    kwargs = {}
-    if isinstance(predictor, PivField):
-        if predictor.grid is None:
-            raise InvalidInputError("a PivField predictor must be a grid field (from piv)")
-        kwargs.update(
-            field_grid=predictor.grid,
-            field_u=np.ascontiguousarray(predictor.u, dtype=np.float64),
-            field_v=np.ascontiguousarray(predictor.v, dtype=np.float64),
-        )
-        # masked vectors of the predictor are NaN: fill them with the mean of the field
-        for key in ("field_u", "field_v"):
-            arr = kwargs[key]
-            if not np.all(np.isfinite(arr)):
-                fill = np.nanmean(arr) if np.any(np.isfinite(arr)) else 0.0
-                kwargs[key] = np.where(np.isfinite(arr), arr, fill)
-    elif predictor is not None:
-        p = np.asarray(predictor, dtype=np.float64)
-        if p.shape != pts.shape:
-            raise InvalidInputError(
-                f"predictor shape {p.shape} differs from the points' shape {pts.shape}"
-            )
-        p = p.reshape(grid_pts.shape)
-        kwargs.update(
-            predictor_u=np.ascontiguousarray(p[..., 0]),
-            predictor_v=np.ascontiguousarray(p[..., 1]),
-        )
-    d = _rspiv.piv_at(
-        a,
-        b,
-        x,
-        y,
-        windows,
-        iterations=int(iterations),
-        subpixel=subpixel,
+    windows = [window] if np.ndim(window) == 1 else list(window)
+    settings = PivSettings(
+        passes=tuple(windows),
         interpolation=interpolation,
-        validate=bool(validate),
+        subpixel=subpixel,
         median_eps=median_eps,
         median_threshold=median_threshold,
         min_peak_ratio=min_peak_ratio,
-        mask=_mask(mask, a.shape),
-        **kwargs,
     )
-    return PivField._from_native(d, windows[-1], shape=out_shape)
+    return run_points(
+        frame_a,
+        frame_b,
+        points,
+        list(settings.passes),
+        settings,
+        predictor=predictor,
+        iterations=iterations,
+        validate=validate,
+        mask=mask,
+    )

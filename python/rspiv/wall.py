@@ -20,11 +20,15 @@ windows at 50 % overlap (a vector row every 4 px) the mirror position locks to t
 periodic in the wall's position relative to them (peak to peak 0.06 px at full scale, 0.14 px
 at half scale, 0.6-0.8 px at 0.25-0.3 scale for a window-averaged DNS profile; the viscous length
 is 1.4 px x scale); every 2 px (75 % overlap) it is below 0.05 px at all these scales.
-:func:`wall_table` uses 75 % overlap for the final pass.
+:func:`rspiv.wall_table` uses 75 % overlap for the final pass.
 
-Table 4. :func:`wall_table` measures the wall on the raw frames and on the frames dewarped
-(Method I, as the paper) by each mapping model fitted to the same calibration markers, without
-and with the levelling rotation: :class:`WallTable`, printed by ``rspiv wall``.
+Whole fields. By default :func:`find_wall` finds its own band and station count, so a whole PIV
+field (a boundary layer along one edge, thousands of px of free stream beside it), a list of
+fields or an array of mean profiles can be handed to it as it is: the band is centred on the row
+of smallest mean |u| (the wall, where the particles and their reflections stand still) and as wide
+as the rows with data allow on both sides; above 64 columns they are averaged into 32 stations.
+
+Table 4 (the wall on the raw and the dewarped frames by each model) is :mod:`rspiv.wall_table`.
 
 Coordinates: pixel frame of the README (x = column, y = row, y down). ``angle_deg`` is the wall's
 slope angle in that frame, ``atan(d wall / d x)``; a positive angle means the wall descends (y
@@ -40,14 +44,18 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["Wall", "WallRow", "WallTable", "find_wall", "mirror_shift_positions", "wall_table"]
+__all__ = ["Wall", "auto_band", "find_wall", "mirror_shift_positions"]
+
+#: Above this many columns ``stations="auto"`` averages them into ``AUTO_STATIONS`` stations.
+AUTO_STATION_COLUMNS = 64
+AUTO_STATIONS = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,6 +83,10 @@ class Wall:
     peak_correlation : ndarray, shape (n,)
         Normalised correlation of each station's profile with its flipped copy at the final
         shift (1 for a perfectly mirrored profile).
+    flow_side : {"above", "below"}
+        Where the flow is: ``"above"`` the wall (at smaller y: the wall is in the lower half of
+        the rows with data, e.g. near the bottom edge) or ``"below"`` it; judged from the row of
+        smallest mean |u|.
     """
 
     x_px: np.ndarray
@@ -85,6 +97,7 @@ class Wall:
     max_deviation_px: float
     straightness_px: float
     peak_correlation: np.ndarray
+    flow_side: str = "above"
 
     @property
     def rotation_deg(self) -> float:
@@ -274,13 +287,58 @@ def _robust_inliers(x: np.ndarray, pos: np.ndarray, ok: np.ndarray, k: float | N
     return ok
 
 
+def _wall_row(u: np.ndarray) -> tuple[int, np.ndarray]:
+    """Index of the row of smallest mean |u| (-1 if none) and the indices of the rows with data."""
+    have = np.isfinite(u).any(axis=1)
+    rows = np.flatnonzero(have)
+    if rows.size == 0:
+        return -1, rows
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rows with some NaN are fine
+        prof = np.nanmean(np.abs(u[rows]), axis=1)
+    return int(rows[np.argmin(prof)]), rows
+
+
+def auto_band(u: np.ndarray, y: np.ndarray) -> tuple[tuple[float, float], str]:
+    """The band of rows around the wall, and the flow's side, of a mean-u array.
+
+    The band is centred on the row of smallest mean |u| over the columns (the wall, where the
+    particles and their reflections stand still) and as wide as the rows with data allow on
+    both sides (at least 3 rows each way). The flow is ``"above"`` the wall (smaller y) when that
+    row lies in the lower half of the rows, else ``"below"``.
+
+    Parameters
+    ----------
+    u : ndarray, shape (ny, nx)
+        Mean streamwise displacement, NaN where there is no data; rows sorted by ``y``.
+    y : ndarray, shape (ny,)
+        Row coordinates (px), increasing and equally spaced.
+
+    Returns
+    -------
+    band : (float, float)
+        ``(y0, y1)`` px.
+    flow_side : {"above", "below"}
+    """
+    j, rows = _wall_row(u)
+    if rows.size < 5:
+        raise InvalidInputError(
+            f"find_wall: {rows.size} rows of the field have data; need at least 5"
+        )
+    flow_side = "above" if j > (len(y) - 1) / 2 else "below"
+    half = min(y[j] - y[rows[0]], y[rows[-1]] - y[j])
+    dy = y[1] - y[0] if len(y) > 1 else 1.0
+    half = max(half, 3 * dy)
+    return (float(y[j] - half), float(y[j] + half)), flow_side
+
+
 def find_wall(
     data: Any,
     *,
     y: np.ndarray | None = None,
     x: np.ndarray | None = None,
-    band: tuple[float, float] | None = None,
-    stations: int | None = None,
+    band: tuple[float, float] | str | None = "auto",
+    stations: int | str | None = "auto",
     iterations: int = 8,
     reject: float | None = 3.5,
 ) -> Wall:
@@ -296,12 +354,13 @@ def find_wall(
     y, x : ndarray, optional
         Coordinates (px) of the rows and columns of an array input (default: indices). ``y``
         must be equally spaced.
-    band : (float, float), optional
+    band : "auto", (float, float) or None
         Restrict to rows with ``band[0] <= y <= band[1]`` (px): a band around the wall holding
-        the flow profile and its reflection.
-    stations : int, optional
-        Average the columns into this many streamwise stations (default: one station per
-        column).
+        the flow profile and its reflection. ``"auto"`` (default): :func:`auto_band`, centred on
+        the row of smallest mean |u| and as wide as the rows with data allow; None: every row.
+    stations : "auto", int or None
+        Average the columns into this many streamwise stations. ``"auto"`` (default): one
+        station per column up to 64 columns, else 32 stations; None: one per column.
     iterations : int
         Symmetric-resampling refinement steps (see the module docstring).
     reject : float or None
@@ -317,7 +376,8 @@ def find_wall(
     Raises
     ------
     InvalidInputError
-        Unequally spaced ``y``, too few rows, or no station with a usable profile.
+        Unequally spaced ``y``, too few rows (fewer than 5 with data), or no station with a
+        usable profile.
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices give NaN: handled
@@ -340,6 +400,21 @@ def _find_wall(
         )
     order = np.argsort(yy)
     u, yy = u[order], yy[order]
+    if isinstance(stations, str):
+        if stations != "auto":
+            raise InvalidInputError(
+                f'find_wall: stations must be "auto", an int or None, got {stations!r}'
+            )
+        stations = AUTO_STATIONS if u.shape[1] > AUTO_STATION_COLUMNS else None
+    if isinstance(band, str):
+        if band != "auto":
+            raise InvalidInputError(
+                f'find_wall: band must be "auto", (y0, y1) or None, got {band!r}'
+            )
+        band, flow_side = auto_band(u, yy)
+    else:
+        j, _ = _wall_row(u)
+        flow_side = "above" if j > (len(yy) - 1) / 2 else "below"
     if band is not None:
         keep = (yy >= min(band)) & (yy <= max(band))
         u, yy = u[keep], yy[keep]
@@ -391,273 +466,5 @@ def _find_wall(
         max_deviation_px=float(np.ptp(pos[ok])),
         straightness_px=float(np.max(np.abs(resid))),
         peak_correlation=rho,
+        flow_side=flow_side,
     )
-
-
-# -- the paper's Table 4 --------------------------------------------------------------------------
-
-DEFAULT_PASSES: tuple[tuple[int, int], ...] = ((64, 64), (32, 32), (32, 8))
-#: Overlap per pass for the wall: the final 32 x 8 px windows at 75 % overlap put a vector row
-#: every 2 px. At 4 px (50 %) the near-wall profile (viscous length ~1.4 px x scale) is
-#: under-sampled and the mirror position locks to the vector rows: a periodic error of the
-#: wall's phase relative to the rows, +-0.03 px at full scale but +-0.3 px at 0.3 scale, which
-#: biases the angle low when the wall crosses less than one row spacing over the frame.
-DEFAULT_OVERLAP: tuple[float, ...] = (0.5, 0.5, 0.75)
-
-
-@dataclasses.dataclass(frozen=True)
-class WallRow:
-    """One condition of :class:`WallTable`.
-
-    Attributes
-    ----------
-    condition : str
-        ``"distorted"``, ``"R2"``, ``"R2 + rotation"``, ``"P3"``, ``"P3 + rotation"`` (the
-        model name upper-cased).
-    model : str or None
-        Mapping model of the dewarping (None: the raw frames).
-    rotation_deg : float
-        Rotation added to the calibration for this row (0 for the unrotated rows), degrees,
-        :attr:`Wall.rotation_deg` of the model's unrotated row.
-    wall : Wall
-        The wall found on the (dewarped) frames.
-    """
-
-    condition: str
-    model: str | None
-    rotation_deg: float
-    wall: Wall
-
-    @property
-    def max_deviation_px(self) -> float:
-        """Maximum deviation from the straight and horizontal position (px; Table 4)."""
-        return self.wall.max_deviation_px
-
-    @property
-    def angle_deg(self) -> float:
-        """Angle of the fitted wall line (degrees, pixel frame)."""
-        return self.wall.angle_deg
-
-
-@dataclasses.dataclass(frozen=True)
-class WallTable:
-    """The run's version of the paper's Table 4 (:func:`wall_table`).
-
-    Attributes
-    ----------
-    rows : tuple of WallRow
-        ``distorted`` first, then for each model its dewarped row and its rotated row.
-    mappings : dict of str -> Mapping
-        The mapping of every corrected row, by condition (the rotated rows' mappings include
-        the levelling rotation: ``mappings["P3 + rotation"]`` is the calibration to use).
-    method : str
-        How the corrected rows were measured: ``"images"`` (Method I, the frames dewarped
-        before the PIV, as the paper's Table 4).
-    """
-
-    rows: tuple[WallRow, ...]
-    mappings: dict[str, Any]
-    method: str = "images"
-
-    def __getitem__(self, condition: str) -> WallRow:
-        for r in self.rows:
-            if r.condition.lower() == condition.lower():
-                return r
-        raise KeyError(f"no row {condition!r}; rows: {[r.condition for r in self.rows]}")
-
-    @property
-    def walls(self) -> dict[str, Wall]:
-        """``{condition: Wall}`` in row order (for :func:`rspiv.plots.wall.wall_shape`)."""
-        return {r.condition: r.wall for r in self.rows}
-
-    @property
-    def best(self) -> WallRow:
-        """The row with the smallest maximum deviation."""
-        return min(self.rows, key=lambda r: r.max_deviation_px)
-
-    def format(self) -> str:
-        """The table as text: condition, max deviation (px), angle (deg), straightness (px),
-        valid stations."""
-        lines = [
-            f"{'condition':16s} {'max deviation [px]':>18s} {'angle [deg]':>12s} "
-            f"{'straightness [px]':>17s} {'stations':>9s}"
-        ]
-        for r in self.rows:
-            w = r.wall
-            lines.append(
-                f"{r.condition:16s} {w.max_deviation_px:18.3f} {w.angle_deg:+12.5f} "
-                f"{w.straightness_px:17.3f} {int(w.valid.sum()):4d} / {len(w.valid):<4d}"
-            )
-        return "\n".join(lines)
-
-
-def refit(calibration: Any, model: str) -> Any:
-    """The calibration's markers fitted with another mapping ``model`` (same object points,
-    central marker and normalising scale): a new :class:`rspiv.Calibration` whose ``model``
-    and ``mapping`` are the refit (its rotation is not carried over)."""
-    from rspiv.calibration import Calibration
-    from rspiv.mapping import fit_mapping
-
-    if not isinstance(calibration, Calibration):
-        raise InvalidInputError(
-            f"refitting model {model!r} needs a Calibration (with its markers), "
-            f"got {type(calibration).__name__}"
-        )
-    mk = calibration.markers
-    m = fit_mapping(
-        mk.object_px, mk.image_px, model, center_index=mk.centre, scale=calibration.mapping.scale
-    )
-    new = Calibration(**calibration._fields())
-    new.mapping = m
-    new.model = m.model
-    new.model_reason = f"refitted from the markers of a {calibration.model} calibration"
-    return new
-
-
-def _pair_frames(pair: Any) -> tuple[np.ndarray, np.ndarray]:
-    from rspiv.calibration import read_image
-
-    if len(pair) < 2:
-        raise InvalidInputError("wall_table: every pair must hold two frames (A, B)")
-    a, b = read_image(pair[0]), read_image(pair[1])
-    if a.shape != b.shape:
-        raise InvalidInputError(
-            f"wall_table: frames of a pair differ in shape: {a.shape}, {b.shape}"
-        )
-    return a, b
-
-
-def wall_table(
-    pairs: Sequence[Any],
-    calibration: Any = None,
-    *,
-    models: Sequence[str] | None = ("r2", "p3"),
-    band: tuple[float, float] | None = None,
-    stations: int | None = 16,
-    passes: Sequence[tuple[int, int]] = DEFAULT_PASSES,
-    overlap: float | Sequence[float] | None = None,
-    iterations: int = 8,
-    reject: float | None = 3.5,
-    progress: Callable[[str], None] | None = None,
-) -> WallTable:
-    """The paper's Table 4 for a run: the wall on the raw frames and on the frames dewarped by
-    each model, without and with the levelling rotation.
-
-    As in the paper (section 3.2, Table 4, Fig. 8) the corrected rows come from Method I: each
-    pair is dewarped with the model's mapping, PIV runs on the dewarped frames (object px), and
-    :func:`find_wall` finds the wall from the reflection symmetry. The rotated row of a model
-    dewarps with its mapping rotated by :attr:`Wall.rotation_deg` of that model's unrotated row.
-
-    Parameters
-    ----------
-    pairs : sequence of (frame_a, frame_b)
-        Frame pairs (arrays or image files) holding the wall and the particles' reflection.
-    calibration : Calibration or Mapping, optional
-        None: the distorted row only. A :class:`rspiv.Calibration`: every model of ``models``
-        is fitted to its markers (R2 and P3 from the same markers, :func:`refit`); its own
-        rotation is not used (the table measures it). A :class:`rspiv.Mapping` (or a
-        Calibration with ``models=None``): that mapping only, as it is.
-    models : sequence of {"r1", "r2", "p3"} or None
-        Models of the corrected rows, in row order.
-    band : (float, float), optional
-        Rows (px) holding the flow profile and its reflection, passed to :func:`find_wall`;
-        the PIV then runs only on these rows plus the largest window height on either side.
-        Default: the whole frame.
-    stations, iterations, reject
-        As for :func:`find_wall`.
-    passes, overlap
-        PIV windows (coarse to fine, ``(w, h)`` px) and overlap (one value, or one per pass) of
-        :func:`rspiv.piv`. Default overlap: 0.5, and 0.75 for the last pass, which samples the
-        profile every 2 px with 8 px high windows: coarser rows lock the wall position to them
-        (see ``DEFAULT_OVERLAP``).
-    progress : callable, optional
-        Called with a short message before each condition.
-
-    Returns
-    -------
-    WallTable
-        For a Mapping input the unrotated row uses the mapping as it is (its own rotation
-        included) and the rotated row adds the measured rotation to it.
-
-    Raises
-    ------
-    InvalidInputError
-        No pairs, unreadable frames, frames of different shapes, a band outside the frames,
-        a model that cannot be refitted.
-    """
-    from rspiv.dewarp import check_calibration_shape, dewarp
-    from rspiv.method2 import _mapping_of
-    from rspiv.piv import piv
-
-    if len(pairs) == 0:
-        raise InvalidInputError("wall_table: no frame pairs")
-    frames = [_pair_frames(p) for p in pairs]
-    shape = frames[0][0].shape
-    for a, _ in frames:
-        if a.shape != shape:
-            raise InvalidInputError(f"wall_table: frames of shape {a.shape} and {shape} mixed")
-    passes = [tuple(int(t) for t in p) for p in passes]
-    if not passes:
-        raise InvalidInputError("wall_table: passes is empty")
-    if overlap is None:
-        overlap = [0.5] * (len(passes) - 1) + [0.75]
-    if np.ndim(overlap) == 0:
-        overlap = [float(overlap)] * len(passes)  # type: ignore[arg-type]
-    overlaps = [float(v) for v in overlap]  # type: ignore[union-attr]
-    if len(overlaps) != len(passes):
-        raise InvalidInputError(f"wall_table: {len(overlaps)} overlaps for {len(passes)} passes")
-    h = shape[0]
-    if band is not None:
-        y0, y1 = sorted(float(v) for v in band)
-        pad = max(p[1] for p in passes)
-        r0 = max(0, int(np.floor(y0)) - pad)
-        r1 = min(h, int(np.ceil(y1)) + pad + 1)
-        if r1 - r0 < max(p[1] for p in passes) or y1 < 0 or y0 > h - 1:
-            raise InvalidInputError(f"wall_table: band {band} lies outside the {h}-row frames")
-        band_t: tuple[float, float] | None = (y0, y1)
-    else:
-        r0, r1, band_t = 0, h, None
-
-    # The mappings, by model.
-    conditions: list[tuple[str, str, Any]] = []  # (condition, model, mapping) unrotated
-    if calibration is not None:
-        if models is None or not hasattr(calibration, "markers"):
-            m = _mapping_of(calibration)
-            conditions.append((m.model.upper(), m.model, m))
-        else:
-            for model in models:
-                c = refit(calibration, str(model).lower())
-                conditions.append((c.model.upper(), c.model, c.mapping))
-        if hasattr(calibration, "image_shape"):
-            check_calibration_shape(calibration, shape, "frames")
-
-    def find(mapping: Any) -> Wall:
-        fields = []
-        for a, b in frames:
-            if mapping is not None:
-                a, b = dewarp(a, mapping), dewarp(b, mapping)
-            a = np.ascontiguousarray(a[r0:r1])
-            b = np.ascontiguousarray(b[r0:r1])
-            f = piv(a, b, passes, overlap=overlaps)
-            fields.append(dataclasses.replace(f, y=f.y + r0))
-        return find_wall(fields, band=band_t, stations=stations, iterations=iterations,
-                         reject=reject)  # fmt: skip
-
-    def say(msg: str) -> None:
-        if progress is not None:
-            progress(msg)
-
-    say("distorted")
-    rows = [WallRow("distorted", None, 0.0, find(None))]
-    mappings: dict[str, Any] = {}
-    for name, model, m in conditions:
-        say(name)
-        w = find(m)
-        rows.append(WallRow(name, model, 0.0, w))
-        mappings[name] = m
-        rot = w.rotation_deg
-        mr = m.rotated(rot)
-        say(f"{name} + rotation ({rot:+.5f} deg)")
-        rows.append(WallRow(f"{name} + rotation", model, rot, find(mr)))
-        mappings[f"{name} + rotation"] = mr
-    return WallTable(rows=tuple(rows), mappings=mappings)

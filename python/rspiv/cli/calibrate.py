@@ -14,8 +14,9 @@ import pathlib
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from rspiv.calibration import calibrate, read_image
+    from rspiv.calibration import calibrate
     from rspiv.errors import InvalidInputError
+    from rspiv.io import read_image
 
     out = pathlib.Path(args.output)
     if not out.parent.is_dir():

@@ -15,9 +15,10 @@ import pathlib
 def _dewarp(args: argparse.Namespace) -> int:
     import tifffile
 
-    from rspiv.calibration import Calibration, read_image
+    from rspiv.calibration import Calibration
     from rspiv.dewarp import dewarp
     from rspiv.errors import InvalidInputError
+    from rspiv.io import read_image
 
     out_dir = pathlib.Path(args.output)
     if not out_dir.is_dir():

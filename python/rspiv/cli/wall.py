@@ -5,7 +5,7 @@
   [--write-rotated calib2.json]``: PIV of each pair on the raw frames and on the frames
   dewarped (Method I, as the paper) by each model fitted to the calibration's markers, without
   and with the levelling rotation; the wall from the reflection symmetry of the mean profile;
-  prints the maximum deviation (px) and angle (deg) per condition (:func:`rspiv.wall.wall_table`)
+  prints the maximum deviation (px) and angle (deg) per condition (:func:`rspiv.wall_table.wall_table`)
   and writes the wall-shape figure. ``--write-rotated`` writes the calibration (its own model)
   with the rotation measured for that model.
 """
@@ -18,7 +18,7 @@ import argparse
 def _wall(args: argparse.Namespace) -> int:
     from rspiv.calibration import Calibration
     from rspiv.errors import InvalidInputError
-    from rspiv.wall import refit, wall_table
+    from rspiv.wall_table import refit, wall_table
 
     if len(args.frames) % 2:
         raise InvalidInputError("wall: give frames in pairs (A B [A B ...])")

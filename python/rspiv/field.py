@@ -1,0 +1,110 @@
+"""The PIV vector field: :class:`PivField`, what every PIV function of rspiv returns.
+
+Coordinates follow the pixel frame of the README: x = column (right), y = row (down), origin at
+the centre of the top-left pixel; displacements ``u`` (along x) and ``v`` (along y, positive
+downward) are in pixels (object px for a corrected field).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["PivField"]
+
+
+@dataclass(frozen=True)
+class PivField:
+    """A PIV vector field; every array has the same 2D shape ``(ny, nx)``.
+
+    Attributes
+    ----------
+    x, y : ndarray of float64
+        Window centres, px (pixel frame).
+    u, v : ndarray of float64
+        Displacement along x (right) and y (down), px. Replaced vectors hold the interpolated
+        value; vectors not computed (``masked``) are NaN.
+    valid : ndarray of bool
+        Passed the final validation (correlation found, median test, peak ratio).
+    replaced : ndarray of bool
+        Rejected by the final validation and replaced from the neighbours.
+    masked : ndarray of bool
+        Not computed: centre inside the mask or outside the image.
+    peak_ratio : ndarray of float64
+        Highest correlation peak over the second-highest (capped at 1000).
+    coef : ndarray of float64
+        Correlation coefficient: height of the normalised correlation peak.
+    window : tuple of int
+        Final window ``(w, h)`` in px (w along x).
+    grid : tuple of float or None
+        ``(x0, y0, dx, dy)`` of the regular grid (``x = x0 + i dx``), None for :func:`piv_at`.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    valid: np.ndarray
+    replaced: np.ndarray
+    masked: np.ndarray
+    peak_ratio: np.ndarray
+    coef: np.ndarray
+    window: tuple[int, int]
+    grid: tuple[float, float, float, float] | None
+
+    @classmethod
+    def _from_native(cls, d: dict, window: tuple[int, int], shape=None) -> PivField:
+        keys = ("x", "y", "u", "v", "valid", "replaced", "masked", "peak_ratio", "coef")
+        arrays = {k: d[k] if shape is None else d[k].reshape(shape) for k in keys}
+        grid = None if d["grid"] is None else tuple(float(g) for g in d["grid"])
+        return cls(**arrays, window=tuple(window), grid=grid)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Shape of the vector arrays."""
+        return self.u.shape
+
+    def to_xarray(self):
+        """The field as an :class:`xarray.Dataset` compatible with pivpy.
+
+        Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
+        ``peak_ratio``, ``coef``, ``valid``, ``replaced``, ``masked``; dims ``(y, x)``. For a
+        grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
+        arbitrary points (:func:`piv_at`) the dims are indexed 0..n-1 and the positions are the
+        2D coordinates ``x_px``, ``y_px``.
+        """
+        import xarray as xr
+
+        chc = np.where(self.masked, -1, np.where(self.valid, 1, 0)).astype(np.int8)
+        dims = ("y", "x")
+        data = {
+            "u": (dims, self.u, {"units": "pix", "long_name": "displacement along x"}),
+            "v": (dims, self.v, {"units": "pix", "long_name": "displacement along y (down)"}),
+            "chc": (dims, chc, {"long_name": "1 valid, 0 replaced, -1 not computed"}),
+            "peak_ratio": (dims, self.peak_ratio),
+            "coef": (dims, self.coef),
+            "valid": (dims, self.valid),
+            "replaced": (dims, self.replaced),
+            "masked": (dims, self.masked),
+        }
+        if self.grid is not None:
+            coords = {
+                "x": ("x", self.x[0, :], {"units": "pix"}),
+                "y": ("y", self.y[:, 0], {"units": "pix"}),
+            }
+        else:
+            coords = {
+                "x_px": (dims, self.x, {"units": "pix"}),
+                "y_px": (dims, self.y, {"units": "pix"}),
+            }
+        ds = xr.Dataset(data, coords=coords)
+        ds.attrs.update(
+            {
+                "variables": "['x', 'y', 'u', 'v']",
+                "units": "['pix', 'pix', 'pix/dt', 'pix/dt']",
+                "window_w_h_px": list(self.window),
+                "conventions": "pixel frame: x right, y down, origin at the top-left pixel centre",
+            }
+        )
+        return ds
