@@ -29,7 +29,16 @@ from typing import Any
 
 import numpy as np
 
+from rspiv.boundary_layer import profile_from_accumulator
+from rspiv.campaign import Campaign
+from rspiv.campaign_config import CampaignConfig
+from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import atomic_write_text, write_netcdf
+from rspiv.report import ReportSection, ReportTable
+from rspiv.stats import FieldAccumulator
+from rspiv.synth.target import PAPER_OPTICS, calibration_target, paper_lens
+from rspiv.synth.tbl import TBLFlow, tbl_pair
 
 __all__ = [
     "DemoScene",
@@ -83,7 +92,6 @@ class DemoScene:
     passes: tuple[tuple[int, int], ...] = ((64, 64), (32, 32), (32, 8))
 
     def flow(self):
-        from rspiv.synth.tbl import TBLFlow
 
         return TBLFlow(re_tau=2386.0 * self.scale, u_inf=9.64, delta99_mm=103.0 * self.scale)
 
@@ -91,14 +99,12 @@ class DemoScene:
         """The paper's lens on this sensor with the paper's distortion *in px* (about 9 px at
         the corners, like the 47 MP sensor): :func:`rspiv.synth.paper_lens` with its
         coefficients divided by ``scale``."""
-        from rspiv.synth.target import paper_lens
 
         base = paper_lens(self.optics())
         s = self.scale
         return dataclasses.replace(base, k1=base.k1 / s, p1=base.p1 / s, p2=base.p2 / s)
 
     def optics(self):
-        from rspiv.synth.target import PAPER_OPTICS
 
         o = PAPER_OPTICS.scaled(self.scale)
         return dataclasses.replace(
@@ -166,12 +172,6 @@ def synth_campaign(
     """
     import tifffile
 
-    from rspiv.campaign_config import CampaignConfig
-    from rspiv.correction import grid_for_windows
-    from rspiv.outputs import atomic_write_text, write_netcdf
-    from rspiv.stats import FieldAccumulator
-    from rspiv.synth.target import calibration_target
-    from rspiv.synth.tbl import tbl_pair
 
     if pairs is not None:
         scene = dataclasses.replace(scene, pairs=int(pairs))
@@ -282,8 +282,6 @@ def _truth(directory: pathlib.Path) -> dict[str, Any]:
 def _filtered_profile(directory: pathlib.Path, info: dict[str, Any]):
     import xarray as xr
 
-    from rspiv.boundary_layer import profile_from_accumulator
-    from rspiv.stats import FieldAccumulator
 
     with xr.open_dataset(pathlib.Path(directory) / "truth_filtered.nc", engine="h5netcdf") as ds:
         acc = FieldAccumulator.from_xarray(ds.load())
@@ -325,7 +323,6 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
     u_tau error; the uu+ peak and the Reynolds stresses away from the wall are compared with the
     exact field averaged over the final window.
     """
-    from rspiv.synth.tbl import TBLFlow
 
     directory = pathlib.Path(directory)
     info = _truth(directory)
@@ -529,8 +526,6 @@ def run_demo(
     """Synthesise the default campaign into ``out``, process it (Method II, Method I and the
     uncorrected processing), add the verdict table to the report and return
     ``(CampaignResult, verdict rows)``."""
-    from rspiv.campaign import Campaign
-    from rspiv.report import ReportSection, ReportTable
 
     out = pathlib.Path(out)
     t0 = time.perf_counter()

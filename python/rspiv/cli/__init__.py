@@ -8,6 +8,9 @@ import argparse
 import importlib
 import sys
 
+from rspiv import __version__
+from rspiv.errors import RspivError
+
 # Sub-command modules, in the order they appear in ``rspiv --help``.
 _COMMANDS: list[str] = [
     # "rspiv.cli.<name>" modules are appended here by each feature.
@@ -24,7 +27,6 @@ _COMMANDS: list[str] = [
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from rspiv import __version__
 
     parser = argparse.ArgumentParser(
         prog="rspiv",
@@ -40,7 +42,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rspiv`` command; returns the exit code."""
-    from rspiv.errors import RspivError
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -12,11 +12,13 @@ from __future__ import annotations
 import argparse
 import pathlib
 
+from rspiv.calibration import Calibration, calibrate
+from rspiv.errors import InvalidInputError
+from rspiv.io import read_image
+from rspiv.montecarlo import monte_carlo
+
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from rspiv.calibration import calibrate
-    from rspiv.errors import InvalidInputError
-    from rspiv.io import read_image
 
     out = pathlib.Path(args.output)
     if not out.parent.is_dir():
@@ -36,7 +38,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     cal.save(out)
     print(f"wrote {out}")
     if args.plots:
-        from rspiv.plots.calibration import write_all
+        from rspiv.plots.calibration import write_all  # deferred: matplotlib
 
         for p in write_all(args.plots, cal, image):
             print(f"wrote {p}")
@@ -44,8 +46,6 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _montecarlo(args: argparse.Namespace) -> int:
-    from rspiv.calibration import Calibration
-    from rspiv.montecarlo import monte_carlo
 
     cal = Calibration.load(args.calibration)
     res = monte_carlo(
@@ -61,7 +61,7 @@ def _montecarlo(args: argparse.Namespace) -> int:
     )
     print(res.summary())
     if args.plots:
-        from rspiv.plots.calibration import monte_carlo_jpdfs
+        from rspiv.plots.calibration import monte_carlo_jpdfs  # deferred: matplotlib
 
         d = pathlib.Path(args.plots)
         d.mkdir(parents=True, exist_ok=True)

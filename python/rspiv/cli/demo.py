@@ -7,9 +7,10 @@ import argparse
 import dataclasses
 import time
 
+from rspiv.demo import DEFAULT_SCENE, format_verdicts, run_demo
+
 
 def _demo(args: argparse.Namespace) -> int:
-    from rspiv.demo import DEFAULT_SCENE, format_verdicts, run_demo
 
     scene = DEFAULT_SCENE
     if args.pairs is not None:

@@ -11,14 +11,15 @@ from __future__ import annotations
 import argparse
 import pathlib
 
+from rspiv.calibration import Calibration
+from rspiv.dewarp import dewarp
+from rspiv.errors import InvalidInputError
+from rspiv.io import read_image
+
 
 def _dewarp(args: argparse.Namespace) -> int:
     import tifffile
 
-    from rspiv.calibration import Calibration
-    from rspiv.dewarp import dewarp
-    from rspiv.errors import InvalidInputError
-    from rspiv.io import read_image
 
     out_dir = pathlib.Path(args.output)
     if not out_dir.is_dir():

@@ -18,6 +18,7 @@ import tempfile
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.mapping import Mapping, fit_mapping
 
 
 def _read_csv(path: str, cols: list[str]) -> np.ndarray:
@@ -83,7 +84,6 @@ def _write_csv(path: str | None, pts: np.ndarray) -> None:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from rspiv.mapping import fit_mapping
 
     data = _read_csv(args.points, ["x_obj", "y_obj", "x_img", "y_img"])
     try:
@@ -102,7 +102,6 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _map(args: argparse.Namespace) -> int:
-    from rspiv.mapping import Mapping
 
     m = Mapping.load(args.mapping)
     pts = _read_csv(args.points, ["x", "y"])

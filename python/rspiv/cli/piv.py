@@ -6,7 +6,9 @@ import argparse
 import os
 import pathlib
 
+import rspiv
 from rspiv.errors import InvalidInputError
+from rspiv.io import read_pair
 
 
 def _passes(text: str) -> list[tuple[int, int]]:
@@ -21,8 +23,6 @@ def _passes(text: str) -> list[tuple[int, int]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import rspiv
-    from rspiv.io import read_pair
 
     a, b = read_pair(args.frame_a, args.frame_b)
     field = rspiv.piv(

@@ -10,9 +10,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
+from rspiv.demo import DEFAULT_SCENE, synth_campaign
+
 
 def _campaign(args: argparse.Namespace) -> int:
-    from rspiv.demo import DEFAULT_SCENE, synth_campaign
 
     scene = DEFAULT_SCENE
     if args.seed is not None:

@@ -5,20 +5,21 @@
   [--write-rotated calib2.json]``: PIV of each pair on the raw frames and on the frames
   dewarped (Method I, as the paper) by each model fitted to the calibration's markers, without
   and with the levelling rotation; the wall from the reflection symmetry of the mean profile;
-  prints the maximum deviation (px) and angle (deg) per condition (:func:`rspiv.wall_table.wall_table`)
-  and writes the wall-shape figure. ``--write-rotated`` writes the calibration (its own model)
-  with the rotation measured for that model.
+  prints the maximum deviation (px) and angle (deg) per condition
+  (:func:`rspiv.wall_table.wall_table`) and writes the wall-shape figure. ``--write-rotated``
+  writes the calibration (its own model) with the rotation measured for that model.
 """
 
 from __future__ import annotations
 
 import argparse
 
+from rspiv.calibration import Calibration
+from rspiv.errors import InvalidInputError
+from rspiv.wall_table import refit, wall_table
+
 
 def _wall(args: argparse.Namespace) -> int:
-    from rspiv.calibration import Calibration
-    from rspiv.errors import InvalidInputError
-    from rspiv.wall_table import refit, wall_table
 
     if len(args.frames) % 2:
         raise InvalidInputError("wall: give frames in pairs (A B [A B ...])")
@@ -40,7 +41,7 @@ def _wall(args: argparse.Namespace) -> int:
     print(f"{len(pairs)} pair(s); Method I (frames dewarped before the PIV) as the paper's Table 4")
     print(table.format())
     if args.figure:
-        from rspiv.plots.wall import wall_shape
+        from rspiv.plots.wall import wall_shape  # deferred: matplotlib
 
         out = wall_shape(table.walls, args.figure)
         print(f"wall shape (paper Fig. 8) -> {out}")

@@ -55,6 +55,7 @@ import numpy.typing as npt
 
 from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
+from rspiv.reference import load_dns
 from rspiv.synth.target import PAPER_OPTICS, LensDistortion, paper_lens
 
 __all__ = ["TBLFlow", "TBLTruth", "tbl_pair", "tbl_scene", "load_profile"]
@@ -66,7 +67,6 @@ _MATCH = 0.1  # y / delta99 where U_inf+ is matched
 
 def load_profile(re_theta: float = 4060) -> Any:
     """The DNS station used for the composite (``rspiv.reference.load_dns``)."""
-    from rspiv.reference import load_dns
 
     return load_dns(re_theta)
 
