@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 
 import numpy as np
@@ -78,3 +79,41 @@ def test_engine_binary_piv(pair_files, tmp_path, engine):
         text=True,
     )
     assert r.returncode == 2 and "nope.tif" in r.stderr
+
+
+def test_read_image_checks_arrays_by_the_file_rules():
+    """One reader: arrays pass through the same rules as files."""
+    img = read_image(np.arange(12, dtype=np.int32).reshape(3, 4))
+    assert img.dtype == np.float64 and img.flags.c_contiguous
+    u16 = np.zeros((3, 4), np.uint16)
+    assert read_image(u16).dtype == np.uint16
+    with pytest.raises(rspiv.InvalidInputError, match="NaN"):
+        read_image(np.full((3, 4), np.nan, np.float32))
+    with pytest.raises(rspiv.InvalidInputError, match="2D"):
+        read_image(np.zeros((2, 3, 5)))
+
+
+def test_cli_piv_settings_file_and_flags_share_the_vocabulary(pair_files, tmp_path):
+    """``--settings FILE.json`` holds rspiv.PivSettings keys; flags given override them."""
+    d, a, b = pair_files
+    s = rspiv.PivSettings(passes=((64, 64), (32, 32)), overlap=(0.5, 0.75), subpixel="GAUSS2D")
+    assert s.subpixel == "gauss2d" and rspiv.PivSettings.from_dict(s.to_dict()) == s
+    path = tmp_path / "piv.json"
+    path.write_text(s.to_json())
+    out = tmp_path / "f.nc"
+    assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(out), "--settings",
+                 str(path)]) == 0  # fmt: skip
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    ref = rspiv.piv(a, b, settings=s)
+    np.testing.assert_array_equal(ds.u.values, ref.u)
+    assert rspiv.PivSettings.from_dict(json.loads(ds.attrs["piv_settings"])) == s
+    # a flag overrides its key of the file
+    assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(out), "--settings",
+                 str(path), "--subpixel", "gauss3"]) == 0  # fmt: skip
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    ref = rspiv.piv(a, b, settings=s.replace(subpixel="gauss3"))
+    np.testing.assert_array_equal(ds.u.values, ref.u)
+    # an unknown key, a correction method without a calibration: one-line errors, exit 2
+    path.write_text('{"passes": [[32, 32]], "median_epsilon": 0.1}')
+    assert main(["piv", str(d / "a.tif"), "-o", str(out), "--settings", str(path)]) == 2
+    assert main(["piv", str(d / "a.tif"), "-o", str(out), "--method", "I"]) == 2

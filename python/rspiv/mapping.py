@@ -33,8 +33,9 @@ import numpy.typing as npt
 
 from rspiv import _rspiv
 from rspiv.errors import ConvergenceError, InvalidInputError
+from rspiv.settings import MODELS as SETTINGS_MODELS
 
-MODELS = ("r1", "r2", "p3")
+MODELS = SETTINGS_MODELS  # the one vocabulary (rspiv.settings)
 
 __all__ = ["MODELS", "Mapping", "fit_mapping"]
 

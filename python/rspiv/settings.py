@@ -31,6 +31,9 @@ any case (:func:`normalise_model`).
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
+import pathlib
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -225,6 +228,26 @@ class PivSettings:
                 f"known: {', '.join(sorted(known))}"
             )
         return cls(**dict(d))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> PivSettings:
+        """Settings from a JSON file of vocabulary keys (what :meth:`to_dict` writes, and what
+        ``rspiv-engine piv --settings`` reads). InvalidInputError naming the file for a
+        missing or malformed file or an unknown key."""
+        p = pathlib.Path(path)
+        try:
+            d = json.loads(p.read_text())
+        except OSError as exc:
+            raise InvalidInputError(f"{p}: cannot read the PIV settings: {exc}") from exc
+        except ValueError as exc:
+            raise InvalidInputError(f"{p}: not valid JSON: {exc}") from exc
+        if not isinstance(d, dict):
+            raise InvalidInputError(f"{p}: PIV settings must be a JSON object of keys")
+        return cls.from_dict(d, where=str(p))
+
+    def to_json(self) -> str:
+        """The settings as JSON text (:meth:`to_dict`)."""
+        return json.dumps(self.to_dict(), indent=2)
 
     def native(self) -> dict[str, Any]:
         """Keyword arguments of the native multipass functions (per-pass lists spelled out)."""

@@ -1,14 +1,49 @@
-"""``rspiv piv A.tif B.tif -o field.nc``: multipass PIV of one image pair to NetCDF."""
+"""``rspiv piv A.tif B.tif -o field.nc``: multipass PIV of one image pair to NetCDF.
+
+With ``--calibration cal.json`` the distortion is corrected (``--method II``, the default, maps
+the vectors; ``--method I`` dewarps the images first): the field is then on the object grid, in
+object px. The flags, and the keys of ``--settings FILE.json``, are the one vocabulary of
+:class:`rspiv.PivSettings` (shared with the campaign file and ``rspiv-engine piv``).
+"""
 
 from __future__ import annotations
 
 import argparse
 import os
 import pathlib
+from typing import Any
 
 import rspiv
+from rspiv.calibration import Calibration
+from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_pair
+from rspiv.settings import (
+    DEFORMATIONS,
+    INTERPOLATIONS,
+    MAPPING_MODES,
+    SUBPIXELS,
+    PivSettings,
+    parse_method,
+)
+
+_SCALAR_KEYS = (
+    "deformation",
+    "interpolation",
+    "subpixel",
+    "validate",
+    "median_eps",
+    "median_threshold",
+    "min_peak_ratio",
+)
+
+
+def _numbers(text: str, cast: Any, flag: str) -> Any:
+    try:
+        vals = [cast(v) for v in text.split(",")]
+    except ValueError as exc:
+        raise InvalidInputError(f"{flag}: {text!r} is not a number or a list of them") from exc
+    return vals[0] if len(vals) == 1 else tuple(vals)
 
 
 def _passes(text: str) -> list[tuple[int, int]]:
@@ -22,20 +57,45 @@ def _passes(text: str) -> list[tuple[int, int]]:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
+def settings_from_args(args: argparse.Namespace) -> PivSettings:
+    """The PIV settings of the command line: ``--settings FILE.json`` (or the defaults), with
+    every flag given explicitly overriding its key."""
+    base = PivSettings.load(args.settings) if args.settings else PivSettings()
+    changes: dict[str, Any] = {}
+    if args.passes is not None:
+        changes["passes"] = _passes(args.passes)
+    for key in _SCALAR_KEYS:
+        value = getattr(args, key)
+        if value is not None:
+            changes[key] = value
+    if args.overlap is not None:
+        changes["overlap"] = _numbers(args.overlap, float, "--overlap")
+    if args.iterations is not None:
+        changes["iterations"] = _numbers(args.iterations, int, "--iterations")
+    return base.replace(**changes) if changes else base
 
+
+def run(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
     a, b = read_pair(args.frame_a, args.frame_b)
-    field = rspiv.piv(
-        a,
-        b,
-        passes=_passes(args.passes),
-        overlap=args.overlap,
-        deformation=args.deformation,
-        iterations=args.iterations,
-    )
+    if args.calibration is not None:
+        method = parse_method(args.method or "II")
+        if method == "none":
+            field = rspiv.piv(a, b, settings=settings)
+        else:
+            cal = Calibration.load(args.calibration)
+            field = correct(a, b, cal, method, settings, mapping=args.mapping)
+    elif args.method is not None and parse_method(args.method) != "none":
+        raise InvalidInputError(f"--method {args.method} needs --calibration")
+    else:
+        field = rspiv.piv(a, b, settings=settings)
     ds = field.to_xarray()
     ds.attrs["frame_a"] = str(args.frame_a)
     ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
+    ds.attrs["piv_settings"] = settings.to_json()
+    if args.calibration is not None:
+        ds.attrs["calibration"] = str(args.calibration)
+        ds.attrs["method"] = parse_method(args.method or "II")
     out = pathlib.Path(args.output)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
@@ -57,13 +117,32 @@ def register(sub) -> None:
         "piv",
         help="multipass PIV of an image pair -> NetCDF",
         description="Multipass FFT PIV of an image pair (pixel frame, px). Windows WxH are W px "
-        "along x (columns) by H px along y (rows).",
+        "along x (columns) by H px along y (rows). The settings are rspiv.PivSettings: the same "
+        "keys in --settings JSON, the campaign file's [piv] and rspiv-engine piv.",
     )
     p.add_argument("frame_a", help="first frame (TIFF/PNG/BMP), or a two-frame TIFF")
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
     p.add_argument("-o", "--output", required=True, help="output NetCDF file (.nc)")
-    p.add_argument("--passes", default="64x64,32x32,32x8", help="window sizes WxH per pass")
-    p.add_argument("--overlap", type=float, default=0.5, help="fractional overlap (0.5)")
-    p.add_argument("--deformation", default="symmetric", choices=["symmetric", "offset"])
-    p.add_argument("--iterations", type=int, default=1, help="iterations per pass")
+    p.add_argument("--settings", default=None, help="PIV settings JSON (PivSettings.to_dict)")
+    p.add_argument("--passes", default=None, help="window sizes WxH per pass (64x64,32x32,32x8)")
+    p.add_argument("--overlap", default=None, help="fractional overlap, one or one per pass (0.5)")
+    p.add_argument("--iterations", default=None, help="iterations, one or one per pass (1)")
+    p.add_argument("--deformation", default=None, type=str.lower, choices=DEFORMATIONS)
+    p.add_argument("--interpolation", default=None, type=str.lower, choices=INTERPOLATIONS)
+    p.add_argument("--subpixel", default=None, type=str.lower, choices=SUBPIXELS)
+    p.add_argument(
+        "--validate", default=None, action=argparse.BooleanOptionalAction,
+        help="normalised median test with replacement (default on)",
+    )  # fmt: skip
+    p.add_argument("--median-eps", dest="median_eps", type=float, default=None, help="px (0.1)")
+    p.add_argument("--median-threshold", dest="median_threshold", type=float, default=None)
+    p.add_argument("--min-peak-ratio", dest="min_peak_ratio", type=float, default=None)
+    p.add_argument("--calibration", default=None, help="calibration JSON: correct the distortion")
+    p.add_argument(
+        "--method", default=None,
+        help='correction with --calibration: "I" (dewarp the images), "II" (map the vectors, '
+        'default) or "none"',
+    )  # fmt: skip
+    p.add_argument("--mapping", default="full", type=str.lower, choices=MAPPING_MODES,
+                   help="Method II displacement mapping (full)")  # fmt: skip
     p.set_defaults(func=run)
