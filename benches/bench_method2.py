@@ -67,8 +67,8 @@ def main() -> None:
 
 def run(a, b, truth, cal, dfm, s, args) -> None:
     import rspiv
-    from rspiv.dewarp import dewarp
     from rspiv.correction import grid_for_windows, piv_vectors
+    from rspiv.dewarp import dewarp
 
     h, w = a.shape
     times: dict[str, float] = {}

@@ -16,8 +16,8 @@ import shutil
 import numpy as np
 import pytest
 import rspiv
-from rspiv import campaign as campaign_mod
 from rspiv.campaign import Campaign, PairSpec, parse_shard, process_pair, shard_slice
+from rspiv.campaign import pair as campaign_mod
 from rspiv.campaign_config import load_campaign_config
 from rspiv.cli import main
 from rspiv.demo import DEFAULT_SCENE, synth_campaign, verdicts

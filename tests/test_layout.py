@@ -122,5 +122,6 @@ def test_no_function_level_rspiv_imports():
                     continue
                 span = lines[sub.lineno - 1 : sub.end_lineno]
                 if not any("# deferred:" in line for line in span):
-                    bad.append(f"{p.relative_to(PKG)}:{sub.lineno}: {lines[sub.lineno - 1].strip()}")
+                    where = f"{p.relative_to(PKG)}:{sub.lineno}"
+                    bad.append(f"{where}: {lines[sub.lineno - 1].strip()}")
     assert not bad, "function-level rspiv imports:\n" + "\n".join(bad)

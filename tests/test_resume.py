@@ -134,7 +134,7 @@ def test_sigkill_at_random_moments_then_resume(case, tmp_path):
 def test_resumed_run_counts_the_checkpoint(case, tmp_path):
     """An in-process interruption after 3 pairs: the resumed run processes only the rest and
     reproduces the uninterrupted state bit for bit."""
-    from rspiv import campaign as campaign_mod
+    from rspiv.campaign import pair as campaign_mod
 
     toml, ref = case
     out = prepared_copy(ref.out_dir, tmp_path / "out")

@@ -1,4 +1,4 @@
-"""Dask scale-out (rspiv.scaleout) against the local run of the same tiny synthetic campaign.
+"""Dask scale-out (rspiv.campaign.executors.dask) against the local run of the same tiny campaign.
 
 The reference is :meth:`Campaign.run` (one sequential pass); the Dask runs use a LocalCluster of
 2 worker processes of 1 thread (loopback, no dashboard). The statistics must agree to 1e-12
@@ -24,8 +24,8 @@ from scaleout_cases import assert_same_statistics, make_campaign, prepared_copy
 
 distributed = pytest.importorskip("distributed")
 
-from rspiv import scaleout  # noqa: E402
-from rspiv.scaleout import run_dask  # noqa: E402
+from rspiv.campaign.executors import dask as scaleout  # noqa: E402
+from rspiv.campaign.executors.dask import run_dask  # noqa: E402
 
 N_PAIRS = 6
 
@@ -95,7 +95,7 @@ def test_two_workers_give_the_local_statistics(synth, local, client, tmp_path):
 def test_chunks_merged_out_of_order_join_exactly(synth, local):
     """The ordered merge itself, without Dask: chunks arriving in any order give one pass."""
     from rspiv.campaign import PairContext
-    from rspiv.scaleout import _OrderedMerge, _Segment, process_chunk
+    from rspiv.campaign.executors.dask import _OrderedMerge, _Segment, process_chunk
     from rspiv.stats import FieldAccumulator
 
     camp = _camp(synth, local.out_dir)
@@ -201,7 +201,7 @@ def test_bad_pair_is_skipped_and_logged_under_dask(synth, local, client, tmp_pat
 def test_dask_resumes_an_interrupted_local_run(synth, local, client, tmp_path, monkeypatch):
     """A local run interrupted after 3 pairs, resumed on Dask: the checkpoint's pairs are not
     recomputed and the statistics (lag-1 chains included) are those of one uninterrupted pass."""
-    from rspiv import campaign as campaign_mod
+    from rspiv.campaign import pair as campaign_mod
 
     out = prepared_copy(local.out_dir, tmp_path / "out")
     real = campaign_mod.process_pair
@@ -271,7 +271,7 @@ def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, m
     def deadly(ctx, pairs):  # a local function: pickled by value to the workers
         import os
 
-        from rspiv.scaleout import process_chunk as real
+        from rspiv.campaign.executors.dask import process_chunk as real
 
         if any(p.pair_id == 3 for p in pairs):
             os._exit(1)
@@ -320,7 +320,7 @@ def test_interrupted_client_keeps_chunks_merged_out_of_order(
     def slow_first(ctx, pairs):  # a local function: pickled by value to the workers
         import time
 
-        from rspiv.scaleout import process_chunk as real
+        from rspiv.campaign.executors.dask import process_chunk as real
 
         if pairs[0].pair_id == 0:
             time.sleep(8.0)

@@ -10,7 +10,7 @@ A complete file (every key optional except where noted; defaults shown)::
     target = "target.tif"        # calibration target image (omit: no calibration)
     pitch_mm = 19.51             # marker pitch, and its one-sigma uncertainty
     pitch_sigma_mm = 0.02
-    model = "P3"                 # "R1" | "R2" | "P3"
+    model = "P3"                 # "R1" | "R2" | "P3" (any case)
     marker = "dot"               # "dot" | "cross"
     marker_size_px = 0.0         # 0: estimated from the image
     monte_carlo_samples = 10000  # 0: no Monte Carlo
@@ -23,16 +23,23 @@ A complete file (every key optional except where noted; defaults shown)::
 
     [correction]
     method = "II"                # "I" (dewarp images, then PIV) | "II" (PIV, then map) | "none"
-    map_displacement = true      # Method II: map displacements through the exact inverse
+                                 # (any case; "images" = "I", "vectors" = "II")
+    mapping = "full"             # Method II: "full" (through the exact inverse) | "positions"
+                                 # (old key: map_displacement = true | false)
     compare_uncorrected = true   # also process without correction (for the report)
 
-    [piv]
+    [piv]                        # the keys of rspiv.PivSettings (one vocabulary with the API
+                                 # and rspiv-engine piv --settings), campaign defaults:
     passes = [[64, 64], [32, 32], [32, 8]]   # interrogation windows [w, h] in px, coarse first
     overlap = 0.5
+    iterations = 1               # correlation iterations per pass
+    deformation = "offset"       # "offset" | "symmetric" (old key: deform = false | true)
+    interpolation = "bspline"    # "bspline" (quintic) | "bspline3" | "keys"
     subpixel = "gauss3"          # "gauss3" | "gauss2d"
-    median_threshold = 2.0       # normalised median test (Westerweel & Scarano 2005)
-    median_epsilon = 0.1
-    deform = false
+    validate = true              # normalised median test (Westerweel & Scarano 2005)
+    median_threshold = 2.0
+    median_eps = 0.1             # px (old key: median_epsilon)
+    min_peak_ratio = 0.0         # 0: off
     mask = ""                    # optional mask image ("" : none)
 
     [wall]
@@ -79,6 +86,14 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as _toml  # type: ignore[no-redef]
 
 from rspiv.errors import InvalidInputError
+from rspiv.settings import (
+    DEFORMATIONS,
+    INTERPOLATIONS,
+    MAPPING_MODES,
+    SUBPIXELS,
+    PivSettings,
+    parse_method,
+)
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp")
 
@@ -134,18 +149,45 @@ class CorrectionConfig:
     map_displacement: bool = True
     compare_uncorrected: bool = True
 
+    @property
+    def mapping(self) -> str:
+        """Method II's displacement mapping in the one vocabulary: "full" or "positions"."""
+        return "full" if self.map_displacement else "positions"
+
 
 @dataclasses.dataclass
 class PIVConfig:
+    """The ``[piv]`` section: the keys of :class:`rspiv.PivSettings` (campaign default
+    deformation "offset") and the mask."""
+
     passes: list[tuple[int, int]] = dataclasses.field(
         default_factory=lambda: [(64, 64), (32, 32), (32, 8)]
     )
     overlap: float = 0.5
+    iterations: int = 1
+    deformation: str = "offset"
+    interpolation: str = "bspline"
     subpixel: str = "gauss3"
+    validate: bool = True
     median_threshold: float = 2.0
-    median_epsilon: float = 0.1
-    deform: bool = False
+    median_eps: float = 0.1
+    min_peak_ratio: float = 0.0
     mask: pathlib.Path | None = None
+
+    def settings(self) -> PivSettings:
+        """The section as the one PIV settings object."""
+        return PivSettings(
+            passes=tuple(tuple(p) for p in self.passes),
+            overlap=self.overlap,
+            iterations=self.iterations,
+            deformation=self.deformation,
+            interpolation=self.interpolation,
+            subpixel=self.subpixel,
+            validate=self.validate,
+            median_eps=self.median_eps,
+            median_threshold=self.median_threshold,
+            min_peak_ratio=self.min_peak_ratio,
+        )
 
 
 @dataclasses.dataclass
@@ -365,7 +407,11 @@ def _boolean(ctx, where, v):
     return v
 
 
-def _choice(ctx, where, v, options):
+def _choice(ctx, where, v, options, fold=None):
+    """``v`` if it is one of ``options``; with ``fold`` (e.g. ``str.upper``) any case is
+    accepted and folded to the options' spelling."""
+    if isinstance(v, str) and fold is not None and fold(v) in options:
+        return fold(v)
     if not isinstance(v, str) or v not in options:
         raise ctx.err(where, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
     return v
@@ -396,6 +442,20 @@ def _passes(ctx, where, v):
     return out
 
 
+def _method(ctx, where, v):
+    try:
+        return parse_method(v)
+    except InvalidInputError:
+        raise ctx.err(where, f"expected one of 'I', 'II', 'none', got {v!r}") from None
+
+
+#: Old keys still read: (section, old key) -> the vocabulary's key (the parser converts).
+_ALIASES = {
+    ("piv", "median_epsilon"): "median_eps",
+    ("piv", "deform"): "deformation",
+    ("correction", "mapping"): "map_displacement",
+}
+
 # per section: key -> parser(ctx, where, value)
 _PARSERS: dict[str, dict[str, Any]] = {
     "campaign": {"name": _string, "description": _string},
@@ -403,7 +463,7 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "target": lambda c, w, v: c.path(w, v, image=True),
         "pitch_mm": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "pitch_sigma_mm": lambda c, w, v: _number(c, w, v, minimum=0),
-        "model": lambda c, w, v: _choice(c, w, v, ("R1", "R2", "P3")),
+        "model": lambda c, w, v: _choice(c, w, v, ("R1", "R2", "P3"), fold=str.upper),
         "marker": lambda c, w, v: _choice(c, w, v, ("dot", "cross")),
         "marker_size_px": lambda c, w, v: _number(c, w, v, minimum=0),
         "monte_carlo_samples": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
@@ -415,17 +475,24 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "max_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
     },
     "correction": {
-        "method": lambda c, w, v: _choice(c, w, v, ("I", "II", "none")),
+        "method": _method,
+        "mapping": lambda c, w, v: _choice(c, w, v, MAPPING_MODES, fold=str.lower) == "full",
         "map_displacement": _boolean,
         "compare_uncorrected": _boolean,
     },
     "piv": {
         "passes": _passes,
         "overlap": lambda c, w, v: _number(c, w, v, minimum=0, maximum=0.95),
-        "subpixel": lambda c, w, v: _choice(c, w, v, ("gauss3", "gauss2d")),
+        "iterations": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "deformation": lambda c, w, v: _choice(c, w, v, DEFORMATIONS, fold=str.lower),
+        "interpolation": lambda c, w, v: _choice(c, w, v, INTERPOLATIONS, fold=str.lower),
+        "subpixel": lambda c, w, v: _choice(c, w, v, SUBPIXELS, fold=str.lower),
+        "validate": _boolean,
         "median_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "median_eps": lambda c, w, v: _number(c, w, v, minimum=0),
         "median_epsilon": lambda c, w, v: _number(c, w, v, minimum=0),
-        "deform": _boolean,
+        "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
+        "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
         "mask": lambda c, w, v: c.path(w, v, image=True),
     },
     "wall": {
@@ -492,7 +559,10 @@ def parse_campaign_config(
             if key not in parsers:
                 raise ctx.err(where, f"unknown key; expected one of {', '.join(parsers)}")
             parse = _parse_pairs if (section, key) == ("images", "pairs") else parsers[key]
-            values[key] = parse(ctx, where, val)
+            name = _ALIASES.get((section, key), key)
+            if name in values:
+                raise ctx.err(where, f"given twice (as {name} and an alias of it)")
+            values[name] = parse(ctx, where, val)
         if section == "campaign":
             for k, v in values.items():
                 setattr(cfg, k, v)

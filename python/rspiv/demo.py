@@ -535,7 +535,7 @@ def run_demo(
     res = camp.run()
     rows = verdicts(res, out)
     res.timings["synth"] = t_synth
-    camp._report(
+    camp.write_report(
         res,
         extra_sections=[
             ReportSection(

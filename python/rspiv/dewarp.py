@@ -69,11 +69,10 @@ def check_calibration_shape(calibration: Any, shape: tuple[int, ...], what: str 
 
     A bare :class:`rspiv.Mapping` (or JSON text, callable) does not know its sensor: no check.
     """
-    from rspiv.calibration import Calibration
-
-    if not isinstance(calibration, Calibration):
+    image_shape = getattr(calibration, "image_shape", None)
+    if image_shape is None:  # a Mapping, JSON text or callable
         return
-    want = tuple(int(v) for v in calibration.image_shape)
+    want = tuple(int(v) for v in image_shape)
     got = tuple(int(v) for v in shape)
     if got != want:
         raise InvalidInputError(

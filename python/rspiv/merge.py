@@ -25,12 +25,16 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
+import pickle
+import re
 from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
 
+from rspiv.campaign import Campaign
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import write_netcdf
 from rspiv.stats import FieldAccumulator
 
 __all__ = [
@@ -218,7 +222,6 @@ def merge_files(
     dict
         Run name -> written path.
     """
-    from rspiv.outputs import write_netcdf
 
     parts = [read_part(p) for p in paths]
     if not parts:
@@ -263,10 +266,6 @@ def merge_campaign(campaign, *, progress: bool = False):
         No shard files, an incomplete or mixed set of shards, parts of another configuration,
         or an existing unsharded checkpoint holding other pairs.
     """
-    import pickle
-    import re
-
-    from rspiv.campaign import Campaign
 
     camp = (
         campaign if isinstance(campaign, Campaign) else Campaign.load(campaign, progress=progress)

@@ -412,7 +412,7 @@ def campaign_report(
     extra_sections : sequence of ReportSection
         Appended after the standard sections.
     """
-    from rspiv.plots.boundary_layer import plot_boundary_layer
+    from rspiv.plots.boundary_layer import plot_boundary_layer  # deferred: matplotlib
 
     if not results:
         raise InvalidInputError("results: at least one boundary-layer result is needed")

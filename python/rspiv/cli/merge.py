@@ -11,15 +11,16 @@ from __future__ import annotations
 import argparse
 import sys
 
+from rspiv.campaign import Campaign
+from rspiv.errors import InvalidInputError
+from rspiv.merge import merge_campaign, merge_files, missing_shards, read_part
+
 
 def _merge(args: argparse.Namespace) -> int:
-    from rspiv.errors import InvalidInputError
-    from rspiv.merge import merge_campaign, merge_files, missing_shards, read_part
 
     if args.campaign is not None:
         if args.parts:
             raise InvalidInputError("give either PARTS or --campaign, not both")
-        from rspiv.campaign import Campaign
 
         camp = Campaign.load(args.campaign, out_dir=args.output, progress=not args.quiet)
         res = merge_campaign(camp)

@@ -12,10 +12,46 @@ from __future__ import annotations
 import argparse
 import sys
 
+from rspiv.campaign import Campaign
+from rspiv.campaign.executors.dask import run_dask
+from rspiv.settings import parse_method
+
+
+def _add_dask_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--dask ADDRESS``, ``--dask-workers N``, ``--rayon-threads N``, ``--chunk-size N``:
+    run the pairs on dask.distributed (:func:`rspiv.campaign.executors.dask.run_dask`)."""
+    g = parser.add_argument_group("Dask scale-out (pip install 'rspiv[dask]')")
+    g.add_argument(
+        "--dask",
+        default=None,
+        metavar="ADDRESS",
+        help="run the pairs on dask.distributed: 'local' (a LocalCluster sized to this "
+        "machine), a scheduler address tcp://host:8786 or a scheduler file (.json)",
+    )
+    g.add_argument(
+        "--dask-workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="--dask local: worker processes (default: the cores, memory permitting)",
+    )
+    g.add_argument(
+        "--rayon-threads",
+        type=int,
+        default=None,
+        metavar="N",
+        help="--dask: rayon threads per worker (default: cores / workers per host)",
+    )
+    g.add_argument(
+        "--chunk-size",
+        type=int,
+        default=None,
+        metavar="N",
+        help="--dask: pairs per task (default: ~4 tasks per worker)",
+    )
+
 
 def _process(args: argparse.Namespace) -> int:
-    from rspiv.campaign import Campaign
-
     camp = Campaign.load(
         args.campaign,
         shard=args.shard,
@@ -25,10 +61,14 @@ def _process(args: argparse.Namespace) -> int:
         out_dir=args.output,
         progress=not args.quiet,
     )
-    if getattr(args, "dask", None):
-        from rspiv.scaleout import run_from_args
-
-        res = run_from_args(camp, args)
+    if args.dask:
+        res = run_dask(
+            camp,
+            args.dask,
+            n_workers=args.dask_workers,
+            rayon_threads=args.rayon_threads,
+            chunk_size=args.chunk_size,
+        )
     else:
         res = camp.run()
     print(
@@ -86,20 +126,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--also-method",
         action="append",
-        choices=["I", "II"],
-        help="also process with this correction method (comparison)",
+        type=parse_method,
+        help="also process with this correction method, I or II (comparison)",
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    try:  # the Dask scale-out options (issue 7), when that module is present
-        from rspiv.scaleout import add_arguments
-    except ImportError:  # pragma: no cover
-        pass
-    else:
-        add_arguments(p)
+    _add_dask_arguments(p)
     p.set_defaults(func=_process)
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from rspiv.cli import main
+    from rspiv.cli import main  # deferred: the package's entry point runs this module
 
     sys.exit(main(["process", *sys.argv[1:]]))

@@ -16,7 +16,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_path
-from rspiv.reference import DNSProfile, dns_profile_for_re_tau
+from rspiv.reference import DNSProfile, dns_profile_for_re_tau, load_dns
 
 _STYLES = ("o", "s", "^", "v", "D", "<", ">", "p")
 _KEYS = ("y_plus", "u_plus", "uu_plus", "vv_plus", "uv_plus")
@@ -89,7 +89,6 @@ def plot_boundary_layer(
         )
         dns = dns_profile_for_re_tau(float(re_tau)) if re_tau else None
         if dns is None:
-            from rspiv.reference import load_dns
 
             dns = load_dns(4060)
     out_dir = pathlib.Path(out_dir)

@@ -1,7 +1,9 @@
-"""Scale-out of a campaign on dask.distributed (``rspiv process campaign.toml --dask ADDRESS``).
+"""The Dask executor: a campaign on dask.distributed (``rspiv process CAMPAIGN --dask ADDRESS``).
 
 :func:`run_dask` runs the same campaign as :meth:`rspiv.Campaign.run` with the per-pair work
-spread over Dask workers:
+spread over Dask workers (:class:`DaskExecutor`, one of :mod:`rspiv.campaign.executors`; the
+results are reduced on the client through the same :class:`~rspiv.campaign.reduce.RunReducer`
+as a local run):
 
 1. The client prepares the campaign (calibration, wall pilot: :meth:`Campaign.prepare`) and
    loads the checkpoint, exactly as a local run does.
@@ -47,6 +49,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import pickle
+import socket
 import time
 import traceback
 from collections.abc import Sequence
@@ -54,20 +58,18 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign import (
-    STAGES,
-    Campaign,
-    CampaignResult,
-    PairContext,
-    PairSpec,
-    process_pair,
-)
+from rspiv.campaign import pair as pair_work
+from rspiv.campaign.reduce import RunReducer, add_fields
+from rspiv.campaign.runner import Campaign
+from rspiv.campaign.spec import STAGES, PairContext, PairSpec
+from rspiv.campaign.state import CampaignResult, RunState
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import atomic_write_bytes
 from rspiv.stats import FieldAccumulator
 
 __all__ = [
     "ChunkResult",
-    "add_arguments",
+    "DaskExecutor",
     "local_cluster",
     "process_chunk",
     "run_dask",
@@ -120,8 +122,6 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
     :meth:`Campaign.run`); an exception raised by one pair marks that pair failed and the
     chunk goes on.
     """
-    import socket
-
     # one parsed context (mapping, mask) per worker process and campaign
     context = _CONTEXTS.setdefault(context.fingerprint(), context)
     gx, _ = context.grid()
@@ -134,7 +134,7 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
     timings = {k: 0.0 for k in STAGES}
     for p in pairs:
         try:
-            r = process_pair(context, p)
+            r = pair_work.process_pair(context, p)
         except Exception as exc:  # noqa: BLE001 - one bad pair must not lose the chunk
             tb = traceback.extract_tb(exc.__traceback__)
             where = f" at {tb[-1].filename}:{tb[-1].lineno}" if tb else ""
@@ -152,9 +152,8 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
                 n: (u.copy(), v.copy(), np.asarray(ok, bool).copy())
                 for n, (u, v, ok) in r.fields.items()
             }
-        for name, (u, v, valid) in r.fields.items():
-            accs[name].add(u, v, valid, pair_id=p.pair_id)
-        timings["statistics"] = timings.get("statistics", 0.0) + time.perf_counter() - t0
+        dt = time.perf_counter() - t0 + add_fields(accs, r)
+        timings["statistics"] = timings.get("statistics", 0.0) + dt
         done.append(p.pair_id)
     return ChunkResult(
         accs,
@@ -183,7 +182,7 @@ def _rayon_plugin_class():
     second, which ``rspiv --help`` should not pay)."""
     if _PLUGIN:
         return _PLUGIN[0]
-    from distributed.diagnostics.plugin import WorkerPlugin
+    from distributed.diagnostics.plugin import WorkerPlugin  # deferred: dask (optional extra)
 
     class RayonThreads(WorkerPlugin):
         """Worker plugin: set ``RAYON_NUM_THREADS`` in each worker before its first task.
@@ -238,12 +237,12 @@ def local_cluster(n_workers: int | None = None, rayon_threads: int | None = None
     per 3 GB of memory) and ``rayon_threads`` rayon threads per worker (default: cores //
     workers, at least 1), passed to the workers' environment before they start.
     """
-    from distributed import LocalCluster
+    from distributed import LocalCluster  # deferred: dask (optional extra)
 
     cores = _usable_cores()
     if n_workers is None:
         try:
-            import psutil
+            import psutil  # comes with distributed
 
             mem = psutil.virtual_memory().total
             n_workers = max(1, min(cores, int(mem // (3 * 2**30))))
@@ -378,10 +377,6 @@ def _segments_path(camp: Campaign):
 def _save_segments(path, ctx: PairContext, shard, todo: Sequence[PairSpec], merger) -> None:
     """Write the segments merged after the contiguous prefix (atomically), or remove the file
     when there are none; each is keyed by the ids of the pairs it covers."""
-    import pickle
-
-    from rspiv.outputs import atomic_write_bytes
-
     pend = [sg for lo, sg in sorted(merger.by_lo.items()) if lo != 0]
     if not pend:
         path.unlink(missing_ok=True)
@@ -407,8 +402,6 @@ def _load_segments(path, ctx: PairContext, shard, todo: Sequence[PairSpec]) -> l
     """Segments saved by an interrupted Dask run that still fit the pairs to do: same
     configuration and shard, every covered pair still to do and contiguous in ``todo``.
     Anything else (stale, corrupt, overlapping) is ignored and recomputed."""
-    import pickle
-
     if not path.is_file():
         return []
     try:
@@ -470,14 +463,12 @@ def run_dask(
         As :meth:`Campaign.run`; ``info["dask"]`` holds workers, chunks, pairs failed,
         throughput (pairs/min) and wall time of the map.
     """
-    try:
-        from distributed import Client, as_completed
-        from distributed.scheduler import KilledWorker
+    try:  # deferred: dask (optional extra)
+        from distributed import Client
     except ImportError:  # pragma: no cover - optional extra
         raise InvalidInputError(
             "--dask needs dask.distributed: pip install 'rspiv[dask]'"
         ) from None
-    from rspiv.progress import Progress
 
     t_start = time.perf_counter()
     own_cluster = None
@@ -496,16 +487,8 @@ def run_dask(
         if own_cluster is None:
             client.wait_for_workers(1, timeout=300)
             client.register_plugin(_rayon_plugin_class()(rayon_threads, _workers_per_host(client)))
-        return _run(
-            campaign,
-            client,
-            chunk_size,
-            progress_interval,
-            t_start,
-            Progress,
-            as_completed,
-            KilledWorker,
-        )
+        executor = DaskExecutor(client, chunk_size, progress_interval, t_start=t_start)
+        return campaign.run(executor)
     finally:
         if own_client is not None:
             own_client.close()
@@ -513,244 +496,196 @@ def run_dask(
             own_cluster.close()
 
 
-def _run(
-    campaign,
-    client,
-    chunk_size,
-    progress_interval,
-    t_start,
-    Progress,
-    as_completed,
-    KilledWorker,
-) -> CampaignResult:
-    camp = campaign
-    st = camp.open_run(t_start)
-    with Progress(len(st.sel), "pairs", enabled=camp.show_progress) as prog:
-        camp.begin_run(st, prog)
-        ctx, accs, finished, timings, todo, log = (
-            st.ctx,
-            st.accs,
-            st.finished,
-            st.timings,
-            st.todo,
-            st.log,
-        )
-        gx, _ = ctx.grid()
+class DaskExecutor:
+    """Process the pairs still to do as chunks on a connected ``distributed.Client``, merged on
+    the client in pair order (module docstring); see :func:`run_dask` for the parameters."""
+
+    name = "dask"
+
+    def __init__(
+        self,
+        client: Any,
+        chunk_size: int | None = None,
+        progress_interval: float = 30.0,
+        *,
+        t_start: float | None = None,
+    ) -> None:
+        self.client = client
+        self.chunk_size = chunk_size
+        self.progress_interval = float(progress_interval)
+        self.t_start = t_start
+
+    def execute(
+        self, campaign: Campaign, state: RunState, progress: Any
+    ) -> tuple[dict[int, str], dict[int, str]]:
+        """Process ``state.todo`` on the cluster; returns ``(skipped, failed)`` and records
+        ``campaign.info["dask"]``."""
+        from distributed import as_completed  # deferred: dask (optional extra)
+
+        client, todo, ctx = self.client, state.todo, state.ctx
+        self.campaign, self.state, self.progress = campaign, state, progress
         n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
+        chunk_size = self.chunk_size
         if chunk_size is None:
-            chunk_size = max(1, min(camp.checkpoint_every, math.ceil(len(todo) / (4 * n_workers))))
+            chunk_size = max(
+                1, min(campaign.checkpoint_every, math.ceil(len(todo) / (4 * n_workers)))
+            )
         chunk_size = max(1, int(chunk_size))
-        camp.announce_run(
-            st,
-            prog,
+        campaign.announce_run(
+            state,
+            progress,
             dask={
                 "scheduler": client.scheduler.address,
                 "workers": n_workers,
                 "chunk_size": chunk_size,
             },
         )
-        prog.log(
+        progress.log(
             f"dask: {n_workers} worker(s) at {client.scheduler.address}, "
             f"{len(todo)} pair(s) in chunks of {chunk_size}"
         )
-        merger = _OrderedMerge(_Segment(0, 0, accs, None, []))
-        seg_path = _segments_path(camp)
-        stored = _load_segments(seg_path, ctx, camp.shard, todo)
-        covered = set()
+        self.red = RunReducer(campaign, state, progress)
+        self.merger = _OrderedMerge(_Segment(0, 0, state.accs, None, []))
+        self.seg_path = _segments_path(campaign)
+        stored = _load_segments(self.seg_path, ctx, campaign.shard, todo)
+        covered: set[int] = set()
         for sg in stored:
             covered.update(range(sg.lo, sg.hi))
-        ctx_f = ctx  # small (the mapping as JSON): sent with each task, cached per worker
-        key_of: dict[Any, tuple[int, int]] = {}
+        self.key_of: dict[Any, tuple[int, int]] = {}
         futures = []
         n_chunks = 0
         for lo, hi in _uncovered_chunks(len(todo), covered, chunk_size):
-            f = client.submit(process_chunk, ctx_f, todo[lo:hi], pure=False)
-            key_of[f.key] = (lo, hi)
-            futures.append(f)
+            futures.append(self._submit(lo, hi))
             n_chunks += 1
         if stored:
             for sg in stored:
-                merger.add(sg)
-            log.write("resumed_segments", segments=len(stored), pairs=len(covered))
-            prog.log(
+                self.merger.add(sg)
+            state.log.write("resumed_segments", segments=len(stored), pairs=len(covered))
+            progress.log(
                 f"resuming: {len(covered)} pair(s) merged out of order before the interruption "
-                f"not recomputed ({seg_path})"
+                f"not recomputed ({self.seg_path})"
             )
-            prog.advance(len(covered))
-        skipped: dict[int, str] = {}
-        failed: dict[int, str] = {}
-        n_ok = 0
-        t_map = time.perf_counter()
-        t_last_log = t_map
-        since = 0
-        workers_seen: set[str] = set()
-
-        def checkpoint(force: bool = False) -> None:
-            """The contiguous prefix in the campaign's checkpoint, the segments merged out of
-            order beside it (``dask_segments*.pkl``), every ``checkpoint_every`` pairs."""
-            nonlocal since
-            if not force and since < camp.checkpoint_every:
-                return
-            pre = merger.prefix
-            fin = finished | set(pre.done)
-            camp.save_checkpoint(ctx, pre.accs, fin, timings)
-            _save_segments(seg_path, ctx, camp.shard, todo, merger)
-            log.write(
-                "checkpoint",
-                finished=len(fin),
-                pending_segments=merger.pending(),
-            )
-            since = 0
-
-        def rate() -> float:
-            dt = time.perf_counter() - t_map
-            return 60.0 * (n_ok + len(skipped) + len(failed)) / dt if dt > 0 else 0.0
-
-        ac = as_completed(futures)
+            progress.advance(len(covered))
+        self.n_workers = n_workers
+        self.t_map = time.perf_counter()
+        self.t_last_log = self.t_map
+        self.workers_seen: set[str] = set()
+        self.ac = as_completed(futures)
         futures.clear()
-
-        def handle(fut) -> None:
-            nonlocal n_ok, t_last_log, since
-            lo, hi = key_of.pop(fut.key)
-            try:
-                res: ChunkResult = fut.result()
-            except KilledWorker as exc:
-                if hi - lo > 1:
-                    prog.log(
-                        f"pairs {todo[lo].pair_id}..{todo[hi - 1].pair_id}: workers died "
-                        "on this chunk; retrying pair by pair"
-                    )
-                    log.write(
-                        "chunk_split", pairs=[p.pair_id for p in todo[lo:hi]], reason=str(exc)
-                    )
-                    for k in range(lo, hi):
-                        g = client.submit(process_chunk, ctx_f, todo[k : k + 1], pure=False)
-                        key_of[g.key] = (k, k + 1)
-                        ac.add(g)
-                    return
-                p = todo[lo]
-                res = ChunkResult(
-                    {r.name: FieldAccumulator(gx.shape) for r in ctx.runs},
-                    None,
-                    [],
-                    {},
-                    {p.pair_id: (p.describe(), f"worker died: {exc}")},
-                    {},
-                    {},
-                )
-            fut.release()
-            workers_seen.add(res.worker)
-            for k, v in res.timings.items():
-                timings[k] = timings.get(k, 0.0) + v
-            for pid in res.done:
-                log.write(
-                    "pair", pair_id=pid, timings=res.pair_timings.get(pid, {}), worker=res.worker
-                )
-            for pid, (files, reason) in res.skipped.items():
-                skipped[pid] = reason
-                log.write("skipped", pair_id=pid, files=files, reason=reason)
-                prog.log(f"pair {pid} skipped: {reason}")
-            for pid, (files, reason) in res.failed.items():
-                failed[pid] = reason
-                log.write("failed", pair_id=pid, files=files, reason=reason)
-                prog.log(f"pair {pid} failed: {reason}")
-            n_ok += len(res.done)
-            if res.done:
-                prog.advance(len(res.done))
-            nbad = len(res.skipped) + len(res.failed)
-            if nbad:
-                prog.advance(nbad, skipped=True)
-            merger.add(_Segment(lo, hi, res.accumulators, res.first, list(res.done)))
-            since += hi - lo
-            checkpoint()
-            now = time.perf_counter()
-            if now - t_last_log >= progress_interval:
-                log.write(
-                    "progress",
-                    done=n_ok,
-                    skipped=len(skipped),
-                    failed=len(failed),
-                    remaining=len(todo) - n_ok - len(skipped) - len(failed),
-                    pairs_per_min=round(rate(), 3),
-                    workers=n_workers,
-                )
-                t_last_log = now
-
         try:
-            for fut in ac:
-                handle(fut)
+            for fut in self.ac:
+                self._handle(fut)
         except BaseException:
-            checkpoint(force=True)  # the contiguous prefix is always consistent
+            self._checkpoint(force=True)  # the contiguous prefix is always consistent
             raise
-        if merger.pending():  # pragma: no cover - every chunk joins the prefix at the end
-            raise AssertionError(f"{merger.pending()} segment(s) not joined")
-        t_map = time.perf_counter() - t_map
-        pre = merger.prefix
-        st.accs = pre.accs
-        finished |= set(pre.done)
-        checkpoint(force=True)
-    dask_info = {
-        "workers": n_workers,
-        "worker_processes_seen": len(workers_seen),
-        "chunk_size": chunk_size,
-        "chunks": n_chunks,
-        "pairs_from_segments": len(covered),
-        "pairs_done": n_ok,
-        "pairs_skipped": len(skipped),
-        "pairs_failed": len(failed),
-        "map_seconds": t_map,
-        "pairs_per_min": 60.0 * len(todo) / t_map if t_map > 0 else 0.0,
-    }
-    log.write(
-        "dask_summary",
-        **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in dask_info.items()},
-    )
-    camp.info["dask"] = dask_info
-    # pairs that failed count as skipped for the campaign (left out of the statistics)
-    return camp.finish_run(st, skipped, failed=failed)
+        if self.merger.pending():  # pragma: no cover - every chunk joins the prefix at the end
+            raise AssertionError(f"{self.merger.pending()} segment(s) not joined")
+        t_map = time.perf_counter() - self.t_map
+        pre = self.merger.prefix
+        state.accs = pre.accs
+        state.finished |= set(pre.done)
+        self._checkpoint(force=True)
+        red = self.red
+        dask_info = {
+            "workers": n_workers,
+            "worker_processes_seen": len(self.workers_seen),
+            "chunk_size": chunk_size,
+            "chunks": n_chunks,
+            "pairs_from_segments": len(covered),
+            "pairs_done": red.n_ok,
+            "pairs_skipped": len(red.skipped),
+            "pairs_failed": len(red.failed),
+            "map_seconds": t_map,
+            "pairs_per_min": 60.0 * len(todo) / t_map if t_map > 0 else 0.0,
+        }
+        state.log.write(
+            "dask_summary",
+            **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in dask_info.items()},
+        )
+        campaign.info["dask"] = dask_info
+        # pairs that failed count as skipped for the campaign (left out of the statistics)
+        return red.skipped, red.failed
 
+    def _submit(self, lo: int, hi: int) -> Any:
+        """One task: the pairs ``todo[lo:hi]``; the context is small (the mapping as JSON),
+        sent with each task and cached per worker."""
+        f = self.client.submit(
+            process_chunk, self.state.ctx, self.state.todo[lo:hi], pure=False
+        )
+        self.key_of[f.key] = (lo, hi)
+        return f
 
-# ---------------------------------------------------------------------------- CLI hook
-def add_arguments(parser) -> None:
-    """Add ``--dask ADDRESS``, ``--dask-workers N``, ``--rayon-threads N`` and
-    ``--chunk-size N`` to an argparse parser (``rspiv process``)."""
-    g = parser.add_argument_group("Dask scale-out (pip install 'rspiv[dask]')")
-    g.add_argument(
-        "--dask",
-        default=None,
-        metavar="ADDRESS",
-        help="run the pairs on dask.distributed: 'local' (a LocalCluster sized to this "
-        "machine), a scheduler address tcp://host:8786 or a scheduler file (.json)",
-    )
-    g.add_argument(
-        "--dask-workers",
-        type=int,
-        default=None,
-        metavar="N",
-        help="--dask local: worker processes (default: the cores, memory permitting)",
-    )
-    g.add_argument(
-        "--rayon-threads",
-        type=int,
-        default=None,
-        metavar="N",
-        help="--dask: rayon threads per worker (default: cores / workers per host)",
-    )
-    g.add_argument(
-        "--chunk-size",
-        type=int,
-        default=None,
-        metavar="N",
-        help="--dask: pairs per task (default: ~4 tasks per worker)",
-    )
+    def _checkpoint(self, force: bool = False) -> None:
+        """The contiguous prefix in the campaign's checkpoint, the segments merged out of
+        order beside it (``dask_segments*.pkl``), every ``checkpoint_every`` pairs."""
+        red, st = self.red, self.state
+        if not force and red.since < self.campaign.checkpoint_every:
+            return
+        pre = self.merger.prefix
+        fin = st.finished | set(pre.done)
+        self.campaign.save_checkpoint(st.ctx, pre.accs, fin, st.timings)
+        _save_segments(self.seg_path, st.ctx, self.campaign.shard, st.todo, self.merger)
+        red.checkpointed(len(fin), pending_segments=self.merger.pending())
 
+    def _handle(self, fut: Any) -> None:
+        """Reduce one finished chunk (or split a chunk that killed its workers)."""
+        from distributed.scheduler import KilledWorker  # deferred: dask (optional extra)
 
-def run_from_args(campaign: Campaign, args) -> CampaignResult:
-    """Run ``campaign`` with the options of :func:`add_arguments` (``args.dask`` set)."""
-    return run_dask(
-        campaign,
-        args.dask,
-        n_workers=getattr(args, "dask_workers", None),
-        rayon_threads=getattr(args, "rayon_threads", None),
-        chunk_size=getattr(args, "chunk_size", None),
-    )
+        st, prog, red = self.state, self.progress, self.red
+        todo = st.todo
+        lo, hi = self.key_of.pop(fut.key)
+        try:
+            res: ChunkResult = fut.result()
+        except KilledWorker as exc:
+            if hi - lo > 1:
+                prog.log(
+                    f"pairs {todo[lo].pair_id}..{todo[hi - 1].pair_id}: workers died "
+                    "on this chunk; retrying pair by pair"
+                )
+                st.log.write(
+                    "chunk_split", pairs=[p.pair_id for p in todo[lo:hi]], reason=str(exc)
+                )
+                for k in range(lo, hi):
+                    self.ac.add(self._submit(k, k + 1))
+                return
+            p = todo[lo]
+            gx, _ = st.ctx.grid()
+            res = ChunkResult(
+                {r.name: FieldAccumulator(gx.shape) for r in st.ctx.runs},
+                None,
+                [],
+                {},
+                {p.pair_id: (p.describe(), f"worker died: {exc}")},
+                {},
+                {},
+            )
+        fut.release()
+        self.workers_seen.add(res.worker)
+        red.add_timings(res.timings)
+        for pid in res.done:
+            red.done(pid, res.pair_timings.get(pid, {}), worker=res.worker)
+        for pid, (files, reason) in res.skipped.items():
+            red.skip(pid, files, reason)
+        for pid, (files, reason) in res.failed.items():
+            red.fail(pid, files, reason)
+        if res.done:
+            prog.advance(len(res.done))
+        nbad = len(res.skipped) + len(res.failed)
+        if nbad:
+            prog.advance(nbad, skipped=True)
+        self.merger.add(_Segment(lo, hi, res.accumulators, res.first, list(res.done)))
+        red.count(hi - lo)
+        self._checkpoint()
+        now = time.perf_counter()
+        if now - self.t_last_log >= self.progress_interval:
+            dt = now - self.t_map
+            st.log.write(
+                "progress",
+                done=red.n_ok,
+                skipped=len(red.skipped),
+                failed=len(red.failed),
+                remaining=len(todo) - red.n_handled,
+                pairs_per_min=round(60.0 * red.n_handled / dt if dt > 0 else 0.0, 3),
+                workers=self.n_workers,
+            )
+            self.t_last_log = now

@@ -1,0 +1,433 @@
+"""Analysing a campaign: the wall, the profiles, the boundary layer, the output files and the
+report of every run.
+
+Per run the wall is found from the mean field's mirror symmetry (:func:`find_run_wall`, with
+:func:`rspiv.find_wall`), the statistics are averaged along x into profiles from the wall and
+converted to SI units (``M`` from the calibration, ``dt`` and ``nu`` from ``[flow]``), the
+boundary layer is analysed (:func:`rspiv.analyse_profile`), and the outputs are written
+atomically: ``statistics_<run>.nc`` (pivpy names, CF units), ``profile_<run>.nc``,
+``profile_<run>.csv``, ``summary.json`` and ``report/report.{md,html}``. A shard writes its raw
+accumulators instead (:func:`write_shard`).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import pathlib
+from typing import Any
+
+import numpy as np
+
+from rspiv._rspiv import __version__
+from rspiv.boundary_layer import analyse_profile, profile_from_accumulator
+from rspiv.campaign.spec import STAGES, RunSpec
+from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
+from rspiv.campaign_config import CampaignConfig
+from rspiv.errors import InvalidInputError, RspivError
+from rspiv.outputs import (
+    atomic_path,
+    atomic_write_text,
+    profile_dataset,
+    statistics_dataset,
+    write_netcdf,
+    write_profile_csv,
+)
+from rspiv.report import ReportSection, ReportTable, campaign_report
+from rspiv.stats import FieldAccumulator
+from rspiv.wall import find_wall
+
+__all__ = [
+    "analyse_result",
+    "analyse_run",
+    "calibration_table",
+    "find_run_wall",
+    "scaled_accumulator",
+    "wall_dict",
+    "wall_figure",
+    "write_report",
+    "write_shard",
+]
+
+
+def scaled_accumulator(
+    acc: FieldAccumulator, k: float, sign_u: float = 1.0, sign_v: float = 1.0
+) -> FieldAccumulator:
+    """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
+    and axis flips; every moment of the state transforms exactly)."""
+    out = copy.deepcopy(acc)
+    ku, kv = k * sign_u, k * sign_v
+    out.mean_u = acc.mean_u * ku
+    out.mean_v = acc.mean_v * kv
+    out.m2_uu = acc.m2_uu * ku * ku
+    out.m2_vv = acc.m2_vv * kv * kv
+    out.c_uv = acc.c_uv * ku * kv
+    for comp, kk in (("u", ku), ("v", kv)):
+        for part in ("a", "b"):
+            name = f"lag_mean_{part}_{comp}"
+            setattr(out, name, getattr(acc, name) * kk)
+        setattr(out, f"lag_c_{comp}", getattr(acc, f"lag_c_{comp}") * kk * kk)
+    return out
+
+
+def find_run_wall(acc: FieldAccumulator, gx, gy, stations: int, side: str, min_count: int):
+    """Find the wall in an accumulator's mean u field; returns ``(Wall, flow_side)``.
+
+    Vectors with fewer than ``min_count`` valid samples are left out; :func:`rspiv.find_wall`
+    finds the band itself (centred on the row of smallest mean |u|, as wide as the field
+    allows). ``flow_side`` is ``"above"`` (flow at smaller y: the wall near the bottom of the
+    image) or ``"below"``: the wall finder's judgement for ``side="auto"``, else the configured
+    side (``"bottom"``: the wall at the bottom, the flow above it).
+    """
+    u = np.where(acc.count >= max(min(min_count, acc.n_fields), 1), acc.mean_u, np.nan)
+    st = min(int(stations), u.shape[1])
+    wall = find_wall(u, y=gy[:, 0], x=gx[0], stations=st)
+    if side == "auto":
+        flow_side = wall.flow_side
+    else:
+        flow_side = "above" if side == "bottom" else "below"
+    return wall, flow_side
+
+
+def analyse_run(
+    run: RunSpec, acc: FieldAccumulator, gx, gy, cfg: CampaignConfig, mag, dt, window
+) -> RunAnalysis:
+    """Wall, profile (SI when ``mag`` and ``dt`` are known) and boundary-layer analysis of one
+    run's accumulator."""
+    st = cfg.statistics
+    xs, ys = gx[0], gy[:, 0]
+    wall, side = None, "above"
+    if cfg.wall.enabled:
+        wall, side = find_run_wall(acc, gx, gy, cfg.wall.stations, cfg.wall.side, st.min_count)
+        y_wall = float(wall.line(np.mean(xs)))
+    else:
+        side = "above" if cfg.wall.side != "top" else "below"
+        y_wall = float(ys[-1] + 0.5 * (ys[1] - ys[0])) if side == "above" else float(ys[0])
+    sign_y = -1.0 if side == "above" else 1.0  # physical y (into the flow) vs pixel y
+    dist_px = sign_y * (ys - y_wall)
+    mean_u = np.nanmean(np.where(acc.count > 0, acc.mean_u, np.nan))
+    sign_x = -1.0 if mean_u < 0 else 1.0
+    si = mag is not None and dt > 0
+    m_per_px = 1e-3 / mag if mag is not None else None
+    k = (m_per_px / dt) if si else 1.0
+    prof_acc = scaled_accumulator(acc, k, sign_x, sign_y)
+    prof = profile_from_accumulator(prof_acc, min_count=max(st.min_count, 2))
+    profile: dict[str, Any] = {
+        "si": si,
+        "k": k,
+        "sign_x": sign_x,
+        "sign_y": sign_y,
+        "y_wall_px": y_wall,
+        "dist_px": dist_px,
+        "U": prof["U"],
+        "V": prof["V"],
+        "uu": prof["uu"],
+        "vv": prof["vv"],
+        "uv": prof["uv"],
+        "count": prof["count"],
+        "x_coord": (xs - xs[0]) * m_per_px if m_per_px else xs,
+        "y_coord": dist_px * m_per_px if m_per_px else dist_px,
+    }
+    if not si:
+        return RunAnalysis(
+            run,
+            wall,
+            side,
+            profile,
+            None,
+            "no SI units: a calibration and [flow].dt > 0 are needed",
+        )
+    n_eff = prof["n_eff"] if st.use_n_eff else prof["count"]
+    if isinstance(n_eff, dict):
+        n_eff = {kk: vv for kk, vv in n_eff.items() if kk != "V"}
+    ok = (dist_px > 0) & np.isfinite(prof["U"]) & (prof["count"] > 0)
+    if ok.sum() < 8:
+        raise InvalidInputError(f"{run.label}: fewer than 8 profile points above the wall")
+    y_m = dist_px[ok] * m_per_px
+    sel = (lambda a: a[ok]) if not isinstance(n_eff, dict) else None
+    ne = {kk: vv[ok] for kk, vv in n_eff.items()} if isinstance(n_eff, dict) else sel(n_eff)
+    # Leave out of the composite fit the windows that reach the wall and its reflection.
+    y_min_fit = (0.5 * window[1] + 1.0) * m_per_px
+    result = analyse_profile(
+        y_m,
+        prof["U"][ok],
+        prof["uu"][ok],
+        prof["vv"][ok],
+        prof["uv"][ok],
+        cfg.flow.nu,
+        ne,
+        u_e=cfg.flow.u_inf if cfg.flow.u_inf > 0 else None,
+        fit_offset=st.fit_offset,
+        y_min_fit=y_min_fit,
+    )
+    return RunAnalysis(run, wall, side, profile, result)
+
+
+def wall_dict(wall) -> dict[str, Any]:
+    return {
+        "x_px": wall.x_px,
+        "position_px": wall.position_px,
+        "intercept_px": wall.intercept_px,
+        "slope": wall.slope,
+        "angle_deg": wall.angle_deg,
+        "max_deviation_px": wall.max_deviation_px,
+        "straightness_px": wall.straightness_px,
+    }
+
+
+def calibration_table(cal) -> dict[str, Any]:
+    r = cal.report()
+    mk = cal.markers
+    d = np.hypot(*(mk.image_px - mk.object_px).T)
+    rc = np.hypot(*(mk.object_px - mk.object_px[mk.centre]).T)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(rc > 0, d / rc, 0.0)
+    out: dict[str, Any] = {
+        "pitch (mm)": f"{r['pitch_mm']:.3f} +/- {r['pitch_sigma_mm']:.3f}",
+        "magnification M (px/mm)": f"{r['magnification']:.3f} +/- {r['magnification_sigma']:.3f}",
+    }
+    for m, s in r["models"].items():
+        out[f"max |residual| {m.upper()} (px)"] = tuple(round(v, 3) for v in s["max_abs_px"])
+        out[f"RMS residual {m.upper()} (px)"] = tuple(round(v, 3) for v in s["rms_px"])
+        out[f"held-out RMS {m.upper()} (px)"] = s["loo_rms_px"]
+    out["marker sigma, image (px)"] = r["image_sigma_px"]
+    out["marker sigma, object (px)"] = r["object_sigma_px"]
+    out["max distortion (px)"] = float(d.max())
+    out["max distortion (%)"] = float(100 * rel.max())
+    out["markers"] = f"{r['n_markers']} of {r['n_detected']} detected"
+    out["model"] = f"{r['model']} ({r['model_reason']})"
+    return out
+
+
+def wall_figure(path: pathlib.Path, res: CampaignResult, pilot: dict | None) -> pathlib.Path:
+    """Wall position per station: pilot (before rotation) and each run, relative to its mean."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # deferred: matplotlib
+    from matplotlib.figure import Figure  # deferred: matplotlib
+
+
+    fig = Figure(figsize=(7.0, 4.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    curves = []
+    if pilot:
+        curves.append(("before rotation (pilot)", pilot["x_px"], pilot["position_px"]))
+    for a in res.analyses.values():
+        if a.wall is not None:
+            curves.append((a.run.label, a.wall.x_px, a.wall.position_px))
+    for label, x, y in curves:
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        ax.plot(x, y - np.nanmean(y), "o-", ms=3, label=label)
+    ax.set_xlabel("x (px)")
+    ax.set_ylabel("wall position - mean (px)")
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    return path
+
+
+def write_shard(camp: Any, res: CampaignResult) -> None:
+    """Write the accumulators of a sharded run of ``camp``, one NetCDF file per run.
+
+    Parameters
+    ----------
+    res : CampaignResult
+        The result of this shard; the paths written are added to ``res.files``
+        (``shard_<run>``: ``OUT/shards/statistics_<run>.shard-I-of-N.nc``).
+    """
+    i, n = camp.shard
+    gx, gy = res.context.grid()
+    for name, acc in res.accumulators.items():
+        ds = acc.to_xarray(
+            x=gx[0],
+            y=gy[:, 0],
+            velocity_units="pix",
+            attrs={
+                "run": name,
+                "shard": f"{i}/{n}",
+                "campaign": camp.config.name,
+                "fingerprint": res.context.fingerprint(),
+                "frame": "object px" if name != "uncorrected" else "image px",
+            },
+        )
+        path = camp.out_dir / "shards" / f"statistics_{name}.shard-{i}-of-{n}.nc"
+        res.files[f"shard_{name}"] = write_netcdf(ds, path)
+
+def analyse_result(camp: Any, res: CampaignResult) -> None:
+    """Analyse the accumulators of ``res`` and write the outputs of ``camp``.
+
+    Finds the walls, fits the profiles, writes the NetCDF/CSV files, figures and report,
+    and fills ``res.analyses`` and ``res.files`` in place.
+
+    Parameters
+    ----------
+    res : CampaignResult
+        A result whose ``accumulators`` hold every run of ``res.context``.
+    """
+    cfg = camp.config
+    ctx = res.context
+    out = camp.out_dir
+    gx, gy = ctx.grid()
+    cal = camp.calibration
+    mag = cal.magnification if cal is not None else None  # px/mm
+    dt = cfg.flow.dt
+    model = cfg.calibration.model
+    summary: dict[str, Any] = {
+        "campaign": cfg.name,
+        "runs": {},
+        "pairs": res.n_pairs,
+        "processed": res.n_done,
+        "skipped": res.skipped,
+    }
+    for run in ctx.runs:
+        acc = res.accumulators[run.name]
+        try:
+            an = analyse_run(run, acc, gx, gy, cfg, mag, dt, ctx.piv.final_window)
+        except (RspivError, ValueError) as exc:
+            camp.say(f"{run.label}: analysis failed: {exc}")
+            res.analyses[run.name] = RunAnalysis(run, None, "", {}, None, str(exc))
+            summary["runs"][run.name] = {"label": run.label, "error": str(exc)}
+            continue
+        res.analyses[run.name] = an
+        if an.wall is not None:
+            cond = {"none": "Distorted"}.get(
+                run.method,
+                f"Dewarped by {model}"
+                + (" and rotated" if (cfg.wall.rotate and cal is not None) else ""),
+            )
+            if run.method != "none" and run.method != ctx.runs[0].method:
+                cond += f" (Method {run.method})"
+            res.wall_deviation[cond] = an.wall.max_deviation_px
+        si = an.profile.get("si", False)
+        k = an.profile.get("k", 1.0)
+        ds = statistics_dataset(
+            scaled_accumulator(
+                acc, k, an.profile.get("sign_x", 1.0), an.profile.get("sign_y", 1.0)
+            ),
+            x=an.profile["x_coord"],
+            y=an.profile["y_coord"],
+            velocity_units="m s-1" if si else "pix",
+            dt=dt if dt > 0 else None,
+            attrs={
+                "run": run.name,
+                "label": run.label,
+                "method": run.method,
+                "campaign": cfg.name,
+                "n_pairs": int(acc.n_fields),
+                "frame": "object" if run.method != "none" else "raw image",
+            },
+        )
+        if cfg.output.netcdf:
+            res.files[f"statistics_{run.name}"] = write_netcdf(
+                ds, out / f"statistics_{run.name}.nc"
+            )
+        rs: dict[str, Any] = {
+            "label": run.label,
+            "method": run.method,
+            "flow_side": an.flow_side,
+        }
+        if an.wall is not None:
+            rs["wall"] = wall_dict(an.wall)
+        if an.result is not None:
+            rs.update(an.result.summary())
+            if cfg.output.netcdf:
+                res.files[f"profile_{run.name}_nc"] = write_netcdf(
+                    profile_dataset(an.result, attrs={"run": run.name, "label": run.label}),
+                    out / f"profile_{run.name}.nc",
+                )
+            if cfg.output.csv:
+                res.files[f"profile_{run.name}_csv"] = write_profile_csv(
+                    out / f"profile_{run.name}.csv",
+                    an.result,
+                    metadata={"run": run.name, "label": run.label},
+                )
+        elif an.error:
+            rs["error"] = an.error
+        summary["runs"][run.name] = rs
+    summary["wall_deviation_px"] = res.wall_deviation
+    summary["timings_s"] = res.timings
+    if camp.info.get("pilot"):
+        summary["pilot"] = camp.info["pilot"]
+    res.files["summary"] = atomic_write_text(
+        out / "summary.json", json.dumps(summary, indent=1, default=json_default)
+    )
+    if cfg.output.report:
+        write_report(camp, res)
+
+def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
+    """Write the campaign report of ``res`` (``OUT/report/report.{md,html}``), with
+    ``extra_sections`` (:class:`rspiv.report.ReportSection`) appended."""
+    ctx = res.context
+    results = {a.run.label: a.result for a in res.analyses.values() if a.result is not None}
+    repdir = camp.out_dir / "report"
+    if not results:
+        camp.say("no boundary-layer result to report (set [flow].dt and a calibration)")
+        return
+    wall_figs = []
+    try:
+        p = wall_figure(repdir / "figures" / "wall.png", res, camp.info.get("pilot_wall"))
+        wall_figs.append((p, "Wall position per station (pilot before rotation, final runs)"))
+    except Exception as exc:  # noqa: BLE001
+        camp.say(f"wall figure failed: {exc}")
+    main = ctx.runs[0]
+    w, h = ctx.piv.final_window
+    piv = {"samples N": res.n_done, "final window x (px)": w, "final window y (px)": h}
+    r0 = res.analyses.get(main.name)
+    if r0 is not None and r0.result is not None and camp.calibration is not None:
+        lv_px = r0.result.nu / r0.result.u_tau * 1e3 * camp.calibration.magnification
+        piv["final window x+"] = w / lv_px
+        piv["final window y+"] = h / lv_px
+    extra = list(extra_sections)
+    if res.skipped:
+        extra.append(
+            ReportSection(
+                "Skipped pairs",
+                text=f"{len(res.skipped)} pair(s) were skipped and left out of the statistics.",
+                tables=[
+                    ReportTable(
+                        "Skipped pairs",
+                        [{"pair": k, "reason": v} for k, v in sorted(res.skipped.items())],
+                    )
+                ],
+            )
+        )
+    t = res.timings
+    n = max(res.n_done - res.n_resumed, 1)
+    extra.append(
+        ReportSection(
+            "Throughput",
+            tables=[
+                ReportTable(
+                    "Time per stage (this run)",
+                    {
+                        k: {"total (s)": t.get(k, 0.0), "per pair (s)": t.get(k, 0.0) / n}
+                        for k in (*STAGES, "prepare")
+                    },
+                )
+            ],
+        )
+    )
+    mc_figs = camp.info.get("figures_mc")
+    paths = campaign_report(
+        repdir,
+        results,
+        calibration=camp.info.get("calibration_table"),
+        wall_deviation=res.wall_deviation,
+        piv_parameters=piv,
+        calibration_figures=camp.info.get("figures", {}).get("calibration"),
+        monte_carlo_figures=mc_figs,
+        wall_figures=wall_figs or None,
+        extra_sections=extra,
+        metadata={
+            "campaign": camp.config.name,
+            "rspiv": __version__,
+            "pairs processed": res.n_done,
+            "pairs skipped": len(res.skipped),
+            "runs": ", ".join(r.label for r in ctx.runs),
+        },
+        title=f"rspiv campaign report: {camp.config.name}",
+    )
+    res.files["report_md"] = paths["markdown"]
+    res.files["report_html"] = paths["html"]

@@ -1,0 +1,132 @@
+"""The per-pair work of a campaign: read the frames, correct, run the PIV of every run.
+
+:func:`process_pair` is pure (no files written, no state kept beyond the context's cache of the
+parsed mapping and window positions), so any executor (local, Dask) can run it anywhere. The
+correction is :mod:`rspiv.correction` (Method I: :func:`~rspiv.correction.dewarp_pair` then the
+multipass PIV; Method II: :func:`~rspiv.correction.method_two` with the uncorrected field as its
+predictor), the PIV :mod:`rspiv.multipass`, with the context's one :class:`rspiv.PivSettings`.
+
+Units: fields in px per pair; corrected runs in object px, the uncorrected run in image px.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from rspiv.campaign.spec import STAGES, PairContext, PairResult, PairSpec
+from rspiv.correction import dewarp_pair, method_two
+from rspiv.errors import InvalidInputError, RspivError
+from rspiv.io import read_image
+from rspiv.multipass import run_grid
+
+__all__ = ["process_pair", "read_frame"]
+
+
+def read_frame(path: str, index: int | None) -> np.ndarray:
+    """One 2D frame: a file, or frame ``index`` of a multi-frame TIFF (:func:`rspiv.io.read_image`;
+    InvalidInputError naming the file when it is missing, unreadable or not 2D)."""
+    return read_image(path, 0 if index is None else int(index))
+
+
+def _window_positions(context: PairContext, corrected: bool) -> np.ndarray:
+    """Raw-image positions (px) of the final windows, shape (ny, nx, 2): the grid itself for
+    the uncorrected run, ``F(grid)`` for the corrected ones (cached per process)."""
+    key = "image_xy" if corrected else "grid_xy"
+    xy = context._cache.get(key)
+    if xy is None:
+        gx, gy = context.grid()
+        pts = np.column_stack([gx.ravel(), gy.ravel()])
+        if corrected and context.mapping is not None:
+            pts = context.mapping.forward(pts)
+        xy = pts.reshape(gx.shape + (2,))
+        context._cache[key] = xy
+    return xy
+
+
+def _field_arrays(
+    f, context: PairContext, corrected: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, valid) of a field. Besides the PIV's own validation, a vector counts only if its
+    two windows (the final window displaced by -d/2 and +d/2, d bounded by the field's 99th
+    percentile displacement) lie inside the recorded image: windows reaching past the sensor or
+    into the zero fill of a dewarped frame are no measurement."""
+    u = np.asarray(f.u, np.float64)
+    v = np.asarray(f.v, np.float64)
+    valid = np.asarray(f.valid, bool) & ~np.asarray(f.masked, bool)
+    valid &= np.isfinite(u) & np.isfinite(v)
+    if valid.any():
+        du = float(np.percentile(np.abs(u[valid]), 99))
+        dv = float(np.percentile(np.abs(v[valid]), 99))
+        w, h = context.piv.final_window
+        xy = _window_positions(context, corrected)
+        height, width = context.image_shape
+        mx = 0.5 * w + 0.5 * du
+        my = 0.5 * h + 0.5 * dv
+        valid &= (xy[..., 0] - mx >= -0.5) & (xy[..., 0] + mx <= width - 0.5)
+        valid &= (xy[..., 1] - my >= -0.5) & (xy[..., 1] + my <= height - 0.5)
+    return u, v, valid
+
+
+def process_pair(context: PairContext, pair: PairSpec) -> PairResult:
+    """Process one pair for every run of ``context`` (pure: no files written, no state kept
+    beyond the context's cache of the parsed mapping).
+
+    Bad data (missing or unreadable frame, frames of different sizes or not of the campaign's
+    size) gives ``PairResult(ok=False, reason=...)``; programming errors propagate.
+    """
+    t = {k: 0.0 for k in STAGES[:3]}
+    t0 = time.perf_counter()
+    try:
+        a = read_frame(pair.a, pair.frame_a)
+        b = read_frame(pair.b, pair.frame_b)
+    except (RspivError, ValueError, OSError) as exc:
+        return PairResult(pair.pair_id, False, str(exc), timings=t)
+    t["read"] = time.perf_counter() - t0
+    shape = tuple(context.image_shape)
+    for name, f in (("frame A", a), ("frame B", b)):
+        if f.shape != shape:
+            return PairResult(
+                pair.pair_id,
+                False,
+                f"{name} ({pair.describe()}) is {f.shape[1]} x {f.shape[0]} px, the campaign's "
+                f"images are {shape[1]} x {shape[0]} px",
+                timings=t,
+            )
+    mask = context.mask()
+    settings = context.piv
+    fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    raw = None
+    try:
+        # The uncorrected field first: it also serves as Method II's predictor.
+        for run in sorted(context.runs, key=lambda r: r.method != "none"):
+            t0 = time.perf_counter()
+            if run.method == "none":
+                raw = run_grid(a, b, settings, mask)
+                t["piv"] += time.perf_counter() - t0
+                fields[run.name] = _field_arrays(raw, context, False)
+            elif run.method == "I":
+                # Method I; the zero fill stays unmasked: _field_arrays keeps only the vectors
+                # whose windows lie inside the recorded image
+                da, db, dmask = dewarp_pair(
+                    a, b, context.mapping, object_shape=context.object_shape, mask=mask,
+                    zero_fill="keep",
+                )  # fmt: skip
+                t["dewarp"] += time.perf_counter() - t0
+                t0 = time.perf_counter()
+                f = run_grid(da, db, settings, dmask)
+                t["piv"] += time.perf_counter() - t0
+                fields[run.name] = _field_arrays(f, context, True)
+            elif run.method == "II":
+                f = method_two(
+                    a, b, context.mapping, settings, mapping=run.mapping,
+                    object_shape=context.object_shape, predictor=raw, mask=mask,
+                )  # fmt: skip
+                t["piv"] += time.perf_counter() - t0
+                fields[run.name] = _field_arrays(f, context, True)
+            else:
+                raise InvalidInputError(f"run {run.name}: unknown method {run.method!r}")
+    except InvalidInputError as exc:  # e.g. frames with NaN: bad data, not a bug
+        return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
+    return PairResult(pair.pair_id, True, "", fields, t)

@@ -1,0 +1,192 @@
+"""Preparing a campaign: calibration (figures, Monte Carlo), the wall pilot, the frozen context.
+
+:func:`prepare_context` calibrates from the target image, runs a *pilot* over the first few
+pairs to find the wall in the corrected field and its angle, rotates the calibration to level it
+(paper section 3.2), and freezes everything the per-pair work needs into a :class:`PairContext`
+written to ``OUT/context.json`` (reused by shards and restarts of the same configuration).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import time
+from typing import Any
+
+import numpy as np
+
+from rspiv.calibration import Calibration, calibrate
+from rspiv.campaign import pair as pair_work
+from rspiv.campaign.analysis import calibration_table, find_run_wall, wall_dict
+from rspiv.campaign.spec import PairContext, PairSpec
+from rspiv.campaign.state import check_writable, json_default
+from rspiv.errors import InvalidInputError, RspivError
+from rspiv.io import read_image
+from rspiv.montecarlo import monte_carlo
+from rspiv.outputs import atomic_write_text
+from rspiv.stats import FieldAccumulator
+
+__all__ = ["prepare_context"]
+
+
+def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairContext:
+    """Calibrate, find the wall angle on the pilot pairs, and freeze the context of ``camp``
+    (a :class:`rspiv.Campaign`: its ``calibration`` and ``info`` are set).
+
+    Reuses ``OUT/context.json`` when it was written for the same configuration.
+    """
+    out = camp.out_dir
+    check_writable(out)
+    ctx_path = out / "context.json"
+    h = camp.config_hash()
+    if ctx_path.is_file():
+        try:
+            saved = json.loads(ctx_path.read_text(encoding="utf-8"))
+            if saved.get("config_hash") == h:
+                camp.info = saved.get("info", {})
+                cal_path = out / "calibration.json"
+                if cal_path.is_file():
+                    camp.calibration = Calibration.load(cal_path)
+                camp.say(f"reusing {ctx_path}")
+                return PairContext.from_dict(saved["context"])
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # rebuilt below
+    pairs = camp.pairs() if pairs is None else pairs
+    cfg = camp.config
+    runs = camp.runs()
+    figdir = out / "report" / "figures"
+    info: dict[str, Any] = {"figures": {}, "wall_deviation": {}}
+    mapping_json = None
+    cal = None
+    image_shape = None
+    if cfg.calibration.target is not None:
+        t0 = time.perf_counter()
+        image = read_image(cfg.calibration.target)
+        cc = cfg.calibration
+        cal = calibrate(
+            image,
+            cc.pitch_mm,
+            model=cc.model.lower(),
+            marker=cc.marker,
+            pitch_sigma_mm=cc.pitch_sigma_mm if cc.pitch_sigma_mm > 0 else None,
+            marker_size_px=cc.marker_size_px if cc.marker_size_px > 0 else None,
+        )
+        image_shape = tuple(cal.image_shape)
+        camp.say(f"calibration: {cal!r} ({time.perf_counter() - t0:.1f} s)")
+        info["calibration_table"] = calibration_table(cal)
+        try:
+            from rspiv.plots.calibration import write_all  # deferred: matplotlib
+
+            figs = write_all(figdir, cal, image)
+            info["figures"]["calibration"] = [str(p) for p in figs]
+        except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
+            camp.say(f"calibration figures failed: {exc}")
+        if cc.monte_carlo_samples > 0:
+            t0 = time.perf_counter()
+            info.update(_monte_carlo(camp, cal, cc.monte_carlo_samples, figdir))
+            camp.say(
+                f"Monte Carlo: {cc.monte_carlo_samples} samples "
+                f"({time.perf_counter() - t0:.1f} s)"
+            )
+    if image_shape is None:
+        image_shape = _first_shape(pairs)
+    base = PairContext(
+        runs=runs,
+        image_shape=image_shape,
+        object_shape=image_shape,
+        mapping_json=None if cal is None else cal.mapping.to_json(),
+        piv=cfg.piv.settings(),
+        mask_path=None if cfg.piv.mask is None else str(cfg.piv.mask),
+    )
+    main = runs[0]
+    if cal is not None and main.method != "none" and cfg.wall.enabled and cfg.wall.rotate:
+        t0 = time.perf_counter()
+        pilot_ctx = dataclasses.replace(base, runs=(main,), _cache={})
+        acc = None
+        used = []
+        for p in pairs:
+            if len(used) >= camp.pilot_pairs:
+                break
+            r = pair_work.process_pair(pilot_ctx, p)
+            if not r.ok:
+                continue
+            u, v, valid = r.fields[main.name]
+            if acc is None:
+                acc = FieldAccumulator(u.shape)
+            acc.add(u, v, valid)
+            used.append(p.pair_id)
+        if acc is None:
+            raise InvalidInputError("no readable image pair for the wall alignment pilot")
+        gx, gy = base.grid()
+        wall, side = find_run_wall(
+            acc, gx, gy, cfg.wall.stations, cfg.wall.side, cfg.statistics.min_count
+        )
+        theta = wall.rotation_deg
+        cal = cal.with_rotation(theta)
+        mapping_json = cal.mapping.to_json()
+        model = cfg.calibration.model
+        info["wall_deviation"][f"Dewarped by {model}"] = wall.max_deviation_px
+        info["pilot"] = {
+            "pairs": used,
+            "wall_angle_deg": wall.angle_deg,
+            "rotation_deg": theta,
+            "max_deviation_px": wall.max_deviation_px,
+            "flow_side": side,
+        }
+        info["pilot_wall"] = wall_dict(wall)
+        camp.say(
+            f"wall alignment on {len(used)} pilot pair(s): angle {wall.angle_deg:.4f} deg, "
+            f"max deviation {wall.max_deviation_px:.2f} px; rotating the mapping by "
+            f"{theta:.4f} deg ({time.perf_counter() - t0:.1f} s)"
+        )
+    elif cal is not None:
+        mapping_json = cal.mapping.to_json()
+    ctx = dataclasses.replace(base, mapping_json=mapping_json, _cache={})
+    camp.calibration = cal
+    if cal is not None:
+        cal.save(out / "calibration.json")
+    camp.info = info
+    atomic_write_text(
+        ctx_path,
+        json.dumps(
+            {"config_hash": h, "context": ctx.to_dict(), "info": info},
+            indent=1,
+            default=json_default,
+        ),
+    )
+    return ctx
+
+def _first_shape(pairs: list[PairSpec]) -> tuple[int, int]:
+    for p in pairs:
+        try:
+            a = pair_work.read_frame(p.a, p.frame_a)
+        except (RspivError, ValueError, OSError):
+            continue
+        return (int(a.shape[0]), int(a.shape[1]))
+    raise InvalidInputError("no readable image in the campaign")
+
+def _monte_carlo(camp: Any, cal: Any, n: int, figdir: pathlib.Path) -> dict[str, Any]:
+    res = monte_carlo(cal, n=int(n), hist_bins=64)
+    out: dict[str, Any] = {
+        "monte_carlo": {
+            "n": res.n,
+            "n_failed": res.n_failed,
+            "radius99_max_px": float(np.max(res.radius99_px)),
+            "radius99_median_px": float(np.median(res.radius99_px)),
+            "within1_min": float(np.min(res.within1)),
+            "within2_min": float(np.min(res.within2)),
+            "summary": res.summary(),
+        }
+    }
+    try:
+        from rspiv.plots.calibration import monte_carlo_jpdfs  # deferred: matplotlib
+
+        figdir.mkdir(parents=True, exist_ok=True)
+        p = monte_carlo_jpdfs(res, figdir / f"montecarlo_{res.model}.png")
+        out["figures_mc"] = [str(p)]
+    except Exception as exc:  # noqa: BLE001
+        camp.say(f"Monte Carlo figure failed: {exc}")
+    return out
+
+# ------------------------------------------------------------------ checkpoints

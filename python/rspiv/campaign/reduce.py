@@ -1,0 +1,97 @@
+"""The one reduce/log step of a campaign run, shared by every executor.
+
+Whatever runs the per-pair work (:mod:`rspiv.campaign.executors`: a local loop, Dask workers),
+its results come back to the client and go through a :class:`RunReducer`: timings summed, the
+fields added to the run's accumulators (:func:`add_fields`), the pair recorded in the run log
+(``pair``, ``skipped``, ``failed``), and a checkpoint written every ``checkpoint_every`` pairs.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from rspiv.campaign.spec import PairResult
+from rspiv.campaign.state import RunState
+from rspiv.stats import FieldAccumulator
+
+__all__ = ["RunReducer", "add_fields"]
+
+
+def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
+    """Add a processed pair's fields to the accumulators (keyed by its pair id, so a pair is
+    never counted twice); returns the seconds it took."""
+    t0 = time.perf_counter()
+    for name, (u, v, valid) in result.fields.items():
+        accs[name].add(u, v, valid, pair_id=result.pair_id)
+    return time.perf_counter() - t0
+
+
+class RunReducer:
+    """Bookkeeping of a run on the client: timings, skipped and failed pairs, the run log, the
+    progress display and the checkpoint cadence.
+
+    Parameters
+    ----------
+    campaign : rspiv.Campaign
+        The campaign (its ``checkpoint_every`` and :meth:`~rspiv.Campaign.save_checkpoint`).
+    state : RunState
+        The run (after :meth:`~rspiv.Campaign.begin_run`); its ``timings`` are updated.
+    progress : rspiv.progress.Progress
+        The run's progress display.
+    """
+
+    def __init__(self, campaign: Any, state: RunState, progress: Any) -> None:
+        self.campaign = campaign
+        self.state = state
+        self.progress = progress
+        self.skipped: dict[int, str] = {}
+        self.failed: dict[int, str] = {}
+        self.n_ok = 0
+        self.since = 0
+
+    def add_timings(self, timings: dict[str, float]) -> None:
+        """Add seconds per stage to the run's timings."""
+        t = self.state.timings
+        for k, v in timings.items():
+            t[k] = t.get(k, 0.0) + v
+
+    def done(self, pair_id: int, timings: dict[str, float], **extra: Any) -> None:
+        """Record a pair added to the statistics (``pair`` event)."""
+        self.state.log.write("pair", pair_id=pair_id, timings=timings, **extra)
+        self.n_ok += 1
+
+    def skip(self, pair_id: int, files: str, reason: str) -> None:
+        """Record a pair that could not be read (``skipped`` event, left out of the
+        statistics)."""
+        self.skipped[pair_id] = reason
+        self.state.log.write("skipped", pair_id=pair_id, files=files, reason=reason)
+        self.progress.log(f"pair {pair_id} skipped: {reason}")
+
+    def fail(self, pair_id: int, files: str, reason: str) -> None:
+        """Record a pair whose processing raised (``failed`` event, left out)."""
+        self.failed[pair_id] = reason
+        self.state.log.write("failed", pair_id=pair_id, files=files, reason=reason)
+        self.progress.log(f"pair {pair_id} failed: {reason}")
+
+    @property
+    def n_handled(self) -> int:
+        """Pairs done, skipped or failed in this run."""
+        return self.n_ok + len(self.skipped) + len(self.failed)
+
+    def count(self, n: int = 1) -> bool:
+        """Count ``n`` pairs handled; True when a checkpoint is due."""
+        self.since += n
+        return self.since >= self.campaign.checkpoint_every
+
+    def checkpointed(self, finished: int, **extra: Any) -> None:
+        """Record a checkpoint of ``finished`` pairs (``checkpoint`` event); restart the
+        count."""
+        self.state.log.write("checkpoint", finished=finished, **extra)
+        self.since = 0
+
+    def checkpoint(self) -> None:
+        """Write the run's checkpoint (the state's accumulators and finished pairs)."""
+        st = self.state
+        self.campaign.save_checkpoint(st.ctx, st.accs, st.finished, st.timings)
+        self.checkpointed(len(st.finished))

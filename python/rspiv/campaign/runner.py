@@ -1,0 +1,380 @@
+"""The campaign: its configuration, pair list and runs, and the run skeleton every executor
+shares (open the run, prepare and resume, execute, analyse or write the shard, close the log).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pathlib
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import tifffile
+
+from rspiv.campaign import checkpoint
+from rspiv.campaign.analysis import analyse_result, write_report, write_shard
+from rspiv.campaign.executors.local import LocalExecutor
+from rspiv.campaign.prepare import prepare_context
+from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_shard, shard_slice
+from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
+from rspiv.campaign_config import CampaignConfig, load_campaign_config
+from rspiv.errors import InvalidInputError
+from rspiv.progress import Progress
+from rspiv.stats import FieldAccumulator
+
+__all__ = ["Campaign"]
+
+
+class Campaign:
+    """A campaign: configuration, pair list, and the run loop.
+
+    Parameters
+    ----------
+    config : CampaignConfig
+    extra_methods : sequence of {"I", "II"}
+        Further corrected runs for comparison (e.g. Method I beside a Method II campaign).
+    checkpoint_every : int
+        Pairs between checkpoints.
+    shard : (i, n) or "i/n"
+        Process only the i-th of n contiguous slices of the pairs (1-based).
+    pilot_pairs : int
+        Pairs used to find the wall angle before the main pass.
+    progress : bool
+        Progress bar / status lines on stderr.
+    out_dir : path, optional
+        Override ``[output].dir``.
+    log : callable, optional
+        Receives the campaign's messages (one line each); default: the progress display's
+        ``log`` once a run starts. Kept in the attribute ``log_fn``.
+    """
+
+    def __init__(
+        self,
+        config: CampaignConfig,
+        *,
+        extra_methods: Sequence[str] = (),
+        checkpoint_every: int = 25,
+        shard: tuple[int, int] | str | None = None,
+        pilot_pairs: int = 4,
+        progress: bool = True,
+        out_dir: str | os.PathLike | None = None,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.extra_methods = tuple(extra_methods)
+        for m in self.extra_methods:
+            if m not in ("I", "II"):
+                raise InvalidInputError(f"extra_methods: expected 'I' or 'II', got {m!r}")
+        if int(checkpoint_every) < 1:
+            raise InvalidInputError(f"checkpoint_every must be >= 1, got {checkpoint_every!r}")
+        self.checkpoint_every = int(checkpoint_every)
+        self.shard = parse_shard(shard)
+        self.pilot_pairs = max(int(pilot_pairs), 1)
+        self.show_progress = progress
+        self.out_dir = (
+            pathlib.Path(out_dir) if out_dir is not None else pathlib.Path(config.output.dir)
+        )
+        self.log_fn = log
+        self.calibration = None
+        self.info: dict[str, Any] = {}
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, **kwargs: Any) -> Campaign:
+        """Read a campaign file (:func:`rspiv.load_campaign_config`) and build the campaign."""
+        return cls(load_campaign_config(path), **kwargs)
+
+    # ------------------------------------------------------------------ pairs
+    def pairs(self) -> list[PairSpec]:
+        """The campaign's full pair list (ids are positions in it)."""
+        im = self.config.images
+        if im.multiframe is not None:
+            p = pathlib.Path(im.multiframe)
+            if not p.is_file():
+                raise InvalidInputError(f"[images].multiframe: {p}: no such file")
+            try:
+                with tifffile.TiffFile(p) as tf:
+                    n = len(tf.pages)
+            except Exception as exc:  # noqa: BLE001
+                raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
+            out = [PairSpec(k, str(p), str(p), 2 * k, 2 * k + 1) for k in range(n // 2)]
+            return out[: im.max_pairs] if im.max_pairs else out
+        return [PairSpec(k, str(a), str(b)) for k, (a, b) in enumerate(im.pair_files())]
+
+    def runs(self) -> tuple[RunSpec, ...]:
+        """The runs: the main method, the extra methods, and the uncorrected comparison."""
+        c = self.config.correction
+        model = self.config.calibration.model
+        rot = " + rotation" if (self.config.wall.enabled and self.config.wall.rotate) else ""
+        out: list[RunSpec] = []
+
+        def corrected(method: str) -> RunSpec:
+            return RunSpec(
+                f"method_{method}", f"{model}{rot}, Method {method}", method, c.map_displacement
+            )
+
+        if c.method == "none":
+            out.append(RunSpec("uncorrected", "uncorrected", "none"))
+        else:
+            out.append(corrected(c.method))
+            for m in self.extra_methods:
+                if m != c.method:
+                    out.append(corrected(m))
+            if c.compare_uncorrected:
+                out.append(RunSpec("uncorrected", "uncorrected", "none"))
+        return tuple(out)
+
+    def say(self, msg: str) -> None:
+        """Send one line to the campaign's log callable (``log_fn``), if any."""
+        if self.log_fn is not None:
+            self.log_fn(msg)
+
+    def config_hash(self) -> str:
+        """Hash of the configuration that the prepared context depends on."""
+        d = self.config.to_dict()
+        keep = {k: d[k] for k in ("calibration", "correction", "piv", "wall") if k in d}
+        keep["extra"] = list(self.extra_methods)
+        keep["pilot"] = self.pilot_pairs
+        return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()[
+            :16
+        ]
+
+    # ------------------------------------------------------------------ prepare
+    def prepare(self, pairs: list[PairSpec] | None = None) -> PairContext:
+        """Calibrate, find the wall angle on the pilot pairs, and freeze the context
+        (:func:`rspiv.campaign.prepare.prepare_context`; reuses ``OUT/context.json`` when it
+        was written for the same configuration)."""
+        return prepare_context(self, pairs)
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint_path(self) -> pathlib.Path:
+        """``OUT/checkpoint/state.pkl``, or ``state.shard-I-of-N.pkl`` for shard I of N."""
+        return checkpoint.checkpoint_path(self.out_dir, self.shard)
+
+    def save_checkpoint(
+        self,
+        ctx: PairContext,
+        accs: dict[str, FieldAccumulator],
+        finished: set[int],
+        timings: dict[str, float],
+    ) -> None:
+        """Write this shard's checkpoint atomically
+        (:func:`rspiv.campaign.checkpoint.save_checkpoint`)."""
+        checkpoint.save_checkpoint(self.checkpoint_path(), self.shard, ctx, accs, finished, timings)
+
+    def load_checkpoint(self, ctx: PairContext) -> dict[str, Any] | None:
+        """This shard's checkpoint, or None (:func:`rspiv.campaign.checkpoint.load_checkpoint`;
+        InvalidInputError for a corrupt one or one of another configuration)."""
+        return checkpoint.load_checkpoint(self.checkpoint_path(), ctx)
+
+    # ------------------------------------------------------------------ run
+    def open_run(self, t_start: float | None = None) -> RunState:
+        """Start a run: check that the output folder is writable, open the run log and select
+        this shard's pairs.
+
+        Parameters
+        ----------
+        t_start : float, optional
+            ``time.perf_counter()`` at which the run started (default: now); the ``total``
+            timing is measured from it.
+
+        Returns
+        -------
+        RunState
+            With ``log``, ``all_pairs``, ``sel`` and ``t_start`` set; :meth:`begin_run`
+            fills the rest.
+
+        Raises
+        ------
+        InvalidInputError
+            The output folder is not writable, or the campaign has no image pairs.
+        """
+        if t_start is None:
+            t_start = time.perf_counter()
+        check_writable(self.out_dir)
+        log = RunLog(self.out_dir / "run_log.jsonl")
+        all_pairs = self.pairs()
+        if not all_pairs:
+            raise InvalidInputError("the campaign has no image pairs")
+        sel = [all_pairs[k] for k in shard_slice(len(all_pairs), self.shard)]
+        return RunState(log=log, all_pairs=all_pairs, sel=sel, t_start=t_start)
+
+    def begin_run(self, state: RunState, progress) -> None:
+        """Prepare the run and resume it from the checkpoint.
+
+        Routes the campaign's messages to ``progress`` (unless a ``log`` callable was given),
+        runs :meth:`prepare`, loads the checkpoint (:meth:`load_checkpoint`) or starts new
+        accumulators, and lists the pairs still to do.
+
+        Parameters
+        ----------
+        state : RunState
+            From :meth:`open_run`; ``ctx``, ``t_prepare``, ``accs``, ``finished``,
+            ``timings``, ``n_resumed`` and ``todo`` are set in place.
+        progress : rspiv.progress.Progress
+            The run's progress display (entered).
+        """
+        if self.log_fn is None:
+            self.log_fn = progress.log
+        t0 = time.perf_counter()
+        ctx = self.prepare(state.all_pairs)
+        state.t_prepare = time.perf_counter() - t0
+        state.ctx = ctx
+        gx, _ = ctx.grid()
+        ckpt = self.load_checkpoint(ctx)
+        if ckpt is not None:
+            state.accs = ckpt["accumulators"]
+            state.finished = set(ckpt["finished"])
+            state.timings = dict(ckpt.get("timings", {}))
+        else:
+            state.accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
+            state.finished = set()
+            state.timings = {k: 0.0 for k in STAGES}
+        state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)
+        state.todo = [p for p in state.sel if p.pair_id not in state.finished]
+
+    def announce_run(self, state: RunState, progress, **start_extra: Any) -> None:
+        """Write the ``start`` record of the run log and report the pairs resumed.
+
+        Parameters
+        ----------
+        state : RunState
+            After :meth:`begin_run`.
+        progress : rspiv.progress.Progress
+            The run's progress display; advanced by the pairs resumed.
+        **start_extra
+            Further fields of the ``start`` record (e.g. ``dask={...}``).
+        """
+        ctx = state.ctx
+        state.log.write(
+            "start",
+            pairs=len(state.sel),
+            resumed=state.n_resumed,
+            shard=list(self.shard),
+            runs=[r.name for r in ctx.runs],
+            fingerprint=ctx.fingerprint(),
+            **start_extra,
+        )
+        if state.n_resumed:
+            progress.log(
+                f"resuming: {state.n_resumed} finished pair(s) skipped "
+                f"(checkpoint {self.checkpoint_path()})"
+            )
+            progress.advance(state.n_resumed)
+
+    def finish_run(
+        self,
+        state: RunState,
+        skipped: dict[int, str],
+        *,
+        failed: dict[int, str] | None = None,
+    ) -> CampaignResult:
+        """End a run: write the shard file (sharded run) or analyse and write the outputs,
+        then the ``end`` record of the run log.
+
+        Parameters
+        ----------
+        state : RunState
+            After the run loop: ``accs``, ``finished`` and ``timings`` hold the pairs done.
+        skipped : dict of int to str
+            Pairs that could not be read, with the reason.
+        failed : dict of int to str, optional
+            Pairs whose processing raised (Dask run), with the reason. They count as skipped
+            in the result and are reported separately in the ``end`` record.
+
+        Returns
+        -------
+        CampaignResult
+
+        Raises
+        ------
+        InvalidInputError
+            No pair of an unsharded run could be processed.
+        """
+        all_skipped = {**skipped, **failed} if failed is not None else skipped
+        n_done = sum(1 for p in state.sel if p.pair_id in state.finished)
+        result = CampaignResult(
+            out_dir=self.out_dir,
+            context=state.ctx,
+            accumulators=state.accs,
+            analyses={},
+            n_pairs=len(state.sel),
+            n_done=n_done,
+            n_resumed=state.n_resumed,
+            skipped=all_skipped,
+            timings={**state.timings, "prepare": state.t_prepare},
+            files={},
+            wall_deviation=dict(self.info.get("wall_deviation", {})),
+            info=self.info,
+        )
+        t0 = time.perf_counter()
+        if self.shard[1] > 1:
+            write_shard(self, result)
+        elif n_done == 0:
+            what = "skipped" if failed is None else "skipped or failed"
+            raise InvalidInputError(
+                f"no image pair could be processed ({len(all_skipped)} {what}; see "
+                f"{self.out_dir / 'run_log.jsonl'})"
+            )
+        else:
+            analyse_result(self, result)
+        result.timings["analysis"] = time.perf_counter() - t0
+        result.timings["total"] = time.perf_counter() - state.t_start
+        end: dict[str, Any] = {"done": n_done, "skipped": len(skipped)}
+        if failed is not None:
+            end["failed"] = len(failed)
+        state.log.write("end", **end, timings={k: round(v, 3) for k, v in result.timings.items()})
+        return result
+
+    def run(self, executor: Any = None) -> CampaignResult:
+        """Run (or resume) the campaign with ``executor`` (default: :class:`LocalExecutor`;
+        :class:`rspiv.campaign.executors.dask.DaskExecutor` for dask.distributed): open the
+        run, prepare it and load the checkpoint, let the executor process the pairs still to
+        do, then analyse (or write the shard) and close the run log."""
+        executor = LocalExecutor() if executor is None else executor
+        st = self.open_run(getattr(executor, "t_start", None))
+        with Progress(len(st.sel), "pairs", enabled=self.show_progress) as prog:
+            self.begin_run(st, prog)
+            skipped, failed = executor.execute(self, st, prog)
+        return self.finish_run(st, skipped, failed=failed)
+
+    # ------------------------------------------------------------------ outputs
+    def analyse(
+        self,
+        accumulators: dict[str, FieldAccumulator],
+        *,
+        skipped: dict[int, str] | None = None,
+    ) -> CampaignResult:
+        """Analyse and write the outputs of accumulators gathered elsewhere (e.g. merged shard
+        files or Dask partials): the same walls, profiles, NetCDF/CSV files and report as
+        :meth:`run`. The context comes from ``OUT/context.json`` (:meth:`prepare`)."""
+        ctx = self.prepare()
+        missing = [r.name for r in ctx.runs if r.name not in accumulators]
+        if missing:
+            raise InvalidInputError(f"accumulators: missing the run(s) {', '.join(missing)}")
+        n = max(len(a.pair_ids) or a.n_fields for a in accumulators.values())
+        res = CampaignResult(
+            out_dir=self.out_dir,
+            context=ctx,
+            accumulators=dict(accumulators),
+            analyses={},
+            n_pairs=n + len(skipped or {}),
+            n_done=n,
+            n_resumed=0,
+            skipped=dict(skipped or {}),
+            timings={k: 0.0 for k in STAGES},
+            files={},
+            wall_deviation=dict(self.info.get("wall_deviation", {})),
+            info=self.info,
+        )
+        t0 = time.perf_counter()
+        analyse_result(self, res)
+        res.timings["analysis"] = time.perf_counter() - t0
+        return res
+
+    def write_report(self, res: CampaignResult, extra_sections: Sequence[Any] = ()) -> None:
+        """Write the campaign report of ``res`` with ``extra_sections`` appended
+        (:func:`rspiv.campaign.analysis.write_report`)."""
+        write_report(self, res, extra_sections)

@@ -1,0 +1,218 @@
+"""What a campaign runs: the pairs, the runs, the frozen per-pair context and results.
+
+:class:`PairSpec` (one image pair), :class:`RunSpec` (one way of processing every pair: Method I,
+Method II or no correction), :class:`PairContext` (everything the per-pair work needs, picklable,
+fingerprinted for the checkpoints), :class:`PairResult` (what one pair gives), and the shard
+arithmetic (:func:`parse_shard`, :func:`shard_slice`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from typing import Any
+
+import numpy as np
+
+from rspiv.correction import grid_for_windows
+from rspiv.errors import InvalidInputError
+from rspiv.io import read_image
+from rspiv.mapping import Mapping
+from rspiv.settings import PivSettings
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "CHECKPOINT_VERSION",
+    "STAGES",
+    "PairContext",
+    "PairResult",
+    "PairSpec",
+    "RunSpec",
+    "parse_shard",
+    "shard_slice",
+]
+
+CHECKPOINT_FORMAT = "rspiv-checkpoint"
+#: 2: the context holds one PivSettings (was loose passes/overlap/... fields)
+CHECKPOINT_VERSION = 2
+#: Stages timed per pair (s), in the run log and the report.
+STAGES = ("read", "dewarp", "piv", "statistics")
+
+
+@dataclasses.dataclass(frozen=True)
+class PairSpec:
+    """One image pair: its id (index in the campaign's full pair list) and its frames.
+
+    ``frame_a``/``frame_b`` are frame indices inside a multi-frame TIFF (``a == b`` is that
+    file), None for single-frame files.
+    """
+
+    pair_id: int
+    a: str
+    b: str
+    frame_a: int | None = None
+    frame_b: int | None = None
+
+    def describe(self) -> str:
+        if self.frame_a is not None:
+            return f"{self.a}[{self.frame_a}, {self.frame_b}]"
+        return f"{self.a}, {self.b}"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One way of processing every pair.
+
+    Attributes
+    ----------
+    name : str
+        File key (``statistics_<name>.nc``).
+    label : str
+        Name in the report.
+    method : {"I", "II", "none"}
+        Dewarp then PIV; PIV then map the vectors; no correction.
+    map_displacement : bool
+        Method II: map the displacements through the inverse (else positions only).
+    """
+
+    name: str
+    label: str
+    method: str
+    map_displacement: bool = True
+
+    @property
+    def mapping(self) -> str:
+        """Method II's displacement mapping: "full" or "positions"."""
+        return "full" if self.map_displacement else "positions"
+
+
+@dataclasses.dataclass
+class PairContext:
+    """Everything :func:`rspiv.campaign.pair.process_pair` needs; picklable (plain data, the
+    mapping as JSON, the PIV settings as one :class:`rspiv.PivSettings`).
+
+    ``object_shape`` is the (h, w) of the object frame (the dewarped images), ``image_shape``
+    the raw frames' (h, w); pairs of another size are skipped.
+    """
+
+    runs: tuple[RunSpec, ...]
+    image_shape: tuple[int, int]
+    object_shape: tuple[int, int]
+    mapping_json: str | None
+    piv: PivSettings
+    mask_path: str | None = None
+    _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
+
+    def __getstate__(self):
+        d = self.__dict__.copy()
+        d["_cache"] = {}
+        return d
+
+    def __setstate__(self, d):
+        self.__dict__.update(d)
+
+    @property
+    def mapping(self):
+        """The :class:`rspiv.Mapping` (parsed once per process)."""
+        if self.mapping_json is None:
+            return None
+        m = self._cache.get("mapping")
+        if m is None:
+            m = Mapping.from_json(self.mapping_json)
+            self._cache["mapping"] = m
+        return m
+
+    def mask(self):
+        """The PIV mask (bool, True = excluded) in the raw frame, or None."""
+        if self.mask_path is None:
+            return None
+        if "mask" not in self._cache:
+            img = read_image(self.mask_path)
+            if img.shape != tuple(self.image_shape):
+                raise InvalidInputError(
+                    f"{self.mask_path}: mask is {img.shape[1]} x {img.shape[0]} px, the images "
+                    f"are {self.image_shape[1]} x {self.image_shape[0]} px"
+                )
+            self._cache["mask"] = np.asarray(img) > 0
+        return self._cache["mask"]
+
+    def grid(self) -> tuple[np.ndarray, np.ndarray]:
+        """Window centres (px) of the final pass, shape (ny, nx) each (same for every run)."""
+        return grid_for_windows(self.object_shape, self.piv.final_window, self.piv.overlaps[-1])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "image_shape": list(self.image_shape),
+            "object_shape": list(self.object_shape),
+            "mapping_json": self.mapping_json,
+            "piv": self.piv.to_dict(),
+            "mask_path": self.mask_path,
+            "runs": [dataclasses.asdict(r) for r in self.runs],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PairContext:
+        return cls(
+            runs=tuple(RunSpec(**r) for r in d["runs"]),
+            image_shape=tuple(d["image_shape"]),
+            object_shape=tuple(d["object_shape"]),
+            mapping_json=d["mapping_json"],
+            piv=PivSettings.from_dict(d["piv"], where="context.json [piv]"),
+            mask_path=d["mask_path"],
+        )
+
+    def fingerprint(self) -> str:
+        """Hash of everything that changes the per-pair results (checkpoints must match)."""
+        text = json.dumps(self.to_dict(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclasses.dataclass
+class PairResult:
+    """What :func:`process_pair` returns for one pair.
+
+    Attributes
+    ----------
+    pair_id : int
+    ok : bool
+        False: the pair was skipped (``reason`` says why); ``fields`` is empty.
+    reason : str
+    fields : dict
+        Run name -> ``(u, v, valid)`` arrays of the grid's shape (px per pair).
+    timings : dict
+        Seconds per stage (``read``, ``dewarp``, ``piv``).
+    """
+
+    pair_id: int
+    ok: bool
+    reason: str = ""
+    fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = dataclasses.field(
+        default_factory=dict
+    )
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+def parse_shard(text: str | tuple[int, int] | None) -> tuple[int, int]:
+    """``"i/n"`` (1-based, 1 <= i <= n) -> ``(i, n)``; None -> ``(1, 1)``."""
+    if text is None:
+        return (1, 1)
+    if isinstance(text, tuple):
+        i, n = text
+    else:
+        try:
+            i_s, n_s = str(text).split("/")
+            i, n = int(i_s), int(n_s)
+        except ValueError:
+            raise InvalidInputError(f"--shard: expected i/n (e.g. 2/8), got {text!r}") from None
+    if not (n >= 1 and 1 <= i <= n):
+        raise InvalidInputError(f"--shard: expected 1 <= i <= n, got {i}/{n}")
+    return int(i), int(n)
+
+
+def shard_slice(n_pairs: int, shard: tuple[int, int]) -> range:
+    """Indices of the i-th of n contiguous, nearly equal slices of ``range(n_pairs)``."""
+    i, n = shard
+    lo = (i - 1) * n_pairs // n
+    hi = i * n_pairs // n
+    return range(lo, hi)

@@ -1,0 +1,176 @@
+"""The state of a campaign run and what it returns: the run log, :class:`RunState` (shared by
+every executor between :meth:`rspiv.Campaign.open_run` and :meth:`rspiv.Campaign.finish_run`),
+:class:`RunAnalysis` and :class:`CampaignResult`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import os
+import pathlib
+import tempfile
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.spec import PairContext, PairSpec, RunSpec
+from rspiv.errors import InvalidInputError
+from rspiv.stats import FieldAccumulator
+
+__all__ = [
+    "CampaignResult",
+    "RunAnalysis",
+    "RunLog",
+    "RunState",
+    "check_writable",
+    "json_default",
+]
+
+
+def check_writable(out: pathlib.Path) -> None:
+    """Create the output folder if needed and check a file can be written in it
+    (InvalidInputError naming the folder otherwise)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=out, prefix=".rspiv-write-test-")
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise InvalidInputError(
+            f"{out}: the output folder is not writable ({exc.strerror or exc})"
+        ) from None
+
+
+def json_default(o: Any) -> Any:
+    """JSON encoder fallback: numpy scalars and arrays, paths."""
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, pathlib.Path):
+        return str(o)
+    raise TypeError(type(o).__name__)
+
+
+class RunLog:
+    """Append-only JSON-lines log of a campaign (``OUT/run_log.jsonl``)."""
+
+    def __init__(self, path: pathlib.Path):
+        self.path = path
+
+    def write(self, event: str, **data: Any) -> None:
+        rec = {
+            "time": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "event": event,
+            **data,
+        }
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(rec, default=json_default) + "\n")
+
+
+@dataclasses.dataclass
+class RunAnalysis:
+    """The analysis of one run: wall, profile in SI units and the boundary-layer result."""
+
+    run: RunSpec
+    wall: Any
+    flow_side: str
+    profile: dict[str, Any]
+    result: Any
+    error: str = ""
+
+
+@dataclasses.dataclass
+class CampaignResult:
+    """What :meth:`Campaign.run` returns.
+
+    Attributes
+    ----------
+    out_dir : pathlib.Path
+    context : PairContext
+    accumulators : dict
+        Run name -> FieldAccumulator (px per pair, pixel axes).
+    analyses : dict
+        Run name -> RunAnalysis (empty for a shard).
+    n_pairs, n_done, n_resumed : int
+        Pairs in this shard; processed OK in total; already finished before this run.
+    skipped : dict
+        Pair id -> reason, for the pairs skipped in this run.
+    timings : dict
+        Seconds per stage summed over this run's pairs (``read``, ``dewarp``, ``piv``,
+        ``statistics``) and ``prepare``, ``analysis``, ``total``.
+    files : dict
+        Output name -> path.
+    wall_deviation : dict
+        Condition -> the wall's maximum deviation (px), as in the paper's table.
+    """
+
+    out_dir: pathlib.Path
+    context: PairContext
+    accumulators: dict[str, FieldAccumulator]
+    analyses: dict[str, RunAnalysis]
+    n_pairs: int
+    n_done: int
+    n_resumed: int
+    skipped: dict[int, str]
+    timings: dict[str, float]
+    files: dict[str, pathlib.Path]
+    wall_deviation: dict[str, float]
+    info: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def report(self) -> pathlib.Path | None:
+        return self.files.get("report_html")
+
+    def result(self, run: str | None = None):
+        """The BoundaryLayerResult of ``run`` (default: the main run)."""
+        name = run or self.context.runs[0].name
+        return self.analyses[name].result
+
+
+@dataclasses.dataclass
+class RunState:
+    """The state of a run between :meth:`Campaign.open_run` and :meth:`Campaign.finish_run`.
+
+    Shared by every executor (:mod:`rspiv.campaign.executors`: local, Dask), which differ only
+    in how they process ``todo``.
+
+    Attributes
+    ----------
+    log : RunLog
+        The run log (``OUT/run_log.jsonl``).
+    all_pairs : list of PairSpec
+        The campaign's full pair list.
+    sel : list of PairSpec
+        The pairs of this shard.
+    t_start : float
+        ``time.perf_counter()`` at the start of the run, s.
+    ctx : PairContext or None
+        The prepared context (set by :meth:`Campaign.begin_run`).
+    t_prepare : float
+        Time spent in :meth:`Campaign.prepare`, s.
+    accs : dict of str to FieldAccumulator
+        The accumulators per run, from the checkpoint or new; the run loop updates them.
+    finished : set of int
+        Ids of the pairs in ``accs``.
+    timings : dict of str to float
+        Time per stage summed over the pairs, s.
+    n_resumed : int
+        Pairs of ``sel`` already finished at the start (from the checkpoint).
+    todo : list of PairSpec
+        Pairs of ``sel`` still to process.
+    """
+
+    log: RunLog
+    all_pairs: list[PairSpec]
+    sel: list[PairSpec]
+    t_start: float
+    ctx: PairContext | None = None
+    t_prepare: float = 0.0
+    accs: dict[str, FieldAccumulator] = dataclasses.field(default_factory=dict)
+    finished: set[int] = dataclasses.field(default_factory=set)
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+    n_resumed: int = 0
+    todo: list[PairSpec] = dataclasses.field(default_factory=list)
