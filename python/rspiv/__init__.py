@@ -11,14 +11,14 @@ from rspiv.boundary_layer import BoundaryLayerResult, analyse_profile
 from rspiv.calibration import Calibration, calibrate
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
+from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
 from rspiv.errors import ConvergenceError, InvalidInputError, RspivError
 from rspiv.mapping import Mapping, fit_mapping
-from rspiv.correction import piv_vectors
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.piv import PivField, piv, piv_at
-from rspiv.settings import PivSettings
 from rspiv.reference import load_dns
+from rspiv.settings import PivSettings
 from rspiv.stats import FieldAccumulator
 from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
