@@ -12,6 +12,7 @@ from rspiv.campaign_config import (
     parse_campaign_config,
 )
 from rspiv.errors import InvalidInputError
+from rspiv.settings import PivSettings
 
 FULL = """
 [campaign]
@@ -188,3 +189,30 @@ def test_missing_file_and_in_memory_parse(tmp_path):
     )
     assert cfg.images.pairs[0][0] == pathlib.Path(tmp_path).resolve() / "a.tif"
     assert isinstance(cfg, CampaignConfig)
+
+
+def test_the_one_vocabulary_and_the_old_keys(tmp_path):
+    """[piv] holds rspiv.PivSettings keys; methods and models in any case, with the API's
+    aliases; the old keys median_epsilon / deform / map_displacement still read."""
+    text = FULL.replace('model = "R2"', 'model = "p3"')
+    text = text.replace('method = "I"', 'method = "vectors"')
+    text = text.replace("overlap = 0.75", 'overlap = 0.75\ndeformation = "SYMMETRIC"\n'
+                        'interpolation = "keys"\nmedian_eps = 0.2\niterations = 2')  # fmt: skip
+    text = text.replace("[correction]\n", '[correction]\nmapping = "positions"\n')
+    cfg = load_campaign_config(_write(tmp_path, text))
+    assert cfg.calibration.model == "P3" and cfg.correction.method == "II"
+    assert cfg.correction.mapping == "positions" and cfg.correction.map_displacement is False
+    s = cfg.piv.settings()
+    assert s == PivSettings(passes=((64, 64), (32, 8)), overlap=0.75, iterations=2,
+                                  deformation="symmetric", interpolation="keys",
+                                  median_eps=0.2)  # fmt: skip
+    old = FULL.replace("overlap = 0.75", "overlap = 0.75\nmedian_epsilon = 0.3\ndeform = true")
+    s = load_campaign_config(_write(tmp_path, old)).piv.settings()
+    assert s.median_eps == 0.3 and s.deformation == "symmetric"
+    assert load_campaign_config(_write(tmp_path, FULL)).piv.settings().deformation == "offset"
+    both = FULL.replace("overlap = 0.75", "overlap = 0.75\nmedian_eps = 0.1\nmedian_epsilon = 0.3")
+    with pytest.raises(InvalidInputError, match="given twice"):
+        load_campaign_config(_write(tmp_path, both))
+    bad = FULL.replace("overlap = 0.75", 'overlap = 0.75\ninterpolation = "cubic"')
+    with pytest.raises(InvalidInputError, match=r"\[piv\]\.interpolation"):
+        load_campaign_config(_write(tmp_path, bad))

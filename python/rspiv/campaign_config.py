@@ -90,6 +90,7 @@ from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
     MAPPING_MODES,
+    OPTION_KEYS,
     SUBPIXELS,
     PivSettings,
     parse_method,
@@ -180,13 +181,7 @@ class PIVConfig:
             passes=tuple(tuple(p) for p in self.passes),
             overlap=self.overlap,
             iterations=self.iterations,
-            deformation=self.deformation,
-            interpolation=self.interpolation,
-            subpixel=self.subpixel,
-            validate=self.validate,
-            median_eps=self.median_eps,
-            median_threshold=self.median_threshold,
-            min_peak_ratio=self.min_peak_ratio,
+            **{k: getattr(self, k) for k in OPTION_KEYS},
         )
 
 

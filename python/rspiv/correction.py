@@ -61,7 +61,14 @@ from rspiv.dewarp import check_calibration_shape, dewarp
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
 from rspiv.multipass import frames, mask_array, run_final_points, run_grid, run_points
-from rspiv.settings import PivSettings, parse_choice, parse_mapping_mode, parse_method, per_pass
+from rspiv.settings import (
+    OPTION_KEYS,
+    PivSettings,
+    parse_choice,
+    parse_mapping_mode,
+    parse_method,
+    per_pass,
+)
 
 __all__ = [
     "correct",
@@ -398,6 +405,7 @@ def piv_vectors(
         object px; ``valid``, ``replaced``, ``masked``, ``peak_ratio``, ``coef`` from the
         final raw-frame correlation (a vector whose displacement cannot be mapped is masked).
     """
+    options = {k: v for k, v in locals().items() if k in OPTION_KEYS}
     mapping_of(calibration)
     mode = parse_mapping_mode(mapping)
     passes = [tuple(int(t) for t in p) for p in passes]
@@ -408,13 +416,7 @@ def piv_vectors(
         passes=tuple(passes),
         overlap=(*per_pass(predictor_overlap, n, "predictor_overlap", float), float(overlap)),
         iterations=(*per_pass(predictor_iterations, n, "predictor_iterations", int), iterations),
-        deformation=deformation,
-        interpolation=interpolation,
-        subpixel=subpixel,
-        validate=validate,
-        median_eps=median_eps,
-        median_threshold=median_threshold,
-        min_peak_ratio=min_peak_ratio,
+        **options,
     )
     return method_two(
         frame_a,

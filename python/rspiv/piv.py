@@ -24,7 +24,7 @@ from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
 from rspiv.multipass import run_grid, run_points
-from rspiv.settings import PivSettings, parse_mapping_mode, parse_method
+from rspiv.settings import OPTION_KEYS, PivSettings, parse_mapping_mode, parse_method
 
 __all__ = ["PivField", "piv", "piv_at"]
 
@@ -125,19 +125,11 @@ def piv(
         settings; ``method`` without ``calibration`` (or the reverse), an unknown ``method`` or
         ``mapping``; frames whose shape differs from a Calibration's ``image_shape``.
     """
+    options = {k: v for k, v in locals().items() if k in OPTION_KEYS}
     mapping = parse_mapping_mode(mapping)
     if settings is None:
         settings = PivSettings(
-            passes=tuple(passes),
-            overlap=overlap,
-            iterations=iterations,
-            deformation=deformation,
-            interpolation=interpolation,
-            subpixel=subpixel,
-            validate=validate,
-            median_eps=median_eps,
-            median_threshold=median_threshold,
-            min_peak_ratio=min_peak_ratio,
+            passes=tuple(passes), overlap=overlap, iterations=iterations, **options
         )
     elif not isinstance(settings, PivSettings):
         raise InvalidInputError(f"settings must be an rspiv.PivSettings, got {type(settings)}")

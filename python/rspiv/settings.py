@@ -43,6 +43,7 @@ from rspiv.errors import InvalidInputError
 
 __all__ = [
     "PivSettings",
+    "OPTION_KEYS",
     "DEFORMATIONS",
     "INTERPOLATIONS",
     "SUBPIXELS",
@@ -61,6 +62,18 @@ SUBPIXELS = ("gauss3", "gauss2d")
 METHODS = ("I", "II", "none")
 MAPPING_MODES = ("full", "positions")
 MODELS = ("r1", "r2", "p3")
+
+#: The settings besides the per-pass ones (passes, overlap, iterations): what the keyword shims
+#: (:func:`rspiv.piv`, :func:`rspiv.correction.piv_vectors`) pass through unchanged.
+OPTION_KEYS = (
+    "deformation",
+    "interpolation",
+    "subpixel",
+    "validate",
+    "median_eps",
+    "median_threshold",
+    "min_peak_ratio",
+)
 
 _METHOD_ALIASES = {"i": "I", "images": "I", "ii": "II", "vectors": "II", "none": "none"}
 
