@@ -51,9 +51,9 @@ def main() -> None:
     import distributed
     import numpy as np
     from rspiv.campaign import Campaign
+    from rspiv.campaign.executors.dask import local_cluster, run_dask
     from rspiv.campaign_config import load_campaign_config
     from rspiv.demo import DEFAULT_SCENE, synth_campaign
-    from rspiv.campaign.executors.dask import local_cluster, run_dask
 
     work = pathlib.Path(args.workdir)
     tag = f"s{args.scale:g}-p{args.pairs}"
