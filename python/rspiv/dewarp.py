@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from rspiv import _rspiv
+from rspiv.calibration import Calibration
 from rspiv.errors import InvalidInputError
 
 __all__ = ["check_calibration_shape", "dewarp", "remap"]
@@ -69,10 +70,9 @@ def check_calibration_shape(calibration: Any, shape: tuple[int, ...], what: str 
 
     A bare :class:`rspiv.Mapping` (or JSON text, callable) does not know its sensor: no check.
     """
-    image_shape = getattr(calibration, "image_shape", None)
-    if image_shape is None:  # a Mapping, JSON text or callable
+    if not isinstance(calibration, Calibration):
         return
-    want = tuple(int(v) for v in image_shape)
+    want = tuple(int(v) for v in calibration.image_shape)
     got = tuple(int(v) for v in shape)
     if got != want:
         raise InvalidInputError(
