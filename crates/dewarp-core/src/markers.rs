@@ -27,6 +27,8 @@
 
 use crate::error::{DewarpError, Result};
 use crate::lm::{LeastSquaresProblem, LmConfig, LmSolver};
+use image_core::fast_len;
+pub use image_core::Pixel;
 use nalgebra::SMatrix;
 use ndarray::{Array2, ArrayView2, Axis};
 use rayon::prelude::*;
@@ -106,31 +108,6 @@ pub struct Detection {
     pub size_px: f64,
     /// Block-averaging factor of the coarse detection.
     pub downsample: usize,
-}
-
-/// Numeric pixel types accepted by [`detect_markers`].
-pub trait Pixel: Copy + Send + Sync {
-    fn to_f64(self) -> f64;
-}
-impl Pixel for u16 {
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-}
-impl Pixel for u8 {
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-}
-impl Pixel for f32 {
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-}
-impl Pixel for f64 {
-    fn to_f64(self) -> f64 {
-        self
-    }
 }
 
 fn block_mean<T: Pixel>(img: ArrayView2<T>, d: usize, sign: f64) -> Array2<f64> {
@@ -245,22 +222,6 @@ fn estimate_size<T: Pixel>(img: ArrayView2<T>, sign: f64) -> Result<f64> {
     let r = radii.iter().sum::<f64>() / radii.len() as f64;
     let s_coarse = (r / 1.1774).powi(2) - 2.0 / 3.0 - 1.0 / 12.0;
     Ok((s_coarse.max(0.25).sqrt() * d0 as f64).max(1.0))
-}
-
-fn fast_len(n: usize) -> usize {
-    let mut m = n.max(1);
-    loop {
-        let mut k = m;
-        for p in [2, 3, 5] {
-            while k % p == 0 {
-                k /= p;
-            }
-        }
-        if k == 1 {
-            return m;
-        }
-        m += 1;
-    }
 }
 
 /// In-place 2D FFT of a row-major (h, w) complex buffer.

@@ -50,6 +50,7 @@
 //! instead of ~50 000.
 
 use crate::error::{DewarpError, Result};
+pub use image_core::{keys_kernel, keys_weights, Pixel, PixelKind};
 use ndarray::{Array2, ArrayView2, ArrayViewMut2, Axis};
 use rayon::prelude::*;
 
@@ -59,45 +60,6 @@ const ROWS_PER_TASK: usize = 8;
 const SPAN: usize = 512;
 /// Coarsest grid step tried by [`MapSampling::Auto`].
 const AUTO_START_STEP: usize = 128;
-
-mod sealed {
-    pub trait Sealed {}
-    impl Sealed for u16 {}
-    impl Sealed for f32 {}
-}
-
-/// Memory layout of an input pixel type (selects the SIMD gather).
-#[doc(hidden)]
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum PixelKind {
-    U16,
-    F32,
-}
-
-/// An input pixel type (`u16` or `f32`; sealed): converted to `f32` for interpolation.
-pub trait Sample: sealed::Sealed + Copy + Send + Sync + 'static {
-    /// The type's layout; the SIMD path reads the pixels through it.
-    #[doc(hidden)]
-    const KIND: PixelKind;
-    /// The value as `f32`.
-    fn to_f32(self) -> f32;
-}
-
-impl Sample for u16 {
-    const KIND: PixelKind = PixelKind::U16;
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-}
-
-impl Sample for f32 {
-    const KIND: PixelKind = PixelKind::F32;
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self
-    }
-}
 
 /// Memory layout of an output pixel type (selects the SIMD store).
 #[doc(hidden)]
@@ -183,32 +145,6 @@ impl Default for RemapOptions {
     }
 }
 
-/// Keys cubic-convolution weights (a = -0.5) for the neighbours at offsets -1, 0, 1, 2 of a
-/// sample at fractional position `t` in `[0, 1)`.
-#[inline(always)]
-pub fn keys_weights(t: f32) -> [f32; 4] {
-    let t2 = t * t;
-    let t3 = t2 * t;
-    [
-        -0.5 * t3 + t2 - 0.5 * t,
-        1.5 * t3 - 2.5 * t2 + 1.0,
-        -1.5 * t3 + 2.0 * t2 + 0.5 * t,
-        0.5 * t3 - 0.5 * t2,
-    ]
-}
-
-/// The Keys kernel (a = -0.5) itself, `W(s)` for a signed distance `s` in px.
-pub fn keys_kernel(s: f64) -> f64 {
-    let s = s.abs();
-    if s < 1.0 {
-        (1.5 * s - 2.5) * s * s + 1.0
-    } else if s < 2.0 {
-        ((-0.5 * s + 2.5) * s - 4.0) * s + 2.0
-    } else {
-        0.0
-    }
-}
-
 /// A source of source-image coordinates, one span of an output row at a time.
 trait RowCoords: Sync {
     /// Fill `sx`, `sy` (same length) with the source positions of the pixels
@@ -219,7 +155,7 @@ trait RowCoords: Sync {
     /// representation when it has a faster way than per-pixel coordinates; returns whether it
     /// did (otherwise the caller fills coordinates and runs the row kernel).
     #[allow(clippy::too_many_arguments)]
-    fn interp_span<T: Sample, O: OutSample>(
+    fn interp_span<T: Pixel, O: OutSample>(
         &self,
         _y: usize,
         _x0: usize,
@@ -455,7 +391,7 @@ impl RowCoords for CoordGrid {
 
     /// With AVX2 and cells of a multiple of 8 px, the cell-linear coordinates go straight into
     /// the SIMD kernel (no coordinate scratch).
-    fn interp_span<T: Sample, O: OutSample>(
+    fn interp_span<T: Pixel, O: OutSample>(
         &self,
         y: usize,
         x0: usize,
@@ -545,7 +481,7 @@ impl CoordGrid {
 }
 
 /// The image as a contiguous row-major slice (borrowed when possible).
-fn contiguous<'a, T: Sample>(image: &'a ArrayView2<'a, T>) -> std::borrow::Cow<'a, [T]> {
+fn contiguous<'a, T: Pixel>(image: &'a ArrayView2<'a, T>) -> std::borrow::Cow<'a, [T]> {
     match image.as_slice() {
         Some(s) => std::borrow::Cow::Borrowed(s),
         None => std::borrow::Cow::Owned(image.iter().copied().collect()),
@@ -554,7 +490,7 @@ fn contiguous<'a, T: Sample>(image: &'a ArrayView2<'a, T>) -> std::borrow::Cow<'
 
 /// Interpolate one output row from its source coordinates.
 #[inline]
-fn interp_row<T: Sample, O: OutSample>(
+fn interp_row<T: Pixel, O: OutSample>(
     data: &[T],
     h: usize,
     w: usize,
@@ -612,7 +548,7 @@ fn interp_row<T: Sample, O: OutSample>(
 /// [`interp_row`] through the AVX2 + FMA kernel when the CPU has it (8 pixels at a time).
 /// Returns the number of 8-pixel blocks that took the contiguous-load path (0 without AVX2).
 #[inline]
-fn interp_row_best<T: Sample, O: OutSample>(
+fn interp_row_best<T: Pixel, O: OutSample>(
     data: &[T],
     h: usize,
     w: usize,
@@ -643,7 +579,7 @@ mod avx2 {
     //! f32 with FMA, source pixels fetched with AVX2 gathers. Pixels whose 4 x 4 neighbourhood
     //! is not entirely inside the image (or whose position is outside it, or NaN) go through
     //! the scalar [`super::interp_row`], so the results follow the same conventions.
-    use super::{interp_row as scalar_row, CoordGrid, OutKind, OutSample, PixelKind, Sample};
+    use super::{interp_row as scalar_row, CoordGrid, OutKind, OutSample, Pixel, PixelKind};
     use std::arch::x86_64::*;
 
     #[inline]
@@ -675,7 +611,7 @@ mod avx2 {
     /// Pixels `off + 0..4` of each lane as f32 (for u16, `off` permuted by `U16_SLOTS`).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn gather4<T: Sample>(data: *const T, off: __m256i) -> [__m256; 4] {
+    unsafe fn gather4<T: Pixel>(data: *const T, off: __m256i) -> [__m256; 4] {
         // SAFETY (caller): every lane's `off .. off + 4` lies inside `data`.
         unsafe {
             match T::KIND {
@@ -709,6 +645,23 @@ mod avx2 {
                         _mm256_i32gather_ps::<4>(p.add(1), off),
                         _mm256_i32gather_ps::<4>(p.add(2), off),
                         _mm256_i32gather_ps::<4>(p.add(3), off),
+                    ]
+                }
+                PixelKind::U8 | PixelKind::F64 => {
+                    // No gather of these layouts: the lanes are read one by one.
+                    let mut lanes = [0i32; 8];
+                    _mm256_storeu_si256(lanes.as_mut_ptr() as *mut __m256i, off);
+                    let mut taps = [[0.0f32; 8]; 4];
+                    for (j, &o) in lanes.iter().enumerate() {
+                        for (k, t) in taps.iter_mut().enumerate() {
+                            t[j] = (*data.add(o as usize + k)).to_f32();
+                        }
+                    }
+                    [
+                        _mm256_loadu_ps(taps[0].as_ptr()),
+                        _mm256_loadu_ps(taps[1].as_ptr()),
+                        _mm256_loadu_ps(taps[2].as_ptr()),
+                        _mm256_loadu_ps(taps[3].as_ptr()),
                     ]
                 }
             }
@@ -784,7 +737,7 @@ mod avx2 {
     /// 8 consecutive pixels `p .. p + 8` of a row as f32.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn load8<T: Sample>(p: *const T) -> __m256 {
+    unsafe fn load8<T: Pixel>(p: *const T) -> __m256 {
         // SAFETY (caller): `p .. p + 8` lies inside the image.
         unsafe {
             match T::KIND {
@@ -792,6 +745,13 @@ mod avx2 {
                     _mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_loadu_si128(p as *const __m128i)))
                 }
                 PixelKind::F32 => _mm256_loadu_ps(p as *const f32),
+                PixelKind::U8 | PixelKind::F64 => {
+                    let mut v = [0.0f32; 8];
+                    for (k, x) in v.iter_mut().enumerate() {
+                        *x = (*p.add(k)).to_f32();
+                    }
+                    _mm256_loadu_ps(v.as_ptr())
+                }
             }
         }
     }
@@ -876,7 +836,7 @@ mod avx2 {
     /// `data.len() < i32::MAX / 2`, `k` = `consts(h, w)`; `out` holds at least 8 values.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn block8<T: Sample, O: OutSample>(
+    unsafe fn block8<T: Pixel, O: OutSample>(
         data: &[T],
         h: usize,
         w: usize,
@@ -914,7 +874,7 @@ mod avx2 {
     /// As [`block8`], and every lane's 4 x 4 neighbourhood lies inside the image
     /// (`ix` in `[1, w - 3]`, `iy` in `[1, h - 3]`).
     #[inline(always)]
-    unsafe fn taps<T: Sample, O: OutSample>(
+    unsafe fn taps<T: Pixel, O: OutSample>(
         data: &[T],
         w: usize,
         k: &Consts,
@@ -991,7 +951,7 @@ mod avx2 {
     /// The CPU must support AVX2 and FMA; `data` is the `h x w` row-major image with
     /// `data.len() < i32::MAX / 2`; `sx`, `sy` and `out` have one length.
     #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn interp_row<T: Sample, O: OutSample>(
+    pub(super) unsafe fn interp_row<T: Pixel, O: OutSample>(
         data: &[T],
         h: usize,
         w: usize,
@@ -1041,7 +1001,7 @@ mod avx2 {
     /// `data.len() < i32::MAX / 2`.
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn interp_linear<T: Sample, O: OutSample>(
+    unsafe fn interp_linear<T: Pixel, O: OutSample>(
         data: &[T],
         h: usize,
         w: usize,
@@ -1122,7 +1082,7 @@ mod avx2 {
 
     /// Pixels `from..` (fewer than 8) of a span whose source positions are linear in the pixel
     /// index `m` (`x = ax + m dx`, `y = ay + m dy`), through the scalar kernel.
-    fn linear_tail<T: Sample, O: OutSample>(
+    fn linear_tail<T: Pixel, O: OutSample>(
         data: &[T],
         h: usize,
         w: usize,
@@ -1152,7 +1112,7 @@ mod avx2 {
     /// `data.len() < i32::MAX / 2`; `out` is the span `x0 .. x0 + out.len()` of row `y`.
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::too_many_arguments)]
-    pub(super) unsafe fn interp_grid_span<T: Sample, O: OutSample>(
+    pub(super) unsafe fn interp_grid_span<T: Pixel, O: OutSample>(
         grid: &CoordGrid,
         y: usize,
         x0: usize,
@@ -1173,7 +1133,7 @@ mod avx2 {
     }
 }
 
-fn remap_rows<T: Sample, O: OutSample, C: RowCoords>(
+fn remap_rows<T: Pixel, O: OutSample, C: RowCoords>(
     image: ArrayView2<T>,
     coords: &C,
     fill: O,
@@ -1291,7 +1251,7 @@ fn out_dims<T>(image: &ArrayView2<T>, opts: &RemapOptions) -> Result<(usize, usi
 /// non-positive tolerance.
 pub fn remap<T, O, F>(image: ArrayView2<T>, map: &F, opts: &RemapOptions) -> Result<Array2<O>>
 where
-    T: Sample,
+    T: Pixel,
     O: OutSample,
     F: Fn(f64, f64) -> (f64, f64) + Sync,
 {
@@ -1314,7 +1274,7 @@ pub fn remap_into<T, O, F>(
     out: ArrayViewMut2<O>,
 ) -> Result<()>
 where
-    T: Sample,
+    T: Pixel,
     O: OutSample,
     F: Fn(f64, f64) -> (f64, f64) + Sync,
 {
@@ -1354,7 +1314,7 @@ pub fn remap_with_coords<T, O, C>(
     fill: f32,
 ) -> Result<Array2<O>>
 where
-    T: Sample,
+    T: Pixel,
     O: OutSample,
     C: Copy + Into<f64> + Sync,
 {
@@ -1406,25 +1366,6 @@ mod tests {
         let px = k * dx + 0.5e-3 * dx * dy / 80.0;
         let py = k * dy;
         (cx + 0.7 + c * px - s * py, cy - 0.4 + s * px + c * py)
-    }
-
-    #[test]
-    fn keys_weights_match_kernel_and_partition_unity() {
-        for k in 0..=20 {
-            let t = k as f64 / 20.0 * 0.999;
-            let w = keys_weights(t as f32);
-            let exact = [
-                keys_kernel(t + 1.0),
-                keys_kernel(t),
-                keys_kernel(t - 1.0),
-                keys_kernel(t - 2.0),
-            ];
-            for i in 0..4 {
-                assert!((w[i] as f64 - exact[i]).abs() < 1e-6, "t={t} i={i}");
-            }
-            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
-        }
-        assert_eq!(keys_weights(0.0), [0.0, 1.0, 0.0, 0.0]);
     }
 
     #[test]

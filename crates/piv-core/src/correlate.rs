@@ -17,6 +17,7 @@
 //! FFT plans are cached per padded shape and shared between threads ([`plans`]); each thread
 //! owns a [`Correlator`] (its scratch buffers), so correlating a window allocates nothing.
 
+use image_core::fast_len;
 use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
 use std::collections::HashMap;
@@ -70,23 +71,6 @@ pub struct Plans {
     inv_w: Arc<dyn Fft<f32>>,
     inv_h: Arc<dyn Fft<f32>>,
     scratch_len: usize,
-}
-
-/// Smallest 2^a 3^b 5^c at least `n`.
-pub fn nice_len(n: usize) -> usize {
-    let mut m = n.max(1);
-    loop {
-        let mut k = m;
-        for p in [2, 3, 5] {
-            while k % p == 0 {
-                k /= p;
-            }
-        }
-        if k == 1 {
-            return m;
-        }
-        m += 1;
-    }
 }
 
 /// The shared, cached plans for a `pw` x `ph` padded transform.
@@ -152,8 +136,8 @@ impl Correlator {
     pub fn new(w: usize, h: usize) -> Correlator {
         let sx = (w / 2).saturating_sub(1).max(1);
         let sy = (h / 2).saturating_sub(1).max(1);
-        let pw = nice_len(w + sx + 1);
-        let ph = nice_len(h + sy + 1);
+        let pw = fast_len(w + sx + 1);
+        let ph = fast_len(h + sy + 1);
         let plans = plans(pw, ph);
         let cw = 2 * sx + 3;
         let ch = 2 * sy + 3;
@@ -640,14 +624,6 @@ mod tests {
             }
         }
         v
-    }
-
-    #[test]
-    fn nice_lengths() {
-        assert_eq!(nice_len(97), 100);
-        assert_eq!(nice_len(48), 48);
-        assert_eq!(nice_len(13), 15);
-        assert_eq!(nice_len(7), 8);
     }
 
     #[test]

@@ -8,52 +8,13 @@
 //! Pixel frame: x = column, y = row, origin at the centre of the top-left pixel, y down.
 
 use crate::error::{PivError, Result};
+pub use image_core::kernels::{bspline5_weights, bspline_weights, keys_weights, Weights};
+use image_core::kernels::{floor_i, mirror};
+use image_core::spline::{prefilter, SplineOrder};
+pub use image_core::Pixel;
 use ndarray::parallel::prelude::*;
 use ndarray::{ArrayView2, CowArray, Ix2};
 use rayon::prelude::*;
-
-/// A pixel type the engine reads without conversion of the whole image.
-pub trait Pixel: Copy + Send + Sync + 'static {
-    /// The value as `f32`.
-    fn to_f32(self) -> f32;
-    /// `false` for NaN or infinite values (always `true` for integers).
-    fn is_finite_px(self) -> bool {
-        true
-    }
-}
-
-impl Pixel for u8 {
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-}
-impl Pixel for u16 {
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-}
-impl Pixel for f32 {
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self
-    }
-    #[inline(always)]
-    fn is_finite_px(self) -> bool {
-        self.is_finite()
-    }
-}
-impl Pixel for f64 {
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    #[inline(always)]
-    fn is_finite_px(self) -> bool {
-        self.is_finite()
-    }
-}
 
 /// A row-major image borrowed from an `ArrayView2` (copied only if the view is not in standard
 /// layout).
@@ -194,212 +155,11 @@ impl<T: Pixel> Img<'_, T> {
     }
 }
 
-/// `floor(x)` as an integer (without a libm call; saturating, 0 for NaN).
-#[inline(always)]
-fn floor_i(x: f64) -> isize {
-    let i = x as isize;
-    if (i as f64) > x {
-        i - 1
-    } else {
-        i
-    }
-}
-
-/// Whole-sample symmetric index: ... 2 1 | 0 1 .. n-1 | n-2 n-3 ...
-#[inline(always)]
-fn mirror(i: isize, n: usize) -> usize {
-    if n == 1 {
-        return 0;
-    }
-    let period = 2 * (n as isize - 1);
-    let k = i.rem_euclid(period);
-    if k >= n as isize {
-        (period - k) as usize
-    } else {
-        k as usize
-    }
-}
-
-/// A separable `N`-tap interpolation kernel: weights of the taps `floor - (N/2 - 1) ..=
-/// floor + N/2` for fraction `t` in [0, 1). The samplers take any `Fn(f32) -> [f32; N]`; pass
-/// the kernel functions themselves ([`keys_weights`], [`bspline_weights`],
-/// [`bspline5_weights`]) so that they are inlined.
-pub type Weights<const N: usize> = fn(f32) -> [f32; N];
-
-/// Keys cubic convolution weights (a = -0.5) for the four neighbours floor-1 .. floor+2 of a
-/// position whose fractional part is `t` in [0, 1).
-#[inline(always)]
-pub fn keys_weights(t: f32) -> [f32; 4] {
-    // a = -0.5
-    let t2 = t * t;
-    let t3 = t2 * t;
-    [
-        -0.5 * t3 + t2 - 0.5 * t,
-        1.5 * t3 - 2.5 * t2 + 1.0,
-        -1.5 * t3 + 2.0 * t2 + 0.5 * t,
-        0.5 * t3 - 0.5 * t2,
-    ]
-}
-
-/// Cubic B-spline interpolation weights for the four neighbours floor-1 .. floor+2 of a
-/// position with fractional part `t`; apply them to the coefficients of [`bspline_coeffs`].
-#[inline(always)]
-pub fn bspline_weights(t: f32) -> [f32; 4] {
-    const K: f32 = 1.0 / 6.0;
-    let t2 = t * t;
-    let t3 = t2 * t;
-    let s = 1.0 - t;
-    [
-        s * s * s * K,
-        (3.0 * t3 - 6.0 * t2 + 4.0) * K,
-        (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) * K,
-        t3 * K,
-    ]
-}
-
-/// Quintic B-spline interpolation weights for the six neighbours floor-2 .. floor+3 of a
-/// position with fractional part `t`; apply them to the coefficients of [`bspline5_coeffs`].
-/// (`120 beta5(t - k)` for k = -2 ..= 3 as polynomials in `t`, Horner form.)
-#[inline(always)]
-pub fn bspline5_weights(t: f32) -> [f32; 6] {
-    const K: f32 = 1.0 / 120.0;
-    let s = 1.0 - t;
-    let (t2, s2) = (t * t, s * s);
-    let w1 = ((((5.0 * t - 20.0) * t + 20.0) * t + 20.0) * t - 50.0) * t + 26.0;
-    let w2 = t2 * (t2 * (30.0 - 10.0 * t) - 60.0) + 66.0;
-    let w3 = ((((10.0 * t - 20.0) * t - 20.0) * t + 20.0) * t + 50.0) * t + 26.0;
-    let w4 = ((((5.0 - 5.0 * t) * t + 10.0) * t + 10.0) * t + 5.0) * t + 1.0;
-    [
-        s2 * s2 * s * K,
-        w1 * K,
-        w2 * K,
-        w3 * K,
-        w4 * K,
-        t2 * t2 * t * K,
-    ]
-}
-
-/// Poles of the cubic B-spline prefilter.
-const BSPLINE3_POLES: [f32; 1] = [-0.267_949_2]; // sqrt(3) - 2
-/// Poles of the quintic B-spline prefilter (roots of z^4 + 26 z^3 + 66 z^2 + 26 z + 1 inside
-/// the unit circle).
-const BSPLINE5_POLES: [f32; 2] = [-0.430_575_35, -0.043_096_29];
-
-/// Number of terms of the mirror-boundary initial sum for pole `z` (`|z|^k < 1e-8`).
-fn horizon(z: f32, n: usize) -> usize {
-    let k = ((1e-8f64).ln() / (z.abs() as f64).ln()).ceil() as usize;
-    k.clamp(1, n)
-}
-
-/// Overall gain of the prefilter, `prod (1 - z)(1 - 1/z)` (6 for cubic, 120 for quintic).
-fn gain(poles: &[f32]) -> f32 {
-    poles
-        .iter()
-        .map(|&z| (1.0 - z as f64) * (1.0 - 1.0 / z as f64))
-        .product::<f64>() as f32
-}
-
-/// The causal initial value `sum_k z^k c[k]` of a line of `n` values `c(k)` with mirror
-/// boundaries: truncated where `|z|^k < 1e-8`, exact (over one mirror period) for short lines.
-fn causal_init(z: f32, n: usize, c: impl Fn(usize) -> f32) -> f32 {
-    let hz = horizon(z, usize::MAX);
-    if hz < n {
-        let (mut acc, mut zk) = (0.0f32, 1.0f32);
-        for k in 0..hz {
-            acc += zk * c(k);
-            zk *= z;
-        }
-        return acc;
-    }
-    let period = 2 * n - 2;
-    let (mut acc, mut zk) = (0.0f64, 1.0f64);
-    for k in 0..period {
-        acc += zk * c(mirror(k as isize, n)) as f64;
-        zk *= z as f64;
-    }
-    (acc / (1.0 - zk)) as f32
-}
-
-/// One causal + anticausal recursion of pole `z` along a line (mirror boundaries, Unser 1999),
-/// without the gain.
-fn prefilter_1d(c: &mut [f32], z: f32) {
-    let n = c.len();
-    if n < 2 {
-        return;
-    }
-    c[0] = causal_init(z, n, |k| c[k]);
-    for k in 1..n {
-        c[k] += z * c[k - 1];
-    }
-    c[n - 1] = z / (z * z - 1.0) * (c[n - 1] + z * c[n - 2]);
-    for k in (0..n - 1).rev() {
-        c[k] = z * (c[k + 1] - c[k]);
-    }
-}
-
-/// The recursions of `poles` along the columns of a row-major `w`-wide image: strips of 64
-/// columns in parallel, each copied into a contiguous buffer and filtered row by row.
-fn prefilter_columns(c: &mut [f32], w: usize, h: usize, poles: &[f32]) {
-    if h < 2 {
-        return;
-    }
-    const STRIP: usize = 64;
-    let mut view = ndarray::ArrayViewMut2::from_shape((h, w), c).expect("shape");
-    view.axis_chunks_iter_mut(ndarray::Axis(1), STRIP)
-        .into_par_iter()
-        .for_each(|mut strip| {
-            let sw = strip.ncols();
-            let mut buf: Vec<f32> = strip.iter().copied().collect();
-            for &z in poles {
-                columns_one_pole(&mut buf, sw, h, z);
-            }
-            for (d, v) in strip.iter_mut().zip(&buf) {
-                *d = *v;
-            }
-        });
-}
-
-/// One pole's causal + anticausal recursion along the columns of `buf` (`h` rows of `sw`).
-fn columns_one_pole(buf: &mut [f32], sw: usize, h: usize, z: f32) {
-    // causal initialisation: row 0 = sum_k z^k row k (mirror boundary)
-    for col in 0..sw {
-        buf[col] = causal_init(z, h, |k| buf[k * sw + col]);
-    }
-    for y in 1..h {
-        let (prev, cur) = buf[(y - 1) * sw..(y + 1) * sw].split_at_mut(sw);
-        for (x, p) in cur.iter_mut().zip(prev.iter()) {
-            *x += z * p;
-        }
-    }
-    let g = z / (z * z - 1.0);
-    {
-        let (prev, last) = buf[(h - 2) * sw..h * sw].split_at_mut(sw);
-        for (x, p) in last.iter_mut().zip(prev.iter()) {
-            *x = g * (*x + z * p);
-        }
-    }
-    for y in (0..h - 1).rev() {
-        let (cur, next) = buf[y * sw..(y + 2) * sw].split_at_mut(sw);
-        for (x, n) in cur.iter_mut().zip(next.iter()) {
-            *x = z * (n - *x);
-        }
-    }
-}
-
-/// B-spline coefficients of an image for the prefilter `poles` (mirror boundaries).
-fn spline_coeffs<T: Pixel>(img: &Img<'_, T>, poles: &[f32]) -> Img<'static, f32> {
+/// B-spline coefficients of an image of `order` (image-core's prefilter, mirror boundaries).
+fn spline_coeffs<T: Pixel>(img: &Img<'_, T>, order: SplineOrder) -> Img<'static, f32> {
     let (w, h) = (img.width, img.height);
     let mut c: Vec<f32> = img.slice().par_iter().map(|p| p.to_f32()).collect();
-    c.par_chunks_mut(w).for_each(|row| {
-        for &z in poles {
-            prefilter_1d(row, z);
-        }
-    });
-    prefilter_columns(&mut c, w, h, poles);
-    // the gain of both axes (an axis of one pixel has none: its line is left as it is)
-    let g = (if w >= 2 { gain(poles) } else { 1.0 }) * (if h >= 2 { gain(poles) } else { 1.0 });
-    c.par_chunks_mut(1 << 16)
-        .for_each(|ch| ch.iter_mut().for_each(|x| *x *= g));
+    prefilter(&mut c, w, h, order);
     let arr = ndarray::Array2::from_shape_vec((h, w), c).expect("shape");
     Img {
         data: CowArray::from(arr),
@@ -411,7 +171,7 @@ fn spline_coeffs<T: Pixel>(img: &Img<'_, T>, poles: &[f32]) -> Img<'static, f32>
 /// Cubic B-spline coefficients of an image (Unser's recursive prefilter, mirror boundaries):
 /// sampling them with [`bspline_weights`] interpolates the image exactly at the pixels.
 pub fn bspline_coeffs<T: Pixel>(img: &Img<'_, T>) -> Img<'static, f32> {
-    spline_coeffs(img, &BSPLINE3_POLES)
+    spline_coeffs(img, SplineOrder::Cubic)
 }
 
 /// Quintic B-spline coefficients of an image (two-pole recursive prefilter, mirror
@@ -419,7 +179,7 @@ pub fn bspline_coeffs<T: Pixel>(img: &Img<'_, T>) -> Img<'static, f32> {
 /// pixels. Its frequency response is closer to the ideal one than the cubic's: on 2-3 px
 /// particles the sub-pixel shift of a deformed window is biased by about a third as much.
 pub fn bspline5_coeffs<T: Pixel>(img: &Img<'_, T>) -> Img<'static, f32> {
-    spline_coeffs(img, &BSPLINE5_POLES)
+    spline_coeffs(img, SplineOrder::Quintic)
 }
 
 /// A displacement field on a regular grid, interpolated bilinearly (constant beyond the outer
@@ -1039,19 +799,6 @@ mod tests {
         assert!((1.7..2.3).contains(&ratio), "{e1} {e2}");
         // 0.006 px/px: below a 2e-3 px shift of the 360 counts/px steepest slope
         assert!(e1 < 0.72, "{e1}");
-    }
-
-    #[test]
-    fn keys_weights_sum_to_one_and_interpolate() {
-        for k in 0..10 {
-            let t = k as f32 / 10.0;
-            let w = keys_weights(t);
-            assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
-            // reproduces a linear function exactly
-            let lin: f32 = -w[0] + w[2] + w[3] * 2.0;
-            assert!((lin - t).abs() < 1e-6);
-        }
-        assert_eq!(keys_weights(0.0), [0.0, 1.0, 0.0, 0.0]);
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! validates and converts dtypes.
 
 use crate::errors::{dewarp_err, invalid_input};
-use dewarp_core::remap::{remap, remap_with_coords, MapSampling, OutSample, RemapOptions, Sample};
+use dewarp_core::remap::{remap, remap_with_coords, MapSampling, OutSample, Pixel, RemapOptions};
 use dewarp_core::{DewarpError, Mapping};
 use ndarray::{Array2, ArrayView2};
 use numpy::{IntoPyArray, PyReadonlyArray2};
@@ -93,7 +93,7 @@ fn sampling(py: Python<'_>, name: &str, tol: f64, step: usize) -> PyResult<MapSa
     }
 }
 
-fn through_mapping<T: Sample, O: OutSample>(
+fn through_mapping<T: Pixel, O: OutSample>(
     img: ArrayView2<T>,
     mapping: &Mapping,
     opts: &RemapOptions,
