@@ -1,0 +1,135 @@
+//! A displacement field on a regular grid (the predictor of a pass), its bilinear interpolation
+//! and its window average.
+
+/// A displacement field on a regular grid, interpolated bilinearly (constant beyond the outer
+/// grid points). Used as the predictor of a pass and for image deformation.
+#[derive(Debug, Clone)]
+pub struct GridField {
+    /// The grid of the field.
+    pub grid: crate::grid::Grid,
+    /// x displacement (px) per grid point, shape (ny, nx).
+    pub u: ndarray::Array2<f64>,
+    /// y displacement (px) per grid point, shape (ny, nx).
+    pub v: ndarray::Array2<f64>,
+}
+
+impl GridField {
+    /// Interpolation index and weight along one axis.
+    #[inline(always)]
+    pub(crate) fn axis(p: f64, p0: f64, step: f64, n: usize) -> (usize, usize, f64) {
+        if n == 1 {
+            return (0, 0, 0.0);
+        }
+        let t = (p - p0) / step;
+        if t <= 0.0 {
+            (0, 0, 0.0)
+        } else if t >= (n - 1) as f64 {
+            (n - 1, n - 1, 0.0)
+        } else {
+            let i = t as usize; // t > 0: the cast is the floor
+            (i, i + 1, t - i as f64)
+        }
+    }
+
+    /// The y-interpolation state of row `y` for [`Self::at_row`].
+    #[inline]
+    pub fn row(&self, y: f64) -> (usize, usize, f64) {
+        let g = &self.grid;
+        Self::axis(y, g.y0, g.dy, g.ny)
+    }
+
+    /// Displacement at (x, y) with the row state of `y` from [`Self::row`].
+    #[inline(always)]
+    pub fn at_row(&self, row: &(usize, usize, f64), x: f64) -> (f64, f64) {
+        let g = &self.grid;
+        let (i0, i1, tx) = Self::axis(x, g.x0, g.dx, g.nx);
+        let (j0, j1, ty) = *row;
+        let nx = g.nx;
+        let (us, vs) = (
+            self.u.as_slice().expect("standard layout"),
+            self.v.as_slice().expect("standard layout"),
+        );
+        let bl = |a: &[f64]| {
+            let top = a[j0 * nx + i0] * (1.0 - tx) + a[j0 * nx + i1] * tx;
+            let bot = a[j1 * nx + i0] * (1.0 - tx) + a[j1 * nx + i1] * tx;
+            top * (1.0 - ty) + bot * ty
+        };
+        (bl(us), bl(vs))
+    }
+
+    /// The field averaged over a `w` x `h` px window (top-hat, the pixel areas
+    /// `[x - w/2, x + w/2] x [y - h/2, y + h/2]`) of its bilinear interpolant, at every grid
+    /// point: the displacement a window centred there measures when the frames move by this
+    /// field. Used to filter a pass's predictor with the window of the pass (see
+    /// [`crate::multipass`]). Beyond the outer grid points the field is constant, as in
+    /// [`Self::at`].
+    pub fn window_average(&self, w: usize, h: usize) -> GridField {
+        let g = &self.grid;
+        let wx = tophat_weights(w as f64, g.dx, g.nx);
+        let wy = tophat_weights(h as f64, g.dy, g.ny);
+        let filt = |a: &ndarray::Array2<f64>| {
+            let (ny, nx) = (g.ny as isize, g.nx as isize);
+            let rows = ndarray::Array2::from_shape_fn((g.ny, g.nx), |(j, i)| {
+                wx.iter()
+                    .map(|&(o, wt)| wt * a[[j, (i as isize + o).clamp(0, nx - 1) as usize]])
+                    .sum::<f64>()
+            });
+            ndarray::Array2::from_shape_fn((g.ny, g.nx), |(j, i)| {
+                wy.iter()
+                    .map(|&(o, wt)| wt * rows[[(j as isize + o).clamp(0, ny - 1) as usize, i]])
+                    .sum::<f64>()
+            })
+        };
+        GridField {
+            grid: self.grid,
+            u: filt(&self.u),
+            v: filt(&self.v),
+        }
+    }
+
+    /// Displacement (u, v) at (x, y).
+    #[inline]
+    pub fn at(&self, x: f64, y: f64) -> (f64, f64) {
+        let g = &self.grid;
+        let (i0, i1, tx) = Self::axis(x, g.x0, g.dx, g.nx);
+        let (j0, j1, ty) = Self::axis(y, g.y0, g.dy, g.ny);
+        let bl = |a: &ndarray::Array2<f64>| {
+            let top = a[[j0, i0]] * (1.0 - tx) + a[[j0, i1]] * tx;
+            let bot = a[[j1, i0]] * (1.0 - tx) + a[[j1, i1]] * tx;
+            top * (1.0 - ty) + bot * ty
+        };
+        (bl(&self.u), bl(&self.v))
+    }
+}
+
+/// Weights `(node offset, weight)` of the grid nodes (spacing `step`, `n` of them) in the mean
+/// of their linear interpolant over `[-win/2, win/2]` around a node; `[(0, 1)]` for a single
+/// node. They sum to one.
+pub(crate) fn tophat_weights(win: f64, step: f64, n: usize) -> Vec<(isize, f64)> {
+    if n < 2 || step.is_nan() || step <= 0.0 || win.is_nan() || win <= 0.0 {
+        return vec![(0, 1.0)];
+    }
+    // integral of the unit hat (support [-1, 1]) from -inf to x
+    let hat_int = |x: f64| {
+        if x <= -1.0 {
+            0.0
+        } else if x <= 0.0 {
+            0.5 * (x + 1.0) * (x + 1.0)
+        } else if x <= 1.0 {
+            1.0 - 0.5 * (1.0 - x) * (1.0 - x)
+        } else {
+            1.0
+        }
+    };
+    let a = 0.5 * win / step;
+    let reach = a.ceil() as isize + 1;
+    (-reach..=reach)
+        .map(|j| {
+            (
+                j,
+                (hat_int(a - j as f64) - hat_int(-a - j as f64)) / (2.0 * a),
+            )
+        })
+        .filter(|&(_, wt)| wt > 0.0)
+        .collect()
+}

@@ -1,0 +1,390 @@
+//! The window samplers: integer copy, constant sub-pixel shift and per-pixel deformation of a
+//! window pair, and the deformation of a whole frame pair.
+
+use super::field::*;
+use super::{Img, Pixel};
+use image_core::kernels::{floor_i, mirror};
+use ndarray::parallel::prelude::*;
+use ndarray::CowArray;
+use rayon::prelude::*;
+
+/// How a window pair is sampled: top-left pixel position of the window (may be fractional), the
+/// constant displacement `(du, dv)` and an optional displacement field added per pixel.
+/// Frame A is sampled at `p - d(p)/2`, frame B at `p + d(p)/2` (symmetric, second order).
+pub struct WindowSpec<'f> {
+    pub left: f64,
+    pub top: f64,
+    pub du: f64,
+    pub dv: f64,
+    pub field: Option<&'f GridField>,
+}
+
+/// The images a window pair is read from: the frames themselves (integer positions) and the
+/// images interpolated with kernel `wf` at fractional positions (the frames for Keys, their
+/// B-spline coefficients for B-splines).
+pub struct Source<'s, 'a, 'c, T: Pixel, U: Pixel, W> {
+    pub a: &'s Img<'a, T>,
+    pub b: &'s Img<'a, T>,
+    pub ia: &'s Img<'c, U>,
+    pub ib: &'s Img<'c, U>,
+    /// The kernel, `Fn(f32) -> [f32; N]` (see [`Weights`]).
+    pub wf: W,
+}
+
+/// Tolerance (px) of the inside test of [`inside`].
+pub(crate) const INSIDE_EPS: f64 = 1e-6;
+
+/// Is the position (x, y) inside the image, `[-0.5, width - 0.5] x [-0.5, height - 0.5]` (the
+/// area of its pixels, README's convention)?
+#[inline(always)]
+pub fn inside(x: f64, y: f64, width: usize, height: usize) -> bool {
+    x >= -0.5 - INSIDE_EPS
+        && y >= -0.5 - INSIDE_EPS
+        && x <= width as f64 - 0.5 + INSIDE_EPS
+        && y <= height as f64 - 0.5 + INSIDE_EPS
+}
+
+/// Sample the window pair into `wa`, `wb` (row-major, `h` rows of `w`). A pixel whose sample
+/// position (after offset and deformation) lies outside the image (see [`inside`]) is set to
+/// NaN in its window, so that the caller can leave it out of the correlation (see
+/// [`crate::multipass`]). Returns `true` when every sample of both windows is inside.
+pub fn sample_pair<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
+    src: &Source<'_, '_, '_, T, U, W>,
+    w: usize,
+    h: usize,
+    spec: &WindowSpec<'_>,
+    wa: &mut [f32],
+    wb: &mut [f32],
+) -> bool {
+    let (iw, ih) = (src.a.width, src.a.height);
+    let (rw, rh) = ((w - 1) as f64, (h - 1) as f64);
+    match spec.field {
+        None => {
+            let (ax, ay) = (spec.left - spec.du / 2.0, spec.top - spec.dv / 2.0);
+            let (bx, by) = (spec.left + spec.du / 2.0, spec.top + spec.dv / 2.0);
+            let in_a = inside(ax, ay, iw, ih) && inside(ax + rw, ay + rh, iw, ih);
+            let in_b = inside(bx, by, iw, ih) && inside(bx + rw, by + rh, iw, ih);
+            sample_shift(src.a, src.ia, src.wf, w, h, ax, ay, wa);
+            sample_shift(src.b, src.ib, src.wf, w, h, bx, by, wb);
+            for (ok, x0, y0, win) in [(in_a, ax, ay, &mut *wa), (in_b, bx, by, &mut *wb)] {
+                if !ok {
+                    for r in 0..h {
+                        for c in 0..w {
+                            if !inside(x0 + c as f64, y0 + r as f64, iw, ih) {
+                                win[r * w + c] = f32::NAN;
+                            }
+                        }
+                    }
+                }
+            }
+            in_a && in_b
+        }
+        Some(f) => match sample_field_sep(src, w, h, spec, f, wa, wb) {
+            Some(ok) => ok,
+            // a window or source span beyond the stack lines (a wildly varying field)
+            None => sample_field_2d(src, w, h, spec, f, wa, wb),
+        },
+    }
+}
+
+/// The per-pixel 2D sampler of a window pair deformed by a field (see [`sample_pair`]):
+/// `N x N` taps and one field evaluation per pixel. The reference of
+/// [`sample_field_sep`] and its fallback.
+pub(crate) fn sample_field_2d<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
+    src: &Source<'_, '_, '_, T, U, W>,
+    w: usize,
+    h: usize,
+    spec: &WindowSpec<'_>,
+    f: &GridField,
+    wa: &mut [f32],
+    wb: &mut [f32],
+) -> bool {
+    let (iw, ih) = (src.a.width, src.a.height);
+    let mut ok = true;
+    for r in 0..h {
+        let y = spec.top + r as f64;
+        let row_y = f.row(y);
+        let (ra, rb) = (&mut wa[r * w..(r + 1) * w], &mut wb[r * w..(r + 1) * w]);
+        for (c, (oa, ob)) in ra.iter_mut().zip(rb.iter_mut()).enumerate() {
+            let x = spec.left + c as f64;
+            let (fu, fv) = f.at_row(&row_y, x);
+            let hu = 0.5 * (fu + spec.du);
+            let hv = 0.5 * (fv + spec.dv);
+            let (xa, ya, xb, yb) = (x - hu, y - hv, x + hu, y + hv);
+            *oa = if inside(xa, ya, iw, ih) {
+                src.ia.interp(xa, ya, src.wf)
+            } else {
+                ok = false;
+                f32::NAN
+            };
+            *ob = if inside(xb, yb, iw, ih) {
+                src.ib.interp(xb, yb, src.wf)
+            } else {
+                ok = false;
+                f32::NAN
+            };
+        }
+    }
+    ok
+}
+
+/// Longest window row and source line (px) of [`sample_field_sep`] (stack buffers).
+pub(crate) const FIELD_LINE: usize = 512;
+
+/// A window pair deformed by a field, sampled separably as [`deform_pair`] does for a whole
+/// frame: output pixel `p` of frame A takes the interpolant at `p - d(p) / 2`, of frame B at
+/// `p + d(p) / 2` (`d` = field + `(du, dv)`).
+///
+/// Per window row the field is evaluated once per output pixel (shared by both frames).
+/// Then, per frame, every source column `i` the row's taps reach is interpolated along y
+/// (`N` taps) at the vertical displacement of the output pixel whose source column is `i`
+/// (`x = i -+ d_x(i) / 2`, the field linear between the row's pixels and extrapolated
+/// linearly beyond them), and the row of these values is interpolated along x (`N` taps) at
+/// each pixel's source position: `2 N` taps per pixel (plus `N` per extra column) instead of
+/// `N^2`. It equals the 2D interpolation up to the change of the vertical displacement across
+/// the taps times the tap distance (second order, as [`deform_pair`], the deformation of
+/// Method I's regular grid; exact when `d_y` does not vary along x).
+///
+/// Pixels whose source lies outside the image are NaN. Returns `Some(all inside)`, or `None`
+/// (nothing meaningful written) when a window row or a source span exceeds [`FIELD_LINE`]
+/// px or is not finite.
+pub(crate) fn sample_field_sep<
+    T: Pixel,
+    U: Pixel,
+    W: Fn(f32) -> [f32; N] + Copy,
+    const N: usize,
+>(
+    src: &Source<'_, '_, '_, T, U, W>,
+    w: usize,
+    h: usize,
+    spec: &WindowSpec<'_>,
+    f: &GridField,
+    wa: &mut [f32],
+    wb: &mut [f32],
+) -> Option<bool> {
+    if !(2..=FIELD_LINE).contains(&w) {
+        return None;
+    }
+    let (iw, ih) = (src.a.width, src.a.height);
+    let o = (N / 2 - 1) as isize;
+    let mut hu = [0.0f64; FIELD_LINE];
+    let mut hv = [0.0f64; FIELD_LINE];
+    let mut line = [0.0f32; FIELD_LINE];
+    let mut ok = true;
+    let left = spec.left;
+    for r in 0..h {
+        let y = spec.top + r as f64;
+        let row_y = f.row(y);
+        for c in 0..w {
+            let (fu, fv) = f.at_row(&row_y, left + c as f64);
+            hu[c] = 0.5 * (fu + spec.du);
+            hv[c] = 0.5 * (fv + spec.dv);
+        }
+        // half the field at the fractional output column t (linear between the row's pixels)
+        let lin = |a: &[f64; FIELD_LINE], t: f64| {
+            let k = (floor_i(t).clamp(0, w as isize - 2)) as usize;
+            a[k] + (t - k as f64) * (a[k + 1] - a[k])
+        };
+        for (img, sign, out) in [(src.ia, -1.0, &mut *wa), (src.ib, 1.0, &mut *wb)] {
+            let orow = &mut out[r * w..(r + 1) * w];
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for (c, &u) in hu[..w].iter().enumerate() {
+                let xs = left + c as f64 + sign * u;
+                lo = lo.min(xs);
+                hi = hi.max(xs);
+            }
+            if !(lo.is_finite() && hi.is_finite()) || hi - lo > FIELD_LINE as f64 {
+                return None;
+            }
+            let i0 = floor_i(lo) - o;
+            let len = (floor_i(hi) + N as isize - o - i0) as usize;
+            if len > FIELD_LINE {
+                return None;
+            }
+            // 1. the source columns along y
+            for (k, t) in line[..len].iter_mut().enumerate() {
+                let i = (i0 + k as isize) as f64;
+                let xo = i - sign * lin(&hu, i - left);
+                let ys = y + sign * lin(&hv, xo - left);
+                *t = img.column_interp(mirror(i0 + k as isize, iw), ys, src.wf);
+            }
+            // 2. the row along x
+            for (c, v) in orow.iter_mut().enumerate() {
+                let (xs, ys) = (left + c as f64 + sign * hu[c], y + sign * hv[c]);
+                if !inside(xs, ys, iw, ih) {
+                    ok = false;
+                    *v = f32::NAN;
+                    continue;
+                }
+                let ix = floor_i(xs);
+                let wx = (src.wf)((xs - ix as f64) as f32);
+                let s0 = (ix - o - i0) as usize;
+                *v = wx.iter().zip(&line[s0..s0 + N]).map(|(a, b)| a * b).sum();
+            }
+        }
+    }
+    Some(ok)
+}
+
+/// Deform a whole frame pair symmetrically by the field `f`: `A'(p) = A(p - f(p)/2)`,
+/// `B'(p) = B(p + f(p)/2)`, sampled from `ia`, `ib` with kernel `wf` (rows in parallel). Windows
+/// of a regular grid are then plain copies of the deformed images, which costs one
+/// interpolation per pixel instead of one per pixel and overlapping window. A pixel whose
+/// source position lies outside its frame (see [`inside`]) is set to NaN, as in
+/// [`sample_pair`].
+///
+/// The separable kernel is applied in two 1D passes per output row (`2 N` taps per pixel
+/// instead of `N^2`): first every column `i` of the source is interpolated along y at
+/// `y -+ f_y(i +- f_x(i)/2)/2`, the vertical displacement of the output pixel whose source
+/// column is `i`; then the row of these values is interpolated along x at `x -+ f_x(x)/2`.
+/// This equals the 2D interpolation up to the change of the field across the `N` taps times
+/// the displacement (second order: below 1e-4 px for a field varying by 0.01 px/px).
+pub fn deform_pair<U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, const N: usize>(
+    ia: &Img<'_, U>,
+    ib: &Img<'_, U>,
+    wf: W,
+    f: &GridField,
+) -> (Img<'static, f32>, Img<'static, f32>) {
+    let (w, h) = (ia.width, ia.height);
+    let mut da = vec![0.0f32; w * h];
+    let mut db = vec![0.0f32; w * h];
+    let g = &f.grid;
+    // the x interpolation state of every column, shared by all rows
+    let cols: Vec<(usize, usize, f64)> = (0..w)
+        .map(|x| GridField::axis(x as f64, g.x0, g.dx, g.nx))
+        .collect();
+    let (us, vs) = (
+        f.u.as_slice().expect("standard layout"),
+        f.v.as_slice().expect("standard layout"),
+    );
+    da.par_chunks_mut(w)
+        .zip(db.par_chunks_mut(w))
+        .enumerate()
+        .for_each_init(
+            || {
+                (
+                    vec![0.0f64; g.nx],
+                    vec![0.0f64; g.nx],
+                    vec![0.0f32; w],
+                    vec![0.0f32; w],
+                )
+            },
+            |(ur, vr, ta, tb), (y, (ra, rb))| {
+                let yf = y as f64;
+                // half the field interpolated to this row at every grid column
+                let (j0, j1, ty) = f.row(yf);
+                for i in 0..g.nx {
+                    let (k0, k1) = (j0 * g.nx + i, j1 * g.nx + i);
+                    ur[i] = 0.5 * (us[k0] * (1.0 - ty) + us[k1] * ty);
+                    vr[i] = 0.5 * (vs[k0] * (1.0 - ty) + vs[k1] * ty);
+                }
+                let half = |&(i0, i1, tx): &(usize, usize, f64)| {
+                    (
+                        ur[i0] * (1.0 - tx) + ur[i1] * tx,
+                        vr[i0] * (1.0 - tx) + vr[i1] * tx,
+                    )
+                };
+                let half_v_at = |x: f64| half(&GridField::axis(x, g.x0, g.dx, g.nx)).1;
+                // 1. columns along y
+                for (i, (oa, ob)) in ta.iter_mut().zip(tb.iter_mut()).enumerate() {
+                    let hu = half(&cols[i]).0;
+                    let xi = i as f64;
+                    *oa = ia.column_interp(i, yf - half_v_at(xi + hu), wf);
+                    *ob = ib.column_interp(i, yf + half_v_at(xi - hu), wf);
+                }
+                // 2. the row along x
+                for (x, ((oa, ob), c)) in ra.iter_mut().zip(rb.iter_mut()).zip(&cols).enumerate() {
+                    let xf = x as f64;
+                    let (hu, hv) = half(c);
+                    let (xa, ya, xb, yb) = (xf - hu, yf - hv, xf + hu, yf + hv);
+                    *oa = if inside(xa, ya, w, h) {
+                        line_interp(ta, xa, wf)
+                    } else {
+                        f32::NAN
+                    };
+                    *ob = if inside(xb, yb, w, h) {
+                        line_interp(tb, xb, wf)
+                    } else {
+                        f32::NAN
+                    };
+                }
+            },
+        );
+    let wrap = |v: Vec<f32>| Img {
+        data: CowArray::from(ndarray::Array2::from_shape_vec((h, w), v).expect("shape")),
+        width: w,
+        height: h,
+    };
+    (wrap(da), wrap(db))
+}
+
+/// Interpolate the line `t` at position `x` with kernel `wf` (mirrored beyond its ends).
+#[inline(always)]
+pub(crate) fn line_interp<W: Fn(f32) -> [f32; N], const N: usize>(t: &[f32], x: f64, wf: W) -> f32 {
+    let ix = floor_i(x);
+    let wx = wf((x - ix as f64) as f32);
+    let i0 = ix - (N / 2 - 1) as isize;
+    if i0 >= 0 && i0 as usize + N <= t.len() {
+        let row = &t[i0 as usize..i0 as usize + N];
+        wx.iter().zip(row).map(|(a, b)| a * b).sum()
+    } else {
+        wx.iter()
+            .enumerate()
+            .map(|(k, a)| a * t[mirror(i0 + k as isize, t.len())])
+            .sum()
+    }
+}
+
+/// Sample a `w` x `h` window whose top-left pixel sits at (x0, y0) (constant shift): straight
+/// from `img` at integer positions, else from `interp` with kernel `wf`.
+pub(crate) fn sample_shift<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N], const N: usize>(
+    img: &Img<'_, T>,
+    interp: &Img<'_, U>,
+    wf: W,
+    w: usize,
+    h: usize,
+    x0: f64,
+    y0: f64,
+    out: &mut [f32],
+) {
+    let fx = x0.floor();
+    let fy = y0.floor();
+    let tx = x0 - fx;
+    let ty = y0 - fy;
+    const EPS: f64 = 1e-9;
+    let int_x = !(EPS..=1.0 - EPS).contains(&tx);
+    let int_y = !(EPS..=1.0 - EPS).contains(&ty);
+    if int_x && int_y {
+        let ix = x0.round() as isize;
+        let iy = y0.round() as isize;
+        let inside = ix >= 0
+            && iy >= 0
+            && ix + w as isize <= img.width as isize
+            && iy + h as isize <= img.height as isize;
+        if inside {
+            let s = img.slice();
+            for r in 0..h {
+                let base = (iy as usize + r) * img.width + ix as usize;
+                for (o, p) in out[r * w..(r + 1) * w].iter_mut().zip(&s[base..base + w]) {
+                    *o = p.to_f32();
+                }
+            }
+        } else {
+            for r in 0..h {
+                for c in 0..w {
+                    out[r * w + c] = img.get(ix + c as isize, iy + r as isize);
+                }
+            }
+        }
+        return;
+    }
+    let wx = wf(tx as f32);
+    let wy = wf(ty as f32);
+    let o = (N / 2 - 1) as isize;
+    let (ix, iy) = (fx as isize - o, fy as isize - o);
+    for r in 0..h {
+        for c in 0..w {
+            out[r * w + c] = interp.taps(ix + c as isize, iy + r as isize, &wx, &wy);
+        }
+    }
+}

@@ -1,0 +1,169 @@
+//! The prepared frame pair: interpolation coefficients, per-frame variance, deformation, and
+//! sweeps over the (deformed) frames.
+
+use super::settings::*;
+use super::window::*;
+use crate::correlate::{Peak, SubPixel};
+use crate::error::Result;
+use crate::image::{
+    bspline5_coeffs, bspline5_weights, bspline_coeffs, bspline_weights, deform_pair, keys_weights,
+    GridField, Img, Pixel, Source,
+};
+use ndarray::ArrayView2;
+use rayon::prelude::*;
+
+/// The interpolation images of a frame pair.
+pub(crate) enum Coeffs {
+    /// Quintic B-spline coefficients.
+    Quintic(Img<'static, f32>, Img<'static, f32>),
+    /// Cubic B-spline coefficients.
+    Cubic(Img<'static, f32>, Img<'static, f32>),
+    /// Keys on the frames themselves.
+    Keys,
+}
+
+/// The frames and their interpolants; `sweep` over them.
+pub(crate) struct Frames<'a, T: Pixel> {
+    a: Img<'a, T>,
+    b: Img<'a, T>,
+    interp: Interpolation,
+    /// The interpolation images, computed on first use (windows on integer positions need
+    /// none).
+    coeffs: std::sync::OnceLock<Coeffs>,
+    /// Per-pixel variance below which a window counts as blank: [`BLANK_VARIANCE`] times the
+    /// larger variance of the two frames.
+    floor: f32,
+}
+
+/// A window whose per-pixel variance is below this fraction of its frame's variance is blank
+/// (zero fill of a dewarped frame, including the interpolation's ringing next to its edge;
+/// regions without signal): it is not correlated. Camera noise alone is far above it.
+pub const BLANK_VARIANCE: f64 = 1e-6;
+
+/// Per-pixel variance of a frame (f64 accumulation, rows in parallel).
+pub(crate) fn frame_variance<T: Pixel>(img: &Img<'_, T>) -> f64 {
+    let n = (img.width * img.height) as f64;
+    let (s, s2) = img
+        .slice()
+        .par_chunks(img.width.max(1))
+        .map(|row| {
+            row.iter().fold((0.0f64, 0.0f64), |(s, s2), p| {
+                let v = p.to_f32() as f64;
+                (s + v, s2 + v * v)
+            })
+        })
+        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let m = s / n;
+    (s2 / n - m * m).max(0.0)
+}
+
+impl<'a, T: Pixel> Frames<'a, T> {
+    pub(crate) fn new(
+        a: ArrayView2<'a, T>,
+        b: ArrayView2<'a, T>,
+        interp: Interpolation,
+    ) -> Result<Self> {
+        let a = Img::new(a, "frame_a")?;
+        let b = Img::new(b, "frame_b")?;
+        let floor = (BLANK_VARIANCE * frame_variance(&a).max(frame_variance(&b))) as f32;
+        Ok(Frames {
+            a,
+            b,
+            interp,
+            coeffs: std::sync::OnceLock::new(),
+            floor,
+        })
+    }
+
+    pub(crate) fn coeffs(&self) -> &Coeffs {
+        self.coeffs.get_or_init(|| match self.interp {
+            Interpolation::BSpline => {
+                let (ca, cb) =
+                    rayon::join(|| bspline5_coeffs(&self.a), || bspline5_coeffs(&self.b));
+                Coeffs::Quintic(ca, cb)
+            }
+            Interpolation::BSpline3 => {
+                Coeffs::Cubic(bspline_coeffs(&self.a), bspline_coeffs(&self.b))
+            }
+            Interpolation::Keys => Coeffs::Keys,
+        })
+    }
+
+    /// The frames deformed symmetrically by `f` (see [`deform_pair`]).
+    pub(crate) fn deformed(&self, f: &GridField) -> Frames<'static, f32> {
+        let (a, b) = match self.coeffs() {
+            Coeffs::Quintic(ca, cb) => deform_pair(ca, cb, bspline5_weights, f),
+            Coeffs::Cubic(ca, cb) => deform_pair(ca, cb, bspline_weights, f),
+            Coeffs::Keys => deform_pair(&self.a, &self.b, keys_weights, f),
+        };
+        Frames {
+            a,
+            b,
+            interp: Interpolation::Keys,
+            coeffs: std::sync::OnceLock::from(Coeffs::Keys),
+            floor: self.floor,
+        }
+    }
+
+    pub(crate) fn sweep(
+        &self,
+        w: usize,
+        h: usize,
+        xs: &[f64],
+        ys: &[f64],
+        du: &[f64],
+        dv: &[f64],
+        skip: &[bool],
+        base: Option<&GridField>,
+        sub: SubPixel,
+    ) -> Vec<Peak> {
+        // windows on integer positions are plain copies: no interpolation images needed
+        let int = |p: f64| p == p.round();
+        let (hw, hh) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let integer = base.is_none()
+            && (0..xs.len()).all(|k| {
+                skip[k]
+                    || (int(xs[k] - hw - du[k] / 2.0)
+                        && int(ys[k] - hh - dv[k] / 2.0)
+                        && int(xs[k] - hw + du[k] / 2.0)
+                        && int(ys[k] - hh + dv[k] / 2.0))
+            });
+        let coeffs = if integer {
+            &Coeffs::Keys
+        } else {
+            self.coeffs()
+        };
+        match coeffs {
+            Coeffs::Quintic(ca, cb) => {
+                let src = Source {
+                    a: &self.a,
+                    b: &self.b,
+                    ia: ca,
+                    ib: cb,
+                    wf: bspline5_weights,
+                };
+                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
+            }
+            Coeffs::Cubic(ca, cb) => {
+                let src = Source {
+                    a: &self.a,
+                    b: &self.b,
+                    ia: ca,
+                    ib: cb,
+                    wf: bspline_weights,
+                };
+                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
+            }
+            Coeffs::Keys => {
+                let src = Source {
+                    a: &self.a,
+                    b: &self.b,
+                    ia: &self.a,
+                    ib: &self.b,
+                    wf: keys_weights,
+                };
+                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
+            }
+        }
+    }
+}

@@ -1,0 +1,126 @@
+//! Multipass PIV on the regular grid ([`piv`]).
+
+use super::field::*;
+use super::frames::*;
+use super::settings::*;
+use super::window::*;
+use crate::error::{PivError, Result};
+use crate::grid::Grid;
+use crate::image::{GridField, Pixel};
+use ndarray::{Array2, ArrayView2};
+
+/// Multipass PIV of a frame pair on the regular grid of the last pass.
+///
+/// `mask` (same shape as the frames, `true` = excluded) removes the vectors whose centre falls
+/// on a masked pixel. Errors: frames of different shapes, NaN/inf pixels, windows larger than the
+/// image, bad settings.
+pub fn piv<T: Pixel>(
+    frame_a: ArrayView2<'_, T>,
+    frame_b: ArrayView2<'_, T>,
+    mask: Option<ArrayView2<'_, bool>>,
+    s: &PivSettings,
+) -> Result<PivField> {
+    s.check()?;
+    check_pair(&frame_a, &frame_b)?;
+    let dim = frame_a.dim();
+    check_mask(&mask, dim)?;
+    let grids = grids_of(s, dim)?;
+    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+    grid_passes(&frames, dim, &mask, s, grids)
+}
+
+/// The grids of the passes of `s` on frames of shape `dim` (rows, columns).
+pub(crate) fn grids_of(s: &PivSettings, dim: (usize, usize)) -> Result<Vec<Grid>> {
+    s.passes
+        .iter()
+        .map(|p| Grid::for_windows(dim.1, dim.0, p.w, p.h, p.overlap))
+        .collect()
+}
+
+/// The passes of [`piv`] on prepared frames (inputs checked, `grids` from [`grids_of`]).
+pub(crate) fn grid_passes<T: Pixel>(
+    frames: &Frames<'_, T>,
+    dim: (usize, usize),
+    mask: &Option<ArrayView2<'_, bool>>,
+    s: &PivSettings,
+    grids: Vec<Grid>,
+) -> Result<PivField> {
+    let mut pred: Option<GridField> = None;
+    let mut last = None;
+    for (pass, grid) in s.passes.iter().zip(grids) {
+        let n = grid.len();
+        let mut xs = Vec::with_capacity(n);
+        let mut ys = Vec::with_capacity(n);
+        for j in 0..grid.ny {
+            for i in 0..grid.nx {
+                let (x, y) = grid.xy(j, i);
+                xs.push(x);
+                ys.push(y);
+            }
+        }
+        let skip: Vec<bool> = xs
+            .iter()
+            .zip(&ys)
+            .map(|(&x, &y)| excluded(mask, dim, x, y))
+            .collect();
+        for _ in 0..pass.iterations {
+            // the deformation predictor: the latest field averaged over this pass's window
+            // (see the module notes)
+            let cur = match (&pred, s.mode) {
+                (Some(f), Mode::Deform) => Some(f.window_average(pass.w, pass.h)),
+                (p, _) => p.clone(),
+            };
+            // predictor at the centres
+            let (pu, pv): (Vec<f64>, Vec<f64>) = match &cur {
+                Some(f) => xs.iter().zip(&ys).map(|(&x, &y)| f.at(x, y)).unzip(),
+                None => (vec![0.0; n], vec![0.0; n]),
+            };
+            let zeros = vec![0.0; n];
+            let (du, dv, base) = match s.mode {
+                Mode::Deform => (&zeros, &zeros, cur.as_ref()),
+                Mode::Offset => (&pu, &pv, None),
+            };
+            let peaks = match base {
+                // grid windows sit on integer positions: deform the whole pair once, then the
+                // windows are plain copies
+                Some(f) => frames
+                    .deformed(f)
+                    .sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel),
+                None => frames.sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel),
+            };
+            let mut u = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
+                let k = j * grid.nx + i;
+                pu[k] + peaks[k].dx
+            });
+            let mut v = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
+                let k = j * grid.nx + i;
+                pv[k] + peaks[k].dy
+            });
+            let (valid, replaced) = validate_replace(&mut u, &mut v, &peaks, &skip, s);
+            pred = Some(GridField {
+                grid,
+                u: u.clone(),
+                v: v.clone(),
+            });
+            last = Some((u, v, peaks, valid, replaced));
+        }
+        if let Some((u, v, peaks, valid, replaced)) = last.take() {
+            if std::ptr::eq(pass, s.passes.last().expect("non-empty")) {
+                let x = Array2::from_shape_vec((grid.ny, grid.nx), xs).expect("shape");
+                let y = Array2::from_shape_vec((grid.ny, grid.nx), ys).expect("shape");
+                return Ok(finish(
+                    Some(grid),
+                    x,
+                    y,
+                    u,
+                    v,
+                    &peaks,
+                    &skip,
+                    valid,
+                    replaced,
+                ));
+            }
+        }
+    }
+    Err(PivError::InvalidInput("passes is empty".into()))
+}
