@@ -1,8 +1,31 @@
 //! The settings of a PIV evaluation: passes, how windows follow the predictor, interpolation,
-//! validation.
+//! validation; and their one vocabulary.
+//!
+//! The vocabulary is the one of the Python `rspiv.PivSettings`, the campaign file's `[piv]`
+//! section and `rspiv-engine piv --settings FILE.json` ([`PivSettings::from_json`]):
+//!
+//! | key              | JSON value                 | meaning                                        |
+//! |------------------|----------------------------|------------------------------------------------|
+//! | passes           | `[[w, h], ...]`            | window px, coarse to fine; w along x           |
+//! | overlap          | number or one per pass     | fraction in `[0, 1)`                           |
+//! | iterations       | integer or one per pass    | `>= 1` correlations per pass                   |
+//! | deformation      | `"symmetric"`, `"offset"`  | [`Mode::Deform`], [`Mode::Offset`]             |
+//! | interpolation    | `"bspline"`, `"bspline3"`, `"keys"` | [`Interpolation`]                     |
+//! | subpixel         | `"gauss3"`, `"gauss2d"`    | [`SubPixel`]                                   |
+//! | validate         | bool                       | normalised median test                         |
+//! | median_eps       | number, px                 | noise level of the median test                 |
+//! | median_threshold | number                     | threshold of the median test                   |
+//! | min_peak_ratio   | number                     | reject below this peak ratio (0: off)          |
+//!
+//! Missing keys take the defaults ([`PivSettings::default`]); unknown keys are an error. The
+//! string values parse case-insensitively through the enums' `FromStr` and print (`Display`) as
+//! the vocabulary's lowercase names.
 
 use crate::correlate::SubPixel;
 use crate::error::{PivError, Result};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
 
 /// How the windows follow the predictor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -113,5 +136,246 @@ impl PivSettings {
             ));
         }
         Ok(())
+    }
+}
+
+/// `FromStr` (case-insensitive, the vocabulary's names) and `Display` (the canonical name) of a
+/// settings enum.
+macro_rules! vocabulary_enum {
+    ($ty:ty, $key:literal, $(($name:literal, $variant:expr)),+ $(,)?) => {
+        impl FromStr for $ty {
+            type Err = PivError;
+            fn from_str(s: &str) -> Result<Self> {
+                let low = s.trim().to_ascii_lowercase();
+                $(if low == $name {
+                    return Ok($variant);
+                })+
+                let names = [$(format!("{:?}", $name)),+];
+                Err(PivError::InvalidInput(format!(
+                    "{} {:?}: use {}",
+                    $key,
+                    s,
+                    names.join(", ")
+                )))
+            }
+        }
+        impl fmt::Display for $ty {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                $(if *self == $variant {
+                    return f.write_str($name);
+                })+
+                unreachable!("every variant has a name")
+            }
+        }
+    };
+}
+
+vocabulary_enum!(
+    Mode,
+    "deformation",
+    ("symmetric", Mode::Deform),
+    ("offset", Mode::Offset)
+);
+vocabulary_enum!(
+    Interpolation,
+    "interpolation",
+    ("bspline", Interpolation::BSpline),
+    ("bspline3", Interpolation::BSpline3),
+    ("keys", Interpolation::Keys)
+);
+vocabulary_enum!(
+    SubPixel,
+    "subpixel",
+    ("gauss3", SubPixel::Gauss3),
+    ("gauss2d", SubPixel::Gauss2d)
+);
+
+/// A value given once for every pass or once per pass.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(untagged)]
+enum PerPass<T> {
+    One(T),
+    Each(Vec<T>),
+}
+
+impl<T: Copy + fmt::Debug> PerPass<T> {
+    fn expand(&self, n: usize, key: &str) -> Result<Vec<T>> {
+        match self {
+            PerPass::One(v) => Ok(vec![*v; n]),
+            PerPass::Each(v) if v.len() == n => Ok(v.clone()),
+            PerPass::Each(v) => Err(PivError::InvalidInput(format!(
+                "{key} has {} values for {n} passes",
+                v.len()
+            ))),
+        }
+    }
+
+    /// One value when all passes share it, else the list.
+    fn of(values: Vec<T>) -> PerPass<T>
+    where
+        T: PartialEq,
+    {
+        if values.windows(2).all(|w| w[0] == w[1]) && !values.is_empty() {
+            PerPass::One(values[0])
+        } else {
+            PerPass::Each(values)
+        }
+    }
+}
+
+/// The JSON form of [`PivSettings`] (the vocabulary's keys).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct SettingsJson {
+    passes: Vec<(usize, usize)>,
+    overlap: PerPass<f64>,
+    iterations: PerPass<usize>,
+    deformation: String,
+    interpolation: String,
+    subpixel: String,
+    validate: bool,
+    median_eps: f64,
+    median_threshold: f64,
+    min_peak_ratio: f64,
+}
+
+impl Default for SettingsJson {
+    fn default() -> Self {
+        SettingsJson::from(&PivSettings::default())
+    }
+}
+
+impl From<&PivSettings> for SettingsJson {
+    fn from(s: &PivSettings) -> Self {
+        SettingsJson {
+            passes: s.passes.iter().map(|p| (p.w, p.h)).collect(),
+            overlap: PerPass::of(s.passes.iter().map(|p| p.overlap).collect()),
+            iterations: PerPass::of(s.passes.iter().map(|p| p.iterations).collect()),
+            deformation: s.mode.to_string(),
+            interpolation: s.interpolation.to_string(),
+            subpixel: s.subpixel.to_string(),
+            validate: s.validate,
+            median_eps: s.median_eps,
+            median_threshold: s.median_threshold,
+            min_peak_ratio: s.min_peak_ratio,
+        }
+    }
+}
+
+impl PivSettings {
+    /// Settings from the JSON object of the vocabulary (module docs): missing keys take the
+    /// defaults; unknown keys, wrong types, bad names and values out of range are
+    /// [`PivError::InvalidInput`] naming the key.
+    pub fn from_json(text: &str) -> Result<PivSettings> {
+        let j: SettingsJson = serde_json::from_str(text)
+            .map_err(|e| PivError::InvalidInput(format!("PIV settings: {e}")))?;
+        let n = j.passes.len();
+        let overlaps = j.overlap.expand(n, "overlap")?;
+        let iterations = j.iterations.expand(n, "iterations")?;
+        if let Some(o) = overlaps.iter().find(|o| !(0.0..1.0).contains(*o)) {
+            return Err(PivError::InvalidInput(format!(
+                "overlap {o} is outside [0, 1)"
+            )));
+        }
+        let s = PivSettings {
+            passes: j
+                .passes
+                .iter()
+                .zip(overlaps)
+                .zip(iterations)
+                .map(|((&(w, h), overlap), iterations)| Pass {
+                    w,
+                    h,
+                    overlap,
+                    iterations,
+                })
+                .collect(),
+            mode: j.deformation.parse()?,
+            subpixel: j.subpixel.parse()?,
+            interpolation: j.interpolation.parse()?,
+            validate: j.validate,
+            median_eps: j.median_eps,
+            median_threshold: j.median_threshold,
+            min_peak_ratio: j.min_peak_ratio,
+        };
+        s.check()?;
+        Ok(s)
+    }
+
+    /// The settings as the vocabulary's JSON object (what [`PivSettings::from_json`] reads).
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(&SettingsJson::from(self)).expect("plain data serialises")
+    }
+}
+
+#[cfg(test)]
+mod vocabulary_tests {
+    use super::*;
+
+    #[test]
+    fn names_parse_in_any_case_and_print_canonically() {
+        assert_eq!("Symmetric".parse::<Mode>().unwrap(), Mode::Deform);
+        assert_eq!(" OFFSET ".parse::<Mode>().unwrap(), Mode::Offset);
+        assert_eq!(
+            "BSpline3".parse::<Interpolation>().unwrap(),
+            Interpolation::BSpline3
+        );
+        assert_eq!(
+            "keys".parse::<Interpolation>().unwrap(),
+            Interpolation::Keys
+        );
+        assert_eq!("Gauss2D".parse::<SubPixel>().unwrap(), SubPixel::Gauss2d);
+        assert_eq!(Mode::Deform.to_string(), "symmetric");
+        assert_eq!(Interpolation::BSpline.to_string(), "bspline");
+        assert_eq!(SubPixel::Gauss3.to_string(), "gauss3");
+        let e = "cubic".parse::<Interpolation>().unwrap_err().to_string();
+        assert!(
+            e.contains("interpolation \"cubic\"") && e.contains("\"keys\""),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn json_round_trip_defaults_and_per_pass_values() {
+        let d = PivSettings::from_json("{}").unwrap();
+        assert_eq!(d, PivSettings::default());
+        let s = PivSettings::from_json(
+            r#"{"passes": [[64, 64], [32, 8]], "overlap": [0.5, 0.75], "iterations": 2,
+                "deformation": "Offset", "interpolation": "keys", "subpixel": "gauss2d",
+                "validate": false, "median_eps": 0.2, "median_threshold": 3,
+                "min_peak_ratio": 1.2}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            s.passes[1],
+            Pass {
+                w: 32,
+                h: 8,
+                overlap: 0.75,
+                iterations: 2
+            }
+        );
+        assert_eq!(s.mode, Mode::Offset);
+        assert_eq!(s.interpolation, Interpolation::Keys);
+        assert_eq!(s.subpixel, SubPixel::Gauss2d);
+        assert!(!s.validate);
+        assert_eq!(
+            (s.median_eps, s.median_threshold, s.min_peak_ratio),
+            (0.2, 3.0, 1.2)
+        );
+        assert_eq!(PivSettings::from_json(&s.to_json()).unwrap(), s);
+        assert_eq!(PivSettings::from_json(&d.to_json()).unwrap(), d);
+    }
+
+    #[test]
+    fn bad_json_names_the_key() {
+        let err = |t: &str| PivSettings::from_json(t).unwrap_err().to_string();
+        assert!(err(r#"{"median_epsilon": 0.1}"#).contains("unknown field `median_epsilon`"));
+        assert!(err(r#"{"overlap": [0.5]}"#).contains("overlap has 1 values for 3 passes"));
+        assert!(err(r#"{"overlap": 1.0}"#).contains("overlap 1 is outside [0, 1)"));
+        assert!(err(r#"{"deformation": "warp"}"#).contains("deformation \"warp\""));
+        assert!(err(r#"{"iterations": 0}"#).contains("0 iterations"));
+        assert!(err(r#"{"passes": []}"#).contains("passes is empty"));
+        assert!(err("[1, 2]").contains("PIV settings"));
     }
 }

@@ -1,0 +1,138 @@
+//! Method II: PIV on the raw frames at the images of the object grid, vectors mapped back.
+
+use crate::error::{CorrectionError, Result};
+use crate::method::DisplacementMapping;
+use dewarp_core::Mapping;
+use image_core::Pixel;
+use ndarray::{Array2, ArrayView2, Zip};
+use piv_core::{Grid, PivField, PivSettings};
+
+/// The regular object grid of the last pass of `settings` on an object frame of
+/// `object_shape` (rows, columns): the grid [`piv_core::piv`] gives on the dewarped frames, so
+/// Methods I and II share their vector positions.
+pub fn object_grid(object_shape: (usize, usize), settings: &PivSettings) -> Result<Grid> {
+    let last = settings
+        .passes
+        .last()
+        .ok_or_else(|| CorrectionError::InvalidInput("passes is empty".into()))?;
+    Ok(Grid::for_windows(
+        object_shape.1,
+        object_shape.0,
+        last.w,
+        last.h,
+        last.overlap,
+    )?)
+}
+
+/// Object-frame displacements of the image displacements `(u, v)` measured at the image points
+/// `(x, y)` (all of one shape): [`DisplacementMapping::Full`] gives
+/// `F^-1(p + d/2) - F^-1(p - d/2)` (NaN where `d` is not finite or the inverse does not
+/// converge), [`DisplacementMapping::Positions`] the displacements as measured.
+pub fn map_displacements(
+    mapping: &Mapping,
+    x: ArrayView2<'_, f64>,
+    y: ArrayView2<'_, f64>,
+    u: ArrayView2<'_, f64>,
+    v: ArrayView2<'_, f64>,
+    mode: DisplacementMapping,
+) -> (Array2<f64>, Array2<f64>) {
+    if mode == DisplacementMapping::Positions {
+        return (u.to_owned(), v.to_owned());
+    }
+    let mut du = Array2::from_elem(u.dim(), f64::NAN);
+    let mut dv = Array2::from_elem(u.dim(), f64::NAN);
+    Zip::from(&mut du)
+        .and(&mut dv)
+        .and(x)
+        .and(y)
+        .and(u)
+        .and(v)
+        .par_for_each(|du, dv, &x, &y, &u, &v| {
+            if !(u.is_finite() && v.is_finite()) {
+                return;
+            }
+            let end = |s: f64| {
+                let (p, ok, _) = mapping.inverse_checked(x + s * 0.5 * u, y + s * 0.5 * v);
+                // a point that does not converge gives NaN, as `Mapping.inverse(on_fail="nan")`
+                if ok && (x + s * 0.5 * u).is_finite() && (y + s * 0.5 * v).is_finite() {
+                    p
+                } else {
+                    (f64::NAN, f64::NAN)
+                }
+            };
+            let (a, b) = (end(-1.0), end(1.0));
+            *du = b.0 - a.0;
+            *dv = b.1 - a.1;
+        });
+    (du, dv)
+}
+
+/// Method II: the passes of `settings` but the last as the raw-frame predictor, the last pass
+/// (its window and iterations) at the images `F(X)` of the points `X` of [`object_grid`], on
+/// one prepared frame pair ([`piv_core::piv_with_final_points`]); the measured displacements
+/// mapped back by `mode` ([`map_displacements`]).
+///
+/// The result lives on the object grid (`grid`, `x`, `y` in object px, displacements in object
+/// px). A vector whose displacement cannot be mapped back (the inverse fails) is masked;
+/// `valid` and `replaced` are cleared where masked; peak ratio and correlation coefficient
+/// are those of the final correlation at the image point.
+pub fn method_two<T: Pixel>(
+    frame_a: ArrayView2<'_, T>,
+    frame_b: ArrayView2<'_, T>,
+    mapping: &Mapping,
+    settings: &PivSettings,
+    mode: DisplacementMapping,
+    object_shape: Option<(usize, usize)>,
+    mask: Option<ArrayView2<'_, bool>>,
+) -> Result<PivField> {
+    let shape = object_shape.unwrap_or(frame_a.dim());
+    let grid = object_grid(shape, settings)?;
+    let (gx, gy) = (
+        Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| grid.xy(j, i).0),
+        Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| grid.xy(j, i).1),
+    );
+    let mut ix = Array2::zeros(gx.dim());
+    let mut iy = Array2::zeros(gx.dim());
+    Zip::from(&mut ix)
+        .and(&mut iy)
+        .and(&gx)
+        .and(&gy)
+        .par_for_each(|ix, iy, &x, &y| {
+            (*ix, *iy) = mapping.forward(x, y);
+        });
+    if ix.iter().chain(iy.iter()).any(|p| !p.is_finite()) {
+        return Err(CorrectionError::InvalidInput(
+            "the mapping sends object grid points to NaN or infinity".into(),
+        ));
+    }
+    let (_, f) =
+        piv_core::piv_with_final_points(frame_a, frame_b, ix.view(), iy.view(), mask, settings)?;
+    let (du, dv) = map_displacements(mapping, ix.view(), iy.view(), f.u.view(), f.v.view(), mode);
+    let masked = Zip::from(&f.masked)
+        .and(&du)
+        .and(&dv)
+        .map_collect(|&m, &u, &v| m || !(u.is_finite() && v.is_finite()));
+    let nan_where = |d: Array2<f64>| {
+        Zip::from(&d)
+            .and(&masked)
+            .map_collect(|&d, &m| if m { f64::NAN } else { d })
+    };
+    let valid = Zip::from(&f.valid)
+        .and(&masked)
+        .map_collect(|&ok, &m| ok && !m);
+    let replaced = Zip::from(&f.replaced)
+        .and(&masked)
+        .map_collect(|&r, &m| r && !m);
+    Ok(PivField {
+        grid: Some(grid),
+        x: gx,
+        y: gy,
+        u: nan_where(du),
+        v: nan_where(dv),
+        peak_ratio: f.peak_ratio,
+        coef: f.coef,
+        valid,
+        replaced,
+        masked,
+    })
+}
