@@ -118,7 +118,7 @@ def monte_carlo(
 
 def dewarp_image(
     image: npt.NDArray[np.uint16] | npt.NDArray[np.float32],
-    mapping_json: str,
+    mapping: NativeMapping,
     out_shape: tuple[int, int] | None = None,
     sampling: str = "auto",
     tol: float = 1e-3,
@@ -126,7 +126,7 @@ def dewarp_image(
     fill: float = 0.0,
     out_dtype: str = "float32",
 ) -> npt.NDArray[np.float32] | npt.NDArray[np.uint16]:
-    """``out[y, x] = image(F(x, y))`` with F the mapping (JSON text, object px -> image px),
+    """``out[y, x] = image(F(x, y))`` with F the native mapping (object px -> image px),
     Keys bicubic (a = -0.5), ``fill`` outside the image. ``sampling``: "auto" (coarsest grid
     within ``tol`` px), "exact" (per pixel) or "grid" (every ``step`` px). ``out_dtype``:
     "float32" or "uint16" (rounded, clipped)."""
@@ -143,19 +143,13 @@ def remap_coords(
 
 # --- piv-core (PIV engine; windows are (w, h): w px along x, h px along y) -------------------
 
+# ``settings`` is the JSON of ``rspiv.PivSettings.to_json()`` (the one vocabulary, parsed by
+# ``piv_core::PivSettings::from_json``).
+
 def piv(
     frame_a: npt.NDArray[np.generic],
     frame_b: npt.NDArray[np.generic],
-    windows: list[tuple[int, int]],
-    overlaps: list[float],
-    iterations: list[int],
-    deformation: str = "symmetric",
-    subpixel: str = "gauss3",
-    interpolation: str = "bspline",
-    validate: bool = True,
-    median_eps: float = 0.1,
-    median_threshold: float = 2.0,
-    min_peak_ratio: float = 0.0,
+    settings: str,
     mask: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, object]:
     """Multipass PIV; frames uint8/uint16/float32/float64 of one dtype. Returns a dict with
@@ -168,44 +162,59 @@ def piv_at(
     x: npt.NDArray[np.float64],
     y: npt.NDArray[np.float64],
     windows: list[tuple[int, int]],
+    settings: str,
     iterations: int = 1,
     predictor_u: npt.NDArray[np.float64] | None = None,
     predictor_v: npt.NDArray[np.float64] | None = None,
     field_grid: tuple[float, float, float, float] | None = None,
     field_u: npt.NDArray[np.float64] | None = None,
     field_v: npt.NDArray[np.float64] | None = None,
-    subpixel: str = "gauss3",
-    interpolation: str = "bspline",
-    validate: bool = True,
-    median_eps: float = 0.1,
-    median_threshold: float = 2.0,
-    min_peak_ratio: float = 0.0,
     mask: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, object]:
     """PIV at points x, y (one 2D shape) with per-point predictors (window offset) or a grid
-    predictor field (deformation); same dict as ``piv`` with grid = None."""
+    predictor field (deformation); ``windows`` and ``iterations`` are the passes at the points
+    (the settings' passes and deformation are not used). Same dict as ``piv`` with
+    grid = None."""
 
 def piv_final_points(
     frame_a: npt.NDArray[np.generic],
     frame_b: npt.NDArray[np.generic],
     x: npt.NDArray[np.float64],
     y: npt.NDArray[np.float64],
-    windows: list[tuple[int, int]],
-    overlaps: list[float],
-    iterations: list[int],
-    deformation: str = "symmetric",
-    subpixel: str = "gauss3",
-    interpolation: str = "bspline",
-    validate: bool = True,
-    median_eps: float = 0.1,
-    median_threshold: float = 2.0,
-    min_peak_ratio: float = 0.0,
+    settings: str,
     mask: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, object]:
     """Method II's PIV in one call on one prepared pair: all passes but the last as ``piv`` on
     the regular grid (the predictor), the last (its window and iterations) at the points x, y
     deformed ("symmetric") or offset ("offset") by that field. The final field's dict (as
     ``piv_at``) with the predictor's dict (as ``piv``; None for one pass) under "predictor"."""
+
+# --- correction-core (crates/rspiv-py/src/correction.rs) -------------------------------------
+
+def method_one(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    mapping: NativeMapping,
+    settings: str,
+    object_shape: tuple[int, int] | None = None,
+    mask: npt.NDArray[np.bool_] | None = None,
+    zero_fill: str = "mask",
+) -> dict[str, object]:
+    """Method I: both frames (and the mask) dewarped through ``mapping``, then ``piv``; the
+    dict of ``piv`` in object px (zero fill masked with ``zero_fill="mask"``)."""
+
+def method_two(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    mapping: NativeMapping,
+    settings: str,
+    mapping_mode: str = "full",
+    object_shape: tuple[int, int] | None = None,
+    mask: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, object]:
+    """Method II: the predictor passes on the raw frames, the last pass at the images of the
+    object grid, displacements mapped back ("full": exact inverse; "positions": as measured);
+    the dict of ``piv`` on the object grid (object px)."""
 
 def render_particles(
     height: int,

@@ -27,8 +27,12 @@ deformed by a coarse predictor measured on the raw frames, and the measured imag
   ``|d| * |J(F^-1) - I|`` (about 0.08 px at 32 px displacement in the paper); see
   :func:`position_only_bias`.
 
-Cost of Method II. Without a given predictor the raw-frame PIV is one native call on one
-prepared frame pair (:func:`rspiv.multipass.run_final_points`): the predictor passes (all but the
+Without a given predictor each method is one native call (``correction_core::method_one`` /
+``method_two``, the path ``rspiv-engine piv --calibration cal.json --method I|II`` runs, so the
+engine's vectors equal the API's).
+
+Cost of Method II. Without a given predictor the raw-frame PIV runs on one prepared frame pair
+(``piv_core::piv_with_final_points``): the predictor passes (all but the
 last window size, a plain PIV of the raw frames, the same work as Method I's first passes on the
 dewarped frames) and the final pass at the image points share the frames' B-spline
 coefficients. The final pass runs once per point (``iterations=1``, as every pass of
@@ -57,10 +61,11 @@ from typing import Any
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from rspiv.dewarp import check_calibration_shape, dewarp
+from rspiv import _rspiv
+from rspiv.dewarp import check_calibration_shape, dewarp, native_mapping
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
-from rspiv.multipass import frames, mask_array, run_final_points, run_grid, run_points
+from rspiv.multipass import frames, mask_array, run_points
 from rspiv.settings import (
     OPTION_KEYS,
     PivSettings,
@@ -180,6 +185,26 @@ def position_only_bias(calibration: Any, object_xy: np.ndarray, d_object: np.nda
     return (ends[n:] - ends[:n]) - dd
 
 
+def _native(mapping: Any) -> Any:
+    """The native object of an rspiv Mapping (InvalidInputError for a duck-typed one)."""
+    native = native_mapping(mapping)
+    if native is None:
+        raise InvalidInputError(
+            f"calibration must be an rspiv Calibration or Mapping, got {type(mapping).__name__}"
+        )
+    return native
+
+
+def _shape(object_shape: Any) -> tuple[int, int] | None:
+    """An object shape ``(h, w)`` as ints (None: the frames' shape)."""
+    if object_shape is None:
+        return None
+    h, w = (int(v) for v in object_shape)
+    if h < 1 or w < 1:
+        raise InvalidInputError(f"object_shape must be (height, width) >= 1, got {object_shape}")
+    return h, w
+
+
 # -- Method I --------------------------------------------------------------------------------------
 def dewarp_pair(
     frame_a: Any,
@@ -240,11 +265,22 @@ def method_one(
     zero_fill: str = "mask",
 ) -> PivField:
     """Method I: :func:`dewarp_pair`, then the regular multipass PIV of the dewarped frames
-    (object px; vectors centred on the object mask are masked)."""
-    da, db, dmask = dewarp_pair(
-        frame_a, frame_b, calibration, object_shape=object_shape, mask=mask, zero_fill=zero_fill
+    (object px; vectors centred on the object mask are masked), in one native call
+    (``correction_core::method_one``, the path ``rspiv-engine piv --method I`` runs)."""
+    zero_fill = parse_choice(zero_fill, ZERO_FILL, "zero_fill")
+    m = mapping_of(calibration)
+    a, b = frames(frame_a, frame_b)
+    check_calibration_shape(calibration, a.shape)
+    d = _rspiv.method_one(
+        a,
+        b,
+        _native(m),
+        settings.to_json(),
+        object_shape=_shape(object_shape),
+        mask=mask_array(mask, a.shape),
+        zero_fill=zero_fill,
     )
-    return run_grid(da, db, settings, dmask)
+    return PivField._from_native(d, settings.final_window)
 
 
 # -- Method II -------------------------------------------------------------------------------------
@@ -285,6 +321,19 @@ def method_two(
     """
     m = mapping_of(calibration)
     mode = parse_mapping_mode(mapping)
+    if predictor is None:
+        # one native path (``correction_core::method_two``, as ``rspiv-engine piv --method II``)
+        a, b = frames(frame_a, frame_b)
+        d = _rspiv.method_two(
+            a,
+            b,
+            _native(m),
+            settings.to_json(),
+            mapping_mode=mode,
+            object_shape=_shape(object_shape),
+            mask=mask_array(mask, a.shape),
+        )
+        return PivField._from_native(d, settings.final_window)
     a = np.asarray(frame_a)
     shape = tuple(object_shape) if object_shape is not None else a.shape
     window = settings.final_window
@@ -292,24 +341,21 @@ def method_two(
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     img = m.forward(obj)
     points = img.reshape(gx.shape + (2,))
-    if predictor is None:
-        f = run_final_points(frame_a, frame_b, points, settings, mask)
-    else:
-        pred: Any = predictor
-        if settings.deformation == "offset":
-            pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
-        # deformation "symmetric": the windows are deformed by the predictor field
-        f = run_points(
-            frame_a,
-            frame_b,
-            points,
-            [window],
-            settings,
-            predictor=pred,
-            iterations=settings.iteration_counts[-1],
-            validate=settings.validate,
-            mask=mask,
-        )
+    pred: Any = predictor
+    if settings.deformation == "offset":
+        pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
+    # deformation "symmetric": the windows are deformed by the predictor field
+    f = run_points(
+        frame_a,
+        frame_b,
+        points,
+        [window],
+        settings,
+        predictor=pred,
+        iterations=settings.iteration_counts[-1],
+        validate=settings.validate,
+        mask=mask,
+    )
     d = np.column_stack([f.u.ravel(), f.v.ravel()])
     dob = map_displacements(m, img, d, mode).reshape(gx.shape + (2,))
     lost = ~np.all(np.isfinite(dob), axis=-1) & ~f.masked

@@ -53,16 +53,14 @@ def _out_dtype(out_dtype: Any) -> str:
     return name
 
 
-def _mapping_json(mapping: Any) -> str | None:
-    """The mapping's JSON if ``mapping`` is an rspiv Mapping, Calibration or JSON text."""
+def native_mapping(mapping: Any) -> Any:
+    """The native mapping object (``_rspiv.NativeMapping``) of an rspiv Mapping, a Calibration
+    or mapping JSON text (parsed once here); None for anything else (e.g. a callable)."""
     if isinstance(mapping, str):
-        return mapping
-    inner = getattr(mapping, "mapping", None)  # Calibration
-    if inner is not None and hasattr(inner, "to_json"):
-        return inner.to_json()
-    if hasattr(mapping, "to_json") and hasattr(mapping, "forward"):
-        return mapping.to_json()
-    return None
+        return _rspiv.NativeMapping.from_json(mapping)
+    inner = getattr(mapping, "mapping", mapping)  # a Calibration holds its Mapping
+    native = getattr(inner, "_native", None)
+    return native if isinstance(native, _rspiv.NativeMapping) else None
 
 
 def check_calibration_shape(calibration: Any, shape: tuple[int, ...], what: str = "image") -> None:
@@ -147,11 +145,11 @@ def dewarp(
     if len(shape) != 2 or min(shape) < 1:
         raise InvalidInputError(f"output_shape must be (height, width) >= 1, got {shape}")
     shape = (int(shape[0]), int(shape[1]))
-    text = _mapping_json(mapping)
-    if text is not None:
+    native = native_mapping(mapping)
+    if native is not None:
         return _rspiv.dewarp_image(
             img,
-            text,
+            native,
             out_shape=shape,
             sampling=sampling,
             tol=float(tol),

@@ -64,15 +64,7 @@ def run_grid(frame_a: Any, frame_b: Any, settings: PivSettings, mask: Any = None
     """Multipass PIV of a frame pair on the regular grid of the last pass (see
     :func:`rspiv.piv` for the conventions of the result)."""
     a, b = frames(frame_a, frame_b)
-    d = _rspiv.piv(
-        a,
-        b,
-        list(settings.passes),
-        settings.overlaps,
-        settings.iteration_counts,
-        mask=mask_array(mask, a.shape),
-        **settings.native(),
-    )
+    d = _rspiv.piv(a, b, settings.to_json(), mask=mask_array(mask, a.shape))
     return PivField._from_native(d, settings.final_window)
 
 
@@ -130,18 +122,15 @@ def run_points(
             predictor_u=np.ascontiguousarray(p[..., 0]),
             predictor_v=np.ascontiguousarray(p[..., 1]),
         )
-    native = settings.native()
-    del native["deformation"]
-    native["validate"] = bool(validate)
     d = _rspiv.piv_at(
         a,
         b,
         np.ascontiguousarray(grid_pts[..., 0]),
         np.ascontiguousarray(grid_pts[..., 1]),
         list(windows),
+        settings.replace(validate=bool(validate)).to_json(),
         iterations=int(iterations),
         mask=mask_array(mask, a.shape),
-        **native,
         **kwargs,
     )
     return PivField._from_native(d, windows[-1], shape=out_shape)
@@ -158,18 +147,13 @@ def run_final_points(
     (``settings.passes[-1]`` with its iterations) at ``points`` (ny, nx, 2) in one native call
     on one prepared frame pair (Method II's raw-frame PIV, :mod:`rspiv.correction`)."""
     a, b = frames(frame_a, frame_b)
-    overlaps = settings.overlaps
-    # the final pass runs at the given points: its overlap is not used
-    overlaps[-1] = 0.5
+    # the final pass runs at the given points (its overlap is not used)
     d = _rspiv.piv_final_points(
         a,
         b,
         np.ascontiguousarray(points[..., 0], dtype=np.float64),
         np.ascontiguousarray(points[..., 1], dtype=np.float64),
-        list(settings.passes),
-        overlaps,
-        settings.iteration_counts,
+        settings.to_json(),
         mask=mask_array(mask, a.shape),
-        **settings.native(),
     )
     return PivField._from_native(d, settings.final_window)

@@ -259,17 +259,6 @@ class PivSettings:
         return cls.from_dict(d, where=str(p))
 
     def to_json(self) -> str:
-        """The settings as JSON text (:meth:`to_dict`)."""
+        """The settings as JSON text (:meth:`to_dict`): what the native functions read
+        (``piv_core::PivSettings::from_json``, the same vocabulary and checks)."""
         return json.dumps(self.to_dict(), indent=2)
-
-    def native(self) -> dict[str, Any]:
-        """Keyword arguments of the native multipass functions (per-pass lists spelled out)."""
-        return {
-            "deformation": self.deformation,
-            "subpixel": self.subpixel,
-            "interpolation": self.interpolation,
-            "validate": self.validate,
-            "median_eps": self.median_eps,
-            "median_threshold": self.median_threshold,
-            "min_peak_ratio": self.min_peak_ratio,
-        }

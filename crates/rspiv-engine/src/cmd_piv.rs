@@ -1,11 +1,20 @@
-//! `piv`: multipass PIV of an image pair; writes a CSV of x,y,u,v,valid,replaced,peak_ratio
-//! (pixel frame: x right, y down, origin at the centre of the top-left pixel; px).
+//! `piv`: multipass PIV of an image pair, plain or distortion-corrected (Method I or II through
+//! a calibration); writes a CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef.
+//!
+//! Settings: `--settings FILE.json` holds the keys of the one vocabulary (`rspiv.PivSettings`,
+//! `piv_core::PivSettings::from_json`: passes, overlap, iterations, deformation, interpolation,
+//! subpixel, validate, median_eps, median_threshold, min_peak_ratio); the flags given on the
+//! command line override the file. Pixel frame: x right, y down, origin at the centre of the
+//! top-left pixel; px (object px with a calibration). Values are written to full precision
+//! (shortest round-trip decimal), NaN where a vector is masked.
 
+use crate::cmd_dewarp::load_mapping;
 use crate::csv::write_atomic;
 use crate::imageio::read_u16;
-use piv_core::{piv, Mode, Pass, PivSettings, SubPixel};
+use correction_core::{method_one, method_two, DisplacementMapping, Method, ZeroFill};
+use piv_core::{piv, Interpolation, Mode, Pass, PivField, PivSettings, SubPixel};
 use std::fmt::Write as _;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Arguments of `piv`.
 #[derive(clap::Args, Debug)]
@@ -17,21 +26,37 @@ pub struct PivArgs {
     /// Output CSV file.
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Window sizes per pass, WxH (W along x, H along y), comma separated.
-    #[arg(long, default_value = "64x64,32x32,32x8")]
-    pub passes: String,
-    /// Fractional window overlap.
-    #[arg(long, default_value_t = 0.5)]
-    pub overlap: f64,
-    /// How passes follow the predictor: symmetric (image deformation) or offset.
-    #[arg(long, default_value = "symmetric")]
-    pub deformation: String,
-    /// Iterations per pass.
-    #[arg(long, default_value_t = 1)]
-    pub iterations: usize,
-    /// Sub-pixel estimator: gauss3 or gauss2d.
-    #[arg(long, default_value = "gauss3")]
-    pub subpixel: String,
+    /// PIV settings JSON (the keys of rspiv.PivSettings); flags override its values.
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// Window sizes per pass, WxH (W along x, H along y), comma separated [default 64x64,32x32,32x8].
+    #[arg(long)]
+    pub passes: Option<String>,
+    /// Fractional window overlap (every pass) [default 0.5].
+    #[arg(long)]
+    pub overlap: Option<f64>,
+    /// How passes follow the predictor: symmetric (image deformation) or offset [default symmetric].
+    #[arg(long)]
+    pub deformation: Option<String>,
+    /// Iterations per pass [default 1].
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Interpolation of deformed windows: bspline (quintic), bspline3 or keys [default bspline].
+    #[arg(long)]
+    pub interpolation: Option<String>,
+    /// Sub-pixel estimator: gauss3 or gauss2d [default gauss3].
+    #[arg(long)]
+    pub subpixel: Option<String>,
+    /// Calibration JSON (rspiv calibrate) or mapping JSON: correct the distortion.
+    #[arg(long)]
+    pub calibration: Option<PathBuf>,
+    /// Correction method with --calibration: I (dewarp the frames, then PIV) or II (PIV on the
+    /// raw frames, vectors mapped back) [default II].
+    #[arg(long)]
+    pub method: Option<String>,
+    /// Method II's displacement mapping: full (exact inverse) or positions [default full].
+    #[arg(long)]
+    pub mapping: Option<String>,
 }
 
 /// Parse "64x64,32x32,32x8" into (w, h) pairs.
@@ -55,65 +80,132 @@ pub fn parse_passes(s: &str) -> Result<Vec<(usize, usize)>, String> {
         .collect()
 }
 
-/// Run `piv`.
-pub fn run_piv(args: &PivArgs) -> Result<(), String> {
-    let windows = parse_passes(&args.passes)?;
-    let mode = match args.deformation.as_str() {
-        "symmetric" => Mode::Deform,
-        "offset" => Mode::Offset,
-        o => return Err(format!("--deformation {o:?}: use symmetric or offset")),
+/// The settings of the run: the file's (or the defaults), then the flags given.
+pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
+    let mut s = match &args.settings {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("{}: cannot read: {e}", path.display()))?;
+            PivSettings::from_json(&text).map_err(|e| format!("{}: {e}", path.display()))?
+        }
+        None => PivSettings::default(),
     };
-    let subpixel = match args.subpixel.as_str() {
-        "gauss3" => SubPixel::Gauss3,
-        "gauss2d" => SubPixel::Gauss2d,
-        o => return Err(format!("--subpixel {o:?}: use gauss3 or gauss2d")),
-    };
-    let a = read_u16(&args.frame_a)?;
-    let b = read_u16(&args.frame_b)?;
-    let s = PivSettings {
-        passes: windows
-            .iter()
-            .map(|&(w, h)| Pass {
+    if let Some(p) = &args.passes {
+        let (overlap, iterations) = s
+            .passes
+            .first()
+            .map_or((0.5, 1), |p| (p.overlap, p.iterations));
+        s.passes = parse_passes(p)?
+            .into_iter()
+            .map(|(w, h)| Pass {
                 w,
                 h,
-                overlap: args.overlap,
-                iterations: args.iterations,
+                overlap,
+                iterations,
             })
-            .collect(),
-        mode,
-        subpixel,
-        ..PivSettings::default()
-    };
-    let f = piv(a.view(), b.view(), None, &s).map_err(|e| {
-        format!(
-            "{} / {}: {e}",
-            args.frame_a.display(),
-            args.frame_b.display()
-        )
-    })?;
-    let mut out = String::with_capacity(f.u.len() * 48);
-    out.push_str("x,y,u,v,valid,replaced,peak_ratio\n");
-    for k in 0..f.u.len() {
-        let (j, i) = (k / f.u.ncols(), k % f.u.ncols());
+            .collect();
+    }
+    for p in &mut s.passes {
+        if let Some(o) = args.overlap {
+            p.overlap = o;
+        }
+        if let Some(i) = args.iterations {
+            p.iterations = i;
+        }
+    }
+    let flag = |e: piv_core::PivError| format!("--{e}").replace("--invalid input: ", "--");
+    if let Some(d) = &args.deformation {
+        s.mode = d.parse::<Mode>().map_err(flag)?;
+    }
+    if let Some(i) = &args.interpolation {
+        s.interpolation = i.parse::<Interpolation>().map_err(flag)?;
+    }
+    if let Some(p) = &args.subpixel {
+        s.subpixel = p.parse::<SubPixel>().map_err(flag)?;
+    }
+    // the same checks as a settings file
+    PivSettings::from_json(&s.to_json()).map_err(|e| format!("settings: {e}"))
+}
+
+/// The calibration's image shape (rows, columns), when the JSON holds one.
+fn image_shape(path: &Path) -> Option<(usize, usize)> {
+    let text = std::fs::read_to_string(path).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let s = v.get("image_shape")?.as_array()?;
+    Some((s.first()?.as_u64()? as usize, s.get(1)?.as_u64()? as usize))
+}
+
+/// The CSV of a field: one row per vector, row-major over the grid.
+fn field_csv(f: &PivField) -> String {
+    let mut out = String::with_capacity(f.u.len() * 96);
+    out.push_str("x,y,u,v,valid,replaced,masked,peak_ratio,coef\n");
+    for ((j, i), &u) in f.u.indexed_iter() {
         let _ = writeln!(
             out,
-            "{},{},{:.5},{:.5},{},{},{:.4}",
+            "{},{},{},{},{},{},{},{},{}",
             f.x[[j, i]],
             f.y[[j, i]],
-            f.u[[j, i]],
+            u,
             f.v[[j, i]],
             u8::from(f.valid[[j, i]]),
             u8::from(f.replaced[[j, i]]),
-            f.peak_ratio[[j, i]]
+            u8::from(f.masked[[j, i]]),
+            f.peak_ratio[[j, i]],
+            f.coef[[j, i]]
         );
     }
-    write_atomic(&args.output, out.as_bytes())?;
+    out
+}
+
+/// Run `piv`.
+pub fn run_piv(args: &PivArgs) -> Result<(), String> {
+    let s = settings_of(args)?;
+    let method: Method = match (&args.calibration, &args.method) {
+        (None, None) => Method::None,
+        (None, Some(_)) => return Err("--method needs --calibration".into()),
+        (Some(_), None) => Method::Two,
+        (Some(_), Some(m)) => m.parse().map_err(|e| format!("--method: {e}"))?,
+    };
+    let mode: DisplacementMapping = match &args.mapping {
+        Some(m) => m.parse().map_err(|e| format!("--mapping: {e}"))?,
+        None => DisplacementMapping::Full,
+    };
+    let a = read_u16(&args.frame_a)?;
+    let b = read_u16(&args.frame_b)?;
+    let pair = format!("{} / {}", args.frame_a.display(), args.frame_b.display());
+    let f = match (&args.calibration, method) {
+        (Some(cal), Method::One | Method::Two) => {
+            let mapping = load_mapping(cal)?;
+            if let Some(shape) = image_shape(cal) {
+                if shape != a.dim() {
+                    return Err(format!(
+                        "{}: the calibration is for {} x {} px images, the frames are {} x {} \
+                         (rows x columns)",
+                        cal.display(),
+                        shape.0,
+                        shape.1,
+                        a.nrows(),
+                        a.ncols()
+                    ));
+                }
+            }
+            let r = if method == Method::One {
+                method_one(a.view(), b.view(), &mapping, &s, None, None, ZeroFill::Mask)
+            } else {
+                method_two(a.view(), b.view(), &mapping, &s, mode, None, None)
+            };
+            r.map_err(|e| format!("{pair}: {e}"))?
+        }
+        _ => piv(a.view(), b.view(), None, &s).map_err(|e| format!("{pair}: {e}"))?,
+    };
+    write_atomic(&args.output, field_csv(&f).as_bytes())?;
     eprintln!(
-        "rspiv-engine piv: {} vectors ({} x {}), {} replaced -> {}",
+        "rspiv-engine piv: {} vectors ({} x {}), {} replaced, {} masked, method {method} -> {}",
         f.u.len(),
         f.u.ncols(),
         f.u.nrows(),
         f.replaced.iter().filter(|&&r| r).count(),
+        f.masked.iter().filter(|&&r| r).count(),
         args.output.display()
     );
     Ok(())

@@ -2,7 +2,7 @@
 //! `index_grid`, `monte_carlo`. The Python facade (`rspiv.calibration`, `rspiv.montecarlo`,
 //! `rspiv.synth.target`) validates, orchestrates and documents.
 
-use crate::errors::{dewarp_err, invalid_input};
+use crate::errors::{invalid, PyRspivErr};
 use dewarp_core::markers::{DetectOptions, Detection, MarkerKind, Pixel};
 use dewarp_core::montecarlo::{MonteCarloConfig, MonteCarloResult};
 use dewarp_core::target::TargetScene;
@@ -48,7 +48,7 @@ fn render_target<'py>(
     );
     let img = py
         .detach(|| dewarp_core::target::render_target(height, width, c, s, a, &scene))
-        .map_err(|e| dewarp_err(py, e))?;
+        .map_err(PyRspivErr::from)?;
     Ok(img.into_pyarray(py))
 }
 
@@ -79,7 +79,7 @@ fn detect_markers<'py>(
     min_snr: f64,
     dark: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let kind: MarkerKind = marker.parse().map_err(|e| dewarp_err(py, e))?;
+    let kind: MarkerKind = marker.parse().map_err(PyRspivErr::from)?;
     let opts = DetectOptions {
         kind,
         size_px,
@@ -96,8 +96,7 @@ fn detect_markers<'py>(
                 None => match detect::<f64>(py, image, &opts)? {
                     Some(r) => r,
                     None => {
-                        return Err(invalid_input(
-                            py,
+                        return Err(invalid(
                             "image must be a 2D array of uint8, uint16, float32 or float64",
                         ))
                     }
@@ -105,7 +104,7 @@ fn detect_markers<'py>(
             },
         },
     };
-    let det = res.map_err(|e| dewarp_err(py, e))?;
+    let det = res.map_err(PyRspivErr::from)?;
     let n = det.markers.len();
     let mut pos = Array2::<f64>::zeros((n, 2));
     let mut cov = Array3::<f64>::zeros((n, 2, 2));
@@ -134,13 +133,13 @@ fn detect_markers<'py>(
     Ok(d)
 }
 
-fn points(py: Python<'_>, name: &str, a: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 2]>> {
+fn points(name: &str, a: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 2]>> {
     let v = a.as_array();
     if v.ncols() != 2 {
-        return Err(invalid_input(
-            py,
-            format!("{name} must have shape (N, 2), got {:?}", a.shape()),
-        ));
+        return Err(invalid(format!(
+            "{name} must have shape (N, 2), got {:?}",
+            a.shape()
+        )));
     }
     Ok(v.rows().into_iter().map(|r| [r[0], r[1]]).collect())
 }
@@ -161,10 +160,10 @@ fn index_grid<'py>(
     (f64, f64),
     (f64, f64),
 )> {
-    let p = points(py, "points_px", &points_px)?;
+    let p = points("points_px", &points_px)?;
     let g = py
         .detach(|| dewarp_core::grid::index_grid(&p, [centre.0, centre.1], tol))
-        .map_err(|e| dewarp_err(py, e))?;
+        .map_err(PyRspivErr::from)?;
     let n = p.len();
     let mut idx = Array2::<i32>::zeros((n, 2));
     let mut found = Array1::<bool>::from_elem(n, false);
@@ -205,9 +204,9 @@ fn monte_carlo<'py>(
     keep_samples: bool,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let model: Model = model.parse().map_err(|e| dewarp_err(py, e))?;
-    let o = points(py, "object_px", &object_px)?;
-    let i = points(py, "image_px", &image_px)?;
+    let model: Model = model.parse().map_err(PyRspivErr::from)?;
+    let o = points("object_px", &object_px)?;
+    let i = points("image_px", &image_px)?;
     let cfg = MonteCarloConfig {
         model,
         n,
@@ -223,7 +222,7 @@ fn monte_carlo<'py>(
     };
     let r: MonteCarloResult = py
         .detach(|| dewarp_core::montecarlo::monte_carlo(&o, &i, &cfg))
-        .map_err(|e| dewarp_err(py, e))?;
+        .map_err(PyRspivErr::from)?;
     let m = o.len();
     let to2 = |v: &[[f64; 2]]| Array2::from_shape_fn((v.len(), 2), |(k, j)| v[k][j]);
     let cov = Array3::from_shape_fn((m, 2, 2), |(k, a, b)| match (a, b) {
@@ -242,12 +241,12 @@ fn monte_carlo<'py>(
     d.set_item("nominal_px", to2(&r.nominal).into_pyarray(py))?;
     if hist_bins > 0 {
         let h = Array3::from_shape_vec((m, hist_bins, hist_bins), r.hist)
-            .map_err(|e| invalid_input(py, e.to_string()))?;
+            .map_err(|e| invalid(e.to_string()))?;
         d.set_item("hist", h.into_pyarray(py))?;
     }
     if keep_samples {
         let s = Array3::from_shape_vec((r.n_ok, m, 2), r.samples)
-            .map_err(|e| invalid_input(py, e.to_string()))?;
+            .map_err(|e| invalid(e.to_string()))?;
         d.set_item("samples", s.into_pyarray(py))?;
     }
     Ok(d)

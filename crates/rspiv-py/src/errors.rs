@@ -1,17 +1,60 @@
-#![allow(dead_code)] // helpers used by the feature modules as they land
-//! Core errors -> Python exceptions.
+//! The binding's one error type: core errors -> Python exceptions (the polars-python pattern).
 //!
-//! The exception classes are defined in Python (`rspiv.errors`) so that one class hierarchy
-//! serves Rust and Python alike: `InvalidInputError(RspivError, ValueError)` and
-//! `ConvergenceError(RspivError, ArithmeticError)`. They are looked up once and cached.
+//! [`PyRspivErr`] wraps an error of any core (dewarp-core, piv-core, correction-core) or a
+//! message of the binding's own argument checks; `From` conversions let call sites write
+//! `.map_err(PyRspivErr::from)?` (or `?` where the function returns `Result<_, PyRspivErr>`),
+//! and `From<PyRspivErr> for PyErr` picks the exception. The exception classes are defined in
+//! Python (`rspiv.errors`) so that one class hierarchy serves Rust and Python alike:
+//! `InvalidInputError(RspivError, ValueError)` for bad input, `ConvergenceError(RspivError,
+//! ArithmeticError)` for an iteration that did not converge, `OSError` for files. They are
+//! looked up once and cached.
 
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyArithmeticError, PyOSError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::PyType;
 
 static INVALID_INPUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static CONVERGENCE: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+/// An error on its way to Python.
+#[derive(Debug)]
+pub enum PyRspivErr {
+    /// Input that cannot be used (-> `rspiv.InvalidInputError`).
+    InvalidInput(String),
+    /// An iteration that did not converge (-> `rspiv.ConvergenceError`).
+    NotConverged(String),
+    /// A file that cannot be read or written (-> `OSError`).
+    Io(String),
+}
+
+impl From<dewarp_core::DewarpError> for PyRspivErr {
+    fn from(e: dewarp_core::DewarpError) -> Self {
+        match e {
+            dewarp_core::DewarpError::InvalidInput(m) => PyRspivErr::InvalidInput(m),
+            dewarp_core::DewarpError::NotConverged(m) => PyRspivErr::NotConverged(m),
+            dewarp_core::DewarpError::Io(m) => PyRspivErr::Io(m),
+        }
+    }
+}
+
+impl From<piv_core::PivError> for PyRspivErr {
+    fn from(e: piv_core::PivError) -> Self {
+        match e {
+            piv_core::PivError::InvalidInput(m) => PyRspivErr::InvalidInput(m),
+        }
+    }
+}
+
+impl From<correction_core::CorrectionError> for PyRspivErr {
+    fn from(e: correction_core::CorrectionError) -> Self {
+        match e {
+            correction_core::CorrectionError::InvalidInput(m) => PyRspivErr::InvalidInput(m),
+            correction_core::CorrectionError::Dewarp(e) => e.into(),
+            correction_core::CorrectionError::Piv(e) => e.into(),
+        }
+    }
+}
 
 fn class<'py>(
     py: Python<'py>,
@@ -25,36 +68,23 @@ fn class<'py>(
     Ok(ty.bind(py).clone())
 }
 
-/// An `rspiv.InvalidInputError` carrying `msg` (a `ValueError` if the class cannot be found).
-pub fn invalid_input(py: Python<'_>, msg: impl Into<String>) -> PyErr {
-    let msg = msg.into();
-    match class(py, &INVALID_INPUT, "InvalidInputError") {
-        Ok(cls) => PyErr::from_type(cls, msg),
-        Err(_) => PyValueError::new_err(msg),
+impl From<PyRspivErr> for PyErr {
+    fn from(e: PyRspivErr) -> PyErr {
+        Python::attach(|py| match e {
+            PyRspivErr::InvalidInput(msg) => match class(py, &INVALID_INPUT, "InvalidInputError") {
+                Ok(cls) => PyErr::from_type(cls, msg),
+                Err(_) => PyValueError::new_err(msg),
+            },
+            PyRspivErr::NotConverged(msg) => match class(py, &CONVERGENCE, "ConvergenceError") {
+                Ok(cls) => PyErr::from_type(cls, msg),
+                Err(_) => PyArithmeticError::new_err(msg),
+            },
+            PyRspivErr::Io(msg) => PyOSError::new_err(msg),
+        })
     }
 }
 
-/// An `rspiv.ConvergenceError` carrying `msg`.
-pub fn convergence(py: Python<'_>, msg: impl Into<String>) -> PyErr {
-    let msg = msg.into();
-    match class(py, &CONVERGENCE, "ConvergenceError") {
-        Ok(cls) => PyErr::from_type(cls, msg),
-        Err(_) => pyo3::exceptions::PyArithmeticError::new_err(msg),
-    }
-}
-
-/// Map a dewarp-core error to a Python exception.
-pub fn dewarp_err(py: Python<'_>, e: dewarp_core::DewarpError) -> PyErr {
-    match e {
-        dewarp_core::DewarpError::InvalidInput(msg) => invalid_input(py, msg),
-        dewarp_core::DewarpError::NotConverged(msg) => convergence(py, msg),
-        dewarp_core::DewarpError::Io(msg) => pyo3::exceptions::PyOSError::new_err(msg),
-    }
-}
-
-/// Map a piv-core error to a Python exception.
-pub fn piv_err(py: Python<'_>, e: piv_core::PivError) -> PyErr {
-    match e {
-        piv_core::PivError::InvalidInput(msg) => invalid_input(py, msg),
-    }
+/// An `rspiv.InvalidInputError` carrying `msg` (the binding's own argument checks).
+pub fn invalid(msg: impl Into<String>) -> PyErr {
+    PyRspivErr::InvalidInput(msg.into()).into()
 }

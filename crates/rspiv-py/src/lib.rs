@@ -5,7 +5,9 @@
 use pyo3::prelude::*;
 
 mod calibration;
+mod correction;
 mod errors;
+mod frames;
 mod mapping;
 mod piv;
 mod remap;
@@ -17,5 +19,6 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     mapping::register(m)?;
     calibration::register(m)?;
     remap::register(m)?;
+    correction::register(m)?;
     Ok(())
 }

@@ -1,7 +1,7 @@
 //! Binding of the mapping models: `fit_mapping`, the `NativeMapping` class, and a bench entry
 //! timing the allocation-free refit. The Python facade (`rspiv.mapping`) validates and wraps.
 
-use crate::errors::{dewarp_err, invalid_input};
+use crate::errors::{invalid, PyRspivErr};
 use dewarp_core::{FitOptions, FitWorkspace, Mapping, Model};
 use ndarray::{Array1, Array2, Array3, ArrayView2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2};
@@ -12,28 +12,27 @@ use std::time::Instant;
 /// Inverse-map result: (object points, converged flag per point).
 type InverseResult<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>);
 
-fn check_n2(py: Python<'_>, name: &str, a: &ArrayView2<f64>) -> PyResult<()> {
+fn check_n2(name: &str, a: &ArrayView2<f64>) -> PyResult<()> {
     if a.ncols() != 2 {
-        return Err(invalid_input(
-            py,
-            format!(
-                "{name} must have shape (N, 2), got ({}, {})",
-                a.nrows(),
-                a.ncols()
-            ),
-        ));
+        return Err(invalid(format!(
+            "{name} must have shape (N, 2), got ({}, {})",
+            a.nrows(),
+            a.ncols()
+        )));
     }
     Ok(())
 }
 
-fn parse_model(py: Python<'_>, model: &str) -> PyResult<Model> {
-    model.parse::<Model>().map_err(|e| dewarp_err(py, e))
+fn parse_model(model: &str) -> PyResult<Model> {
+    model
+        .parse::<Model>()
+        .map_err(|e| PyRspivErr::from(e).into())
 }
 
 /// A fitted mapping object px -> image px (native half of `rspiv.Mapping`).
 #[pyclass(name = "NativeMapping", module = "rspiv._rspiv", frozen)]
 pub struct PyMapping {
-    inner: Mapping,
+    pub(crate) inner: Mapping,
 }
 
 #[pymethods]
@@ -45,7 +44,7 @@ impl PyMapping {
         pts: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let v = pts.as_array();
-        check_n2(py, "points", &v)?;
+        check_n2("points", &v)?;
         let out = py.detach(|| self.inner.forward_many(v));
         Ok(out.into_pyarray(py))
     }
@@ -57,7 +56,7 @@ impl PyMapping {
         pts: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<Bound<'py, PyArray3<f64>>> {
         let v = pts.as_array();
-        check_n2(py, "points", &v)?;
+        check_n2("points", &v)?;
         let out = py.detach(|| {
             let mut out = Array3::zeros((v.nrows(), 2, 2));
             for (k, r) in v.rows().into_iter().enumerate() {
@@ -80,7 +79,7 @@ impl PyMapping {
         pts: PyReadonlyArray2<'py, f64>,
     ) -> PyResult<InverseResult<'py>> {
         let v = pts.as_array();
-        check_n2(py, "points", &v)?;
+        check_n2("points", &v)?;
         let (out, ok) = py.detach(|| self.inner.inverse_many(v));
         Ok((out.into_pyarray(py), Array1::from(ok).into_pyarray(py)))
     }
@@ -99,10 +98,9 @@ impl PyMapping {
 
     /// Parse JSON written by `to_json`.
     #[staticmethod]
-    fn from_json(py: Python<'_>, text: &str) -> PyResult<PyMapping> {
-        Mapping::from_json(text)
-            .map(|inner| PyMapping { inner })
-            .map_err(|e| dewarp_err(py, e))
+    fn from_json(text: &str) -> PyResult<PyMapping> {
+        let inner = Mapping::from_json(text).map_err(PyRspivErr::from)?;
+        Ok(PyMapping { inner })
     }
 
     #[getter]
@@ -151,8 +149,7 @@ impl PyMapping {
         let p = self.inner.model.n_params();
         let c = &self.inner.covariance;
         let a = if c.len() == p * p {
-            Array2::from_shape_vec((p, p), c.clone())
-                .map_err(|e| invalid_input(py, e.to_string()))?
+            Array2::from_shape_vec((p, p), c.clone()).map_err(|e| invalid(e.to_string()))?
         } else {
             Array2::from_elem((p, p), f64::NAN)
         };
@@ -186,7 +183,7 @@ fn fit_mapping<'py>(
     center_index: Option<usize>,
     scale: Option<f64>,
 ) -> PyResult<PyMapping> {
-    let model = parse_model(py, model)?;
+    let model = parse_model(model)?;
     let (o, i) = (object_px.as_array(), image_px.as_array());
     let opts = FitOptions {
         center_index,
@@ -195,7 +192,7 @@ fn fit_mapping<'py>(
     };
     let m = py
         .detach(|| dewarp_core::fit_mapping(o, i, model, &opts))
-        .map_err(|e| dewarp_err(py, e))?;
+        .map_err(PyRspivErr::from)?;
     Ok(PyMapping { inner: m })
 }
 
@@ -214,14 +211,12 @@ fn bench_fit_normalized<'py>(
     repeats: usize,
     warm_start: Option<Vec<f64>>,
 ) -> PyResult<f64> {
-    let model = parse_model(py, model)?;
+    let model = parse_model(model)?;
     let (o, i) = (obj_hat.as_array(), img_hat.as_array());
-    check_n2(py, "obj_hat", &o)?;
-    check_n2(py, "img_hat", &i)?;
+    check_n2("obj_hat", &o)?;
+    check_n2("img_hat", &i)?;
     if n_points == 0 || o.nrows() != i.nrows() || o.nrows() % n_points != 0 {
-        return Err(invalid_input(
-            py,
-            format!(
+        return Err(invalid(format!(
                 "obj_hat ({}) and img_hat ({}) must hold the same whole number of sets of {n_points} points",
                 o.nrows(),
                 i.nrows()
@@ -247,7 +242,7 @@ fn bench_fit_normalized<'py>(
         }
         Ok(t0.elapsed().as_secs_f64() / n as f64)
     });
-    res.map_err(|e| dewarp_err(py, e))
+    res.map_err(|e| PyRspivErr::from(e).into())
 }
 
 /// Register the mapping classes and functions.

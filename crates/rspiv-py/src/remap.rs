@@ -1,8 +1,9 @@
-//! Binding of the Keys-bicubic remap (Method I dewarp): `dewarp_image` through a mapping's JSON,
+//! Binding of the Keys-bicubic remap (Method I dewarp): `dewarp_image` through a native mapping,
 //! `remap_coords` through precomputed coordinate arrays. The Python facade (`rspiv.dewarp`)
 //! validates and converts dtypes.
 
-use crate::errors::{dewarp_err, invalid_input};
+use crate::errors::{invalid, PyRspivErr};
+use crate::mapping::PyMapping;
 use dewarp_core::remap::{remap, remap_with_coords, MapSampling, OutSample, Pixel, RemapOptions};
 use dewarp_core::{DewarpError, Mapping};
 use ndarray::{Array2, ArrayView2};
@@ -21,10 +22,7 @@ fn image<'py>(a: &Bound<'py, PyAny>) -> PyResult<Img<'py>> {
     if let Ok(v) = a.extract::<PyReadonlyArray2<'py, f32>>() {
         return Ok(Img::F32(v));
     }
-    Err(invalid_input(
-        a.py(),
-        "image must be a 2D uint16 or float32 array",
-    ))
+    Err(invalid("image must be a 2D uint16 or float32 array"))
 }
 
 #[derive(Clone, Copy)]
@@ -33,14 +31,13 @@ enum OutType {
     U16,
 }
 
-fn out_type(py: Python<'_>, s: &str) -> PyResult<OutType> {
+fn out_type(s: &str) -> PyResult<OutType> {
     match s {
         "float32" => Ok(OutType::F32),
         "uint16" => Ok(OutType::U16),
-        _ => Err(invalid_input(
-            py,
-            format!("out_dtype must be 'float32' or 'uint16', got {s:?}"),
-        )),
+        _ => Err(invalid(format!(
+            "out_dtype must be 'float32' or 'uint16', got {s:?}"
+        ))),
     }
 }
 
@@ -48,9 +45,7 @@ fn to_py<'py, O: OutSample + numpy::Element>(
     py: Python<'py>,
     r: Result<Array2<O>, DewarpError>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    Ok(r.map_err(|e| dewarp_err(py, e))?
-        .into_pyarray(py)
-        .into_any())
+    Ok(r.map_err(PyRspivErr::from)?.into_pyarray(py).into_any())
 }
 
 /// Run `f` over the typed image view for the requested output type, GIL released.
@@ -81,15 +76,14 @@ macro_rules! dispatch {
     }};
 }
 
-fn sampling(py: Python<'_>, name: &str, tol: f64, step: usize) -> PyResult<MapSampling> {
+fn sampling(name: &str, tol: f64, step: usize) -> PyResult<MapSampling> {
     match name {
         "auto" => Ok(MapSampling::Auto { tol }),
         "exact" => Ok(MapSampling::Exact),
         "grid" => Ok(MapSampling::Grid { step }),
-        _ => Err(invalid_input(
-            py,
-            format!("sampling must be 'auto', 'exact' or 'grid', got {name:?}"),
-        )),
+        _ => Err(invalid(format!(
+            "sampling must be 'auto', 'exact' or 'grid', got {name:?}"
+        ))),
     }
 }
 
@@ -103,13 +97,14 @@ fn through_mapping<T: Pixel, O: OutSample>(
 }
 
 /// Dewarp an image: out[y, x] = image(F(x, y)), F the mapping (object px -> image px, rotation
-/// included) given as its JSON text; Keys bicubic, zero outside the image.
+/// included; the `NativeMapping` object itself, no re-parsing); Keys bicubic, zero outside
+/// the image.
 #[pyfunction]
-#[pyo3(signature = (image, mapping_json, out_shape=None, sampling="auto", tol=1e-3, step=16, fill=0.0, out_dtype="float32"))]
+#[pyo3(signature = (image, mapping, out_shape=None, sampling="auto", tol=1e-3, step=16, fill=0.0, out_dtype="float32"))]
 fn dewarp_image<'py>(
     py: Python<'py>,
     image: &Bound<'py, PyAny>,
-    mapping_json: &str,
+    mapping: PyRef<'py, PyMapping>,
     out_shape: Option<(usize, usize)>,
     sampling: &str,
     tol: f64,
@@ -118,14 +113,14 @@ fn dewarp_image<'py>(
     out_dtype: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
     let img = self::image(image)?;
-    let out = out_type(py, out_dtype)?;
-    let mapping = Mapping::from_json(mapping_json).map_err(|e| dewarp_err(py, e))?;
+    let out = out_type(out_dtype)?;
+    let mapping = &mapping.inner;
     let opts = RemapOptions {
         out_shape,
-        sampling: self::sampling(py, sampling, tol, step)?,
+        sampling: self::sampling(sampling, tol, step)?,
         fill,
     };
-    dispatch!(py, img, out, |v| through_mapping(v, &mapping, &opts))
+    dispatch!(py, img, out, |v| through_mapping(v, mapping, &opts))
 }
 
 enum Coords<'py> {
@@ -146,14 +141,13 @@ fn remap_coords<'py>(
     out_dtype: &str,
 ) -> PyResult<Bound<'py, PyAny>> {
     let img = self::image(image)?;
-    let out = out_type(py, out_dtype)?;
+    let out = out_type(out_dtype)?;
     let coords = if let (Ok(a), Ok(b)) = (map_x.extract(), map_y.extract()) {
         Coords::F64(a, b)
     } else if let (Ok(a), Ok(b)) = (map_x.extract(), map_y.extract()) {
         Coords::F32(a, b)
     } else {
-        return Err(invalid_input(
-            py,
+        return Err(invalid(
             "map_x and map_y must be 2D arrays of one dtype, float64 or float32",
         ));
     };
