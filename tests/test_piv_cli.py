@@ -117,3 +117,38 @@ def test_cli_piv_settings_file_and_flags_share_the_vocabulary(pair_files, tmp_pa
     path.write_text('{"passes": [[32, 32]], "median_epsilon": 0.1}')
     assert main(["piv", str(d / "a.tif"), "-o", str(out), "--settings", str(path)]) == 2
     assert main(["piv", str(d / "a.tif"), "-o", str(out), "--method", "I"]) == 2
+
+
+def test_tecplot_export_round_trips_and_flags_masked_vectors(pair_files, tmp_path):
+    """``rspiv piv -o f.dat`` writes Tecplot ASCII (the DaVis/PIVlab exchange format): the
+    values of the field to 9 digits, I = x fastest, masked vectors u = v = 0 with chc = -1."""
+    d, a, b = pair_files
+    mask = np.zeros(a.shape, bool)
+    mask[:, :40] = True
+    f = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], mask=mask)
+    assert f.masked.any() and (~f.masked).any()
+    out = tmp_path / "f.dat"
+    rspiv.write_tecplot(f, out, aux={"note": 'say "hi"'})
+    data, aux = rspiv.read_tecplot(out)
+    assert aux["units"] == "px" and aux["note"] == "say 'hi'"
+    assert data["u"].shape == f.shape
+    np.testing.assert_allclose(data["x"], f.x, rtol=1e-9)
+    np.testing.assert_allclose(data["y"], f.y, rtol=1e-9)
+    ok = ~f.masked
+    np.testing.assert_allclose(data["u"][ok], f.u[ok], rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(data["v"][ok], f.v[ok], rtol=1e-8, atol=1e-9)
+    assert np.all(data["u"][f.masked] == 0) and np.all(data["chc"][f.masked] == -1)
+    np.testing.assert_array_equal(data["chc"][ok] == 1, f.valid[ok])
+    header = out.read_text().splitlines()[:8]
+    assert header[1] == 'VARIABLES = "x", "y", "u", "v", "chc", "peak_ratio", "coef"'
+    assert any(h.startswith("ZONE") and f"I={f.shape[1]}, J={f.shape[0]}" in h for h in header)
+    # the CLI picks the format from the suffix
+    cli_out = tmp_path / "cli.tec"
+    assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(cli_out),
+                 "--passes", "64x64,32x32"]) == 0  # fmt: skip
+    data2, aux2 = rspiv.read_tecplot(cli_out)
+    assert "piv_settings" in aux2 and data2["u"].shape == f.shape
+    bad = tmp_path / "bad.dat"
+    bad.write_text("TITLE = x\nVARIABLES = a, b\nZONE I=2, J=2\n1 2\n3 4\n")
+    with pytest.raises(rspiv.InvalidInputError, match="bad.dat"):
+        rspiv.read_tecplot(bad)

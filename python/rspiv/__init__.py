@@ -14,6 +14,7 @@ from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
 from rspiv.errors import ConvergenceError, InvalidInputError, RspivError
+from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.piv import PivField, piv, piv_at
@@ -32,3 +33,4 @@ __all__ += ["Calibration", "calibrate", "MonteCarloResult", "monte_carlo"]
 __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
+__all__ += ["read_tecplot", "write_tecplot"]

@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import os
 import pathlib
-import tempfile
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,6 +28,7 @@ from rspiv import _rspiv
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image
 from rspiv.mapping import MODELS, Mapping, fit_mapping
+from rspiv.outputs import atomic_write_text
 
 __all__ = [
     "Markers",
@@ -294,15 +294,7 @@ class Calibration:
         directory = path.parent if str(path.parent) else pathlib.Path(".")
         if not directory.is_dir():
             raise InvalidInputError(f"{path}: directory {directory} does not exist")
-        fd, tmp = tempfile.mkstemp(prefix=".calib-", suffix=".tmp", dir=directory)
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        atomic_write_text(path, text, make_parents=False)
 
     @classmethod
     def from_dict(cls, d: Any, name: str = "calibration") -> Calibration:

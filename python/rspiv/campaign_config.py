@@ -77,7 +77,6 @@ import dataclasses
 import os
 import pathlib
 import re
-import tempfile
 from typing import Any
 
 try:  # Python >= 3.11
@@ -86,6 +85,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as _toml  # type: ignore[no-redef]
 
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import atomic_write_text
 from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
@@ -312,16 +312,7 @@ class CampaignConfig:
         """Write the campaign to ``path`` atomically, paths relative to its folder."""
         path = pathlib.Path(path)
         text = self.to_toml(relative_to=path.parent)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            pathlib.Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
+        return atomic_write_text(path, text)
 
 
 # ---------------------------------------------------------------------------- TOML writer

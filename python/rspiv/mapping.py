@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import os
 import pathlib
-import tempfile
 from typing import Any
 
 import numpy as np
@@ -33,6 +32,7 @@ import numpy.typing as npt
 
 from rspiv import _rspiv
 from rspiv.errors import ConvergenceError, InvalidInputError
+from rspiv.outputs import atomic_write_text
 from rspiv.settings import MODELS as SETTINGS_MODELS
 
 MODELS = SETTINGS_MODELS  # the one vocabulary (rspiv.settings)
@@ -205,19 +205,7 @@ class Mapping:
 
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the mapping as JSON to ``path`` atomically (temporary file + rename)."""
-        path = pathlib.Path(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(self.to_json())
-                fh.write("\n")
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            raise
+        atomic_write_text(path, self.to_json() + "\n", make_parents=False)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Mapping:

@@ -25,35 +25,62 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 
 
+def creation_mode(path: pathlib.Path) -> int:
+    """The permission bits a file written at ``path`` gets: those of the file it replaces, else
+    those of any new file the user creates (``0o666`` less the process umask)."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        pass
+    try:  # Linux: the umask without changing it
+        for line in pathlib.Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[pathlib.Path]:
+def atomic_path(path: str | os.PathLike, *, make_parents: bool = True) -> Iterator[pathlib.Path]:
     """Yield a temporary path beside ``path``; on success rename it to ``path``.
 
     The temporary file keeps the destination's suffix (some writers infer the format from it)
-    and is removed if the block raises.
+    and is removed if the block raises. The result has the permissions of any file the user
+    creates (:func:`creation_mode`; ``mkstemp``'s private 0600 is not kept), or those of the file
+    it replaces. ``make_parents=False``: a missing folder is an error (FileNotFoundError).
     """
     path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    if make_parents:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    mode = creation_mode(path)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
     os.close(fd)
     tmp_path = pathlib.Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, mode)
         os.replace(tmp_path, path)
     finally:
         tmp_path.unlink(missing_ok=True)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> pathlib.Path:
-    """Write ``data`` to ``path`` atomically."""
-    with atomic_path(path) as tmp:
+def atomic_write_bytes(
+    path: str | os.PathLike, data: bytes, *, make_parents: bool = True
+) -> pathlib.Path:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_path`)."""
+    with atomic_path(path, make_parents=make_parents) as tmp:
         tmp.write_bytes(data)
     return pathlib.Path(path)
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> pathlib.Path:
-    """Write UTF-8 ``text`` to ``path`` atomically."""
-    return atomic_write_bytes(path, text.encode("utf-8"))
+def atomic_write_text(
+    path: str | os.PathLike, text: str, *, make_parents: bool = True
+) -> pathlib.Path:
+    """Write UTF-8 ``text`` to ``path`` atomically (:func:`atomic_path`)."""
+    return atomic_write_bytes(path, text.encode("utf-8"), make_parents=make_parents)
 
 
 def write_netcdf(ds, path: str | os.PathLike) -> pathlib.Path:

@@ -10,15 +10,14 @@ from __future__ import annotations
 
 import argparse
 import io
-import os
 import pathlib
 import sys
-import tempfile
 
 import numpy as np
 
 from rspiv.errors import InvalidInputError
 from rspiv.mapping import Mapping, fit_mapping
+from rspiv.outputs import atomic_write_text
 
 
 def _read_csv(path: str, cols: list[str]) -> np.ndarray:
@@ -72,15 +71,7 @@ def _write_csv(path: str | None, pts: np.ndarray) -> None:
     if path is None:
         sys.stdout.write(buf.getvalue())
         return
-    target = pathlib.Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(buf.getvalue())
-        os.replace(tmp, target)
-    except BaseException:
-        pathlib.Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, buf.getvalue(), make_parents=False)
 
 
 def _fit(args: argparse.Namespace) -> int:

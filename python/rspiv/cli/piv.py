@@ -9,7 +9,6 @@ object px. The flags, and the keys of ``--settings FILE.json``, are the one voca
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
 from typing import Any
 
@@ -17,7 +16,9 @@ import rspiv
 from rspiv.calibration import Calibration
 from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
+from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
 from rspiv.io import read_pair
+from rspiv.outputs import write_netcdf
 from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
@@ -75,6 +76,10 @@ def settings_from_args(args: argparse.Namespace) -> PivSettings:
     return base.replace(**changes) if changes else base
 
 
+#: The run's attributes also written into a Tecplot file.
+_TECPLOT_AUX = ("frame_a", "frame_b", "piv_settings", "calibration", "method")
+
+
 def run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     a, b = read_pair(args.frame_a, args.frame_b)
@@ -97,13 +102,11 @@ def run(args: argparse.Namespace) -> int:
         ds.attrs["calibration"] = str(args.calibration)
         ds.attrs["method"] = parse_method(args.method or "II")
     out = pathlib.Path(args.output)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
-        ds.to_netcdf(tmp, engine="h5netcdf")
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    if out.suffix.lower() in TECPLOT_SUFFIXES:
+        aux = {k: str(v) for k, v in ds.attrs.items() if k in _TECPLOT_AUX}
+        write_tecplot(field, out, zone=f"{args.frame_a}", aux=aux)
+    else:
+        write_netcdf(ds, out)
     n = field.u.size
     print(
         f"rspiv piv: {n} vectors {field.shape[1]} x {field.shape[0]}, "
@@ -115,14 +118,19 @@ def run(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     p = sub.add_parser(
         "piv",
-        help="multipass PIV of an image pair -> NetCDF",
+        help="multipass PIV of an image pair -> NetCDF or Tecplot",
         description="Multipass FFT PIV of an image pair (pixel frame, px). Windows WxH are W px "
         "along x (columns) by H px along y (rows). The settings are rspiv.PivSettings: the same "
         "keys in --settings JSON, the campaign file's [piv] and rspiv-engine piv.",
     )
     p.add_argument("frame_a", help="first frame (TIFF/PNG/BMP), or a two-frame TIFF")
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
-    p.add_argument("-o", "--output", required=True, help="output NetCDF file (.nc)")
+    p.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="output file: NetCDF (.nc, pivpy-compatible) or Tecplot ASCII (.dat, .tec, .plt)",
+    )
     p.add_argument("--settings", default=None, help="PIV settings JSON (PivSettings.to_dict)")
     p.add_argument("--passes", default=None, help="window sizes WxH per pass (64x64,32x32,32x8)")
     p.add_argument("--overlap", default=None, help="fractional overlap, one or one per pass (0.5)")
