@@ -6,17 +6,15 @@ mapped back through the inverse)."""
 
 from __future__ import annotations
 
-import dataclasses
 import subprocess
 
 import numpy as np
 import pytest
 import rspiv
 import tifffile
-from rspiv import _rspiv
+from lens_cases import frames_through, p3_mapping, strong_lens
 from rspiv.correction import grid_for_windows, map_displacements, method_one, method_two
 from rspiv.multipass import run_final_points
-from rspiv.synth import PAPER_OPTICS, paper_lens
 
 SHAPE = (320, 480)  # (h, w)
 D_OBJ = (7.0, 1.5)  # uniform object displacement, px
@@ -26,32 +24,9 @@ SETTINGS = rspiv.PivSettings(passes=((64, 64), (32, 32), (32, 16)), deformation=
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
     """The lens, its P3 mapping (saved as JSON) and a particle pair imaged through it (TIFF)."""
-    h, w = SHAPE
-    o = dataclasses.replace(PAPER_OPTICS, width=w, height=h)
-    base = paper_lens(o)
-    lens = dataclasses.replace(base, k1=20 * base.k1, p1=5 * base.p1)
-    gx, gy = np.meshgrid(np.linspace(0, w - 1, 13), np.linspace(0, h - 1, 9))
-    obj = np.column_stack([gx.ravel(), gy.ravel()])
-    mapping = rspiv.fit_mapping(obj, lens.distort(obj), "p3", center_index=len(obj) // 2)
-    rng = np.random.default_rng(3)
-    n = int(0.03 * (h + 60) * (w + 60))
-    xm, ym = rng.uniform(-30, w + 30, n), rng.uniform(-30, h + 30, n)
-    frames = []
-    for k, s in enumerate((-0.5, 0.5)):
-        p = lens.distort(np.column_stack([xm + s * D_OBJ[0], ym + s * D_OBJ[1]]))
-        frames.append(
-            _rspiv.render_particles(
-                h,
-                w,
-                np.ascontiguousarray(p[:, 0]),
-                np.ascontiguousarray(p[:, 1]),
-                np.full(n, 2500.0),
-                np.array([2.5]),
-                40.0,
-                4095,
-                21 + k,
-            )
-        )
+    lens = strong_lens(SHAPE)
+    mapping = p3_mapping(lens, SHAPE)
+    frames = frames_through(lens, SHAPE, D_OBJ, seed=3, render_seed=21)
     d = tmp_path_factory.mktemp("engine_m2")
     tifffile.imwrite(d / "a.tif", frames[0])
     tifffile.imwrite(d / "b.tif", frames[1])

@@ -3,19 +3,16 @@ answers, and end to end on particle images rendered through a known distortion."
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 import rspiv
-from rspiv import _rspiv
+from lens_cases import frames_through, p3_mapping, strong_lens
 from rspiv.correction import (
     grid_for_windows,
     map_displacements,
     piv_vectors,
     position_only_bias,
 )
-from rspiv.synth import PAPER_OPTICS, paper_lens
 
 SHAPE = (400, 640)  # (h, w), small sensor
 U_OBJ, V_OBJ = 9.0, 1.5  # uniform object displacement, px
@@ -26,45 +23,18 @@ TOL_RMS = 0.05
 
 @pytest.fixture(scope="module")
 def lens():
-    o = dataclasses.replace(PAPER_OPTICS, width=SHAPE[1], height=SHAPE[0])
-    base = paper_lens(o)
-    # 20x the paper's relative distortion so the position-only bias is clearly measurable
-    return dataclasses.replace(base, k1=20 * base.k1, p1=5 * base.p1)
+    return strong_lens(SHAPE)
 
 
 @pytest.fixture(scope="module")
 def mapping(lens):
-    h, w = SHAPE
-    gx, gy = np.meshgrid(np.linspace(0, w - 1, 13), np.linspace(0, h - 1, 9))
-    obj = np.column_stack([gx.ravel(), gy.ravel()])
-    return rspiv.fit_mapping(obj, lens.distort(obj), "p3", center_index=len(obj) // 2)
+    return p3_mapping(lens, SHAPE)
 
 
 @pytest.fixture(scope="module")
 def frames(lens):
     """Particles moving by a uniform object displacement, imaged through the lens."""
-    h, w = SHAPE
-    rng = np.random.default_rng(7)
-    n = int(0.03 * (h + 60) * (w + 60))
-    xm = rng.uniform(-30, w + 30, n)
-    ym = rng.uniform(-30, h + 30, n)
-    out = []
-    for k, s in enumerate((-0.5, 0.5)):
-        p = lens.distort(np.column_stack([xm + s * U_OBJ, ym + s * V_OBJ]))
-        out.append(
-            _rspiv.render_particles(
-                h,
-                w,
-                np.ascontiguousarray(p[:, 0]),
-                np.ascontiguousarray(p[:, 1]),
-                np.full(n, 2500.0),
-                np.array([2.5]),
-                40.0,
-                4095,
-                11 + k,
-            )
-        )
-    return out
+    return frames_through(lens, SHAPE, (U_OBJ, V_OBJ), seed=7, render_seed=11)
 
 
 @pytest.mark.parametrize(

@@ -143,21 +143,6 @@ mod tests {
     }
 
     #[test]
-    fn bspline_weights_partition_unity_and_reproduce_the_position() {
-        let w = bspline_weights(0.37);
-        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
-        let w = bspline5_weights(0.37);
-        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
-        assert_eq!(bspline5_weights(0.0)[5], 0.0);
-        let m: f32 = w
-            .iter()
-            .enumerate()
-            .map(|(k, wk)| (k as f32 - 2.0) * wk)
-            .sum();
-        assert!((m - 0.37).abs() < 1e-6, "{m}");
-    }
-
-    #[test]
     fn floor_and_mirror() {
         assert_eq!(floor_i(-0.5), -1);
         assert_eq!(floor_i(2.0), 2);

@@ -26,61 +26,44 @@ pub trait Pixel: Copy + Send + Sync + 'static {
     }
 }
 
-impl Pixel for u8 {
-    const KIND: PixelKind = PixelKind::U8;
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    #[inline(always)]
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
+/// `Pixel` for integer types (always finite) and float types (finite unless NaN/inf).
+macro_rules! pixel {
+    (int $t:ty, $kind:ident) => {
+        impl Pixel for $t {
+            const KIND: PixelKind = PixelKind::$kind;
+            #[inline(always)]
+            fn to_f32(self) -> f32 {
+                self as f32
+            }
+            #[inline(always)]
+            fn to_f64(self) -> f64 {
+                self as f64
+            }
+        }
+    };
+    (float $t:ty, $kind:ident) => {
+        impl Pixel for $t {
+            const KIND: PixelKind = PixelKind::$kind;
+            #[inline(always)]
+            fn to_f32(self) -> f32 {
+                self as f32
+            }
+            #[inline(always)]
+            fn to_f64(self) -> f64 {
+                self as f64
+            }
+            #[inline(always)]
+            fn is_finite_px(self) -> bool {
+                self.is_finite()
+            }
+        }
+    };
 }
 
-impl Pixel for u16 {
-    const KIND: PixelKind = PixelKind::U16;
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    #[inline(always)]
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-}
-
-impl Pixel for f32 {
-    const KIND: PixelKind = PixelKind::F32;
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self
-    }
-    #[inline(always)]
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-    #[inline(always)]
-    fn is_finite_px(self) -> bool {
-        self.is_finite()
-    }
-}
-
-impl Pixel for f64 {
-    const KIND: PixelKind = PixelKind::F64;
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    #[inline(always)]
-    fn to_f64(self) -> f64 {
-        self
-    }
-    #[inline(always)]
-    fn is_finite_px(self) -> bool {
-        self.is_finite()
-    }
-}
+pixel!(int u8, U8);
+pixel!(int u16, U16);
+pixel!(float f32, F32);
+pixel!(float f64, F64);
 
 #[cfg(test)]
 mod tests {
