@@ -1,0 +1,482 @@
+//! Fitting the mapping models to point pairs.
+//!
+//! [`fit_mapping`] is the accurate, validating path (pixel input, a [`Mapping`] out): P3 by
+//! Householder QR (it is linear in its coefficients), R1/R2 from the linearised (DLT-style)
+//! solution refined by Levenberg-Marquardt on the normalised geometric residuals, then residual
+//! statistics and the coefficient covariance `s^2 (J^T J)^-1`.
+//!
+//! [`FitWorkspace`] is the fast, allocation-free refit in normalised coordinates for the Monte
+//! Carlo study: normal equations with Cholesky for P3, LM with a structured `J^T J` and an
+//! optional warm start for R1/R2.
+
+use crate::error::{DewarpError, Result};
+use crate::lm::{self, LeastSquaresProblem, LmConfig, LmSolver};
+use crate::mapping::{FitStats, Mapping};
+use crate::models::{eval_coeff_jacobian, eval_normalized, p3_basis, r2_den_basis, Model};
+use ndarray::ArrayView2;
+
+/// Options of [`fit_mapping`].
+#[derive(Clone, Debug)]
+pub struct FitOptions {
+    /// Index of the central marker (the origin of both normalised frames). Default: the object
+    /// point nearest the centroid of the object points.
+    pub center_index: Option<usize>,
+    /// The normalising scale `s` in px. Default: `max |x_o|` over the object points (the
+    /// paper's `x_o_max`).
+    pub scale: Option<f64>,
+    /// Levenberg-Marquardt settings for R1/R2. Default: [`LmConfig::tight`] (reference-quality).
+    pub lm: LmConfig,
+}
+
+impl Default for FitOptions {
+    fn default() -> Self {
+        FitOptions {
+            center_index: None,
+            scale: None,
+            lm: LmConfig::tight(),
+        }
+    }
+}
+
+fn invalid(msg: String) -> DewarpError {
+    DewarpError::InvalidInput(msg)
+}
+
+/// Read an `(N, 2)` array of points, checking its shape and values.
+fn read_points(name: &str, a: ArrayView2<f64>) -> Result<Vec<[f64; 2]>> {
+    if a.ncols() != 2 {
+        return Err(invalid(format!(
+            "{name} must have shape (N, 2), got ({}, {})",
+            a.nrows(),
+            a.ncols()
+        )));
+    }
+    let mut out = Vec::with_capacity(a.nrows());
+    for (i, row) in a.rows().into_iter().enumerate() {
+        let (x, y) = (row[0], row[1]);
+        if !(x.is_finite() && y.is_finite()) {
+            return Err(invalid(format!(
+                "{name} point {i} is not finite ({x}, {y})"
+            )));
+        }
+        out.push([x, y]);
+    }
+    Ok(out)
+}
+
+/// First pair of (near-)coincident points, if any (tolerance `tol` in the points' unit).
+fn find_duplicate(pts: &[[f64; 2]], tol: f64) -> Option<(usize, usize)> {
+    let mut idx: Vec<usize> = (0..pts.len()).collect();
+    idx.sort_by(|&a, &b| pts[a][0].total_cmp(&pts[b][0]));
+    for (k, &i) in idx.iter().enumerate() {
+        for &j in &idx[k + 1..] {
+            if pts[j][0] - pts[i][0] > tol {
+                break;
+            }
+            if (pts[j][1] - pts[i][1]).abs() <= tol {
+                return Some((i.min(j), i.max(j)));
+            }
+        }
+    }
+    None
+}
+
+/// True if the points lie (numerically) on one straight line.
+fn collinear(pts: &[[f64; 2]]) -> bool {
+    let n = pts.len() as f64;
+    let (mx, my) = pts
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p[0] / n, b + p[1] / n));
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let (dx, dy) = (p[0] - mx, p[1] - my);
+        sxx += dx * dx;
+        sxy += dx * dy;
+        syy += dy * dy;
+    }
+    let tr = sxx + syy;
+    let det = sxx * syy - sxy * sxy;
+    // smallest / largest eigenvalue of the scatter matrix
+    let disc = ((sxx - syy) * (sxx - syy) / 4.0 + sxy * sxy).sqrt();
+    let lmax = tr / 2.0 + disc;
+    let lmin = if lmax > 0.0 { det / lmax } else { 0.0 };
+    lmax <= 0.0 || lmin <= 1e-10 * lmax
+}
+
+/// Least squares `min ||A x - B||` by Householder QR, `A` row-major `m x n` (overwritten),
+/// `B` row-major `m x k` (overwritten). Returns `x` row-major `n x k`, or `None` if `A` is
+/// rank-deficient (a column's remaining norm below `1e-10` of its original norm).
+pub(crate) fn lstsq_qr(
+    a: &mut [f64],
+    m: usize,
+    n: usize,
+    b: &mut [f64],
+    k: usize,
+) -> Option<Vec<f64>> {
+    let mut rdiag = vec![0.0; n];
+    for j in 0..n {
+        let col_norm0: f64 = (0..m)
+            .map(|i| a[i * n + j] * a[i * n + j])
+            .sum::<f64>()
+            .sqrt();
+        let norm: f64 = (j..m)
+            .map(|i| a[i * n + j] * a[i * n + j])
+            .sum::<f64>()
+            .sqrt();
+        if col_norm0 == 0.0 || norm <= 1e-10 * col_norm0 {
+            return None;
+        }
+        let alpha = if a[j * n + j] > 0.0 { -norm } else { norm };
+        // v = a[j..m, j] - alpha e1, stored in place
+        a[j * n + j] -= alpha;
+        let vnorm2: f64 = (j..m).map(|i| a[i * n + j] * a[i * n + j]).sum();
+        rdiag[j] = alpha;
+        if vnorm2 == 0.0 {
+            continue;
+        }
+        for c in j + 1..n {
+            let s: f64 = (j..m).map(|i| a[i * n + j] * a[i * n + c]).sum();
+            let f = 2.0 * s / vnorm2;
+            for i in j..m {
+                a[i * n + c] -= f * a[i * n + j];
+            }
+        }
+        for c in 0..k {
+            let s: f64 = (j..m).map(|i| a[i * n + j] * b[i * k + c]).sum();
+            let f = 2.0 * s / vnorm2;
+            for i in j..m {
+                b[i * k + c] -= f * a[i * n + j];
+            }
+        }
+    }
+    let mut x = vec![0.0; n * k];
+    for c in 0..k {
+        for j in (0..n).rev() {
+            let mut s = b[j * k + c];
+            for l in j + 1..n {
+                s -= a[j * n + l] * x[l * k + c];
+            }
+            x[j * k + c] = s / rdiag[j];
+        }
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// Nonzero coefficient indices of the x and y rows of the coefficient Jacobian.
+fn sparsity(model: Model) -> (&'static [usize], &'static [usize]) {
+    match model {
+        Model::R1 => (&[0, 1, 2, 6, 7], &[3, 4, 5, 6, 7]),
+        Model::R2 => (
+            &[0, 1, 2, 3, 4, 5, 12, 13, 14, 15, 16],
+            &[6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16],
+        ),
+        Model::P3 => (
+            &[0, 1, 2, 3, 4, 5, 6, 7, 8, 9],
+            &[10, 11, 12, 13, 14, 15, 16, 17, 18, 19],
+        ),
+    }
+}
+
+/// The normalised fitting problem: residuals `F(obj_hat_j) - img_hat_j`, interleaved x, y.
+pub struct MappingProblem<'a> {
+    /// Model to fit.
+    pub model: Model,
+    /// Normalised object points.
+    pub obj: &'a [[f64; 2]],
+    /// Normalised image points.
+    pub img: &'a [[f64; 2]],
+}
+
+impl LeastSquaresProblem for MappingProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.model.n_params()
+    }
+    fn n_residuals(&self) -> usize {
+        2 * self.obj.len()
+    }
+    fn residuals(&self, p: &[f64], r: &mut [f64]) {
+        for (j, (o, i)) in self.obj.iter().zip(self.img).enumerate() {
+            let (fx, fy) = eval_normalized(self.model, p, o[0], o[1]);
+            r[2 * j] = fx - i[0];
+            r[2 * j + 1] = fy - i[1];
+        }
+    }
+    fn jacobian(&self, p: &[f64], jac: &mut [f64]) {
+        let n = self.model.n_params();
+        for (j, o) in self.obj.iter().enumerate() {
+            let (rx, ry) = jac[2 * j * n..(2 * j + 2) * n].split_at_mut(n);
+            eval_coeff_jacobian(self.model, p, o[0], o[1], rx, ry);
+        }
+    }
+    fn normal_equations(
+        &self,
+        p: &[f64],
+        r: &[f64],
+        _jac_scratch: &mut [f64],
+        jtj: &mut [f64],
+        jtr: &mut [f64],
+    ) {
+        let n = self.model.n_params();
+        let (ix, iy) = sparsity(self.model);
+        jtj[..n * n].fill(0.0);
+        jtr[..n].fill(0.0);
+        let mut jx = [0.0; crate::models::MAX_PARAMS];
+        let mut jy = [0.0; crate::models::MAX_PARAMS];
+        let mut g = [0.0; 11];
+        for (j, o) in self.obj.iter().enumerate() {
+            eval_coeff_jacobian(self.model, p, o[0], o[1], &mut jx, &mut jy);
+            for (row, idx, res) in [(&jx, ix, r[2 * j]), (&jy, iy, r[2 * j + 1])] {
+                let q = idx.len();
+                for a in 0..q {
+                    g[a] = row[idx[a]];
+                }
+                for a in 0..q {
+                    let ga = g[a];
+                    let ra = idx[a] * n;
+                    jtr[idx[a]] += ga * res;
+                    for b in 0..=a {
+                        jtj[ra + idx[b]] += ga * g[b];
+                    }
+                }
+            }
+        }
+        for a in 0..n {
+            for b in 0..a {
+                jtj[b * n + a] = jtj[a * n + b];
+            }
+        }
+    }
+}
+
+/// Residual statistics in image px from residuals (fitted minus measured).
+fn stats_of(model: Model, res: &[[f64; 2]]) -> FitStats {
+    let n = res.len().max(1) as f64;
+    let mut st = FitStats {
+        model,
+        n_points: res.len(),
+        max_abs_px: [0.0; 2],
+        mean_px: [0.0; 2],
+        rms_px: [0.0; 2],
+        cost: 0.0,
+        termination: String::new(),
+        n_evals: 0,
+    };
+    for r in res {
+        for a in 0..2 {
+            st.max_abs_px[a] = st.max_abs_px[a].max(r[a].abs());
+            st.mean_px[a] += r[a] / n;
+            st.rms_px[a] += r[a] * r[a] / n;
+        }
+    }
+    st.rms_px = [st.rms_px[0].sqrt(), st.rms_px[1].sqrt()];
+    st
+}
+
+/// The linearised (DLT-style) system of R1/R2: `N(x) - x_i D'(x) = x_i` with `D = 1 + D'`.
+/// Rows interleaved x, y; `a` is `2N x n` row-major, `b` is `2N`.
+fn dlt_system(model: Model, obj: &[[f64; 2]], img: &[[f64; 2]], a: &mut [f64], b: &mut [f64]) {
+    let n = model.n_params();
+    a.fill(0.0);
+    for (j, (o, i)) in obj.iter().zip(img).enumerate() {
+        let (x, y) = (o[0], o[1]);
+        let (rx, ry) = a[2 * j * n..(2 * j + 2) * n].split_at_mut(n);
+        match model {
+            Model::R1 => {
+                let phi = [x, y, 1.0];
+                let psi = [x, y];
+                rx[0..3].copy_from_slice(&phi);
+                ry[3..6].copy_from_slice(&phi);
+                for k in 0..2 {
+                    rx[6 + k] = -i[0] * psi[k];
+                    ry[6 + k] = -i[1] * psi[k];
+                }
+            }
+            _ => {
+                let phi = crate::models::r2_num_basis(x, y);
+                let psi = r2_den_basis(x, y);
+                rx[0..6].copy_from_slice(&phi);
+                ry[6..12].copy_from_slice(&phi);
+                for k in 0..5 {
+                    rx[12 + k] = -i[0] * psi[k];
+                    ry[12 + k] = -i[1] * psi[k];
+                }
+            }
+        }
+        b[2 * j] = i[0];
+        b[2 * j + 1] = i[1];
+    }
+}
+
+fn degenerate(model: Model) -> DewarpError {
+    invalid(format!(
+        "the points do not determine the {model} coefficients (degenerate geometry: too few \
+         distinct points or points on a line/conic)"
+    ))
+}
+
+/// Fit `model` to the point pairs `object_px` -> `image_px` (both `(N, 2)`, px).
+pub fn fit_mapping(
+    object_px: ArrayView2<f64>,
+    image_px: ArrayView2<f64>,
+    model: Model,
+    opts: &FitOptions,
+) -> Result<Mapping> {
+    let obj_px = read_points("object points", object_px)?;
+    let img_px = read_points("image points", image_px)?;
+    if obj_px.len() != img_px.len() {
+        return Err(invalid(format!(
+            "object points ({}) and image points ({}) differ in number",
+            obj_px.len(),
+            img_px.len()
+        )));
+    }
+    let npts = obj_px.len();
+    if npts < model.min_points() {
+        return Err(invalid(format!(
+            "model {model} has {} coefficients and needs at least {} points, got {npts}",
+            model.n_params(),
+            model.min_points()
+        )));
+    }
+    let extent = |p: &[[f64; 2]]| {
+        p.iter()
+            .fold(0.0_f64, |m, q| m.max(q[0].abs()).max(q[1].abs()))
+            .max(1.0)
+    };
+    for (name, pts) in [("object", &obj_px), ("image", &img_px)] {
+        if let Some((i, j)) = find_duplicate(pts, 1e-9 * extent(pts)) {
+            return Err(invalid(format!(
+                "{name} points {i} and {j} coincide (duplicate points)"
+            )));
+        }
+        if collinear(pts) {
+            return Err(invalid(format!("{name} points are collinear")));
+        }
+    }
+    let ci = match opts.center_index {
+        Some(i) if i < npts => i,
+        Some(i) => {
+            return Err(invalid(format!(
+                "center_index {i} is out of range for {npts} points"
+            )))
+        }
+        None => {
+            let n = npts as f64;
+            let (mx, my) = obj_px
+                .iter()
+                .fold((0.0, 0.0), |(a, b), p| (a + p[0] / n, b + p[1] / n));
+            let d2 = |p: &[f64; 2]| (p[0] - mx).powi(2) + (p[1] - my).powi(2);
+            (0..npts)
+                .min_by(|&a, &b| d2(&obj_px[a]).total_cmp(&d2(&obj_px[b])))
+                .unwrap_or(0)
+        }
+    };
+    let scale = match opts.scale {
+        Some(s) if s.is_finite() && s > 0.0 => s,
+        Some(s) => {
+            return Err(invalid(format!(
+                "scale must be positive and finite, got {s}"
+            )))
+        }
+        None => {
+            let s = obj_px.iter().fold(0.0_f64, |m, p| m.max(p[0].abs()));
+            if s <= 0.0 {
+                return Err(invalid(
+                    "scale: max |x| of the object points is zero; pass a scale".into(),
+                ));
+            }
+            s
+        }
+    };
+    let co = obj_px[ci];
+    let cim = img_px[ci];
+    let obj: Vec<[f64; 2]> = obj_px
+        .iter()
+        .map(|p| [(p[0] - co[0]) / scale, (p[1] - co[1]) / scale])
+        .collect();
+    let img: Vec<[f64; 2]> = img_px
+        .iter()
+        .map(|p| [(p[0] - cim[0]) / scale, (p[1] - cim[1]) / scale])
+        .collect();
+
+    let n = model.n_params();
+    let m = 2 * npts;
+    let (coeffs, termination, n_evals) = match model {
+        Model::P3 => {
+            let mut a = vec![0.0; npts * 10];
+            let mut b = vec![0.0; npts * 2];
+            for (j, (o, i)) in obj.iter().zip(&img).enumerate() {
+                a[j * 10..(j + 1) * 10].copy_from_slice(&p3_basis(o[0], o[1]));
+                b[2 * j] = i[0];
+                b[2 * j + 1] = i[1];
+            }
+            let x = lstsq_qr(&mut a, npts, 10, &mut b, 2).ok_or_else(|| degenerate(model))?;
+            let mut c = vec![0.0; 20];
+            for k in 0..10 {
+                c[k] = x[2 * k];
+                c[10 + k] = x[2 * k + 1];
+            }
+            (c, "linear".to_string(), 0)
+        }
+        Model::R1 | Model::R2 => {
+            let mut a = vec![0.0; m * n];
+            let mut b = vec![0.0; m];
+            dlt_system(model, &obj, &img, &mut a, &mut b);
+            let p0 = lstsq_qr(&mut a, m, n, &mut b, 1).ok_or_else(|| degenerate(model))?;
+            let prob = MappingProblem {
+                model,
+                obj: &obj,
+                img: &img,
+            };
+            let rep = LmSolver::new().solve(&prob, &p0, &opts.lm)?;
+            if !rep.termination.converged() {
+                return Err(DewarpError::NotConverged(format!(
+                    "fitting {model}: Levenberg-Marquardt used {} evaluations without converging",
+                    rep.n_evals
+                )));
+            }
+            (rep.params, rep.termination.name().to_string(), rep.n_evals)
+        }
+    };
+    // Residuals in px, statistics, covariance.
+    let mut res = Vec::with_capacity(npts);
+    let mut cost = 0.0;
+    for (o, i) in obj.iter().zip(&img) {
+        let (fx, fy) = eval_normalized(model, &coeffs, o[0], o[1]);
+        if !(fx.is_finite() && fy.is_finite()) {
+            return Err(degenerate(model));
+        }
+        cost += (fx - i[0]).powi(2) + (fy - i[1]).powi(2);
+        res.push([(fx - i[0]) * scale, (fy - i[1]) * scale]);
+    }
+    let prob = MappingProblem {
+        model,
+        obj: &obj,
+        img: &img,
+    };
+    let mut jac = vec![0.0; m * n];
+    prob.jacobian(&coeffs, &mut jac);
+    let covariance = lm::covariance(&jac, m, n, cost).map_err(|_| degenerate(model))?;
+    let mut stats = stats_of(model, &res);
+    stats.cost = cost;
+    stats.termination = termination;
+    stats.n_evals = n_evals;
+    Ok(Mapping {
+        model,
+        coefficients: coeffs,
+        centre_object: co,
+        centre_image: cim,
+        scale,
+        rotation: 0.0,
+        stats,
+        covariance,
+        residuals: res,
+    })
+}
+
+#[cfg(test)]
+mod tests;
+mod varpro;
+mod workspace;
+
+pub use workspace::FitWorkspace;

@@ -1,0 +1,148 @@
+//! Tests of the validating fit and the workspace refit against exact mappings.
+use super::*;
+use ndarray::Array2;
+
+/// 13 x 7 object grid over the 8864 x 5288 sensor (pitch 673.84 px) and a known mapping.
+pub(crate) fn grid() -> Array2<f64> {
+    let pitch = 19.51 * 34.538;
+    let (cx, cy) = (4431.5, 2643.5);
+    let mut a = Array2::zeros((91, 2));
+    for j in 0..7 {
+        for i in 0..13 {
+            a[[j * 13 + i, 0]] = cx + (i as f64 - 6.0) * pitch;
+            a[[j * 13 + i, 1]] = cy + (j as f64 - 3.0) * pitch;
+        }
+    }
+    a
+}
+
+fn truth(model: Model) -> Vec<f64> {
+    match model {
+        Model::R1 => vec![1.001, 0.002, 0.0003, -0.0015, 0.999, -0.0002, 0.003, -0.002],
+        Model::R2 => vec![
+            1.001, 0.002, 0.0003, 0.001, -0.002, 0.0015, -0.0015, 0.999, -0.0002, 0.002, 0.001,
+            -0.003, 0.003, -0.002, 0.005, -0.004, 0.006,
+        ],
+        Model::P3 => vec![
+            0.0001, 1.0002, 0.0003, 0.001, -0.002, 0.0005, 0.013, 0.001, 0.012, -0.0004, -0.0002,
+            0.0004, 0.9998, -0.001, 0.0006, 0.002, 0.0002, 0.013, -0.0001, 0.0125,
+        ],
+    }
+}
+
+const S: f64 = 8000.0;
+const CI: [f64; 2] = [4400.0, 2600.0];
+
+fn apply(model: Model, c: &[f64], obj: &Array2<f64>) -> Array2<f64> {
+    let mut img = obj.clone();
+    for mut r in img.rows_mut() {
+        let (x, y) = ((r[0] - 4431.5) / S, (r[1] - 2643.5) / S);
+        let (fx, fy) = eval_normalized(model, c, x, y);
+        r[0] = CI[0] + S * fx;
+        r[1] = CI[1] + S * fy;
+    }
+    img
+}
+
+#[test]
+fn noise_free_fits_reproduce_the_mapping_on_the_sensor() {
+    let obj = grid();
+    for model in Model::ALL {
+        let c = truth(model);
+        let img = apply(model, &c, &obj);
+        let m = fit_mapping(obj.view(), img.view(), model, &FitOptions::default()).unwrap();
+        assert_eq!(m.stats.n_points, 91);
+        let mut worst: f64 = 0.0;
+        for yy in (0..=5288).step_by(176) {
+            for xx in (0..=8864).step_by(277) {
+                let (x, y) = (xx as f64, yy as f64);
+                let (fx, fy) = eval_normalized(model, &c, (x - 4431.5) / S, (y - 2643.5) / S);
+                let (gx, gy) = m.forward(x, y);
+                worst = worst
+                    .max((gx - CI[0] - S * fx).abs())
+                    .max((gy - CI[1] - S * fy).abs());
+            }
+        }
+        assert!(worst < 0.01, "{model}: worst {worst} px");
+        assert!(m.stats.rms_px[0] < 1e-6 && m.stats.rms_px[1] < 1e-6);
+    }
+}
+
+#[test]
+fn workspace_matches_the_accurate_fit() {
+    let obj = grid();
+    for model in Model::ALL {
+        let c = truth(model);
+        let mut img = apply(model, &c, &obj);
+        // deterministic pseudo-noise of ~0.05 px
+        for (k, v) in img.iter_mut().enumerate() {
+            *v += 0.05 * ((k as f64 * 12.9898).sin() * 43758.5453).fract();
+        }
+        let m = fit_mapping(obj.view(), img.view(), model, &FitOptions::default()).unwrap();
+        let s = m.scale;
+        let oh: Vec<[f64; 2]> = obj
+            .rows()
+            .into_iter()
+            .map(|r| {
+                [
+                    (r[0] - m.centre_object[0]) / s,
+                    (r[1] - m.centre_object[1]) / s,
+                ]
+            })
+            .collect();
+        let ih: Vec<[f64; 2]> = img
+            .rows()
+            .into_iter()
+            .map(|r| {
+                [
+                    (r[0] - m.centre_image[0]) / s,
+                    (r[1] - m.centre_image[1]) / s,
+                ]
+            })
+            .collect();
+        let mut ws = FitWorkspace::new();
+        for warm in [None, Some(m.coefficients.as_slice())] {
+            let c2 = ws.fit_normalized(model, &oh, &ih, warm).unwrap().to_vec();
+            for o in &oh {
+                let a = eval_normalized(model, &m.coefficients, o[0], o[1]);
+                let b = eval_normalized(model, &c2, o[0], o[1]);
+                assert!(
+                    (a.0 - b.0).abs() * s < 1e-4 && (a.1 - b.1).abs() * s < 1e-4,
+                    "{model}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_input_is_rejected_with_clear_messages() {
+    let obj = grid();
+    let img = apply(Model::P3, &truth(Model::P3), &obj);
+    let fo = FitOptions::default();
+    let few = obj.slice(ndarray::s![..8, ..]);
+    let e = fit_mapping(few, img.slice(ndarray::s![..8, ..]), Model::P3, &fo).unwrap_err();
+    assert!(e.to_string().contains("needs at least 11 points"), "{e}");
+    let mut nan = img.clone();
+    nan[[5, 1]] = f64::NAN;
+    let e = fit_mapping(obj.view(), nan.view(), Model::R2, &fo).unwrap_err();
+    assert!(e.to_string().contains("image points point 5"), "{e}");
+    let mut dup = obj.clone();
+    dup[[7, 0]] = dup[[3, 0]];
+    dup[[7, 1]] = dup[[3, 1]];
+    let e = fit_mapping(dup.view(), img.view(), Model::R1, &fo).unwrap_err();
+    assert!(e.to_string().contains("coincide"), "{e}");
+    let mut line = obj.clone();
+    for (k, mut r) in line.rows_mut().into_iter().enumerate() {
+        r[0] = k as f64;
+        r[1] = 2.0 * k as f64 + 1.0;
+    }
+    let e = fit_mapping(line.view(), img.view(), Model::P3, &fo).unwrap_err();
+    assert!(e.to_string().contains("collinear"), "{e}");
+    let e = fit_mapping(obj.view(), img.slice(ndarray::s![..90, ..]), Model::P3, &fo).unwrap_err();
+    assert!(e.to_string().contains("differ in number"), "{e}");
+    // three rows of points: every cubic in y is not determined
+    let three = obj.slice(ndarray::s![..39, ..]);
+    let e = fit_mapping(three, img.slice(ndarray::s![..39, ..]), Model::P3, &fo).unwrap_err();
+    assert!(e.to_string().contains("degenerate"), "{e}");
+}
