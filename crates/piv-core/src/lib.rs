@@ -13,6 +13,7 @@
 //! - [`correlate::Correlator`]: one window pair's normalised FFT cross-correlation;
 //! - [`synth::render_particles`]: synthetic particle images.
 
+pub mod condition;
 pub mod correlate;
 pub mod error;
 pub mod grid;
@@ -21,6 +22,7 @@ pub mod multipass;
 pub mod synth;
 pub mod validate;
 
+pub use condition::{condition, Conditioning};
 pub use correlate::{Correlator, Peak, SubPixel};
 pub use error::PivError;
 pub use grid::Grid;

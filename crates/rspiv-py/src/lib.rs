@@ -5,6 +5,7 @@
 use pyo3::prelude::*;
 
 mod calibration;
+mod condition;
 mod correction;
 mod errors;
 mod frames;
@@ -20,5 +21,6 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     calibration::register(m)?;
     remap::register(m)?;
     correction::register(m)?;
+    condition::register(m)?;
     Ok(())
 }
