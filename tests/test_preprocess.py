@@ -145,3 +145,49 @@ def test_conditioning_recovers_piv_through_glare_and_gradients():
     for name, (rms, glare, valid) in {"near_wall": near_wall, "high_pass": high_pass,
                                       "min_max": min_max}.items():  # fmt: skip
         assert rms < 0.04 and glare < 0.1 and valid > 0.77, (name, rms, glare, valid)
+
+
+def test_campaign_preprocess_section_runs_with_the_run_background(tmp_path):
+    """``[preprocess]`` in the campaign file: the backgrounds of frames A and B are estimated
+    over the run (saved beside the outputs), every pair is conditioned before the PIV, and on
+    clean synthetic pairs the mean field agrees with the raw run's."""
+    import xarray as xr
+    from rspiv.campaign_config import load_campaign_config
+    from rspiv.cli import main
+
+    d = tmp_path / "c"
+    synth = ["synth", "campaign", str(d), "--pairs", "3", "--scale", "0.1", "--monte-carlo", "0"]
+    assert main([*synth, "-q"]) == 0
+    cfg = load_campaign_config(d / "campaign.toml")
+    cfg.correction.compare_uncorrected = False
+    cfg.output.report = False
+    cfg.save(d / "raw.toml")
+    cfg.preprocess.background = "min"
+    cfg.preprocess.hot_pixels = 3.0
+    cfg.preprocess.high_pass = 2.0
+    cfg.save(d / "pre.toml")
+    assert load_campaign_config(d / "pre.toml").preprocess.settings() == NEAR_WALL
+    assert main(["process", str(d / "raw.toml"), "-q", "-o", str(tmp_path / "raw")]) == 0
+    assert main(["process", str(d / "pre.toml"), "-q", "-o", str(tmp_path / "pre")]) == 0
+    for name in ("background_a.npy", "background_b.npy"):
+        bg = np.load(tmp_path / "pre" / name)
+        assert bg.dtype == np.float32 and bg.ndim == 2
+    assert not (tmp_path / "raw" / "background_a.npy").exists()
+    raw = xr.load_dataset(next((tmp_path / "raw").glob("statistics_*.nc")), engine="h5netcdf")
+    pre = xr.load_dataset(next((tmp_path / "pre").glob("statistics_*.nc")), engine="h5netcdf")
+    u_raw, u_pre = raw["u"].values, pre["u"].values
+    ok = np.isfinite(u_raw) & np.isfinite(u_pre) & (np.abs(u_raw) > 0.2 * np.nanmax(u_raw))
+    rel = np.abs(u_pre[ok] - u_raw[ok]) / np.abs(u_raw[ok])
+    assert ok.sum() > 50 and np.median(rel) < 0.01, (ok.sum(), np.median(rel))
+
+
+def test_campaign_preprocess_section_is_checked(tmp_path):
+    from rspiv.campaign_config import parse_campaign_config
+
+    base = {"images": {"glob": str(tmp_path / "*.tif")}, "correction": {"method": "none"}}
+    with pytest.raises(rspiv.InvalidInputError, match=r"\[preprocess\].highpass"):
+        parse_campaign_config({**base, "preprocess": {"highpass": 2}})
+    with pytest.raises(rspiv.InvalidInputError, match="min_max window"):
+        parse_campaign_config({**base, "preprocess": {"min_max": 2}})
+    with pytest.raises(rspiv.InvalidInputError, match=r"\[preprocess\].background"):
+        parse_campaign_config({**base, "preprocess": {"background": "median"}})

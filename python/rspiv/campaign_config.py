@@ -42,6 +42,15 @@ A complete file (every key optional except where noted; defaults shown)::
     min_peak_ratio = 0.0         # 0: off
     mask = ""                    # optional mask image ("" : none)
 
+    [preprocess]                 # rspiv.preprocess.Preprocess, applied to the raw frames
+                                 # before every PIV (all off by default; near-wall data:
+                                 # background = "min", hot_pixels = 3, high_pass = 2)
+    background = "none"          # "none" | "min" | "mean": over the run, per frame A and B
+    hot_pixels = 0.0             # factor over the brightest neighbour (0: off)
+    high_pass = 0.0              # Gaussian sigma, px (0: off)
+    cap = 0.0                    # cap at mean + cap * std (0: off)
+    min_max = 0                  # min-max normalisation window, px (0: off)
+
     [wall]
     enabled = true
     side = "auto"                # "auto" | "top" | "bottom"
@@ -86,6 +95,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text
+from rspiv.preprocess import Preprocess
 from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
@@ -186,6 +196,24 @@ class PIVConfig:
 
 
 @dataclasses.dataclass
+class PreprocessConfig:
+    """The ``[preprocess]`` section: the keys of :class:`rspiv.preprocess.Preprocess` (all off
+    by default; ``rspiv.preprocess.NEAR_WALL`` is background = "min", hot_pixels = 3,
+    high_pass = 2). The background is estimated over the whole run, per frame A and B."""
+
+    background: str = "none"
+    percentile: float = 5.0
+    hot_pixels: float = 0.0
+    high_pass: float = 0.0
+    cap: float = 0.0
+    min_max: int = 0
+
+    def settings(self) -> Preprocess:
+        """The section as the preprocessing settings object."""
+        return Preprocess(**dataclasses.asdict(self))
+
+
+@dataclasses.dataclass
 class WallConfig:
     enabled: bool = True
     side: str = "auto"
@@ -221,6 +249,7 @@ _SECTIONS: dict[str, type] = {
     "images": ImagesConfig,
     "correction": CorrectionConfig,
     "piv": PIVConfig,
+    "preprocess": PreprocessConfig,
     "wall": WallConfig,
     "flow": FlowConfig,
     "statistics": StatisticsConfig,
@@ -242,6 +271,7 @@ class CampaignConfig:
     images: ImagesConfig = dataclasses.field(default_factory=ImagesConfig)
     correction: CorrectionConfig = dataclasses.field(default_factory=CorrectionConfig)
     piv: PIVConfig = dataclasses.field(default_factory=PIVConfig)
+    preprocess: PreprocessConfig = dataclasses.field(default_factory=PreprocessConfig)
     wall: WallConfig = dataclasses.field(default_factory=WallConfig)
     flow: FlowConfig = dataclasses.field(default_factory=FlowConfig)
     statistics: StatisticsConfig = dataclasses.field(default_factory=StatisticsConfig)
@@ -292,7 +322,7 @@ class CampaignConfig:
         pv["passes"] = [[int(w), int(h)] for w, h in self.piv.passes]
         pv["mask"] = p(self.piv.mask)
         out["piv"] = pv
-        for name in ("wall", "flow", "statistics"):
+        for name in ("preprocess", "wall", "flow", "statistics"):
             out[name] = dataclasses.asdict(getattr(self, name))
         o = dataclasses.asdict(self.output)
         o["dir"] = p(self.output.dir)
@@ -481,6 +511,14 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
         "mask": lambda c, w, v: c.path(w, v, image=True),
     },
+    "preprocess": {
+        "background": lambda c, w, v: _choice(c, w, v, ("none", "min", "mean"), fold=str.lower),
+        "percentile": lambda c, w, v: _number(c, w, v, minimum=0, maximum=100),
+        "hot_pixels": lambda c, w, v: _number(c, w, v, minimum=0),
+        "high_pass": lambda c, w, v: _number(c, w, v, minimum=0),
+        "cap": lambda c, w, v: _number(c, w, v, minimum=0),
+        "min_max": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+    },
     "wall": {
         "enabled": _boolean,
         "side": lambda c, w, v: _choice(c, w, v, ("auto", "top", "bottom")),
@@ -554,6 +592,11 @@ def parse_campaign_config(
                 setattr(cfg, k, v)
         else:
             setattr(cfg, section, _SECTIONS[section](**values))
+            if section == "preprocess":
+                try:
+                    cfg.preprocess.settings()
+                except InvalidInputError as exc:
+                    raise ctx.err("[preprocess]", str(exc)) from None
     given = [k for k in ("glob", "pairs", "multiframe") if k in data.get("images", {})]
     if len(given) != 1:
         raise ctx.err(

@@ -94,6 +94,10 @@ def process_pair(context: PairContext, pair: PairSpec) -> PairResult:
                 f"images are {shape[1]} x {shape[0]} px",
                 timings=t,
             )
+    try:
+        a, b = context.condition(a, b)
+    except (RspivError, ValueError) as exc:
+        return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
     mask = context.mask()
     settings = context.piv
     fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}

@@ -24,7 +24,8 @@ from rspiv.campaign.state import check_writable, json_default
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image
 from rspiv.montecarlo import monte_carlo
-from rspiv.outputs import atomic_write_text
+from rspiv.outputs import atomic_path, atomic_write_text
+from rspiv.preprocess import Background
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["prepare_context"]
@@ -91,6 +92,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
             )
     if image_shape is None:
         image_shape = _first_shape(pairs)
+    pre = cfg.preprocess.settings()
+    background_paths = _backgrounds(camp, pairs, pre, out) if pre.background != "none" else None
     base = PairContext(
         runs=runs,
         image_shape=image_shape,
@@ -98,6 +101,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         mapping_json=None if cal is None else cal.mapping.to_json(),
         piv=cfg.piv.settings(),
         mask_path=None if cfg.piv.mask is None else str(cfg.piv.mask),
+        preprocess=pre,
+        background_paths=background_paths,
     )
     main = runs[0]
     if cal is not None and main.method != "none" and cfg.wall.enabled and cfg.wall.rotate:
@@ -156,6 +161,29 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         ),
     )
     return ctx
+
+def _backgrounds(camp, pairs: list[PairSpec], pre, out: pathlib.Path) -> tuple[str, str]:
+    """The run's backgrounds of frames A and B (``pre.background``: min or mean over every
+    pair), streaming over the files (one frame in memory), saved as ``OUT/background_a.npy``
+    and ``background_b.npy``."""
+    t0 = time.perf_counter()
+    est = (Background(pre.background), Background(pre.background))
+    for p in pairs:
+        est[0].add(p.a, 0 if p.frame_a is None else p.frame_a)
+        est[1].add(p.b, 0 if p.frame_b is None else p.frame_b)
+    paths = []
+    for name, e in zip(("a", "b"), est, strict=True):
+        path = out / f"background_{name}.npy"
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, e.value)
+        paths.append(str(path))
+    camp.say(
+        f"background ({pre.background}) of frames A and B over {len(pairs)} pair(s) "
+        f"({time.perf_counter() - t0:.1f} s)"
+    )
+    return paths[0], paths[1]
+
 
 def _first_shape(pairs: list[PairSpec]) -> tuple[int, int]:
     for p in pairs:

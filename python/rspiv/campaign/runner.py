@@ -134,7 +134,8 @@ class Campaign:
     def config_hash(self) -> str:
         """Hash of the configuration that the prepared context depends on."""
         d = self.config.to_dict()
-        keep = {k: d[k] for k in ("calibration", "correction", "piv", "wall") if k in d}
+        sections = ("calibration", "correction", "piv", "preprocess", "wall")
+        keep = {k: d[k] for k in sections if k in d}
         keep["extra"] = list(self.extra_methods)
         keep["pilot"] = self.pilot_pairs
         return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()[

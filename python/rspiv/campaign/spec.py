@@ -19,6 +19,7 @@ from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_image
 from rspiv.mapping import Mapping
+from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import PivSettings
 
 __all__ = [
@@ -102,6 +103,8 @@ class PairContext:
     mapping_json: str | None
     piv: PivSettings
     mask_path: str | None = None
+    preprocess: Preprocess = dataclasses.field(default_factory=Preprocess)
+    background_paths: tuple[str, str] | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -137,6 +140,27 @@ class PairContext:
             self._cache["mask"] = np.asarray(img) > 0
         return self._cache["mask"]
 
+    def backgrounds(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The run's backgrounds of frames A and B (float32, loaded once per process)."""
+        if self.background_paths is None:
+            return None
+        if "backgrounds" not in self._cache:
+            out = []
+            for path in self.background_paths:
+                try:
+                    out.append(np.load(path))
+                except (OSError, ValueError) as exc:
+                    raise InvalidInputError(f"{path}: cannot read the background: {exc}") from None
+            self._cache["backgrounds"] = (out[0], out[1])
+        return self._cache["backgrounds"]
+
+    def condition(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Frames A and B conditioned by ``preprocess`` with the run's backgrounds (the frames
+        themselves when nothing is switched on)."""
+        if not self.preprocess.enabled:
+            return a, b
+        return condition_pair(a, b, self.preprocess, self.backgrounds())
+
     def grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Window centres (px) of the final pass, shape (ny, nx) each (same for every run)."""
         return grid_for_windows(self.object_shape, self.piv.final_window, self.piv.overlaps[-1])
@@ -148,6 +172,8 @@ class PairContext:
             "mapping_json": self.mapping_json,
             "piv": self.piv.to_dict(),
             "mask_path": self.mask_path,
+            "preprocess": self.preprocess.to_dict(),
+            "background_paths": self.background_paths,
             "runs": [dataclasses.asdict(r) for r in self.runs],
         }
 
@@ -160,6 +186,10 @@ class PairContext:
             mapping_json=d["mapping_json"],
             piv=PivSettings.from_dict(d["piv"], where="context.json [piv]"),
             mask_path=d["mask_path"],
+            preprocess=Preprocess.from_dict(d.get("preprocess", {}), "context.json [preprocess]"),
+            background_paths=(
+                None if d.get("background_paths") is None else tuple(d["background_paths"])
+            ),
         )
 
     def fingerprint(self) -> str:
