@@ -15,9 +15,9 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test (cores and CLI)"
 cargo test --workspace --exclude rspiv-py --locked
 
-echo "== pip install .[test,dask,bench]"
+echo "== pip install .[test,dask,bench,davis]"
 # Every extra the tests use: Dask for the scale-out tests, OpenCV for the remap comparison.
-python3 -m pip install --quiet ".[test,dask,bench]"
+python3 -m pip install --quiet ".[test,dask,bench,davis]"
 echo "== ruff"
 python3 -m ruff check python tests benches
 echo "== pytest"

@@ -15,10 +15,13 @@ A complete file (every key optional except where noted; defaults shown)::
     marker_size_px = 0.0         # 0: estimated from the image
     monte_carlo_samples = 10000  # 0: no Monte Carlo
 
-    [images]                     # exactly one of glob / pairs / multiframe (required)
+    [images]                     # exactly one of glob / pairs / multiframe / double_frame
     glob = "raw/*.tif"           # sorted; consecutive files form the pairs (1-2, 3-4, ...)
     # pairs = [["a0.tif", "b0.tif"], ["a1.tif", "b1.tif"]]
     # multiframe = "run.tif"     # frames (0, 1), (2, 3), ... of one TIFF
+    # double_frame = "run/*.im7" # one pair per file, frames 0 and 1: DaVis double-frame
+                                 # buffers (.im7/.imx/.ims, needs rspiv[davis]) or 2-page TIFFs;
+                                 # a DaVis "Run.set" means the files Run/*.im7
     max_pairs = 0                # 0: all
 
     [correction]
@@ -106,7 +109,7 @@ from rspiv.settings import (
     parse_method,
 )
 
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp")
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".im7", ".imx", ".ims")
 
 
 # ---------------------------------------------------------------------------- sections
@@ -126,7 +129,20 @@ class ImagesConfig:
     glob: str | None = None
     pairs: list[tuple[pathlib.Path, pathlib.Path]] | None = None
     multiframe: pathlib.Path | None = None
+    double_frame: str | None = None
     max_pairs: int = 0
+
+    def double_frame_files(self) -> list[pathlib.Path]:
+        """The files of ``double_frame`` (a glob, or a DaVis ``.set`` standing for the
+        ``*.im7`` files of its folder), sorted. InvalidInputError when nothing matches."""
+        assert self.double_frame is not None
+        pattern = pathlib.Path(self.double_frame)
+        if pattern.suffix.lower() == ".set":
+            pattern = pattern.with_suffix("") / "*.im7"
+        files = sorted(pattern.parent.glob(pattern.name))
+        if not files:
+            raise InvalidInputError(f"[images].double_frame: no file matches {str(pattern)!r}")
+        return files[: self.max_pairs] if self.max_pairs else files
 
     def pair_files(self) -> list[tuple[pathlib.Path, pathlib.Path]]:
         """The (frame A, frame B) files for ``glob`` or ``pairs`` (not for ``multiframe``).
@@ -315,6 +331,8 @@ class CampaignConfig:
             imd["pairs"] = [[p(a), p(b)] for a, b in im.pairs]
         if im.multiframe is not None:
             imd["multiframe"] = p(im.multiframe)
+        if im.double_frame is not None:
+            imd["double_frame"] = p(im.double_frame)
         imd["max_pairs"] = im.max_pairs
         out["images"] = imd
         out["correction"] = dataclasses.asdict(self.correction)
@@ -488,6 +506,7 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "glob": lambda c, w, v: str(c.path(w, v, image=True, allow_empty=False)),
         "pairs": None,  # special-cased
         "multiframe": lambda c, w, v: c.path(w, v, image=True, allow_empty=False, tiff=True),
+        "double_frame": lambda c, w, v: str(c.path(w, v, allow_empty=False)),
         "max_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
     },
     "correction": {
@@ -597,11 +616,13 @@ def parse_campaign_config(
                     cfg.preprocess.settings()
                 except InvalidInputError as exc:
                     raise ctx.err("[preprocess]", str(exc)) from None
-    given = [k for k in ("glob", "pairs", "multiframe") if k in data.get("images", {})]
+    given = [
+        k for k in ("glob", "pairs", "multiframe", "double_frame") if k in data.get("images", {})
+    ]
     if len(given) != 1:
         raise ctx.err(
             "[images]",
-            "expected exactly one of glob, pairs, multiframe"
+            "expected exactly one of glob, pairs, multiframe, double_frame"
             + (f", got {', '.join(given)}" if given else ", got none"),
         )
     if cfg.correction.method in ("I", "II") and cfg.calibration.target is None:

@@ -1,9 +1,14 @@
 """Reading images: the one reader of rspiv (PIV frames, calibration targets, masks).
 
-TIFF (single or multi-frame, via tifffile), PNG and BMP (via Pillow) are read as C-contiguous 2D
-arrays ``image[y, x]``. uint8, uint16, float32 and float64 keep their dtype (not rescaled); other
-dtypes become float64; colour images become grey (0.299 R + 0.587 G + 0.114 B, float32). Arrays
-pass through the same rules, so every entry point accepts a file or an array alike. Errors raise
+TIFF (single or multi-frame, via tifffile), PNG and BMP (via Pillow) and LaVision DaVis buffers
+(``.im7``, ``.imx``, ``.ims``, through LaVision's ``lvpyio``, the optional extra
+``pip install 'rspiv[davis]'``; never bundled) are read as C-contiguous 2D arrays
+``image[y, x]``. A DaVis buffer's images are numbered in file order over its frames and their
+planes: a double-frame PIV recording holds frame A at 0 and frame B at 1 (the raw counts, bit
+depth as stored: the buffer's intensity scale is reported by :func:`davis_info`, not applied).
+uint8, uint16, float32 and float64 keep their dtype (not rescaled); other dtypes become float64;
+colour images become grey (0.299 R + 0.587 G + 0.114 B, float32). Arrays pass through the same
+rules, so every entry point accepts a file or an array alike. Errors raise
 :class:`rspiv.InvalidInputError` naming the file: missing, unreadable or truncated files, a frame
 out of range, images that are not 2D, float images with NaN or inf.
 """
@@ -20,10 +25,12 @@ from PIL import Image
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["read_image", "read_pair"]
+__all__ = ["DAVIS_SUFFIXES", "davis_info", "frame_count", "read_image", "read_pair"]
 
 _TIFF = {".tif", ".tiff"}
 _PIL = {".png", ".bmp"}
+#: DaVis buffer files (read through lvpyio).
+DAVIS_SUFFIXES = (".im7", ".imx", ".ims")
 _NATIVE = (np.uint8, np.uint16, np.float32, np.float64)
 
 
@@ -53,6 +60,13 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
                 if not 0 <= frame < n:
                     raise InvalidInputError(f"{name}: frame {frame} out of range ({n} frames)")
                 return tf.pages[frame].asarray()
+        if ext in DAVIS_SUFFIXES:
+            images = _davis_images(p)
+            if not 0 <= frame < len(images):
+                raise InvalidInputError(
+                    f"{name}: frame {frame} out of range ({len(images)} frames)"
+                )
+            return images[frame]
         if ext in _PIL:
             if frame != 0:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
@@ -63,7 +77,97 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
         raise
     except Exception as exc:  # corrupt, truncated or foreign file
         raise InvalidInputError(f"{name}: cannot read image: {exc}") from exc
-    raise InvalidInputError(f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP)")
+    raise InvalidInputError(
+        f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP, DaVis .im7/.imx/.ims)"
+    )
+
+
+def _lvpyio(name: str) -> Any:
+    try:
+        import lvpyio  # deferred: optional extra (LaVision's licence: not bundled)
+    except ImportError:
+        raise InvalidInputError(
+            f"{name}: reading DaVis files needs LaVision's lvpyio: pip install 'rspiv[davis]'"
+        ) from None
+    return lvpyio
+
+
+def _davis_buffer(p: pathlib.Path) -> Any:
+    lv = _lvpyio(str(p))
+    try:
+        return lv.read_buffer(str(p))
+    except Exception as exc:  # truncated or foreign file: lvpyio raises various types
+        raise InvalidInputError(f"{p}: cannot read the DaVis buffer: {exc}") from exc
+
+
+#: The last DaVis buffer read, ``(path, mtime_ns, size), images``: frames A and B of a pair are
+#: read from one file one after the other; decoding it once is enough (one buffer in memory).
+_LAST_DAVIS: list[Any] = [None]
+
+
+def _davis_images(p: pathlib.Path) -> list[np.ndarray]:
+    """The images of a DaVis buffer in file order (frames, then their planes)."""
+    st = p.stat()
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
+    last = _LAST_DAVIS[0]  # one (key, images) tuple, replaced atomically
+    if last is not None and last[0] == key:
+        return last[1]
+    buf = _davis_buffer(p)
+    out = [np.asarray(img) for frame in buf for img in frame.images]
+    if not out:
+        raise InvalidInputError(f"{p}: the DaVis buffer holds no image")
+    _LAST_DAVIS[0] = (key, out)
+    return out
+
+
+def davis_info(path: str | os.PathLike) -> dict[str, Any]:
+    """What a DaVis buffer says about itself: the number of images, their shape and dtype, the
+    x/y/intensity scales of its first frame (``(slope, offset, unit)``: e.g. mm per px) and its
+    attributes (acquisition time series, camera, ...), as plain Python values."""
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"{p}: no such file")
+    buf = _davis_buffer(p)
+    frames = list(buf)
+    if not frames or not frames[0].images:
+        raise InvalidInputError(f"{p}: the DaVis buffer holds no image")
+    first = frames[0]
+    img = np.asarray(first.images[0])
+
+    def scale(s: Any) -> tuple[float, float, str]:
+        return float(s.slope), float(s.offset), str(s.unit)
+
+    attrs = {}
+    for k, v in dict(first.attributes).items():
+        attrs[str(k)] = v.tolist() if isinstance(v, np.ndarray) else v
+    return {
+        "images": sum(len(f.images) for f in frames),
+        "shape": tuple(int(n) for n in img.shape),
+        "dtype": str(img.dtype),
+        "x_scale": scale(first.scales.x),
+        "y_scale": scale(first.scales.y),
+        "intensity_scale": scale(first.scales.i),
+        "attributes": attrs,
+    }
+
+
+def frame_count(path: str | os.PathLike) -> int:
+    """Number of frames (images) a file holds: TIFF pages, DaVis images, 1 for PNG/BMP."""
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"{p}: no such file")
+    ext = p.suffix.lower()
+    if ext in DAVIS_SUFFIXES:
+        return len(_davis_images(p))
+    if ext in _TIFF:
+        try:
+            with tifffile.TiffFile(p) as tf:
+                return len(tf.pages)
+        except Exception as exc:  # noqa: BLE001 - corrupt or foreign file
+            raise InvalidInputError(f"{p}: cannot read image: {exc}") from exc
+    if ext in _PIL:
+        return 1
+    raise InvalidInputError(f"{p}: unsupported image type {ext!r}")
 
 
 def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
@@ -89,7 +193,8 @@ def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
 
 
 def read_pair(path_a, path_b=None) -> tuple[np.ndarray, np.ndarray]:
-    """Read a PIV image pair: two files, or one two-frame TIFF (``path_b`` None)."""
+    """Read a PIV image pair: two files, or one two-frame file (``path_b`` None: a TIFF stack
+    or a double-frame DaVis buffer, frames 0 and 1)."""
     if path_b is None:
         return read_image(path_a, 0), read_image(path_a, 1)
     return read_image(path_a), read_image(path_b)

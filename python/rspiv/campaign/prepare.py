@@ -194,6 +194,7 @@ def _first_shape(pairs: list[PairSpec]) -> tuple[int, int]:
         return (int(a.shape[0]), int(a.shape[1]))
     raise InvalidInputError("no readable image in the campaign")
 
+
 def _monte_carlo(camp: Any, cal: Any, n: int, figdir: pathlib.Path) -> dict[str, Any]:
     res = monte_carlo(cal, n=int(n), hist_bins=64)
     out: dict[str, Any] = {

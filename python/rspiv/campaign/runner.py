@@ -101,6 +101,9 @@ class Campaign:
                 raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
             out = [PairSpec(k, str(p), str(p), 2 * k, 2 * k + 1) for k in range(n // 2)]
             return out[: im.max_pairs] if im.max_pairs else out
+        if im.double_frame is not None:
+            files = im.double_frame_files()
+            return [PairSpec(k, str(f), str(f), 0, 1) for k, f in enumerate(files)]
         return [PairSpec(k, str(a), str(b)) for k, (a, b) in enumerate(im.pair_files())]
 
     def runs(self) -> tuple[RunSpec, ...]:

@@ -1,0 +1,94 @@
+"""DaVis buffers (.im7) through LaVision's lvpyio (the optional extra rspiv[davis]): rspiv reads
+the same arrays lvpyio does, double-frame buffers give the pair, a campaign runs on a folder (or
+a ``.set``) of double-frame files with the same results as on TIFFs, and bad input is one line.
+The buffers are written here with lvpyio itself (nothing of lvpyio's is bundled)."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+import rspiv
+import tifffile
+from rspiv.io import davis_info, frame_count, read_image, read_pair
+
+lv = pytest.importorskip("lvpyio", reason="the DaVis tests need lvpyio (pip install rspiv[davis])")
+
+
+def _write_im7(path, frames, planes=False):
+    """A DaVis buffer of ``frames``: one frame per array, or one frame of several planes."""
+    buf = lv.arrays_to_buffer(np.stack(frames) if planes else list(frames))
+    lv.write_buffer(buf, str(path))
+    return path
+
+
+@pytest.mark.parametrize("planes", [False, True])
+def test_double_frame_buffer_reads_as_lvpyio_does(tmp_path, planes):
+    rng = np.random.default_rng(1)
+    a = rng.integers(0, 4096, (48, 64), dtype=np.uint16)  # 12-bit counts in 16-bit words
+    b = rng.integers(0, 4096, (48, 64), dtype=np.uint16)
+    p = _write_im7(tmp_path / "pair.im7", [a, b], planes)
+    ref = [np.asarray(img) for frame in lv.read_buffer(str(p)) for img in frame.images]
+    assert frame_count(p) == 2
+    for k, want in enumerate((a, b)):
+        got = read_image(p, k)
+        assert got.dtype == np.uint16 and got.flags.c_contiguous
+        np.testing.assert_array_equal(got, ref[k])
+        np.testing.assert_array_equal(got, want)
+    pa, pb = read_pair(p)
+    np.testing.assert_array_equal(pa, a)
+    np.testing.assert_array_equal(pb, b)
+    info = davis_info(p)
+    assert info["images"] == 2 and info["shape"] == (48, 64) and info["dtype"] == "uint16"
+    assert info["x_scale"][2] and len(info["intensity_scale"]) == 3
+
+
+def test_bad_davis_input_is_one_line(tmp_path, monkeypatch):
+    a = np.zeros((16, 20), np.uint16)
+    p = _write_im7(tmp_path / "one.im7", [a])
+    with pytest.raises(rspiv.InvalidInputError, match=r"one.im7: frame 1 out of range \(1"):
+        read_image(p, 1)
+    good = _write_im7(tmp_path / "good.im7", [a + 7, a + 9])
+    cut = tmp_path / "cut.im7"
+    cut.write_bytes(good.read_bytes()[:200])
+    with pytest.raises(rspiv.InvalidInputError, match="cut.im7: cannot read the DaVis buffer"):
+        read_image(cut)
+    # without lvpyio: the error says how to install it
+    monkeypatch.setitem(sys.modules, "lvpyio", None)
+    other = tmp_path / "other.im7"
+    other.write_bytes(good.read_bytes())
+    with pytest.raises(rspiv.InvalidInputError, match=r"pip install 'rspiv\[davis\]'"):
+        read_image(other)
+
+
+def test_campaign_on_double_frame_davis_files_equals_the_tiff_run(tmp_path):
+    from rspiv.campaign_config import load_campaign_config
+    from rspiv.cli import main
+
+    d = tmp_path / "c"
+    synth = ["synth", "campaign", str(d), "--pairs", "2", "--scale", "0.1", "--monte-carlo", "0"]
+    assert main([*synth, "-q"]) == 0
+    cfg = load_campaign_config(d / "campaign.toml")
+    cfg.correction.compare_uncorrected = False
+    cfg.output.report = False
+    cfg.save(d / "tiff.toml")
+    tifs = sorted((d / "raw").glob("*.tif"))
+    run = d / "Run"
+    run.mkdir()
+    for k in range(0, len(tifs), 2):
+        a, b = tifffile.imread(tifs[k]), tifffile.imread(tifs[k + 1])
+        _write_im7(run / f"B{k // 2 + 1:05d}.im7", [a, b])
+    (d / "Run.set").write_text("DaVis set stand-in: the frames are in Run/\n")
+    cfg.images.glob = None
+    cfg.images.double_frame = str(d / "Run.set")
+    cfg.save(d / "davis.toml")
+    assert load_campaign_config(d / "davis.toml").images.double_frame.endswith("Run.set")
+    assert main(["process", str(d / "tiff.toml"), "-q", "-o", str(tmp_path / "t")]) == 0
+    assert main(["process", str(d / "davis.toml"), "-q", "-o", str(tmp_path / "v")]) == 0
+    import xarray as xr
+
+    t = xr.load_dataset(tmp_path / "t" / "statistics_method_II.nc", engine="h5netcdf")
+    v = xr.load_dataset(tmp_path / "v" / "statistics_method_II.nc", engine="h5netcdf")
+    np.testing.assert_array_equal(t["u"].values, v["u"].values)
+    np.testing.assert_array_equal(t["count"].values, v["count"].values)
