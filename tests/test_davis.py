@@ -92,3 +92,18 @@ def test_campaign_on_double_frame_davis_files_equals_the_tiff_run(tmp_path):
     v = xr.load_dataset(tmp_path / "v" / "statistics_method_II.nc", engine="h5netcdf")
     np.testing.assert_array_equal(t["u"].values, v["u"].values)
     np.testing.assert_array_equal(t["count"].values, v["count"].values)
+
+
+def test_cli_piv_reads_a_double_frame_buffer_and_reports_its_scale(tmp_path, capsys):
+    from rspiv.cli import main
+    from rspiv.synth import particle_pair
+
+    a, b = particle_pair((128, 160), (2.5, -1.0), seed=3)
+    p = _write_im7(tmp_path / "B00001.im7", [a, b])
+    out = tmp_path / "f.dat"
+    assert main(["piv", str(p), "-o", str(out), "--passes", "64x64,32x32"]) == 0
+    said = capsys.readouterr().out
+    assert "DaVis buffer" in said and "2 image(s) 160 x 128 uint16" in said
+    data, aux = rspiv.read_tecplot(out)
+    assert "davis_x_scale" in aux
+    assert abs(np.median(data["u"][data["chc"] == 1]) - 2.5) < 0.05

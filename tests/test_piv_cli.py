@@ -152,3 +152,32 @@ def test_tecplot_export_round_trips_and_flags_masked_vectors(pair_files, tmp_pat
     bad.write_text("TITLE = x\nVARIABLES = a, b\nZONE I=2, J=2\n1 2\n3 4\n")
     with pytest.raises(rspiv.InvalidInputError, match="bad.dat"):
         rspiv.read_tecplot(bad)
+
+
+def test_polygon_mask_json(tmp_path, pair_files):
+    """A JSON of polygons (px) is a mask like an image: pixels whose centre is inside are
+    excluded (or kept, with invert); rspiv.piv takes the path."""
+    from rspiv.io import read_mask
+
+    p = tmp_path / "mask.json"
+    p.write_text(json.dumps({"polygons": [[[1.5, 0.5], [4.5, 0.5], [4.5, 2.5], [1.5, 2.5]]]}))
+    m = read_mask(p, (4, 6))
+    want = np.zeros((4, 6), bool)
+    want[1:3, 2:5] = True
+    np.testing.assert_array_equal(m, want)
+    p2 = tmp_path / "keep.json"
+    p2.write_text(json.dumps({"polygons": [[[1.5, 0.5], [4.5, 0.5], [4.5, 2.5], [1.5, 2.5]]],
+                              "invert": True}))  # fmt: skip
+    np.testing.assert_array_equal(read_mask(p2, (4, 6)), ~want)
+    d, a, b = pair_files
+    h, w = a.shape
+    left = tmp_path / "left.json"
+    left.write_text(json.dumps({"polygons": [[[-1, -1], [40, -1], [40, h], [-1, h]]]}))
+    f = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], mask=str(left))
+    assert f.masked[:, f.x[0] < 40].all() and not f.masked[:, f.x[0] > 72].any()
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"polygons": [[[0, 0], [1, 1]]]}))
+    with pytest.raises(rspiv.InvalidInputError, match="bad.json: polygon 0 needs >= 3"):
+        read_mask(bad, (4, 6))
+    with pytest.raises(rspiv.InvalidInputError, match="mask is 6 x 4 px"):
+        read_mask(np.zeros((4, 6), bool), (5, 6))

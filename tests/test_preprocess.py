@@ -191,3 +191,25 @@ def test_campaign_preprocess_section_is_checked(tmp_path):
         parse_campaign_config({**base, "preprocess": {"min_max": 2}})
     with pytest.raises(rspiv.InvalidInputError, match=r"\[preprocess\].background"):
         parse_campaign_config({**base, "preprocess": {"background": "median"}})
+
+
+def test_piv_api_and_cli_apply_the_same_conditioning(tmp_path, capsys):
+    from rspiv.cli import main
+
+    pairs, _ = _run_with_glare(n_pairs=2)
+    a, b = pairs[0]
+    pre = Preprocess(hot_pixels=3.0, high_pass=2.0)
+    direct = rspiv.piv(*condition_pair(a, b, pre), passes=[(64, 64), (32, 32)])
+    api = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], preprocess=pre)
+    np.testing.assert_array_equal(api.u, direct.u)
+    tifffile.imwrite(tmp_path / "ab.tif", np.stack([a, b]))
+    out = tmp_path / "f.nc"
+    argv = ["piv", str(tmp_path / "ab.tif"), "-o", str(out), "--passes", "64x64,32x32"]
+    assert main([*argv, "--hot-pixels", "3", "--high-pass", "2"]) == 0
+    import xarray as xr
+
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    np.testing.assert_array_equal(ds["u"].values, direct.u)
+    assert '"high_pass": 2.0' in ds.attrs["preprocess"]
+    with pytest.raises(rspiv.InvalidInputError, match="give preprocess"):
+        rspiv.piv(a, b, backgrounds=(a, b))

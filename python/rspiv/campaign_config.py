@@ -43,7 +43,8 @@ A complete file (every key optional except where noted; defaults shown)::
     median_threshold = 2.0
     median_eps = 0.1             # px (old key: median_epsilon)
     min_peak_ratio = 0.0         # 0: off
-    mask = ""                    # optional mask image ("" : none)
+    mask = ""                    # optional mask: an image (non-zero = excluded) or a JSON of
+                                 # polygons in px (rspiv.io.read_mask); "" : none
 
     [preprocess]                 # rspiv.preprocess.Preprocess, applied to the raw frames
                                  # before every PIV (all off by default; near-wall data:
@@ -400,7 +401,7 @@ class _Ctx:
     def err(self, where: str, msg: str) -> InvalidInputError:
         return InvalidInputError(f"{self.fname}: {where}: {msg}")
 
-    def path(self, where, v, *, image=False, allow_empty=True, tiff=False):
+    def path(self, where, v, *, image=False, allow_empty=True, tiff=False, json_ok=False):
         if not isinstance(v, str):
             raise self.err(where, f"expected a path string, got {v!r}")
         if v == "":
@@ -410,7 +411,7 @@ class _Ctx:
         pth = pathlib.Path(os.path.expanduser(v))
         if tiff and pth.suffix.lower() not in (".tif", ".tiff"):
             raise self.err(where, f"expected a multi-frame TIFF (.tif, .tiff), got {v!r}")
-        if image and pth.suffix.lower() not in IMAGE_SUFFIXES:
+        if image and pth.suffix.lower() not in IMAGE_SUFFIXES + ((".json",) if json_ok else ()):
             raise self.err(
                 where, f"expected an image file ({', '.join(IMAGE_SUFFIXES)}), got {v!r}"
             )
@@ -528,7 +529,7 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "median_epsilon": lambda c, w, v: _number(c, w, v, minimum=0),
         "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
         "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
-        "mask": lambda c, w, v: c.path(w, v, image=True),
+        "mask": lambda c, w, v: c.path(w, v, image=True, json_ok=True),
     },
     "preprocess": {
         "background": lambda c, w, v: _choice(c, w, v, ("none", "min", "mean"), fold=str.lower),

@@ -15,6 +15,7 @@ out of range, images that are not 2D, float images with NaN or inf.
 
 from __future__ import annotations
 
+import json
 import os
 import pathlib
 from typing import Any
@@ -25,7 +26,14 @@ from PIL import Image
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["DAVIS_SUFFIXES", "davis_info", "frame_count", "read_image", "read_pair"]
+__all__ = [
+    "DAVIS_SUFFIXES",
+    "davis_info",
+    "frame_count",
+    "read_image",
+    "read_mask",
+    "read_pair",
+]
 
 _TIFF = {".tif", ".tiff"}
 _PIL = {".png", ".bmp"}
@@ -198,3 +206,56 @@ def read_pair(path_a, path_b=None) -> tuple[np.ndarray, np.ndarray]:
     if path_b is None:
         return read_image(path_a, 0), read_image(path_a, 1)
     return read_image(path_a), read_image(path_b)
+
+
+def read_mask(source: str | os.PathLike | Any, shape: tuple[int, int]) -> np.ndarray:
+    """A PIV mask (bool, True = excluded) of the frames' ``shape = (h, w)``.
+
+    ``source`` is an image (non-zero = excluded; any format :func:`read_image` reads), a bool
+    array, or a JSON file of polygons in px (README pixel frame)::
+
+        {"polygons": [[[x0, y0], [x1, y1], [x2, y2], ...], ...], "invert": false}
+
+    A pixel is excluded when its centre lies inside a polygon (``invert = true``: outside every
+    polygon, i.e. the polygons outline the region to keep). InvalidInputError naming the file for
+    a wrong shape, malformed JSON or a polygon of fewer than 3 finite vertices.
+    """
+    h, w = (int(shape[0]), int(shape[1]))
+    if isinstance(source, (str, os.PathLike)) and pathlib.Path(source).suffix.lower() == ".json":
+        return _polygon_mask(pathlib.Path(source), h, w)
+    name = str(source) if isinstance(source, (str, os.PathLike)) else "mask"
+    img = read_image(source)
+    if img.shape != (h, w):
+        raise InvalidInputError(
+            f"{name}: mask is {img.shape[1]} x {img.shape[0]} px, the images are {w} x {h} px"
+        )
+    return np.asarray(img) > 0
+
+
+def _polygon_mask(p: pathlib.Path, h: int, w: int) -> np.ndarray:
+    from matplotlib.path import Path  # deferred: matplotlib (imported only for polygon masks)
+
+    try:
+        d = json.loads(p.read_text())
+    except OSError as exc:
+        raise InvalidInputError(f"{p}: cannot read the mask: {exc}") from exc
+    except ValueError as exc:
+        raise InvalidInputError(f"{p}: not valid JSON: {exc}") from exc
+    polys = d.get("polygons") if isinstance(d, dict) else None
+    if not isinstance(polys, list) or not polys:
+        raise InvalidInputError(f'{p}: expected {{"polygons": [[[x, y], ...], ...]}}')
+    out = np.zeros((h, w), bool)
+    for k, poly in enumerate(polys):
+        v = np.asarray(poly, dtype=np.float64) if isinstance(poly, list) else np.empty(0)
+        if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.isfinite(v)):
+            raise InvalidInputError(f"{p}: polygon {k} needs >= 3 finite [x, y] vertices")
+        x0, y0 = (max(int(np.floor(v[:, i].min())), 0) for i in (0, 1))
+        x1, y1 = (int(np.ceil(v[:, 0].max())), int(np.ceil(v[:, 1].max())))
+        x1, y1 = min(x1, w - 1), min(y1, h - 1)
+        if x1 < x0 or y1 < y0:
+            continue  # entirely outside the frame
+        yy, xx = np.mgrid[y0 : y1 + 1, x0 : x1 + 1]
+        pts = np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float64)
+        inside = Path(v).contains_points(pts).reshape(yy.shape)
+        out[y0 : y1 + 1, x0 : x1 + 1] |= inside
+    return ~out if bool(d.get("invert", False)) else out

@@ -15,6 +15,7 @@ top-left pixel); windows ``(w, h)`` with ``w`` along x; displacements in px.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ import numpy as np
 from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
+from rspiv.io import read_mask
 from rspiv.settings import PivSettings
 
 __all__ = ["frames", "mask_array", "run_grid", "run_points", "run_final_points"]
@@ -51,9 +53,12 @@ def frames(frame_a: Any, frame_b: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mask_array(mask: Any, shape: tuple[int, ...]) -> np.ndarray | None:
-    """A mask (True = excluded) as a bool array of the frames' ``shape``, or None."""
+    """A mask (True = excluded) as a bool array of the frames' ``shape``, or None; a path is
+    read by :func:`rspiv.io.read_mask` (an image, or a JSON of polygons)."""
     if mask is None:
         return None
+    if isinstance(mask, (str, os.PathLike)):
+        return read_mask(mask, (int(shape[0]), int(shape[1])))
     m = np.asarray(mask, dtype=bool)
     if m.shape != shape:
         raise InvalidInputError(f"mask {m.shape} differs in shape from the frames {shape}")

@@ -24,6 +24,7 @@ from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
 from rspiv.multipass import run_grid, run_points
+from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import OPTION_KEYS, PivSettings, parse_mapping_mode, parse_method
 
 __all__ = ["PivField", "piv", "piv_at"]
@@ -48,6 +49,8 @@ def piv(
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
     settings: PivSettings | None = None,
+    preprocess: Preprocess | None = None,
+    backgrounds: tuple[Any, Any] | None = None,
 ) -> PivField:
     """Multipass PIV of a frame pair on a regular grid.
 
@@ -113,6 +116,12 @@ def piv(
         Reject vectors whose peak ratio is below this (0 disables).
     settings : PivSettings, optional
         All of the above PIV settings as one object (overrides the keywords).
+    preprocess : rspiv.preprocess.Preprocess, optional
+        Image conditioning of the raw frames before anything else (e.g.
+        ``rspiv.preprocess.NEAR_WALL``), the same steps the campaign's ``[preprocess]`` runs.
+    backgrounds : (ndarray, ndarray), optional
+        The run's backgrounds of frames A and B (``rspiv.preprocess.Background``), subtracted
+        when ``preprocess`` is given.
 
     Returns
     -------
@@ -133,6 +142,10 @@ def piv(
         )
     elif not isinstance(settings, PivSettings):
         raise InvalidInputError(f"settings must be an rspiv.PivSettings, got {type(settings)}")
+    if preprocess is not None:
+        frame_a, frame_b = condition_pair(frame_a, frame_b, preprocess, backgrounds)
+    elif backgrounds is not None:
+        raise InvalidInputError("backgrounds are subtracted by a preprocess step: give preprocess")
     if method is not None or calibration is not None:
         which = parse_method(method) if method is not None else None
         if which not in ("I", "II"):

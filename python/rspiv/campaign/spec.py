@@ -17,7 +17,7 @@ import numpy as np
 
 from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
-from rspiv.io import read_image
+from rspiv.io import read_mask
 from rspiv.mapping import Mapping
 from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import PivSettings
@@ -127,17 +127,12 @@ class PairContext:
         return m
 
     def mask(self):
-        """The PIV mask (bool, True = excluded) in the raw frame, or None."""
+        """The PIV mask (bool, True = excluded) in the raw frame, or None
+        (:func:`rspiv.io.read_mask`: an image or a JSON of polygons)."""
         if self.mask_path is None:
             return None
         if "mask" not in self._cache:
-            img = read_image(self.mask_path)
-            if img.shape != tuple(self.image_shape):
-                raise InvalidInputError(
-                    f"{self.mask_path}: mask is {img.shape[1]} x {img.shape[0]} px, the images "
-                    f"are {self.image_shape[1]} x {self.image_shape[0]} px"
-                )
-            self._cache["mask"] = np.asarray(img) > 0
+            self._cache["mask"] = read_mask(self.mask_path, tuple(self.image_shape))
         return self._cache["mask"]
 
     def backgrounds(self) -> tuple[np.ndarray, np.ndarray] | None:

@@ -9,6 +9,7 @@ object px. The flags, and the keys of ``--settings FILE.json``, are the one voca
 from __future__ import annotations
 
 import argparse
+import json
 import pathlib
 from typing import Any
 
@@ -17,8 +18,9 @@ from rspiv.calibration import Calibration
 from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
-from rspiv.io import read_pair
+from rspiv.io import DAVIS_SUFFIXES, davis_info, read_pair
 from rspiv.outputs import write_netcdf
+from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
@@ -77,12 +79,35 @@ def settings_from_args(args: argparse.Namespace) -> PivSettings:
 
 
 #: The run's attributes also written into a Tecplot file.
-_TECPLOT_AUX = ("frame_a", "frame_b", "piv_settings", "calibration", "method")
+_TECPLOT_AUX = (
+    "frame_a",
+    "frame_b",
+    "piv_settings",
+    "preprocess",
+    "calibration",
+    "method",
+    "davis_x_scale",
+    "davis_y_scale",
+)
 
 
 def run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     a, b = read_pair(args.frame_a, args.frame_b)
+    davis = None
+    if pathlib.Path(args.frame_a).suffix.lower() in DAVIS_SUFFIXES:
+        davis = davis_info(args.frame_a)
+        (sx, _, ux), (sy, _, uy) = davis["x_scale"], davis["y_scale"]
+        print(
+            f"rspiv piv: DaVis buffer {args.frame_a}: {davis['images']} image(s) "
+            f"{davis['shape'][1]} x {davis['shape'][0]} {davis['dtype']}, "
+            f"scale x {sx:g} {ux}/px, y {sy:g} {uy}/px (vectors stay in px)"
+        )
+    pre = Preprocess(
+        hot_pixels=args.hot_pixels, high_pass=args.high_pass, cap=args.cap, min_max=args.min_max
+    )
+    if pre.enabled:
+        a, b = condition_pair(a, b, pre)
     if args.calibration is not None:
         method = parse_method(args.method or "II")
         if method == "none":
@@ -98,6 +123,12 @@ def run(args: argparse.Namespace) -> int:
     ds.attrs["frame_a"] = str(args.frame_a)
     ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
     ds.attrs["piv_settings"] = settings.to_json()
+    if pre.enabled:
+        ds.attrs["preprocess"] = json.dumps(pre.to_dict())
+    if davis is not None:
+        for axis in ("x", "y"):
+            slope, offset, unit = davis[f"{axis}_scale"]
+            ds.attrs[f"davis_{axis}_scale"] = f"{slope:.9g} {offset:.9g} {unit}"
     if args.calibration is not None:
         ds.attrs["calibration"] = str(args.calibration)
         ds.attrs["method"] = parse_method(args.method or "II")
@@ -123,7 +154,10 @@ def register(sub) -> None:
         "along x (columns) by H px along y (rows). The settings are rspiv.PivSettings: the same "
         "keys in --settings JSON, the campaign file's [piv] and rspiv-engine piv.",
     )
-    p.add_argument("frame_a", help="first frame (TIFF/PNG/BMP), or a two-frame TIFF")
+    p.add_argument(
+        "frame_a",
+        help="first frame (TIFF/PNG/BMP/DaVis .im7), or a two-frame TIFF or DaVis buffer",
+    )
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
     p.add_argument(
         "-o",
@@ -138,6 +172,11 @@ def register(sub) -> None:
     p.add_argument("--deformation", default=None, type=str.lower, choices=DEFORMATIONS)
     p.add_argument("--interpolation", default=None, type=str.lower, choices=INTERPOLATIONS)
     p.add_argument("--subpixel", default=None, type=str.lower, choices=SUBPIXELS)
+    g = p.add_argument_group("image conditioning (rspiv.preprocess; 0: off)")
+    g.add_argument("--hot-pixels", type=float, default=0.0, help="factor over the neighbours (3)")
+    g.add_argument("--high-pass", type=float, default=0.0, help="Gaussian sigma, px (2)")
+    g.add_argument("--cap", type=float, default=0.0, help="cap at mean + CAP * std")
+    g.add_argument("--min-max", type=int, default=0, help="min-max normalisation window, px")
     p.add_argument(
         "--validate", default=None, action=argparse.BooleanOptionalAction,
         help="normalised median test with replacement (default on)",
