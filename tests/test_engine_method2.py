@@ -114,3 +114,23 @@ def test_engine_bad_input_is_one_line(case, engine, tmp_path):
         assert r.returncode == 2, (extra, r.stderr)
         assert says in r.stderr and r.stderr.count("\n") == 1, (extra, r.stderr)
         assert not out.exists()
+
+
+def test_a_duck_typed_mapping_takes_the_composed_path_with_the_same_result(case):
+    """An object with forward/inverse that is not an rspiv Mapping (e.g. a user's lens model)
+    still works: Method II composes the same native pieces in Python."""
+    _, mapping, a, b = case
+
+    class Duck:
+        def forward(self, pts):
+            return mapping.forward(pts)
+
+        def inverse(self, pts, on_fail="raise"):
+            return mapping.inverse(pts, on_fail=on_fail)
+
+    f = method_two(a, b, mapping, SETTINGS)
+    g = method_two(a, b, Duck(), SETTINGS)
+    np.testing.assert_array_equal(f.masked, g.masked)
+    ok = ~f.masked
+    assert np.max(np.abs(f.u[ok] - g.u[ok])) <= 1e-12
+    assert np.max(np.abs(f.v[ok] - g.v[ok])) <= 1e-12

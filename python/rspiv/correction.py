@@ -65,7 +65,7 @@ from rspiv import _rspiv
 from rspiv.dewarp import check_calibration_shape, dewarp, native_mapping
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
-from rspiv.multipass import frames, mask_array, run_points
+from rspiv.multipass import frames, mask_array, run_final_points, run_grid, run_points
 from rspiv.settings import (
     OPTION_KEYS,
     PivSettings,
@@ -185,16 +185,6 @@ def position_only_bias(calibration: Any, object_xy: np.ndarray, d_object: np.nda
     return (ends[n:] - ends[:n]) - dd
 
 
-def _native(mapping: Any) -> Any:
-    """The native object of an rspiv Mapping (InvalidInputError for a duck-typed one)."""
-    native = native_mapping(mapping)
-    if native is None:
-        raise InvalidInputError(
-            f"calibration must be an rspiv Calibration or Mapping, got {type(mapping).__name__}"
-        )
-    return native
-
-
 def _shape(object_shape: Any) -> tuple[int, int] | None:
     """An object shape ``(h, w)`` as ints (None: the frames' shape)."""
     if object_shape is None:
@@ -268,13 +258,18 @@ def method_one(
     (object px; vectors centred on the object mask are masked), in one native call
     (``correction_core::method_one``, the path ``rspiv-engine piv --method I`` runs)."""
     zero_fill = parse_choice(zero_fill, ZERO_FILL, "zero_fill")
-    m = mapping_of(calibration)
+    native = native_mapping(mapping_of(calibration))
+    if native is None:  # a duck-typed mapping (forward/inverse): the composition in Python
+        da, db, dmask = dewarp_pair(
+            frame_a, frame_b, calibration, object_shape=object_shape, mask=mask, zero_fill=zero_fill
+        )
+        return run_grid(da, db, settings, dmask)
     a, b = frames(frame_a, frame_b)
     check_calibration_shape(calibration, a.shape)
     d = _rspiv.method_one(
         a,
         b,
-        _native(m),
+        native,
         settings.to_json(),
         object_shape=_shape(object_shape),
         mask=mask_array(mask, a.shape),
@@ -321,13 +316,14 @@ def method_two(
     """
     m = mapping_of(calibration)
     mode = parse_mapping_mode(mapping)
-    if predictor is None:
+    native = native_mapping(m)
+    if predictor is None and native is not None:
         # one native path (``correction_core::method_two``, as ``rspiv-engine piv --method II``)
         a, b = frames(frame_a, frame_b)
         d = _rspiv.method_two(
             a,
             b,
-            _native(m),
+            native,
             settings.to_json(),
             mapping_mode=mode,
             object_shape=_shape(object_shape),
@@ -341,21 +337,24 @@ def method_two(
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     img = m.forward(obj)
     points = img.reshape(gx.shape + (2,))
-    pred: Any = predictor
-    if settings.deformation == "offset":
-        pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
-    # deformation "symmetric": the windows are deformed by the predictor field
-    f = run_points(
-        frame_a,
-        frame_b,
-        points,
-        [window],
-        settings,
-        predictor=pred,
-        iterations=settings.iteration_counts[-1],
-        validate=settings.validate,
-        mask=mask,
-    )
+    if predictor is None:  # a duck-typed mapping: the same steps composed in Python
+        f = run_final_points(frame_a, frame_b, points, settings, mask)
+    else:
+        pred: Any = predictor
+        if settings.deformation == "offset":
+            pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
+        # deformation "symmetric": the windows are deformed by the predictor field
+        f = run_points(
+            frame_a,
+            frame_b,
+            points,
+            [window],
+            settings,
+            predictor=pred,
+            iterations=settings.iteration_counts[-1],
+            validate=settings.validate,
+            mask=mask,
+        )
     d = np.column_stack([f.u.ravel(), f.v.ravel()])
     dob = map_displacements(m, img, d, mode).reshape(gx.shape + (2,))
     lost = ~np.all(np.isfinite(dob), axis=-1) & ~f.masked

@@ -113,7 +113,10 @@ pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
             p.iterations = i;
         }
     }
-    let flag = |e: piv_core::PivError| format!("--{e}").replace("--invalid input: ", "--");
+    // the vocabulary's message ("deformation \"warp\": use ...") with the flag's dashes
+    let flag = |e: piv_core::PivError| match e {
+        piv_core::PivError::InvalidInput(m) => format!("--{m}"),
+    };
     if let Some(d) = &args.deformation {
         s.mode = d.parse::<Mode>().map_err(flag)?;
     }
