@@ -400,3 +400,22 @@ def test_stress_verdict_arithmetic(synth):
     e = _stress_errors(fake, filt, ut, nu, re_tau)
     assert e["uu"] < 1e-9 and e["uv"] < 1e-9
     assert abs(e["vv"] - 0.03) < 1e-9
+
+
+def test_the_region_behind_the_wall_is_masked_in_the_outputs(processed):
+    """The reflection behind the found wall is not flow: the statistics NetCDF flags it
+    (``behind_wall``) and its moments are NaN there; in front of the wall they are kept."""
+    import xarray as xr
+
+    _, res = processed
+    an = res.analyses["method_II"]
+    gx, gy = res.context.grid()
+    with xr.open_dataset(res.out_dir / "statistics_method_II.nc", engine="h5netcdf") as ds:
+        behind = ds["behind_wall"].values
+        assert behind.shape == gx.shape and behind.any() and not behind.all()
+        line = an.wall.line(gx)
+        want = gy > line if an.flow_side == "above" else gy < line
+        np.testing.assert_array_equal(behind, want)
+        u, count = ds["u"].values, ds["count"].values
+        assert np.all(np.isnan(u[behind]))
+        assert np.isfinite(u[~behind & (count > 0)]).all()

@@ -30,7 +30,7 @@
 //! Pixel frame of the crate (x = column, y = row).
 
 use crate::error::{PivError, Result};
-use ndarray::{ArrayView2, ArrayViewMut2, Axis};
+use ndarray::{ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
 
 /// Which conditioning steps run, with their parameters (`None` or 0: off). See the module docs.

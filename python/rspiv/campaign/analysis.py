@@ -163,6 +163,30 @@ def analyse_run(
     return RunAnalysis(run, wall, side, profile, result)
 
 
+def behind_wall(wall, flow_side: str, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
+    """Grid points (window centres, px) on the far side of the found wall from the flow: the
+    wall's reflection in the model surface, which is not flow (bool, shape of ``gx``)."""
+    line = wall.line(gx)
+    return gy > line if flow_side == "above" else gy < line
+
+
+def mask_behind_wall(ds, wall, flow_side: str, gx: np.ndarray, gy: np.ndarray):
+    """The statistics Dataset with every per-point float variable NaN behind the wall (the
+    reflection region, :func:`behind_wall`) and the bool variable ``behind_wall`` saying where:
+    the automatic mask of the region behind the wall, applied to the outputs."""
+    behind = behind_wall(wall, flow_side, gx, gy)
+    dims = ("y", "x")
+    for name, var in ds.data_vars.items():
+        if var.dims == dims and var.dtype.kind == "f" and var.shape == behind.shape:
+            ds[name] = var.where(~behind)
+    ds["behind_wall"] = (
+        dims,
+        behind,
+        {"long_name": "behind the found wall (its reflection): masked, not flow"},
+    )
+    return ds
+
+
 def wall_dict(wall) -> dict[str, Any]:
     return {
         "x_px": wall.x_px,
@@ -319,6 +343,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 "frame": "object" if run.method != "none" else "raw image",
             },
         )
+        if an.wall is not None:
+            ds = mask_behind_wall(ds, an.wall, an.flow_side, gx, gy)
         if cfg.output.netcdf:
             res.files[f"statistics_{run.name}"] = write_netcdf(
                 ds, out / f"statistics_{run.name}.nc"
