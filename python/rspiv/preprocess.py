@@ -49,6 +49,7 @@ import numpy as np
 from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_image
+from rspiv.settings import from_keys
 
 __all__ = ["Background", "NEAR_WALL", "Preprocess", "condition", "condition_pair"]
 
@@ -109,14 +110,7 @@ class Preprocess:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], where: str = "preprocess") -> Preprocess:
         """Settings from vocabulary keys (unknown keys are an error naming ``where``)."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise InvalidInputError(
-                f"{where}: unknown preprocessing key(s) {', '.join(unknown)}; "
-                f"known: {', '.join(sorted(known))}"
-            )
-        return cls(**dict(d))
+        return from_keys(cls, d, where, "preprocessing key(s)")
 
 
 #: The near-wall defaults (module docstring).

@@ -78,6 +78,18 @@ OPTION_KEYS = (
 _METHOD_ALIASES = {"i": "I", "images": "I", "ii": "II", "vectors": "II", "none": "none"}
 
 
+def from_keys(cls: Any, d: Mapping[str, Any], where: str, what: str) -> Any:
+    """A frozen settings dataclass ``cls`` from a dictionary of its field names; unknown keys
+    are an InvalidInputError naming ``where`` and listing the known ones ("``what``")."""
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InvalidInputError(
+            f"{where}: unknown {what} {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+        )
+    return cls(**dict(d))
+
+
 def parse_choice(value: Any, choices: Sequence[str], what: str) -> str:
     """``value`` lower-cased if it is one of ``choices`` (lowercase), else InvalidInputError
     naming ``what``, the value and the choices."""
@@ -233,14 +245,7 @@ class PivSettings:
     def from_dict(cls, d: Mapping[str, Any], where: str = "settings") -> PivSettings:
         """Settings from a dictionary of vocabulary keys (unknown keys are an error naming
         ``where``); missing keys take the defaults."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise InvalidInputError(
-                f"{where}: unknown PIV setting(s) {', '.join(unknown)}; "
-                f"known: {', '.join(sorted(known))}"
-            )
-        return cls(**dict(d))
+        return from_keys(cls, d, where, "PIV setting(s)")
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> PivSettings:
