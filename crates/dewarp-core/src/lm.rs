@@ -622,14 +622,31 @@ pub(crate) fn covariance_from_jtj(jtj: &mut [f64], n: usize, s2: f64) -> Result<
             "covariance: J^T J is singular (parameters not determined by the data)".into(),
         ));
     }
-    let mut inv = vec![0.0; n * n];
-    let mut col = vec![0.0; n];
+    // (L L^T)^-1 = L^-T L^-1: the lower-triangular inverse of L (forward substitution of the
+    // unit vectors, whose leading zeros are skipped), then its Gram product by symmetry:
+    // ~n^3 / 3 flops instead of n solves of 2 n^2 each.
+    let l = &*jtj;
+    let mut li = vec![0.0; n * n];
     for j in 0..n {
-        col.fill(0.0);
-        col[j] = 1.0;
-        cholesky_solve(jtj, n, &mut col);
-        for i in 0..n {
-            inv[i * n + j] = col[i] * sc[i] * sc[j] * s2;
+        li[j * n + j] = 1.0 / l[j * n + j];
+        for i in j + 1..n {
+            let mut acc = 0.0;
+            for k in j..i {
+                acc -= l[i * n + k] * li[k * n + j];
+            }
+            li[i * n + j] = acc / l[i * n + i];
+        }
+    }
+    let mut inv = vec![0.0; n * n];
+    for a in 0..n {
+        for b in 0..=a {
+            let mut acc = 0.0;
+            for k in a..n {
+                acc += li[k * n + a] * li[k * n + b];
+            }
+            let v = acc * sc[a] * sc[b] * s2;
+            inv[a * n + b] = v;
+            inv[b * n + a] = v;
         }
     }
     Ok(inv)

@@ -103,60 +103,68 @@ fn collinear(pts: &[[f64; 2]]) -> bool {
     lmax <= 0.0 || lmin <= 1e-10 * lmax
 }
 
-/// Least squares `min ||A x - B||` by Householder QR, `A` row-major `m x n` (overwritten),
-/// `B` row-major `m x k` (overwritten). Returns `x` row-major `n x k`, or `None` if `A` is
-/// rank-deficient (a column's remaining norm below `1e-10` of its original norm).
+/// Dot product with four independent partial sums (the additions pipeline instead of waiting
+/// on one another; rounding differs from a sequential sum only in the last bits).
+#[inline]
+fn dot(u: &[f64], v: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let (uc, ur) = u.split_at(u.len() - u.len() % 4);
+    let (vc, vr) = v.split_at(uc.len());
+    for (a, b) in uc.chunks_exact(4).zip(vc.chunks_exact(4)) {
+        for l in 0..4 {
+            acc[l] += a[l] * b[l];
+        }
+    }
+    let tail: f64 = ur.iter().zip(vr).map(|(a, b)| a * b).sum();
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+/// Least squares `min ||A x - B||` by Householder QR, `A` (`m x n`) given by its columns
+/// (`cols`: column-major, column `j` at `cols[j * m..(j + 1) * m]`, overwritten), `B`
+/// (`m x k`) likewise (`rhs`, overwritten). Column-major keeps every dot product and update a
+/// contiguous slice. Returns `x` row-major `n x k`, or `None` if `A` is rank-deficient (a
+/// column's remaining norm below `1e-10` of its original norm).
 pub(crate) fn lstsq_qr(
-    a: &mut [f64],
+    cols: &mut [f64],
     m: usize,
     n: usize,
-    b: &mut [f64],
+    rhs: &mut [f64],
     k: usize,
 ) -> Option<Vec<f64>> {
     let mut rdiag = vec![0.0; n];
     for j in 0..n {
-        let col_norm0: f64 = (0..m)
-            .map(|i| a[i * n + j] * a[i * n + j])
-            .sum::<f64>()
-            .sqrt();
-        let norm: f64 = (j..m)
-            .map(|i| a[i * n + j] * a[i * n + j])
-            .sum::<f64>()
-            .sqrt();
+        let (done, rest) = cols.split_at_mut((j + 1) * m);
+        let v = &mut done[j * m..];
+        let col_norm0 = dot(v, v).sqrt();
+        let norm = dot(&v[j..], &v[j..]).sqrt();
         if col_norm0 == 0.0 || norm <= 1e-10 * col_norm0 {
             return None;
         }
-        let alpha = if a[j * n + j] > 0.0 { -norm } else { norm };
+        let alpha = if v[j] > 0.0 { -norm } else { norm };
         // v = a[j..m, j] - alpha e1, stored in place
-        a[j * n + j] -= alpha;
-        let vnorm2: f64 = (j..m).map(|i| a[i * n + j] * a[i * n + j]).sum();
+        v[j] -= alpha;
+        let v = &v[j..];
+        let vnorm2 = dot(v, v);
         rdiag[j] = alpha;
         if vnorm2 == 0.0 {
             continue;
         }
-        for c in j + 1..n {
-            let s: f64 = (j..m).map(|i| a[i * n + j] * a[i * n + c]).sum();
-            let f = 2.0 * s / vnorm2;
-            for i in j..m {
-                a[i * n + c] -= f * a[i * n + j];
-            }
-        }
-        for c in 0..k {
-            let s: f64 = (j..m).map(|i| a[i * n + j] * b[i * k + c]).sum();
-            let f = 2.0 * s / vnorm2;
-            for i in j..m {
-                b[i * k + c] -= f * a[i * n + j];
-            }
-        }
+        let reflect = |col: &mut [f64]| {
+            let col = &mut col[j..];
+            let f = 2.0 * dot(v, col) / vnorm2;
+            col.iter_mut().zip(v).for_each(|(c, vi)| *c -= f * vi);
+        };
+        rest.chunks_exact_mut(m).for_each(reflect);
+        rhs.chunks_exact_mut(m).for_each(reflect);
     }
     let mut x = vec![0.0; n * k];
     for c in 0..k {
         for j in (0..n).rev() {
-            let mut s = b[j * k + c];
+            let mut acc = rhs[c * m + j];
             for l in j + 1..n {
-                s -= a[j * n + l] * x[l * k + c];
+                acc -= cols[l * m + j] * x[l * k + c];
             }
-            x[j * k + c] = s / rdiag[j];
+            x[j * k + c] = acc / rdiag[j];
         }
     }
     x.iter().all(|v| v.is_finite()).then_some(x)
@@ -222,21 +230,50 @@ impl LeastSquaresProblem for MappingProblem<'_> {
         jtr[..n].fill(0.0);
         let mut jx = [0.0; crate::models::MAX_PARAMS];
         let mut jy = [0.0; crate::models::MAX_PARAMS];
-        let mut g = [0.0; 11];
+        // the x rows and the y rows each touch only their own `q <= 11` coefficients: their
+        // Gram blocks are accumulated compactly (no scattered indexing in the loop over the
+        // points), then added into J^T J
+        const Q: usize = 11;
+        let (qx, qy) = (ix.len(), iy.len());
+        let mut gxx = [0.0; Q * Q];
+        let mut gyy = [0.0; Q * Q];
+        let mut rx = [0.0; Q];
+        let mut ry = [0.0; Q];
+        let accumulate = |gram: &mut [f64; Q * Q], rt: &mut [f64; Q], g: &[f64], res: f64| {
+            for (a, &ga) in g.iter().enumerate() {
+                rt[a] += ga * res;
+                let row = &mut gram[a * Q..a * Q + a + 1];
+                row.iter_mut().zip(g).for_each(|(o, gb)| *o += ga * gb);
+            }
+        };
+        // P3: the x and y rows are the same basis on disjoint coefficients, so the two Gram
+        // blocks are equal; accumulate one
+        let shared = self.model == Model::P3;
+        let mut g = [0.0; Q];
         for (j, o) in self.obj.iter().enumerate() {
             eval_coeff_jacobian(self.model, p, o[0], o[1], &mut jx, &mut jy);
-            for (row, idx, res) in [(&jx, ix, r[2 * j]), (&jy, iy, r[2 * j + 1])] {
-                let q = idx.len();
-                for a in 0..q {
-                    g[a] = row[idx[a]];
-                }
-                for a in 0..q {
-                    let ga = g[a];
-                    let ra = idx[a] * n;
-                    jtr[idx[a]] += ga * res;
-                    for b in 0..=a {
-                        jtj[ra + idx[b]] += ga * g[b];
-                    }
+            for (a, &i) in ix.iter().enumerate() {
+                g[a] = jx[i];
+            }
+            accumulate(&mut gxx, &mut rx, &g[..qx], r[2 * j]);
+            for (a, &i) in iy.iter().enumerate() {
+                g[a] = jy[i];
+            }
+            if shared {
+                let res = r[2 * j + 1];
+                ry.iter_mut()
+                    .zip(&g[..qy])
+                    .for_each(|(t, ga)| *t += ga * res);
+            } else {
+                accumulate(&mut gyy, &mut ry, &g[..qy], r[2 * j + 1]);
+            }
+        }
+        let gyy = if shared { &gxx } else { &gyy };
+        for (gram, rt, idx) in [(&gxx, &rx, ix), (gyy, &ry, iy)] {
+            for (a, &ia) in idx.iter().enumerate() {
+                jtr[ia] += rt[a];
+                for (b, &ib) in idx[..=a].iter().enumerate() {
+                    jtj[ia * n + ib] += gram[a * Q + b];
                 }
             }
         }
@@ -403,12 +440,15 @@ pub fn fit_mapping(
     let m = 2 * npts;
     let (coeffs, termination, n_evals) = match model {
         Model::P3 => {
+            // column-major: basis term c of point j at a[c * npts + j]; rhs x then y
             let mut a = vec![0.0; npts * 10];
             let mut b = vec![0.0; npts * 2];
             for (j, (o, i)) in obj.iter().zip(&img).enumerate() {
-                a[j * 10..(j + 1) * 10].copy_from_slice(&p3_basis(o[0], o[1]));
-                b[2 * j] = i[0];
-                b[2 * j + 1] = i[1];
+                for (c, v) in p3_basis(o[0], o[1]).into_iter().enumerate() {
+                    a[c * npts + j] = v;
+                }
+                b[j] = i[0];
+                b[npts + j] = i[1];
             }
             let x = lstsq_qr(&mut a, npts, 10, &mut b, 2).ok_or_else(|| degenerate(model))?;
             let mut c = vec![0.0; 20];
@@ -422,7 +462,13 @@ pub fn fit_mapping(
             let mut a = vec![0.0; m * n];
             let mut b = vec![0.0; m];
             dlt_system(model, &obj, &img, &mut a, &mut b);
-            let p0 = lstsq_qr(&mut a, m, n, &mut b, 1).ok_or_else(|| degenerate(model))?;
+            let mut cols = vec![0.0; m * n];
+            for (i, row) in a.chunks_exact(n).enumerate() {
+                for (c, &v) in row.iter().enumerate() {
+                    cols[c * m + i] = v;
+                }
+            }
+            let p0 = lstsq_qr(&mut cols, m, n, &mut b, 1).ok_or_else(|| degenerate(model))?;
             let prob = MappingProblem {
                 model,
                 obj: &obj,
@@ -454,9 +500,16 @@ pub fn fit_mapping(
         obj: &obj,
         img: &img,
     };
-    let mut jac = vec![0.0; m * n];
-    prob.jacobian(&coeffs, &mut jac);
-    let covariance = lm::covariance(&jac, m, n, cost).map_err(|_| degenerate(model))?;
+    // J^T J from the Jacobian's sparsity (the x rows touch only the x coefficients, the y rows
+    // the y ones: P3's J^T J is two 10 x 10 blocks), the same sums as the dense product.
+    if m <= n {
+        return Err(degenerate(model));
+    }
+    let mut jtj = vec![0.0; n * n];
+    let mut jtr = vec![0.0; n];
+    prob.normal_equations(&coeffs, &vec![0.0; m], &mut [], &mut jtj, &mut jtr);
+    let covariance = lm::covariance_from_jtj(&mut jtj, n, cost / (m - n) as f64)
+        .map_err(|_| degenerate(model))?;
     let mut stats = stats_of(model, &res);
     stats.cost = cost;
     stats.termination = termination;
