@@ -54,6 +54,12 @@ def test_bad_davis_input_is_one_line(tmp_path, monkeypatch):
     cut.write_bytes(good.read_bytes()[:200])
     with pytest.raises(rspiv.InvalidInputError, match="cut.im7: cannot read the DaVis buffer"):
         read_image(cut)
+    # a campaign's double_frame glob (or .set) that matches nothing
+    from rspiv.campaign_config import ImagesConfig
+
+    for pattern in ("nothing/*.im7", "Nothing.set"):
+        with pytest.raises(rspiv.InvalidInputError, match=r"\[images\].double_frame: no file"):
+            ImagesConfig(double_frame=str(tmp_path / pattern)).double_frame_files()
     # without lvpyio: the error says how to install it
     monkeypatch.setitem(sys.modules, "lvpyio", None)
     other = tmp_path / "other.im7"

@@ -109,6 +109,7 @@ def test_engine_bad_input_is_one_line(case, engine, tmp_path):
         (["--calibration", str(d / "cal.json"), "--mapping", "half"], 'mapping "half"'),
         (["--calibration", str(d / "nope.json")], "nope.json"),
         (["--deformation", "warp"], '--deformation "warp"'),
+        (["--overlap", "1.0"], "overlap 1 is outside [0, 1)"),
     ]:
         r = subprocess.run(base + extra, capture_output=True, text=True)
         assert r.returncode == 2, (extra, r.stderr)

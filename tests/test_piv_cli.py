@@ -148,6 +148,9 @@ def test_tecplot_export_round_trips_and_flags_masked_vectors(pair_files, tmp_pat
                  "--passes", "64x64,32x32"]) == 0  # fmt: skip
     data2, aux2 = rspiv.read_tecplot(cli_out)
     assert "piv_settings" in aux2 and data2["u"].shape == f.shape
+    with pytest.raises(rspiv.InvalidInputError, match="needs a PivField"):
+        rspiv.write_tecplot({"u": f.u}, tmp_path / "no.dat")
+    assert not (tmp_path / "no.dat").exists()
     bad = tmp_path / "bad.dat"
     bad.write_text("TITLE = x\nVARIABLES = a, b\nZONE I=2, J=2\n1 2\n3 4\n")
     with pytest.raises(rspiv.InvalidInputError, match="bad.dat"):

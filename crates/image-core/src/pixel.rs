@@ -26,22 +26,9 @@ pub trait Pixel: Copy + Send + Sync + 'static {
     }
 }
 
-/// `Pixel` for integer types (always finite) and float types (finite unless NaN/inf).
+/// `Pixel` for a numeric type; `$finite` decides `is_finite_px` (integers: always true).
 macro_rules! pixel {
-    (int $t:ty, $kind:ident) => {
-        impl Pixel for $t {
-            const KIND: PixelKind = PixelKind::$kind;
-            #[inline(always)]
-            fn to_f32(self) -> f32 {
-                self as f32
-            }
-            #[inline(always)]
-            fn to_f64(self) -> f64 {
-                self as f64
-            }
-        }
-    };
-    (float $t:ty, $kind:ident) => {
+    ($t:ty, $kind:ident, $finite:expr) => {
         impl Pixel for $t {
             const KIND: PixelKind = PixelKind::$kind;
             #[inline(always)]
@@ -54,16 +41,17 @@ macro_rules! pixel {
             }
             #[inline(always)]
             fn is_finite_px(self) -> bool {
-                self.is_finite()
+                let finite: fn($t) -> bool = $finite;
+                finite(self)
             }
         }
     };
 }
 
-pixel!(int u8, U8);
-pixel!(int u16, U16);
-pixel!(float f32, F32);
-pixel!(float f64, F64);
+pixel!(u8, U8, |_| true);
+pixel!(u16, U16, |_| true);
+pixel!(f32, F32, f32::is_finite);
+pixel!(f64, F64, f64::is_finite);
 
 #[cfg(test)]
 mod tests {

@@ -126,8 +126,8 @@ pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
     if let Some(p) = &args.subpixel {
         s.subpixel = p.parse::<SubPixel>().map_err(flag)?;
     }
-    // the same checks as a settings file
-    PivSettings::from_json(&s.to_json()).map_err(|e| format!("settings: {e}"))
+    s.validate().map_err(|e| format!("settings: {e}"))?;
+    Ok(s)
 }
 
 /// The calibration's image shape (rows, columns), when the JSON holds one.

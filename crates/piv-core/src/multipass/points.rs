@@ -89,7 +89,7 @@ pub(crate) fn check_at(
     }
     let mut settings = s.clone();
     settings.passes = windows.iter().map(|&(w, h)| Pass::new(w, h)).collect();
-    settings.check()?;
+    settings.validate()?;
     for &(w, h) in windows {
         if w > dim.1 || h > dim.0 {
             return Err(PivError::InvalidInput(format!(
@@ -212,7 +212,7 @@ pub fn piv_with_final_points<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
     s: &PivSettings,
 ) -> Result<(Option<PivField>, PivField)> {
-    s.check()?;
+    s.validate()?;
     check_pair(&frame_a, &frame_b)?;
     let dim = frame_a.dim();
     let last = *s.passes.last().expect("checked: non-empty");

@@ -20,7 +20,7 @@ pub fn piv<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
     s: &PivSettings,
 ) -> Result<PivField> {
-    s.check()?;
+    s.validate()?;
     check_pair(&frame_a, &frame_b)?;
     let dim = frame_a.dim();
     check_mask(&mask, dim)?;

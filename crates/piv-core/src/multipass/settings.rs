@@ -111,7 +111,10 @@ impl Default for PivSettings {
 }
 
 impl PivSettings {
-    pub(crate) fn check(&self) -> Result<()> {
+    /// Check the settings (every entry point runs this first): at least one pass, windows of
+    /// at least 4 x 4 px, overlaps in `[0, 1)`, iterations >= 1, finite non-negative validation
+    /// parameters. [`PivError::InvalidInput`] names the offending value.
+    pub fn validate(&self) -> Result<()> {
         if self.passes.is_empty() {
             return Err(PivError::InvalidInput("passes is empty".into()));
         }
@@ -126,6 +129,12 @@ impl PivSettings {
                 return Err(PivError::InvalidInput(format!(
                     "window {} x {} px is too small (at least 4 x 4)",
                     p.w, p.h
+                )));
+            }
+            if !(0.0..1.0).contains(&p.overlap) {
+                return Err(PivError::InvalidInput(format!(
+                    "overlap {} is outside [0, 1)",
+                    p.overlap
                 )));
             }
         }
@@ -272,11 +281,6 @@ impl PivSettings {
         let n = j.passes.len();
         let overlaps = j.overlap.expand(n, "overlap")?;
         let iterations = j.iterations.expand(n, "iterations")?;
-        if let Some(o) = overlaps.iter().find(|o| !(0.0..1.0).contains(*o)) {
-            return Err(PivError::InvalidInput(format!(
-                "overlap {o} is outside [0, 1)"
-            )));
-        }
         let s = PivSettings {
             passes: j
                 .passes
@@ -298,7 +302,7 @@ impl PivSettings {
             median_threshold: j.median_threshold,
             min_peak_ratio: j.min_peak_ratio,
         };
-        s.check()?;
+        s.validate()?;
         Ok(s)
     }
 
