@@ -42,6 +42,7 @@ def test_double_frame_buffer_reads_as_lvpyio_does(tmp_path, planes):
     info = davis_info(p)
     assert info["images"] == 2 and info["shape"] == (48, 64) and info["dtype"] == "uint16"
     assert info["x_scale"][2] and len(info["intensity_scale"]) == 3
+    assert len(info["cameras"]) == 2 and all(isinstance(c, str) for c in info["cameras"])
 
 
 def test_bad_davis_input_is_one_line(tmp_path, monkeypatch):

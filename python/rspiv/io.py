@@ -129,7 +129,8 @@ def _davis_images(p: pathlib.Path) -> list[np.ndarray]:
 
 
 def davis_info(path: str | os.PathLike) -> dict[str, Any]:
-    """What a DaVis buffer says about itself: the number of images, their shape and dtype, the
+    """What a DaVis buffer says about itself: the number of images, the camera/frame label of
+    each (``"1A"``, ``"1B"``, ... from its CameraName; "" when absent), their shape and dtype, the
     x/y/intensity scales of its first frame (``(slope, offset, unit)``: e.g. mm per px) and its
     attributes (acquisition time series, camera, ...), as plain Python values."""
     p = pathlib.Path(path)
@@ -148,8 +149,14 @@ def davis_info(path: str | os.PathLike) -> dict[str, Any]:
     attrs = {}
     for k, v in dict(first.attributes).items():
         attrs[str(k)] = v.tolist() if isinstance(v, np.ndarray) else v
+    cameras = [
+        str(dict(f.attributes).get("CameraName", "")).split(":")[0]
+        for f in frames
+        for _ in f.images
+    ]
     return {
         "images": sum(len(f.images) for f in frames),
+        "cameras": cameras,
         "shape": tuple(int(n) for n in img.shape),
         "dtype": str(img.dtype),
         "x_scale": scale(first.scales.x),

@@ -103,6 +103,12 @@ def run(args: argparse.Namespace) -> int:
             f"{davis['shape'][1]} x {davis['shape'][0]} {davis['dtype']}, "
             f"scale x {sx:g} {ux}/px, y {sy:g} {uy}/px (vectors stay in px)"
         )
+        cams = davis["cameras"]
+        if args.frame_b is None and len(cams) > 2:
+            print(
+                f"rspiv piv: using images 0 and 1 ({cams[0] or '?'}, {cams[1] or '?'}) of "
+                f"{len(cams)} ({', '.join(c or '?' for c in cams)})"
+            )
     pre = Preprocess(
         hot_pixels=args.hot_pixels, high_pass=args.high_pass, cap=args.cap, min_max=args.min_max
     )
