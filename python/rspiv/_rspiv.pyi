@@ -153,8 +153,8 @@ def piv(
     mask: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, object]:
     """Multipass PIV; frames uint8/uint16/float32/float64 of one dtype. Returns a dict with
-    x, y, u, v, peak_ratio, coef (float64), valid, replaced, masked (bool), all (ny, nx), and
-    grid = (x0, y0, dx, dy)."""
+    x, y, u, v, peak_ratio, coef (float64), valid, replaced, masked (bool), peak_choice (uint8),
+    all (ny, nx), and grid = (x0, y0, dx, dy)."""
 
 def piv_at(
     frame_a: npt.NDArray[np.generic],

@@ -373,6 +373,7 @@ def method_two(
         v=np.where(masked, np.nan, dob[..., 1]),
         valid=valid,
         replaced=f.replaced & ~masked,
+        peak_choice=np.where(masked, 0, f.peak_choice).astype(np.uint8),
         masked=masked,
         peak_ratio=f.peak_ratio,
         coef=f.coef,
@@ -402,6 +403,7 @@ def piv_vectors(
     predictor_iterations: int | Sequence[int] = 1,
     validate: bool = True,
     min_peak_ratio: float = 0.0,
+    peak_candidates: int = 3,
 ) -> PivField:
     """Method II: PIV on the raw frames at ``F(object grid)``, vectors mapped to the object frame
     (keyword form of :func:`method_two`).
@@ -432,7 +434,8 @@ def piv_vectors(
     iterations : int
         Correlation iterations of the final pass (1, as each pass of :func:`rspiv.piv`: a
         second iteration doubles the final pass's cost for an RMS gain of ~2 %).
-    subpixel, interpolation, median_threshold, median_eps, mask, validate, min_peak_ratio
+    subpixel, interpolation, median_threshold, median_eps, mask, validate, min_peak_ratio,
+    peak_candidates
         As for :func:`rspiv.piv` / :func:`rspiv.piv_at` (both the predictor and the final
         pass).
     predictor_overlap, predictor_iterations : float or sequence, int or sequence

@@ -29,6 +29,10 @@ class PivField:
         Passed the final validation (correlation found, median test, peak ratio).
     replaced : ndarray of bool
         Rejected by the final validation and replaced from the neighbours.
+    peak_choice : ndarray of uint8
+        The correlation peak a valid vector comes from: 1 the highest, 2 or 3 the second or
+        third (its highest peak failed the median test; ``PivSettings.peak_candidates``); 0
+        where replaced or masked.
     masked : ndarray of bool
         Not computed: centre inside the mask or outside the image.
     peak_ratio : ndarray of float64
@@ -50,15 +54,30 @@ class PivField:
     masked: np.ndarray
     peak_ratio: np.ndarray
     coef: np.ndarray
+    peak_choice: np.ndarray
     window: tuple[int, int]
     grid: tuple[float, float, float, float] | None
 
     @classmethod
     def _from_native(cls, d: dict, window: tuple[int, int], shape=None) -> PivField:
         keys = ("x", "y", "u", "v", "valid", "replaced", "masked", "peak_ratio", "coef")
+        keys += ("peak_choice",)
         arrays = {k: d[k] if shape is None else d[k].reshape(shape) for k in keys}
         grid = None if d["grid"] is None else tuple(float(g) for g in d["grid"])
         return cls(**arrays, window=tuple(window), grid=grid)
+
+    def peak_counts(self) -> dict[str, int]:
+        """How the vectors that are not masked came about: ``{"first", "second", "third",
+        "interpolated"}`` = from the highest correlation peak, the second, the third, or
+        replaced from their neighbours."""
+        live = ~self.masked
+        c = np.where(self.replaced, 0, self.peak_choice)[live]
+        return {
+            "first": int(np.count_nonzero(c == 1)),
+            "second": int(np.count_nonzero(c == 2)),
+            "third": int(np.count_nonzero(c == 3)),
+            "interpolated": int(np.count_nonzero(self.replaced[live])),
+        }
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -69,7 +88,8 @@ class PivField:
         """The field as an :class:`xarray.Dataset` compatible with pivpy.
 
         Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
-        ``peak_ratio``, ``coef``, ``valid``, ``replaced``, ``masked``; dims ``(y, x)``. For a
+        ``peak_ratio``, ``coef``, ``valid``, ``replaced``, ``masked``, ``peak_choice``; dims
+        ``(y, x)``. For a
         grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
         arbitrary points (:func:`piv_at`) the dims are indexed 0..n-1 and the positions are the
         2D coordinates ``x_px``, ``y_px``.
@@ -87,6 +107,11 @@ class PivField:
             "valid": (dims, self.valid),
             "replaced": (dims, self.replaced),
             "masked": (dims, self.masked),
+            "peak_choice": (
+                dims,
+                self.peak_choice,
+                {"long_name": "correlation peak used: 1 highest, 2 second, 3 third, 0 none"},
+            ),
         }
         if self.grid is not None:
             coords = {

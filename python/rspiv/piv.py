@@ -48,6 +48,7 @@ def piv(
     median_eps: float = 0.1,
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
+    peak_candidates: int = 3,
     settings: PivSettings | None = None,
     preprocess: Preprocess | None = None,
     backgrounds: tuple[Any, Any] | None = None,
@@ -114,6 +115,10 @@ def piv(
         Noise level (px) and threshold of the normalised median test.
     min_peak_ratio : float
         Reject vectors whose peak ratio is below this (0 disables).
+    peak_candidates : int
+        Correlation peaks tried per vector (1 to 3): a vector that fails the median test takes
+        its second or third peak when that passes the test, before it is interpolated
+        (``PivField.peak_choice``, :meth:`PivField.peak_counts`).
     settings : PivSettings, optional
         All of the above PIV settings as one object (overrides the keywords).
     preprocess : rspiv.preprocess.Preprocess, optional
@@ -171,6 +176,7 @@ def piv_at(
     median_eps: float = 0.1,
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
+    peak_candidates: int = 3,
 ) -> PivField:
     """PIV at arbitrary image positions with given predictor displacements (Method II).
 
@@ -199,7 +205,7 @@ def piv_at(
     validate : bool, optional
         Normalised median test among grid neighbours; defaults to True for ``(ny, nx, 2)``
         points and False for a ``(N, 2)`` list.
-    subpixel, interpolation, median_eps, median_threshold, min_peak_ratio
+    subpixel, interpolation, median_eps, median_threshold, min_peak_ratio, peak_candidates
         As for :func:`piv`.
 
     Returns
@@ -220,6 +226,7 @@ def piv_at(
         median_eps=median_eps,
         median_threshold=median_threshold,
         min_peak_ratio=min_peak_ratio,
+        peak_candidates=peak_candidates,
     )
     return run_points(
         frame_a,

@@ -18,6 +18,7 @@ validate          bool                        normalised median test + replaceme
 median_eps        float                       px, noise level of the median test
 median_threshold  float                       threshold of the normalised median test
 min_peak_ratio    float                       reject vectors below this peak ratio (0: off)
+peak_candidates   int 1-3                     correlation peaks tried before interpolating
 ================  ==========================  ===============================================
 
 String values are case-insensitive on input and stored lowercase. The correction methods are
@@ -73,6 +74,7 @@ OPTION_KEYS = (
     "median_eps",
     "median_threshold",
     "min_peak_ratio",
+    "peak_candidates",
 )
 
 _METHOD_ALIASES = {"i": "I", "images": "I", "ii": "II", "vectors": "II", "none": "none"}
@@ -172,6 +174,11 @@ class PivSettings:
         Threshold of the normalised median test.
     min_peak_ratio : float
         Reject vectors whose peak ratio is below this (0 disables).
+    peak_candidates : int
+        Correlation peaks tried per vector, 1 to 3 (3): a vector that fails the median test
+        takes its second, then third correlation peak if that passes the test against the same
+        neighbours, before it is interpolated (``PivField.peak_choice`` says which; 1 turns
+        this off).
 
     Values are checked and normalised on construction (InvalidInputError naming the key).
     """
@@ -186,6 +193,7 @@ class PivSettings:
     median_eps: float = 0.1
     median_threshold: float = 2.0
     min_peak_ratio: float = 0.0
+    peak_candidates: int = 3
 
     def __post_init__(self) -> None:
         passes = tuple(_window(p) for p in self.passes)
@@ -210,6 +218,10 @@ class PivSettings:
             if not np.isfinite(v) or v < 0:
                 raise InvalidInputError(f"{key} must be a finite number >= 0, got {v}")
             s(self, key, v)
+        n = self.peak_candidates
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 3:
+            raise InvalidInputError(f"peak_candidates must be 1, 2 or 3, got {n!r}")
+        s(self, "peak_candidates", int(n))
 
     # -- per-pass views ------------------------------------------------------------------------
     @property

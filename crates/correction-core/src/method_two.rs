@@ -74,7 +74,7 @@ pub fn map_displacements(
 ///
 /// The result lives on the object grid (`grid`, `x`, `y` in object px, displacements in object
 /// px). A vector whose displacement cannot be mapped back (the inverse fails) is masked;
-/// `valid` and `replaced` are cleared where masked; peak ratio and correlation coefficient
+/// `valid`, `replaced` and `peak_choice` are cleared where masked; peak ratio and correlation coefficient
 /// are those of the final correlation at the image point.
 pub fn method_two<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
@@ -123,6 +123,9 @@ pub fn method_two<T: Pixel>(
     let replaced = Zip::from(&f.replaced)
         .and(&masked)
         .map_collect(|&r, &m| r && !m);
+    let peak_choice = Zip::from(&f.peak_choice)
+        .and(&masked)
+        .map_collect(|&c, &m| if m { 0 } else { c });
     Ok(PivField {
         grid: Some(grid),
         x: gx,
@@ -133,6 +136,7 @@ pub fn method_two<T: Pixel>(
         coef: f.coef,
         valid,
         replaced,
+        peak_choice,
         masked,
     })
 }

@@ -49,6 +49,35 @@ pub struct Peak {
     /// `false` when a window was blank (zero variance) or the highest value of the search
     /// region is not a local maximum (the peak lies beyond the search range).
     pub ok: bool,
+    /// The second and third highest local maxima of the plane (outside the primary peak's
+    /// 3 x 3 neighbourhood and each other's), sub-pixel as the primary: the candidates that
+    /// the validation tries when the primary peak fails the median test
+    /// ([`crate::multipass`]). [`AltPeak::NONE`] where the plane has fewer maxima.
+    pub alt: [AltPeak; 2],
+}
+
+/// A secondary correlation peak (see [`Peak::alt`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AltPeak {
+    /// Displacement along x and y, px (sub-pixel), as [`Peak::dx`], [`Peak::dy`].
+    pub dx: f64,
+    pub dy: f64,
+    /// Normalised correlation at the peak; `-inf` for [`AltPeak::NONE`].
+    pub coef: f64,
+}
+
+impl AltPeak {
+    /// No such peak.
+    pub const NONE: AltPeak = AltPeak {
+        dx: 0.0,
+        dy: 0.0,
+        coef: f64::NEG_INFINITY,
+    };
+
+    /// Is there such a peak?
+    pub fn exists(&self) -> bool {
+        self.coef.is_finite()
+    }
 }
 
 impl Peak {
@@ -59,6 +88,7 @@ impl Peak {
         coef: 0.0,
         ratio: 0.0,
         ok: false,
+        alt: [AltPeak::NONE; 2],
     };
 }
 
@@ -498,8 +528,9 @@ fn find_peak_with(
     }
     // then along y, in place into the first n values of row r - 1 (rows r - 1, r, r + 1 are
     // still the horizontal maxima when row r is reached), keeping the value where it is a
-    // local maximum (at least its neighbourhood's maximum) and -inf elsewhere
-    let mut second = f32::NEG_INFINITY;
+    // local maximum (at least its neighbourhood's maximum) and -inf elsewhere; the two highest
+    // local maxima (not adjacent to each other: a plateau counts once) are kept with their lags
+    let mut top = [(f32::NEG_INFINITY, 0usize, 0usize); 2];
     for r in 1..ch - 1 {
         let (up, rest) = hm[(r - 1) * cw..].split_at_mut(cw);
         let (mid, dn) = rest.split_at(cw);
@@ -513,8 +544,15 @@ fn find_peak_with(
             // not the peak's own neighbourhood: columns pc-1 ..= pc+1 (indices pc-2 ..= pc)
             up[pc.saturating_sub(2)..(pc + 1).min(n)].fill(f32::NEG_INFINITY);
         }
-        second = gt_max(max8(up), second);
+        if max8(up) > top[1].0 {
+            for (i, &x) in up.iter().enumerate() {
+                if x > top[1].0 {
+                    keep_top2(&mut top, (x, i + 1, r));
+                }
+            }
+        }
     }
+    let second = top[0].0;
     let ratio = if best <= 0.0 {
         1.0
     } else if second <= best * 1e-3 {
@@ -534,12 +572,53 @@ fn find_peak_with(
     };
     let cx = (cw / 2) as f64;
     let cy = (ch / 2) as f64;
+    let alt = top.map(|(x, c, r)| {
+        if x.is_finite() {
+            let (ox, oy) = gauss3_2(&unbiased, c, r);
+            AltPeak {
+                dx: c as f64 - cx + ox,
+                dy: r as f64 - cy + oy,
+                coef: x as f64,
+            }
+        } else {
+            AltPeak::NONE
+        }
+    });
     Peak {
         dx: pc as f64 - cx + ox,
         dy: pr as f64 - cy + oy,
         coef: best as f64,
         ratio,
         ok: !on_border,
+        alt,
+    }
+}
+
+/// Insert the local maximum `cand` = (value, column, row) into the two highest `top` (highest
+/// first), where a maximum next to a held one (a plateau) replaces it only when higher.
+#[inline]
+fn keep_top2(top: &mut [(f32, usize, usize); 2], cand: (f32, usize, usize)) {
+    let near = |a: &(f32, usize, usize)| a.1.abs_diff(cand.1) <= 1 && a.2.abs_diff(cand.2) <= 1;
+    if near(&top[0]) {
+        if cand.0 > top[0].0 {
+            top[0] = cand;
+        }
+        return;
+    }
+    if near(&top[1]) {
+        if cand.0 > top[1].0 {
+            top[1] = cand;
+            if top[1].0 > top[0].0 {
+                top.swap(0, 1);
+            }
+        }
+        return;
+    }
+    if cand.0 > top[0].0 {
+        top[1] = top[0];
+        top[0] = cand;
+    } else if cand.0 > top[1].0 {
+        top[1] = cand;
     }
 }
 
@@ -801,7 +880,7 @@ mod tests {
                 }
             }
         }
-        let mut second = f32::NEG_INFINITY;
+        let mut maxima = Vec::new();
         for r in 1..ch - 1 {
             for c in 1..cw - 1 {
                 if r.abs_diff(pr) <= 1 && c.abs_diff(pc) <= 1 {
@@ -810,11 +889,17 @@ mod tests {
                 let v = at(c, r);
                 let is_max = (r - 1..=r + 1)
                     .all(|rr| (c - 1..=c + 1).all(|cc| (rr == r && cc == c) || at(cc, rr) <= v));
-                if is_max && v > second {
-                    second = v;
+                if is_max {
+                    maxima.push((v, c, r));
                 }
             }
         }
+        maxima.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let second = maxima.first().map_or(f32::NEG_INFINITY, |m| m.0);
+        let third = maxima.iter().find(|m| {
+            let t = maxima[0];
+            m.1.abs_diff(t.1) > 1 || m.2.abs_diff(t.2) > 1
+        });
         let on_border = (pr - 1..=pr + 1)
             .any(|rr| (pc - 1..=pc + 1).any(|cc| (rr, cc) != (pr, pc) && at(cc, rr) > best));
         let ratio = if best <= 0.0 {
@@ -837,12 +922,24 @@ mod tests {
                 gauss9(&unbiased, pc, pr).unwrap_or_else(|| gauss3_2(&unbiased, pc, pr))
             }
         };
+        let alt_of = |m: Option<&(f32, usize, usize)>| match m {
+            Some(&(v, c, r)) => {
+                let (ox, oy) = gauss3_2(&unbiased, c, r);
+                AltPeak {
+                    dx: c as f64 - hx as f64 + ox,
+                    dy: r as f64 - hy as f64 + oy,
+                    coef: v as f64,
+                }
+            }
+            None => AltPeak::NONE,
+        };
         Peak {
             dx: pc as f64 - hx as f64 + ox,
             dy: pr as f64 - hy as f64 + oy,
             coef: best as f64,
             ratio,
             ok: !on_border,
+            alt: [alt_of(maxima.first()), alt_of(third)],
         }
     }
 
@@ -865,8 +962,65 @@ mod tests {
             }
             let sub = [SubPixel::Gauss3, SubPixel::Gauss2d][case % 2];
             let p = find_peak(&corr, cw, ch, cw, ch, sub);
-            assert_eq!(p, find_peak_plain(&corr, cw, ch, sub), "case {case}");
+            let mut q = find_peak_plain(&corr, cw, ch, sub);
+            if levels < 1e6 {
+                // with ties, which of equal maxima is the second or third is a matter of order
+                assert_eq!(p.alt.map(|a| a.coef), q.alt.map(|a| a.coef), "case {case}");
+                q.alt = p.alt;
+            }
+            assert_eq!(p, q, "case {case}");
         }
+    }
+
+    #[test]
+    fn second_and_third_peaks_found_sub_pixel() {
+        // three Gaussian peaks of heights 1, 0.7, 0.5 at fractional lags; a weak bump next to
+        // the second one is not a separate maximum
+        let (cw, ch) = (41usize, 21usize);
+        let bumps = [
+            (1.0f64, 25.3f64, 12.6f64),
+            (0.7, 8.8, 5.25),
+            (0.5, 31.4, 4.7),
+        ];
+        let corr: Vec<f32> = (0..cw * ch)
+            .map(|k| {
+                let (c, r) = ((k % cw) as f64, (k / cw) as f64);
+                let v: f64 = bumps
+                    .iter()
+                    .map(|&(a, x, y)| a * (-((c - x).powi(2) + (r - y).powi(2)) / 3.0).exp())
+                    .sum();
+                (v + 1e-3) as f32
+            })
+            .collect();
+        // windows far larger than the plane: no overlap weighting
+        let big = 1 << 24;
+        let p = find_peak(&corr, cw, ch, big, big, SubPixel::Gauss3);
+        let (hx, hy) = ((cw / 2) as f64, (ch / 2) as f64);
+        assert!((p.dx - (25.3 - hx)).abs() < 0.02 && (p.dy - (12.6 - hy)).abs() < 0.02);
+        for (a, &(height, x, y)) in p.alt.iter().zip(&bumps[1..]) {
+            assert!(a.exists());
+            assert!((a.dx - (x - hx)).abs() < 0.02, "{a:?}");
+            assert!((a.dy - (y - hy)).abs() < 0.02, "{a:?}");
+            assert!((a.coef - height).abs() < 0.05, "{a:?}");
+        }
+        // the ratio of the integer peaks' heights (at lags (25, 13) and (9, 5))
+        let ratio = corr[13 * cw + 25] as f64 / corr[5 * cw + 9] as f64;
+        assert!((p.ratio - ratio).abs() < 1e-6, "{} {ratio}", p.ratio);
+        assert_eq!(p.alt[0].coef, corr[5 * cw + 9] as f64);
+        // a plane with a single peak has no alternatives... beyond the flat floor's maxima
+        let single: Vec<f32> = (0..cw * ch)
+            .map(|k| {
+                let (c, r) = ((k % cw) as f64, (k / cw) as f64);
+                (-((c - 20.0).powi(2) + (r - 10.0).powi(2)) / 3.0).exp() as f32
+            })
+            .collect();
+        let p = find_peak(&single, cw, ch, big, big, SubPixel::Gauss3);
+        assert!(
+            p.alt.iter().all(|a| !a.exists() || a.coef < 1e-6),
+            "{:?}",
+            p.alt
+        );
+        assert!(!Peak::FAILED.alt[0].exists());
     }
 
     #[test]

@@ -21,33 +21,50 @@ pub fn median_test(
 ) -> Array2<bool> {
     let (ny, nx) = u.dim();
     let mut out = Array2::from_elem((ny, nx), false);
-    let mut nu = [0.0f64; 8];
-    let mut nv = [0.0f64; 8];
-    let mut res = [0.0f64; 8];
     for j in 0..ny {
         for i in 0..nx {
             if !usable[[j, i]] {
                 continue;
             }
-            let mut k = 0;
-            for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
-                for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
-                    if (jj, ii) != (j, i) && usable[[jj, ii]] {
-                        nu[k] = u[[jj, ii]];
-                        nv[k] = v[[jj, ii]];
-                        k += 1;
-                    }
-                }
+            if let Some(r) = residual(u, v, usable, (j, i), (u[[j, i]], v[[j, i]]), eps) {
+                out[[j, i]] = r > threshold;
             }
-            if k < MIN_NEIGHBOURS {
-                continue;
-            }
-            let ru = normalised_residual(u[[j, i]], &mut nu[..k], &mut res[..k], eps);
-            let rv = normalised_residual(v[[j, i]], &mut nv[..k], &mut res[..k], eps);
-            out[[j, i]] = ru > threshold || rv > threshold;
         }
     }
     out
+}
+
+/// The normalised median residual (the larger of u's and v's) of a candidate vector `(cu, cv)`
+/// at `(j, i)` against the usable vectors of its 3 x 3 neighbourhood, as in [`median_test`];
+/// `None` with fewer than [`MIN_NEIGHBOURS`] usable neighbours.
+pub fn residual(
+    u: &Array2<f64>,
+    v: &Array2<f64>,
+    usable: &Array2<bool>,
+    (j, i): (usize, usize),
+    (cu, cv): (f64, f64),
+    eps: f64,
+) -> Option<f64> {
+    let (ny, nx) = u.dim();
+    let mut nu = [0.0f64; 8];
+    let mut nv = [0.0f64; 8];
+    let mut res = [0.0f64; 8];
+    let mut k = 0;
+    for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+        for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+            if (jj, ii) != (j, i) && usable[[jj, ii]] {
+                nu[k] = u[[jj, ii]];
+                nv[k] = v[[jj, ii]];
+                k += 1;
+            }
+        }
+    }
+    if k < MIN_NEIGHBOURS {
+        return None;
+    }
+    let ru = normalised_residual(cu, &mut nu[..k], &mut res[..k], eps);
+    let rv = normalised_residual(cv, &mut nv[..k], &mut res[..k], eps);
+    Some(ru.max(rv))
 }
 
 fn median(x: &mut [f64]) -> f64 {

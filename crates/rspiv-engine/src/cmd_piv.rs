@@ -1,9 +1,9 @@
 //! `piv`: multipass PIV of an image pair, plain or distortion-corrected (Method I or II through
-//! a calibration); writes a CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef.
+//! a calibration); writes a CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice.
 //!
 //! Settings: `--settings FILE.json` holds the keys of the one vocabulary (`rspiv.PivSettings`,
 //! `piv_core::PivSettings::from_json`: passes, overlap, iterations, deformation, interpolation,
-//! subpixel, validate, median_eps, median_threshold, min_peak_ratio); the flags given on the
+//! subpixel, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates); the flags given on the
 //! command line override the file. Pixel frame: x right, y down, origin at the centre of the
 //! top-left pixel; px (object px with a calibration). Values are written to full precision
 //! (shortest round-trip decimal), NaN where a vector is masked.
@@ -47,6 +47,10 @@ pub struct PivArgs {
     /// Sub-pixel estimator: gauss3 or gauss2d [default gauss3].
     #[arg(long)]
     pub subpixel: Option<String>,
+    /// Correlation peaks tried per vector before interpolating a rejected one: 1, 2 or 3
+    /// [default 3].
+    #[arg(long)]
+    pub peak_candidates: Option<usize>,
     /// Calibration JSON (rspiv calibrate) or mapping JSON: correct the distortion.
     #[arg(long)]
     pub calibration: Option<PathBuf>,
@@ -126,6 +130,9 @@ pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
     if let Some(p) = &args.subpixel {
         s.subpixel = p.parse::<SubPixel>().map_err(flag)?;
     }
+    if let Some(n) = args.peak_candidates {
+        s.peak_candidates = n;
+    }
     s.validate().map_err(|e| format!("settings: {e}"))?;
     Ok(s)
 }
@@ -141,11 +148,11 @@ fn image_shape(path: &Path) -> Option<(usize, usize)> {
 /// The CSV of a field: one row per vector, row-major over the grid.
 fn field_csv(f: &PivField) -> String {
     let mut out = String::with_capacity(f.u.len() * 96);
-    out.push_str("x,y,u,v,valid,replaced,masked,peak_ratio,coef\n");
+    out.push_str("x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice\n");
     for ((j, i), &u) in f.u.indexed_iter() {
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{}",
             f.x[[j, i]],
             f.y[[j, i]],
             u,
@@ -154,7 +161,8 @@ fn field_csv(f: &PivField) -> String {
             u8::from(f.replaced[[j, i]]),
             u8::from(f.masked[[j, i]]),
             f.peak_ratio[[j, i]],
-            f.coef[[j, i]]
+            f.coef[[j, i]],
+            f.peak_choice[[j, i]]
         );
     }
     out
@@ -202,12 +210,13 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
         _ => piv(a.view(), b.view(), None, &s).map_err(|e| format!("{pair}: {e}"))?,
     };
     write_atomic(&args.output, field_csv(&f).as_bytes())?;
+    let (_, second, third, interpolated) = f.peak_counts();
     eprintln!(
-        "rspiv-engine piv: {} vectors ({} x {}), {} replaced, {} masked, method {method} -> {}",
+        "rspiv-engine piv: {} vectors ({} x {}), {second} from the second peak, {third} from \
+         the third, {interpolated} interpolated, {} masked, method {method} -> {}",
         f.u.len(),
         f.u.ncols(),
         f.u.nrows(),
-        f.replaced.iter().filter(|&&r| r).count(),
         f.masked.iter().filter(|&&r| r).count(),
         args.output.display()
     );

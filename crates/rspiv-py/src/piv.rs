@@ -27,6 +27,7 @@ pub(crate) fn field_dict<'py>(py: Python<'py>, f: PivField) -> PyResult<Bound<'p
     d.set_item("coef", f.coef.into_pyarray(py))?;
     d.set_item("valid", f.valid.into_pyarray(py))?;
     d.set_item("replaced", f.replaced.into_pyarray(py))?;
+    d.set_item("peak_choice", f.peak_choice.into_pyarray(py))?;
     d.set_item("masked", f.masked.into_pyarray(py))?;
     match f.grid {
         Some(g) => d.set_item("grid", (g.x0, g.y0, g.dx, g.dy))?,

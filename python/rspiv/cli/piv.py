@@ -38,6 +38,7 @@ _SCALAR_KEYS = (
     "median_eps",
     "median_threshold",
     "min_peak_ratio",
+    "peak_candidates",
 )
 
 
@@ -145,9 +146,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         write_netcdf(ds, out)
     n = field.u.size
+    c = field.peak_counts()
     print(
         f"rspiv piv: {n} vectors {field.shape[1]} x {field.shape[0]}, "
-        f"{int(field.replaced.sum())} replaced -> {out}"
+        f"{c['second']} from the second correlation peak, {c['third']} from the third, "
+        f"{c['interpolated']} interpolated -> {out}"
     )
     return 0
 
@@ -190,6 +193,13 @@ def register(sub) -> None:
     p.add_argument("--median-eps", dest="median_eps", type=float, default=None, help="px (0.1)")
     p.add_argument("--median-threshold", dest="median_threshold", type=float, default=None)
     p.add_argument("--min-peak-ratio", dest="min_peak_ratio", type=float, default=None)
+    p.add_argument(
+        "--peak-candidates",
+        dest="peak_candidates",
+        type=int,
+        default=None,
+        help="correlation peaks tried before interpolating a rejected vector: 1, 2, 3 [3]",
+    )
     p.add_argument("--calibration", default=None, help="calibration JSON: correct the distortion")
     p.add_argument(
         "--method", default=None,

@@ -5,7 +5,7 @@ use super::settings::*;
 use crate::correlate::Peak;
 use crate::grid::Grid;
 use crate::image::GridField;
-use crate::validate::{median_test, replace};
+use crate::validate::{median_test, replace, residual};
 use ndarray::Array2;
 
 /// A vector field. All arrays have the same shape (ny, nx).
@@ -27,11 +27,36 @@ pub struct PivField {
     pub valid: Array2<bool>,
     /// Rejected and replaced by interpolation from neighbours.
     pub replaced: Array2<bool>,
+    /// The correlation peak a valid vector comes from: 1 the highest, 2 or 3 the second or
+    /// third (the highest failed the median test, see `peak_candidates` in
+    /// [`PivSettings`]); 0 where not from a peak (interpolated or masked).
+    pub peak_choice: Array2<u8>,
     /// Not computed: inside the mask, or the centre outside the image.
     pub masked: Array2<bool>,
 }
 
 impl PivField {
+    /// How the vectors that are not masked came about: `(first, second, third, interpolated)`
+    /// = from the highest correlation peak, the second, the third, or replaced from their
+    /// neighbours.
+    pub fn peak_counts(&self) -> (usize, usize, usize, usize) {
+        let mut n = [0usize; 4];
+        for ((&c, &m), &r) in self
+            .peak_choice
+            .iter()
+            .zip(&self.masked)
+            .zip(&self.replaced)
+        {
+            match (m, r, c) {
+                (true, _, _) => {}
+                (false, true, _) => n[3] += 1,
+                (false, false, 1..=3) => n[c as usize - 1] += 1,
+                _ => {}
+            }
+        }
+        (n[0], n[1], n[2], n[3])
+    }
+
     /// The field as a predictor (only for grid fields).
     pub fn to_grid_field(&self) -> Option<GridField> {
         let grid = self.grid?;
@@ -44,14 +69,22 @@ impl PivField {
     }
 }
 
-/// Validate (optionally) and replace; returns (valid, replaced).
+/// The outcome of [`validate_replace`].
+pub(crate) struct Validation {
+    pub valid: Array2<bool>,
+    pub replaced: Array2<bool>,
+    pub peak_choice: Array2<u8>,
+}
+
+/// Validate (optionally), try the second and third peaks of rejected vectors, and replace the
+/// rest from their neighbours. `u`, `v` hold each vector's primary peak (predictor + residual).
 pub(crate) fn validate_replace(
     u: &mut Array2<f64>,
     v: &mut Array2<f64>,
     peaks: &[Peak],
     skip: &[bool],
     s: &PivSettings,
-) -> (Array2<bool>, Array2<bool>) {
+) -> Validation {
     let dim = u.dim();
     let usable = Array2::from_shape_fn(dim, |(j, i)| {
         let k = j * dim.1 + i;
@@ -62,15 +95,74 @@ pub(crate) fn validate_replace(
             && u[[j, i]].is_finite()
             && v[[j, i]].is_finite()
     });
+    let mut peak_choice = usable.mapv(u8::from);
     let good = if s.validate {
-        let out = median_test(u, v, &usable, s.median_eps, s.median_threshold);
-        Array2::from_shape_fn(dim, |ji| usable[ji] && !out[ji])
+        let mut usable = usable;
+        let mut good;
+        // the median test, then the other peaks of the rejected vectors (and of those whose
+        // highest peak lies on the search border or under the peak-ratio threshold) against
+        // the same neighbours; a vector recovered so is a neighbour in the next round, which
+        // may reveal outliers that a cluster of them hid (at most 4 rounds)
+        let mut round = 0;
+        loop {
+            let out = median_test(u, v, &usable, s.median_eps, s.median_threshold);
+            good = Array2::from_shape_fn(dim, |ji| usable[ji] && !out[ji]);
+            round += 1;
+            if s.peak_candidates < 2 || round > 4 {
+                break;
+            }
+            let mut alt = Vec::new();
+            for ((j, i), g) in good.indexed_iter() {
+                let k = j * dim.1 + i;
+                let p = &peaks[k];
+                if *g || skip[k] || peak_choice[[j, i]] > 1 {
+                    continue;
+                }
+                if !(u[[j, i]].is_finite() && v[[j, i]].is_finite()) {
+                    continue;
+                }
+                let (u0, v0) = (u[[j, i]] - p.dx, v[[j, i]] - p.dy);
+                for (a, c) in p.alt.iter().take(s.peak_candidates - 1).zip(2u8..) {
+                    if !a.exists() || a.coef <= 0.0 {
+                        break;
+                    }
+                    let cand = (u0 + a.dx, v0 + a.dy);
+                    match residual(u, v, &good, (j, i), cand, s.median_eps) {
+                        Some(r) if r <= s.median_threshold => {
+                            alt.push((j, i, cand, c));
+                            break;
+                        }
+                        Some(_) => {}
+                        None => break,
+                    }
+                }
+            }
+            if alt.is_empty() {
+                break;
+            }
+            for (j, i, (cu, cv), c) in alt {
+                u[[j, i]] = cu;
+                v[[j, i]] = cv;
+                usable[[j, i]] = true;
+                peak_choice[[j, i]] = c;
+            }
+        }
+        good
     } else {
         usable
     };
     replace(u, v, &good);
     let replaced = Array2::from_shape_fn(dim, |(j, i)| !good[[j, i]] && !skip[j * dim.1 + i]);
-    (good, replaced)
+    for (c, g) in peak_choice.iter_mut().zip(good.iter()) {
+        if !g {
+            *c = 0;
+        }
+    }
+    Validation {
+        valid: good,
+        replaced,
+        peak_choice,
+    }
 }
 
 pub(crate) fn finish(
@@ -81,8 +173,11 @@ pub(crate) fn finish(
     mut v: Array2<f64>,
     peaks: &[Peak],
     skip: &[bool],
-    valid: Array2<bool>,
-    replaced: Array2<bool>,
+    Validation {
+        valid,
+        replaced,
+        peak_choice,
+    }: Validation,
 ) -> PivField {
     let dim = u.dim();
     let masked = Array2::from_shape_fn(dim, |(j, i)| skip[j * dim.1 + i]);
@@ -104,6 +199,7 @@ pub(crate) fn finish(
         coef,
         valid,
         replaced,
+        peak_choice,
         masked,
     }
 }

@@ -170,16 +170,16 @@ pub(crate) fn at_points<T: Pixel>(
                 let k = j * shape.1 + i;
                 bv[k] + dv[k] + peaks[k].dy
             });
-            let (valid, replaced) = validate_replace(&mut u, &mut v, &peaks, &skip, settings);
+            let checked = validate_replace(&mut u, &mut v, &peaks, &skip, settings);
             for k in 0..n {
                 let (j, i) = (k / shape.1, k % shape.1);
                 du[k] = u[[j, i]] - bu[k];
                 dv[k] = v[[j, i]] - bv[k];
             }
-            last = Some((u, v, peaks, valid, replaced));
+            last = Some((u, v, peaks, checked));
         }
     }
-    let (u, v, peaks, valid, replaced) = last.expect("at least one iteration");
+    let (u, v, peaks, checked) = last.expect("at least one iteration");
     Ok(finish(
         None,
         x.to_owned(),
@@ -188,8 +188,7 @@ pub(crate) fn at_points<T: Pixel>(
         v,
         &peaks,
         &skip,
-        valid,
-        replaced,
+        checked,
     ))
 }
 

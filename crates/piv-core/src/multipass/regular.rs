@@ -96,29 +96,19 @@ pub(crate) fn grid_passes<T: Pixel>(
                 let k = j * grid.nx + i;
                 pv[k] + peaks[k].dy
             });
-            let (valid, replaced) = validate_replace(&mut u, &mut v, &peaks, &skip, s);
+            let checked = validate_replace(&mut u, &mut v, &peaks, &skip, s);
             pred = Some(GridField {
                 grid,
                 u: u.clone(),
                 v: v.clone(),
             });
-            last = Some((u, v, peaks, valid, replaced));
+            last = Some((u, v, peaks, checked));
         }
-        if let Some((u, v, peaks, valid, replaced)) = last.take() {
+        if let Some((u, v, peaks, checked)) = last.take() {
             if std::ptr::eq(pass, s.passes.last().expect("non-empty")) {
                 let x = Array2::from_shape_vec((grid.ny, grid.nx), xs).expect("shape");
                 let y = Array2::from_shape_vec((grid.ny, grid.nx), ys).expect("shape");
-                return Ok(finish(
-                    Some(grid),
-                    x,
-                    y,
-                    u,
-                    v,
-                    &peaks,
-                    &skip,
-                    valid,
-                    replaced,
-                ));
+                return Ok(finish(Some(grid), x, y, u, v, &peaks, &skip, checked));
             }
         }
     }

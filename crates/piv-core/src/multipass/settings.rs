@@ -16,6 +16,13 @@
 //! | median_eps       | number, px                 | noise level of the median test                 |
 //! | median_threshold | number                     | threshold of the median test                   |
 //! | min_peak_ratio   | number                     | reject below this peak ratio (0: off)          |
+//! | peak_candidates  | 1, 2 or 3                  | correlation peaks tried per vector (see below) |
+//!
+//! `peak_candidates`: when a vector fails the median test (or its peak is rejected), its
+//! second and then third correlation peaks ([`crate::correlate::Peak::alt`]) are tried, up to
+//! this many peaks in all, before it is interpolated from its neighbours: the first that passes
+//! the median test against the same neighbours is kept (a valid vector, not `replaced`; its
+//! `peak_choice` says which). 1 turns this off. Only with `validate`.
 //!
 //! Missing keys take the defaults ([`PivSettings::default`]); unknown keys are an error. The
 //! string values parse case-insensitively through the enums' `FromStr` and print (`Display`) as
@@ -93,6 +100,8 @@ pub struct PivSettings {
     pub median_threshold: f64,
     /// Vectors whose peak ratio is below this are rejected (0 disables the test).
     pub min_peak_ratio: f64,
+    /// Correlation peaks tried per vector, 1 to 3 (module docs); 3.
+    pub peak_candidates: usize,
 }
 
 impl Default for PivSettings {
@@ -106,6 +115,7 @@ impl Default for PivSettings {
             median_eps: 0.1,
             median_threshold: 2.0,
             min_peak_ratio: 0.0,
+            peak_candidates: 3,
         }
     }
 }
@@ -143,6 +153,12 @@ impl PivSettings {
             return Err(PivError::InvalidInput(
                 "median_eps, median_threshold and min_peak_ratio must be finite and >= 0".into(),
             ));
+        }
+        if !(1..=3).contains(&self.peak_candidates) {
+            return Err(PivError::InvalidInput(format!(
+                "peak_candidates {} is outside 1 ..= 3",
+                self.peak_candidates
+            )));
         }
         Ok(())
     }
@@ -246,6 +262,7 @@ struct SettingsJson {
     median_eps: f64,
     median_threshold: f64,
     min_peak_ratio: f64,
+    peak_candidates: usize,
 }
 
 impl Default for SettingsJson {
@@ -267,6 +284,7 @@ impl From<&PivSettings> for SettingsJson {
             median_eps: s.median_eps,
             median_threshold: s.median_threshold,
             min_peak_ratio: s.min_peak_ratio,
+            peak_candidates: s.peak_candidates,
         }
     }
 }
@@ -301,6 +319,7 @@ impl PivSettings {
             median_eps: j.median_eps,
             median_threshold: j.median_threshold,
             min_peak_ratio: j.min_peak_ratio,
+            peak_candidates: j.peak_candidates,
         };
         s.validate()?;
         Ok(s)
