@@ -139,8 +139,9 @@ def test_conditioning_recovers_piv_through_glare_and_gradients():
     )
     mm = Preprocess(hot_pixels=3.0, high_pass=2.0, min_max=15)
     min_max = _errors(rspiv.piv(*condition_pair(a, b, mm), passes=passes), d, a.shape)
-    # raw: the glare line locks its vectors near zero displacement (error ~|d| = 3.5 px)
-    assert raw[0] > 0.5 and raw[1] > 1.0, raw
+    # raw: the glare line locks its vectors near zero displacement (error ~|d| = 3.5 px); the
+    # second correlation peak recovers some of them (RMS 0.44 px, 0.93 px without it)
+    assert raw[0] > 0.3 and raw[1] > 1.0, raw
     # the edge ring of windows pushed past the frame is invalid in all runs (22 % of 285)
     for name, (rms, glare, valid) in {"near_wall": near_wall, "high_pass": high_pass,
                                       "min_max": min_max}.items():  # fmt: skip
@@ -161,6 +162,11 @@ def test_campaign_preprocess_section_runs_with_the_run_background(tmp_path):
     cfg = load_campaign_config(d / "campaign.toml")
     cfg.correction.compare_uncorrected = False
     cfg.output.report = False
+    # the campaign's default is the near-wall conditioning: off for the raw run
+    assert cfg.preprocess.settings() == NEAR_WALL
+    cfg.preprocess.background = "none"
+    cfg.preprocess.hot_pixels = 0.0
+    cfg.preprocess.high_pass = 0.0
     cfg.save(d / "raw.toml")
     cfg.preprocess.background = "min"
     cfg.preprocess.hot_pixels = 3.0

@@ -48,11 +48,11 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # polygons in px (rspiv.io.read_mask); "" : none
 
     [preprocess]                 # rspiv.preprocess.Preprocess, applied to the raw frames
-                                 # before every PIV (all off by default; near-wall data:
-                                 # background = "min", hot_pixels = 3, high_pass = 2)
-    background = "none"          # "none" | "min" | "mean": over the run, per frame A and B
-    hot_pixels = 0.0             # factor over the brightest neighbour (0: off)
-    high_pass = 0.0              # Gaussian sigma, px (0: off)
+                                 # before every PIV; the defaults are rspiv.preprocess.NEAR_WALL
+                                 # (all three below "none"/0: the raw intensities)
+    background = "min"           # "none" | "min" | "mean": over the run, per frame A and B
+    hot_pixels = 3.0             # factor over the brightest neighbour (0: off)
+    high_pass = 2.0              # Gaussian sigma, px (0: off)
     cap = 0.0                    # cap at mean + cap * std (0: off)
     min_max = 0                  # min-max normalisation window, px (0: off)
 
@@ -216,14 +216,16 @@ class PIVConfig:
 
 @dataclasses.dataclass
 class PreprocessConfig:
-    """The ``[preprocess]`` section: the keys of :class:`rspiv.preprocess.Preprocess` (all off
-    by default; ``rspiv.preprocess.NEAR_WALL`` is background = "min", hot_pixels = 3,
-    high_pass = 2). The background is estimated over the whole run, per frame A and B."""
+    """The ``[preprocess]`` section: the keys of :class:`rspiv.preprocess.Preprocess`. The
+    defaults are ``rspiv.preprocess.NEAR_WALL`` (background = "min", hot_pixels = 3,
+    high_pass = 2: what a boundary-layer recording needs, tests/test_campaign_lighting.py);
+    ``background = "none"``, ``hot_pixels = 0``, ``high_pass = 0`` turn it off. The background
+    is estimated over the whole run, per frame A and B."""
 
-    background: str = "none"
+    background: str = "min"
     percentile: float = 5.0
-    hot_pixels: float = 0.0
-    high_pass: float = 0.0
+    hot_pixels: float = 3.0
+    high_pass: float = 2.0
     cap: float = 0.0
     min_max: int = 0
 

@@ -37,6 +37,7 @@ from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text, write_netcdf
 from rspiv.report import ReportSection, ReportTable
 from rspiv.stats import FieldAccumulator
+from rspiv.synth.lighting import Lighting, wall_rows
 from rspiv.synth.target import PAPER_OPTICS, calibration_target, paper_lens
 from rspiv.synth.tbl import TBLFlow, tbl_pair
 
@@ -76,6 +77,9 @@ class DemoScene:
         Monte Carlo samples of the campaign file.
     passes : tuple
         Interrogation windows (w, h), coarse to fine.
+    lighting : rspiv.synth.lighting.Lighting, optional
+        Background, gradient, glare line at the wall and drift added to every frame (a real
+        recording's lighting); None: particles on the camera noise only.
     """
 
     scale: float = 0.4
@@ -90,6 +94,7 @@ class DemoScene:
     wall_angle_deg: float = 0.04
     monte_carlo_samples: int = 20000
     passes: tuple[tuple[int, int], ...] = ((64, 64), (32, 32), (32, 8))
+    lighting: Lighting | None = None
 
     def flow(self):
 
@@ -215,6 +220,10 @@ def synth_campaign(
             magnification=PAPER_M / scene.scale,
             lens=lens,
         )
+        if scene.lighting is not None:
+            rows = wall_rows(truth)
+            a = scene.lighting.apply(a, rows, 0, k, scene.pairs)
+            b = scene.lighting.apply(b, rows, 1, k, scene.pairs)
         tifffile.imwrite(root / "raw" / f"pair_{k:05d}_a.tif", a)
         tifffile.imwrite(root / "raw" / f"pair_{k:05d}_b.tif", b)
         us, vn = _filtered_truth(truth, xs, d, scene.passes[-1])

@@ -31,7 +31,8 @@ background over the run (per frame A and B), hot pixels (factor 3) and a high-pa
 (glare lines and light gradients are far wider than 2-3 px particle images). Measured on a pair
 with a static glare line (6 px sigma), light gradients that differ between the frames, hot pixels
 and particles of 10x different brightness (tests/test_preprocess.py): RMS error of the valid
-vectors 0.93 px raw (the glare line locks its vectors near zero), 0.027 px with a 2 px high-pass,
+vectors 0.44 px raw (the glare line locks its vectors near zero; 0.93 px without the second
+correlation peak, ``PivSettings.peak_candidates``), 0.027 px with a 2 px high-pass,
 0.031 px with 3 px, 0.049 px with 4 px; capping at 2 standard deviations on top raises it to
 0.12 px (it flattens the particle images of a sparse, high-passed frame), so it is not a default.
 """

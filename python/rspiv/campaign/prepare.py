@@ -93,7 +93,9 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     if image_shape is None:
         image_shape = _first_shape(pairs)
     pre = cfg.preprocess.settings()
-    background_paths = _backgrounds(camp, pairs, pre, out) if pre.background != "none" else None
+    background_paths = (
+        _backgrounds(camp, pairs, pre, out, image_shape) if pre.background != "none" else None
+    )
     base = PairContext(
         runs=runs,
         image_shape=image_shape,
@@ -162,15 +164,29 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     )
     return ctx
 
-def _backgrounds(camp, pairs: list[PairSpec], pre, out: pathlib.Path) -> tuple[str, str]:
+def _backgrounds(
+    camp, pairs: list[PairSpec], pre, out: pathlib.Path, shape: tuple[int, int]
+) -> tuple[str, str]:
     """The run's backgrounds of frames A and B (``pre.background``: min or mean over every
-    pair), streaming over the files (one frame in memory), saved as ``OUT/background_a.npy``
-    and ``background_b.npy``."""
+    pair), streaming over the files (one pair in memory), saved as ``OUT/background_a.npy``
+    and ``background_b.npy``. A pair that cannot be read or is not of the run's ``shape`` is
+    left out here (the pair step reports it as skipped)."""
     t0 = time.perf_counter()
     est = (Background(pre.background), Background(pre.background))
+    used = 0
     for p in pairs:
-        est[0].add(p.a, 0 if p.frame_a is None else p.frame_a)
-        est[1].add(p.b, 0 if p.frame_b is None else p.frame_b)
+        try:
+            a = pair_work.read_frame(p.a, p.frame_a)
+            b = pair_work.read_frame(p.b, p.frame_b)
+        except (RspivError, ValueError, OSError):
+            continue
+        if a.shape != tuple(shape) or b.shape != tuple(shape):
+            continue
+        est[0].add(a)
+        est[1].add(b)
+        used += 1
+    if not used:
+        raise InvalidInputError("background: no readable image pair of the run's shape")
     paths = []
     for name, e in zip(("a", "b"), est, strict=True):
         path = out / f"background_{name}.npy"
@@ -179,7 +195,7 @@ def _backgrounds(camp, pairs: list[PairSpec], pre, out: pathlib.Path) -> tuple[s
                 np.save(fh, e.value)
         paths.append(str(path))
     camp.say(
-        f"background ({pre.background}) of frames A and B over {len(pairs)} pair(s) "
+        f"background ({pre.background}) of frames A and B over {used} pair(s) "
         f"({time.perf_counter() - t0:.1f} s)"
     )
     return paths[0], paths[1]
