@@ -14,8 +14,11 @@ library on the same 2 threads (``cv2.setNumThreads(2)``, rayon's default pool):
 - ``near-wall default``: ``rspiv.preprocess.NEAR_WALL`` (hot pixels, background, high-pass).
 
 OpenCV: ``cv2.subtract``/``np.maximum``, ``cv2.erode``/``cv2.dilate`` (rectangular 15 x 15:
-running min/max) + ``cv2.blur``, ``cv2.GaussianBlur``; numpy does the arithmetic. rspiv's time
-includes the float32 copy of each frame.
+running min/max) + ``cv2.blur``, ``cv2.GaussianBlur``; numpy does the arithmetic. rspiv computes
+the min-max envelopes on 5 px cells (extreme over 3 x 3 cells, mean over 3 x 3 cells, bilinear
+to each pixel: ``piv-core/src/condition.rs`` step 5), the same window and smoothing lengths
+without running filters. Both sides' times include the conversion of the uint16 frame to
+float32 (rspiv fuses it with the first step).
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ def main() -> None:
         stack = pathlib.Path(tmp) / "stack.tif"
         twelve = pathlib.Path(tmp) / "frame12.tif"
         tifffile.imwrite(single, frame)
-        tifffile.imwrite(stack, np.stack([frame, frame, frame]))
+        tifffile.imwrite(stack, np.stack([frame, frame, frame]), photometric="minisblack")
         tifffile.imwrite(twelve, frame >> 4)
         cases = [
             ("single page uint16", lambda: read_image(single), lambda: tifffile.imread(single)),

@@ -197,23 +197,22 @@ def condition(frame: Any, settings: Preprocess, background: Any = None) -> np.nd
     if not isinstance(settings, Preprocess):
         raise InvalidInputError(f"settings must be a Preprocess, got {type(settings).__name__}")
     a = read_image(frame)
-    out = np.array(a, dtype=np.float32, order="C", copy=True)
     bg = None
     if background is not None:
         bg = np.ascontiguousarray(background, dtype=np.float32)
-        if bg.shape != out.shape:
+        if bg.shape != a.shape:
             raise InvalidInputError(
-                f"background {bg.shape} differs in shape from the frame {out.shape}"
+                f"background {bg.shape} differs in shape from the frame {a.shape}"
             )
-    _rspiv.condition(
-        out,
+    # the float32 copy is made in Rust, fused with the first steps
+    return _rspiv.conditioned(
+        a,
         hot_pixels=settings.hot_pixels or None,
         high_pass=settings.high_pass or None,
         cap=settings.cap or None,
         min_max=settings.min_max or None,
         background=bg,
     )
-    return out
 
 
 def condition_pair(

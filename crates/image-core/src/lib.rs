@@ -6,7 +6,8 @@
 //!   B-splines) and the index helpers of their borders (floor, mirror);
 //! - [`spline`]: Unser's recursive B-spline prefilter (mirror boundaries), whose coefficients the
 //!   B-spline kernels interpolate;
-//! - [`fft`]: FFT sizing (the next 5-smooth length).
+//! - [`fft`]: FFT sizing (the next 5-smooth length);
+//! - [`buffer`]: whole-frame scratch buffers that are cheap to first touch.
 //!
 //! Pixel frame (every crate of rspiv): x = column, y = row, origin at the centre of the top-left
 //! pixel, y down; positions in px.
@@ -14,11 +15,13 @@
 //! Nothing here fails: the kernels are total functions of their inputs (callers check their
 //! images), so the crate has no error type.
 
+pub mod buffer;
 pub mod fft;
 pub mod kernels;
 pub mod pixel;
 pub mod spline;
 
+pub use buffer::zeroed_frame;
 pub use fft::fast_len;
 pub use kernels::{bspline5_weights, bspline_weights, keys_kernel, keys_weights, Weights};
 pub use pixel::{Pixel, PixelKind};

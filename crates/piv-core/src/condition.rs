@@ -22,15 +22,21 @@
 //!    (Shavit, Lowe & Steinbuck 2007, Exp. Fluids 42, with the mean in place of the median), so
 //!    that a few bright particles or a residual glare do not dominate a window;
 //! 5. **min-max normalisation** (`min_max_window = n` px): the local minimum and maximum over
-//!    an `n` x `n` neighbourhood, each smoothed by an `n` x `n` box, and
+//!    about `n` x `n` px, each smoothed over about `n` x `n` px, and
 //!    `I <- (I - min) / max(max - min, 1e-6 * (global max - global min))` clipped to `[0, 1]`:
-//!    particles of every brightness and in every part of the sheet get the same contrast.
+//!    particles of every brightness and in every part of the sheet get the same contrast. The
+//!    envelopes are computed on cells of `c = round(n / 3)` px (3 x 3 cells span `n` px): the
+//!    minimum and maximum of each cell, the extreme over each cell's 3 x 3 cells (`3c` px), the
+//!    mean of that over 3 x 3 cells, and bilinear interpolation between the cell centres to
+//!    every pixel. The envelopes vary smoothly over `n` px and need nothing finer: this costs
+//!    two passes over the frame instead of a running filter's many.
 //!
 //! Units: intensities in the frame's counts until step 5, dimensionless after it; lengths in px.
 //! Pixel frame of the crate (x = column, y = row).
 
 use crate::error::{PivError, Result};
-use ndarray::{ArrayView2, ArrayViewMut2};
+use image_core::Pixel;
+use ndarray::{Array2, ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
 
 /// Which conditioning steps run, with their parameters (`None` or 0: off). See the module docs.
@@ -77,7 +83,9 @@ impl Conditioning {
 ///
 /// # Errors
 /// [`PivError::InvalidInput`] for a non-contiguous or empty image, a background of another
-/// shape, NaN/inf pixels, or parameters out of range.
+/// shape, NaN/inf pixels, or parameters out of range. After a NaN/inf error the frame may
+/// already hold the background subtraction (the check is fused with it); callers condition a
+/// copy (`rspiv.preprocess.condition` does).
 pub fn condition(
     mut img: ArrayViewMut2<'_, f32>,
     c: &Conditioning,
@@ -85,12 +93,154 @@ pub fn condition(
 ) -> Result<()> {
     c.check()?;
     let (h, w) = img.dim();
+    check_shapes((h, w), &background)?;
+    let buf = img
+        .as_slice_mut()
+        .ok_or_else(|| PivError::InvalidInput("image must be C-contiguous".into()))?;
+    let non_finite =
+        || PivError::InvalidInput("image contains NaN or infinite pixel values".into());
+    match (c.hot_pixels, &background) {
+        // the finite check fused with the subtraction (one pass over the frame)
+        (None, Some(b)) => {
+            let b = b.as_standard_layout();
+            let bs = b.as_slice().expect("standard layout");
+            let bad = buf
+                .par_chunks_mut(1 << 16)
+                .zip(bs.par_chunks(1 << 16))
+                .map(|(v, b)| {
+                    let mut ok = true;
+                    for (v, &b) in v.iter_mut().zip(b) {
+                        ok &= v.is_finite();
+                        *v = (*v - b).max(0.0);
+                    }
+                    !ok
+                })
+                .reduce(|| false, |a, b| a || b);
+            if bad {
+                return Err(non_finite());
+            }
+        }
+        _ => {
+            if buf.par_iter().any(|v| !v.is_finite()) {
+                return Err(non_finite());
+            }
+            if let Some(f) = c.hot_pixels {
+                remove_hot_pixels(buf, w, h, f);
+            }
+            if let Some(b) = background {
+                let b = b.as_standard_layout();
+                let bs = b.as_slice().expect("standard layout");
+                buf.par_iter_mut()
+                    .zip(bs.par_iter())
+                    .for_each(|(v, &b)| *v = (*v - b).max(0.0));
+            }
+        }
+    }
+    later_steps(buf, w, h, c);
+    Ok(())
+}
+
+/// The conditioned copy of a frame of any pixel type as a new `f32` array (module docs): the
+/// conversion to `f32` fused with the finite check (float pixels only; integers are always
+/// finite) and, without hot pixels, with the background subtraction: one pass fewer than
+/// copying first and calling [`condition`].
+///
+/// # Errors
+/// As [`condition`].
+pub fn conditioned<T: Pixel>(
+    img: ArrayView2<'_, T>,
+    c: &Conditioning,
+    background: Option<ArrayView2<'_, f32>>,
+) -> Result<Array2<f32>> {
+    let (h, w) = img.dim();
+    let mut out =
+        Array2::from_shape_vec((h, w), image_core::zeroed_frame(h * w)).expect("h * w values");
+    conditioned_into(img, out.view_mut(), c, background)?;
+    Ok(out)
+}
+
+/// [`conditioned`] into a given C-contiguous `f32` frame of the same shape (its contents are
+/// overwritten; a caller's allocator may be faster to first touch than a fresh `Vec`: numpy's
+/// uses huge pages for large arrays, which the Python binding relies on).
+///
+/// # Errors
+/// As [`condition`], and for an output of another shape or not C-contiguous.
+pub fn conditioned_into<T: Pixel>(
+    img: ArrayView2<'_, T>,
+    mut out: ArrayViewMut2<'_, f32>,
+    c: &Conditioning,
+    background: Option<ArrayView2<'_, f32>>,
+) -> Result<()> {
+    c.check()?;
+    let (h, w) = img.dim();
+    check_shapes((h, w), &background)?;
+    if out.dim() != (h, w) {
+        return Err(PivError::InvalidInput(format!(
+            "output {:?} differs in shape from the frame {:?}",
+            out.dim(),
+            (h, w)
+        )));
+    }
+    let img = img.as_standard_layout();
+    let src = img.as_slice().expect("standard layout");
+    let bg = background.as_ref().map(|b| b.as_standard_layout());
+    let bs = bg.as_ref().map(|b| b.as_slice().expect("standard layout"));
+    let buf = out
+        .as_slice_mut()
+        .ok_or_else(|| PivError::InvalidInput("output must be C-contiguous".into()))?;
+    const CHUNK: usize = 1 << 16;
+    // convert (and subtract the background when nothing comes before it)
+    let fused = if c.hot_pixels.is_none() { bs } else { None };
+    let finite = buf
+        .par_chunks_mut(CHUNK)
+        .zip(src.par_chunks(CHUNK))
+        .enumerate()
+        .map(|(k, (d, s))| {
+            let mut ok = true;
+            match fused {
+                Some(b) => {
+                    for ((d, &s), &b) in d.iter_mut().zip(s).zip(&b[k * CHUNK..]) {
+                        ok &= s.is_finite_px();
+                        *d = (s.to_f32() - b).max(0.0);
+                    }
+                }
+                None => {
+                    for (d, &s) in d.iter_mut().zip(s) {
+                        ok &= s.is_finite_px();
+                        *d = s.to_f32();
+                    }
+                }
+            }
+            ok
+        })
+        .reduce(|| true, |a, b| a && b);
+    if !finite {
+        return Err(PivError::InvalidInput(
+            "image contains NaN or infinite pixel values".into(),
+        ));
+    }
+    if fused.is_none() {
+        if let Some(f) = c.hot_pixels {
+            remove_hot_pixels(buf, w, h, f);
+        }
+        if let Some(b) = bs {
+            buf.par_iter_mut()
+                .zip(b.par_iter())
+                .for_each(|(v, &b)| *v = (*v - b).max(0.0));
+        }
+    }
+    later_steps(buf, w, h, c);
+    Ok(())
+}
+
+/// A non-empty frame and a background of its shape.
+fn check_shapes((h, w): (usize, usize), background: &Option<ArrayView2<'_, f32>>) -> Result<()> {
     if h == 0 || w == 0 {
         return Err(PivError::InvalidInput(format!(
             "image is empty ({h} x {w})"
         )));
     }
-    if let Some(b) = &background {
+    if let Some(b) = background {
         if b.dim() != (h, w) {
             return Err(PivError::InvalidInput(format!(
                 "background {:?} differs in shape from the frame {:?}",
@@ -99,24 +249,11 @@ pub fn condition(
             )));
         }
     }
-    let buf = img
-        .as_slice_mut()
-        .ok_or_else(|| PivError::InvalidInput("image must be C-contiguous".into()))?;
-    if buf.par_iter().any(|v| !v.is_finite()) {
-        return Err(PivError::InvalidInput(
-            "image contains NaN or infinite pixel values".into(),
-        ));
-    }
-    if let Some(f) = c.hot_pixels {
-        remove_hot_pixels(buf, w, h, f);
-    }
-    if let Some(b) = background {
-        let b = b.as_standard_layout();
-        let bs = b.as_slice().expect("standard layout");
-        buf.par_iter_mut()
-            .zip(bs.par_iter())
-            .for_each(|(v, &b)| *v = (*v - b).max(0.0));
-    }
+    Ok(())
+}
+
+/// Steps 3-5 (high-pass, cap, min-max normalisation), each when switched on.
+fn later_steps(buf: &mut [f32], w: usize, h: usize, c: &Conditioning) {
     if let Some(s) = c.high_pass_sigma {
         high_pass(buf, w, h, s);
     }
@@ -128,7 +265,6 @@ pub fn condition(
     if let Some(n) = c.min_max_window {
         min_max_normalise(buf, w, h, n);
     }
-    Ok(())
 }
 
 /// Mean and standard deviation (f64 accumulation, chunks in parallel).
@@ -150,34 +286,45 @@ fn mean_std(buf: &[f32]) -> (f64, f64) {
 /// Hot pixels (module docs, step 1); border pixels use their neighbours inside the image.
 /// Reads a copy of the frame (one extra frame of memory), rows in parallel.
 fn remove_hot_pixels(buf: &mut [f32], w: usize, h: usize, factor: f32) {
-    let src = buf.to_vec();
-    buf.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let up = &src[y.saturating_sub(1) * w..][..w];
-        let mid = &src[y * w..][..w];
-        let down = &src[(y + 1).min(h - 1) * w..][..w];
-        let (has_up, has_down) = (y > 0, y + 1 < h);
-        for (x, v) in row.iter_mut().enumerate() {
-            if *v <= 0.0 {
-                continue;
-            }
-            let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
-            let mut m = f32::NEG_INFINITY;
-            for xx in x0..=x1 {
-                if has_up {
-                    m = m.max(up[xx]);
+    let mut src = image_core::zeroed_frame(buf.len());
+    src.par_chunks_mut(1 << 16)
+        .zip(buf.par_chunks(1 << 16))
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    let gt = |a: f32, b: f32| if a > b { a } else { b };
+    buf.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![f32::NEG_INFINITY; w],
+        |m, (y, row)| {
+            // m[x]: the brightest of the 8 neighbours (those inside the frame)
+            m.fill(f32::NEG_INFINITY);
+            let line = |yy: usize| &src[yy * w..(yy + 1) * w];
+            let rows = [
+                (y > 0).then(|| line(y - 1)),
+                (y + 1 < h).then(|| line(y + 1)),
+            ];
+            for nb in rows.into_iter().flatten() {
+                for (o, &v) in m.iter_mut().zip(nb) {
+                    *o = gt(*o, v);
                 }
-                if has_down {
-                    m = m.max(down[xx]);
+                for (o, &v) in m[1..].iter_mut().zip(nb) {
+                    *o = gt(*o, v);
                 }
-                if xx != x {
-                    m = m.max(mid[xx]);
+                for (o, &v) in m.iter_mut().zip(&nb[1..]) {
+                    *o = gt(*o, v);
                 }
             }
-            if m > f32::NEG_INFINITY && *v > factor * m.max(0.0) {
-                *v = m;
+            let mid = line(y);
+            for (o, &v) in m[1..].iter_mut().zip(mid) {
+                *o = gt(*o, v);
             }
-        }
-    });
+            for (o, &v) in m.iter_mut().zip(&mid[1..]) {
+                *o = gt(*o, v);
+            }
+            for (v, &m) in row.iter_mut().zip(m.iter()) {
+                let hot = *v > 0.0 && m > f32::NEG_INFINITY && *v > factor * gt(m, 0.0);
+                *v = if hot { m } else { *v };
+            }
+        },
+    );
 }
 
 /// Whole-sample mirror index into `0..n` (n >= 1).
@@ -226,178 +373,247 @@ fn gauss_row(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
     }
 }
 
-/// For every output row `y` (in parallel): `out(y, row)` gets the rows `y - r ..= y + r` of
-/// `src` (mirrored beyond the image) one at a time with their offset `j - r` through
-/// `acc(out_row, src_row, j)`, after `init(out_row)`. Whole rows at a time: contiguous and
-/// vectorised, no column gathers.
-fn vertical(
-    src: &[f32],
-    out: &mut [f32],
-    w: usize,
-    h: usize,
-    r: usize,
-    init: impl Fn(&mut [f32]) + Sync,
-    acc: impl Fn(&mut [f32], &[f32], usize) + Sync,
-) {
-    out.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
-        init(o);
-        for j in 0..=2 * r {
-            let yy = mirror(y as isize + j as isize - r as isize, h);
-            acc(o, &src[yy * w..(yy + 1) * w], j);
-        }
-    });
-}
-
-/// Separable Gaussian blur of `buf` into `out` (`tmp`: scratch of the same size).
-pub(crate) fn gaussian_blur_into(
-    buf: &[f32],
-    tmp: &mut [f32],
-    out: &mut [f32],
-    w: usize,
-    h: usize,
-    sigma: f32,
-) {
+/// High-pass in place: `buf -= G_sigma * buf` (module docs, step 3): the horizontal blur of
+/// the frame into one scratch frame, then per output row (in parallel) the vertical blur into a
+/// row buffer, subtracted from the row (the frame itself is not read again).
+fn high_pass(buf: &mut [f32], w: usize, h: usize, sigma: f32) {
     let (k, r) = gaussian_taps(sigma);
-    rows_into(buf, tmp, w, |s, d| gauss_row(&k, r, s, d));
-    vertical(
-        tmp,
-        out,
-        w,
-        h,
-        r,
-        |o| o.fill(0.0),
-        |o, s, j| {
-            let kj = k[j];
-            o.iter_mut().zip(s).for_each(|(o, s)| *o += kj * s);
+    let mut tmp = image_core::zeroed_frame(buf.len());
+    rows_into(buf, &mut tmp, w, |s, d| gauss_row(&k, r, s, d));
+    buf.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![0.0f32; w],
+        |low, (y, row)| {
+            low.fill(0.0);
+            for (j, &kj) in k.iter().enumerate() {
+                let yy = mirror(y as isize + j as isize - r as isize, h);
+                for (o, &s) in low.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                    *o += kj * s;
+                }
+            }
+            for (v, &l) in row.iter_mut().zip(low.iter()) {
+                *v -= l;
+            }
         },
     );
 }
 
-/// High-pass in place: `buf -= G_sigma * buf` (module docs, step 3).
-fn high_pass(buf: &mut [f32], w: usize, h: usize, sigma: f32) {
-    let mut tmp = vec![0.0f32; buf.len()];
-    let mut low = vec![0.0f32; buf.len()];
-    gaussian_blur_into(buf, &mut tmp, &mut low, w, h, sigma);
-    buf.par_iter_mut()
-        .zip(low.par_iter())
-        .for_each(|(v, &l)| *v -= l);
+/// The cell size of the min-max normalisation for an `n` px window: 3 x 3 cells span about
+/// `n` px (`round(n / 3)`, at least 1).
+fn cell_size(n: usize) -> usize {
+    ((n + 1) / 3).max(1)
 }
 
-/// Running minimum (`max = false`) or maximum of one row over a centred window of `n`
-/// samples clipped at the ends (the clipped window's extreme equals that of the window over
-/// the edge-replicated row): `n` passes of elementwise min/max over shifted slices.
-fn extreme_row(src: &[f32], dst: &mut [f32], n: usize, max: bool) {
-    let len = src.len();
-    let half = (n / 2) as isize;
-    dst.copy_from_slice(src);
-    for off in -half..=half {
-        if off == 0 {
-            continue;
-        }
-        // dst[i] op= src[clamp(i + off)]
-        let (lo, hi) = if off > 0 {
-            (0, len.saturating_sub(off as usize))
-        } else {
-            ((-off) as usize, len)
-        };
-        let shifted = |i: usize| (i as isize + off) as usize;
-        if lo < hi {
-            let s = &src[shifted(lo)..shifted(lo) + (hi - lo)];
-            let d = &mut dst[lo..hi];
-            if max {
-                d.iter_mut().zip(s).for_each(|(d, &s)| *d = d.max(s));
-            } else {
-                d.iter_mut().zip(s).for_each(|(d, &s)| *d = d.min(s));
-            }
-        }
-    }
-}
-
-/// Box mean of one row over a centred window of `n` samples clipped at the ends (prefix sums
-/// in f64).
-fn mean_row(src: &[f32], dst: &mut [f32], n: usize) {
-    let len = src.len();
-    let half = n / 2;
-    let mut acc = 0.0f64;
-    // the running sum over [lo, hi)
-    let (mut lo, mut hi) = (0usize, 0usize);
-    for (i, d) in dst.iter_mut().enumerate() {
-        let want_hi = (i + half + 1).min(len);
-        let want_lo = i.saturating_sub(half);
-        while hi < want_hi {
-            acc += src[hi] as f64;
-            hi += 1;
-        }
-        while lo < want_lo {
-            acc -= src[lo] as f64;
-            lo += 1;
-        }
-        *d = (acc / (hi - lo) as f64) as f32;
-    }
-}
-
-/// The local minimum or maximum over `n` x `n` (clipped at the borders) smoothed by an `n` x
-/// `n` box (clipped): `env` gets it, `tmp` is scratch.
-fn envelope(
-    buf: &[f32],
-    tmp: &mut [f32],
-    env: &mut [f32],
-    w: usize,
-    h: usize,
-    n: usize,
-    max: bool,
-) {
-    let r = n / 2;
-    rows_into(buf, tmp, w, |s, d| extreme_row(s, d, n, max));
-    // vertical extreme over rows clamped to the image (replicating the edge rows leaves the
-    // extreme of the clipped window unchanged)
-    env.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
-        let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
-        o.copy_from_slice(&tmp[y0 * w..(y0 + 1) * w]);
-        for yy in y0 + 1..=y1 {
-            let s = &tmp[yy * w..(yy + 1) * w];
-            if max {
-                o.iter_mut().zip(s).for_each(|(o, &s)| *o = o.max(s));
-            } else {
-                o.iter_mut().zip(s).for_each(|(o, &s)| *o = o.min(s));
-            }
-        }
-    });
-    rows_into(env, tmp, w, |s, d| mean_row(s, d, n));
-    env.par_chunks_mut(w).enumerate().for_each(|(y, o)| {
-        let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
-        o.fill(0.0);
-        for yy in y0..=y1 {
-            o.iter_mut()
-                .zip(&tmp[yy * w..(yy + 1) * w])
-                .for_each(|(o, &s)| *o += s);
-        }
-        let inv = 1.0 / (y1 - y0 + 1) as f32;
-        o.iter_mut().for_each(|o| *o *= inv);
-    });
-}
-
-/// Min-max normalisation (module docs, step 5). Peak memory: three extra frames of f32.
-fn min_max_normalise(buf: &mut [f32], w: usize, h: usize, n: usize) {
-    let mut tmp = vec![0.0f32; buf.len()];
-    let mut lo = vec![0.0f32; buf.len()];
-    let mut hi = vec![0.0f32; buf.len()];
-    envelope(buf, &mut tmp, &mut lo, w, h, n, false);
-    envelope(buf, &mut tmp, &mut hi, w, h, n, true);
-    let (gmin, gmax) = buf
-        .par_iter()
-        .fold(
-            || (f32::INFINITY, f32::NEG_INFINITY),
-            |(a, b), &v| (a.min(v), b.max(v)),
-        )
-        .reduce(
-            || (f32::INFINITY, f32::NEG_INFINITY),
-            |x, y| (x.0.min(y.0), x.1.max(y.1)),
+/// The minimum and maximum of every `c` x `c` cell of the frame (the last cells clipped at the
+/// frame's edge), row-major `(ch, cw)`: one pass over the frame, rows in parallel bands of `c`.
+fn cell_extremes(buf: &[f32], w: usize, h: usize, c: usize) -> (Vec<f32>, Vec<f32>, usize, usize) {
+    let (cw, ch) = (w.div_ceil(c), h.div_ceil(c));
+    let mut lo = vec![0.0f32; cw * ch];
+    let mut hi = vec![0.0f32; cw * ch];
+    lo.par_chunks_mut(cw)
+        .zip(hi.par_chunks_mut(cw))
+        .enumerate()
+        .for_each_init(
+            || (vec![0.0f32; w], vec![0.0f32; w]),
+            |(rmin, rmax), (cy, (l, u))| {
+                // elementwise extremes over the band's rows, then per cell along the row
+                let rows = &buf[cy * c * w..((cy + 1) * c).min(h) * w];
+                rmin.copy_from_slice(&rows[..w]);
+                rmax.copy_from_slice(&rows[..w]);
+                for row in rows.chunks_exact(w).skip(1) {
+                    for ((a, b), &v) in rmin.iter_mut().zip(rmax.iter_mut()).zip(row) {
+                        *a = if v < *a { v } else { *a };
+                        *b = if v > *b { v } else { *b };
+                    }
+                }
+                for (((l, u), a), b) in l
+                    .iter_mut()
+                    .zip(u.iter_mut())
+                    .zip(rmin.chunks(c))
+                    .zip(rmax.chunks(c))
+                {
+                    *l = a.iter().fold(f32::INFINITY, |m, &v| m.min(v));
+                    *u = b.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+                }
+            },
         );
+    (lo, hi, cw, ch)
+}
+
+/// `out[i] = op(x[i - 1], x[i], x[i + 1])` over one line, clipped at the ends: `edge` gives
+/// the value of the two-element windows at the ends (and `single` of a one-element line).
+#[inline]
+fn three_tap(
+    x: &[f32],
+    out: &mut [f32],
+    op: impl Fn(f32, f32, f32) -> f32,
+    edge: impl Fn(f32, f32) -> f32,
+    single: impl Fn(f32) -> f32,
+) {
+    let n = x.len();
+    if n == 1 {
+        out[0] = single(x[0]);
+        return;
+    }
+    out[0] = edge(x[0], x[1]);
+    out[n - 1] = edge(x[n - 2], x[n - 1]);
+    for (((o, &a), &b), &c) in out[1..n - 1].iter_mut().zip(x).zip(&x[1..]).zip(&x[2..]) {
+        *o = op(a, b, c);
+    }
+}
+
+/// A clipped 3 x 3 filter of a `cw` x `ch` grid, separably: [`three_tap`] along x, then along
+/// y (rows in parallel).
+fn three_by_three<O, E>(src: &[f32], dst: &mut [f32], cw: usize, ch: usize, op: O, edge: E)
+where
+    O: Fn(f32, f32, f32) -> f32 + Sync + Copy,
+    E: Fn(f32, f32) -> f32 + Sync + Copy,
+{
+    let mut t = vec![0.0f32; cw * ch];
+    t.par_chunks_mut(cw)
+        .zip(src.par_chunks(cw))
+        .for_each(|(o, r)| three_tap(r, o, op, edge, |a| a));
+    dst.par_chunks_mut(cw).enumerate().for_each(|(j, o)| {
+        let row = |jj: usize| &t[jj * cw..(jj + 1) * cw];
+        if ch == 1 {
+            o.copy_from_slice(row(0));
+        } else if j == 0 || j == ch - 1 {
+            let (a, b) = if j == 0 {
+                (row(0), row(1))
+            } else {
+                (row(ch - 2), row(ch - 1))
+            };
+            for ((o, &a), &b) in o.iter_mut().zip(a).zip(b) {
+                *o = edge(a, b);
+            }
+        } else {
+            let (a, b, c) = (row(j - 1), row(j), row(j + 1));
+            for (((o, &a), &b), &c) in o.iter_mut().zip(a).zip(b).zip(c) {
+                *o = op(a, b, c);
+            }
+        }
+    });
+}
+
+/// The extreme (`max` or min) of each cell's 3 x 3 neighbourhood of cells (clipped at the
+/// edges), then the mean over each cell's 3 x 3 neighbourhood (clipped): the envelope at the
+/// cell centres (a clipped 3 x 3 window is a rectangle, so both go separably).
+fn smooth_envelope(cells: &[f32], cw: usize, ch: usize, max: bool) -> Vec<f32> {
+    let mut ext = vec![0.0f32; cw * ch];
+    if max {
+        let m2 = |a: f32, b: f32| a.max(b);
+        three_by_three(cells, &mut ext, cw, ch, move |a, b, c| m2(m2(a, b), c), m2);
+    } else {
+        let m2 = |a: f32, b: f32| a.min(b);
+        three_by_three(cells, &mut ext, cw, ch, move |a, b, c| m2(m2(a, b), c), m2);
+    }
+    let mut env = vec![0.0f32; cw * ch];
+    three_by_three(
+        &ext,
+        &mut env,
+        cw,
+        ch,
+        |a, b, c| (a + b + c) * (1.0 / 3.0),
+        |a, b| 0.5 * (a + b),
+    );
+    env
+}
+
+/// Linear interpolation weights between cell centres (`(t + 0.5) c - 0.5` px) for the pixels
+/// `0..len`: the lower cell and the weight of the upper one, constant beyond the first and last
+/// centres.
+fn cell_lerp(len: usize, cells: usize, c: usize) -> Vec<(usize, f32)> {
+    (0..len)
+        .map(|p| {
+            let t = ((p as f32 + 0.5) / c as f32 - 0.5).clamp(0.0, (cells - 1) as f32);
+            let i = (t.floor() as usize).min(cells.saturating_sub(2));
+            (i, if cells > 1 { t - i as f32 } else { 0.0 })
+        })
+        .collect()
+}
+
+/// Min-max normalisation (module docs, step 5): the envelopes at the cell centres
+/// ([`cell_extremes`], [`smooth_envelope`]) interpolated bilinearly to every pixel. The rows
+/// between two rows of cell centres form a band (groups of bands in parallel): the centre rows
+/// are interpolated along x once, and each pixel row of a band is the vectorised linear blend
+/// of its two. Two passes over the frame; extra memory: the cell grids (`2 / c^2` of the
+/// frame) and four rows per task.
+fn min_max_normalise(buf: &mut [f32], w: usize, h: usize, n: usize) {
+    let c = cell_size(n);
+    let (lo, hi, cw, ch) = cell_extremes(buf, w, h, c);
+    let gmin = lo.iter().fold(f32::INFINITY, |m, &v| m.min(v));
+    let gmax = hi.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
     let floor = (1e-6 * (gmax - gmin)).max(f32::MIN_POSITIVE);
-    buf.par_iter_mut()
-        .zip(lo.par_iter().zip(hi.par_iter()))
-        .for_each(|(v, (&l, &u))| *v = ((*v - l) / (u - l).max(floor)).clamp(0.0, 1.0));
+    let (lo, hi) = (
+        smooth_envelope(&lo, cw, ch, false),
+        smooth_envelope(&hi, cw, ch, true),
+    );
+    let xs = cell_lerp(w, cw, c);
+    let ys = cell_lerp(h, ch, c);
+    // bands of rows sharing their lower cell-centre row
+    let mut bands: Vec<(usize, usize, &mut [f32])> = Vec::new();
+    let mut rest = buf;
+    let mut y = 0;
+    while y < h {
+        let j = ys[y].0;
+        let y1 = (y..h).find(|&yy| ys[yy].0 != j).unwrap_or(h);
+        let (band, tail) = std::mem::take(&mut rest).split_at_mut((y1 - y) * w);
+        bands.push((j, y, band));
+        rest = tail;
+        y = y1;
+    }
+    // one envelope row interpolated along x: runs of pixels between two cell centres share
+    // their cells (a contiguous blend per run, no per-pixel index)
+    let fx: Vec<f32> = xs.iter().map(|&(_, f)| f).collect();
+    let mut runs: Vec<(usize, usize, usize)> = Vec::with_capacity(cw);
+    for (x, &(i, _)) in xs.iter().enumerate() {
+        match runs.last_mut() {
+            Some(r) if r.2 == i => r.1 = x + 1,
+            _ => runs.push((x, x + 1, i)),
+        }
+    }
+    let along_x = |env: &[f32], j: usize, out: &mut [f32]| {
+        let cells = &env[j * cw..(j + 1) * cw];
+        for &(x0, x1, i) in &runs {
+            let a = cells[i];
+            let d = cells[(i + 1).min(cw - 1)] - a;
+            for (o, &f) in out[x0..x1].iter_mut().zip(&fx[x0..x1]) {
+                *o = a + d * f;
+            }
+        }
+    };
+    // groups of consecutive bands per task: a band's upper centre row is the next band's
+    // lower one, interpolated once
+    let group = bands
+        .len()
+        .div_ceil(4 * rayon::current_num_threads())
+        .max(1);
+    bands.par_chunks_mut(group).for_each(|g| {
+        let (mut l0, mut l1) = (vec![0.0f32; w], vec![0.0f32; w]);
+        let (mut u0, mut u1) = (vec![0.0f32; w], vec![0.0f32; w]);
+        let mut have = usize::MAX; // the centre row held in l1/u1
+        for (j, y0, band) in g.iter_mut() {
+            let (j, j1) = (*j, (*j + 1).min(ch - 1));
+            if have == j {
+                std::mem::swap(&mut l0, &mut l1);
+                std::mem::swap(&mut u0, &mut u1);
+            } else {
+                along_x(&lo, j, &mut l0);
+                along_x(&hi, j, &mut u0);
+            }
+            along_x(&lo, j1, &mut l1);
+            along_x(&hi, j1, &mut u1);
+            have = j1;
+            for (r, row) in band.chunks_exact_mut(w).enumerate() {
+                let fy = ys[*y0 + r].1;
+                let blend = row.iter_mut().zip(&l0).zip(&l1).zip(&u0).zip(&u1);
+                for ((((v, &a), &b), &p), &q) in blend {
+                    let l = a + (b - a) * fy;
+                    let u = p + (q - p) * fy;
+                    *v = ((*v - l) / (u - l).max(floor)).clamp(0.0, 1.0);
+                }
+            }
+        }
+    });
 }
 
 #[cfg(test)]
@@ -525,23 +741,188 @@ mod tests {
     }
 
     #[test]
-    fn running_filters_match_brute_force() {
-        let src: Vec<f32> = (0..37).map(|i| ((i * 7919) % 23) as f32).collect();
-        for n in [3, 4, 9, 40] {
-            let (mut a, mut b, mut m) = (vec![0.0; 37], vec![0.0; 37], vec![0.0; 37]);
-            extreme_row(&src, &mut a, n, false);
-            extreme_row(&src, &mut b, n, true);
-            mean_row(&src, &mut m, n);
-            for i in 0..37usize {
-                let lo = i.saturating_sub(n / 2);
-                let hi = (i + n / 2 + 1).min(37);
-                let win = &src[lo..hi];
-                assert_eq!(a[i], win.iter().cloned().fold(f32::INFINITY, f32::min));
-                assert_eq!(b[i], win.iter().cloned().fold(f32::NEG_INFINITY, f32::max));
-                let mean = win.iter().map(|&v| v as f64).sum::<f64>() / win.len() as f64;
-                assert!((m[i] as f64 - mean).abs() < 1e-5);
+    fn cell_envelopes_match_brute_force() {
+        let (w, h) = (37usize, 23usize);
+        let img: Vec<f32> = (0..w * h).map(|i| ((i * 7919) % 101) as f32).collect();
+        for n in [3usize, 4, 9, 15, 40] {
+            let c = cell_size(n);
+            let (lo, hi, cw, ch) = cell_extremes(&img, w, h, c);
+            assert_eq!((cw, ch), (w.div_ceil(c), h.div_ceil(c)));
+            // the extremes of each cell
+            let cell = |j: usize, i: usize, max: bool| {
+                let mut e = if max {
+                    f32::NEG_INFINITY
+                } else {
+                    f32::INFINITY
+                };
+                for y in j * c..((j + 1) * c).min(h) {
+                    for x in i * c..((i + 1) * c).min(w) {
+                        let v = img[y * w + x];
+                        e = if max { e.max(v) } else { e.min(v) };
+                    }
+                }
+                e
+            };
+            for j in 0..ch {
+                for i in 0..cw {
+                    assert_eq!(lo[j * cw + i], cell(j, i, false));
+                    assert_eq!(hi[j * cw + i], cell(j, i, true));
+                }
+            }
+            // the smoothed envelope: 3 x 3 extreme then 3 x 3 mean, both clipped
+            let env = smooth_envelope(&hi, cw, ch, true);
+            let ext = |j: usize, i: usize| {
+                let mut e = f32::NEG_INFINITY;
+                for jj in j.saturating_sub(1)..=(j + 1).min(ch - 1) {
+                    for ii in i.saturating_sub(1)..=(i + 1).min(cw - 1) {
+                        e = e.max(hi[jj * cw + ii]);
+                    }
+                }
+                e
+            };
+            for j in 0..ch {
+                for i in 0..cw {
+                    let (mut s, mut k) = (0.0f64, 0);
+                    for jj in j.saturating_sub(1)..=(j + 1).min(ch - 1) {
+                        for ii in i.saturating_sub(1)..=(i + 1).min(cw - 1) {
+                            s += ext(jj, ii) as f64;
+                            k += 1;
+                        }
+                    }
+                    assert!((env[j * cw + i] as f64 - s / k as f64).abs() < 1e-3);
+                }
+            }
+            // interpolation weights: exact at the cell centres, clamped at the ends
+            let xs = cell_lerp(w, cw, c);
+            for (p, &(i, f)) in xs.iter().enumerate() {
+                let t = ((p as f32 + 0.5) / c as f32 - 0.5).clamp(0.0, (cw - 1) as f32);
+                assert!((i as f32 + f - t).abs() < 1e-5 && (0.0..=1.0).contains(&f));
             }
         }
+    }
+
+    #[test]
+    fn min_max_output_is_the_bilinear_envelope_normalisation() {
+        for (w, h, n) in [
+            (53usize, 31usize, 15usize),
+            (20, 7, 9),
+            (8, 40, 3),
+            (5, 5, 40),
+        ] {
+            let img = Array2::from_shape_fn((h, w), |(y, x)| {
+                (((x * 7919 + y * 104729) % 97) as f32) * (1.0 + 0.05 * x as f32)
+            });
+            let c = cell_size(n);
+            let src = img.as_slice().unwrap();
+            let (lo, hi, cw, ch) = cell_extremes(src, w, h, c);
+            let (gmin, gmax) = (
+                src.iter().cloned().fold(f32::INFINITY, f32::min),
+                src.iter().cloned().fold(f32::NEG_INFINITY, f32::max),
+            );
+            let (lo, hi) = (
+                smooth_envelope(&lo, cw, ch, false),
+                smooth_envelope(&hi, cw, ch, true),
+            );
+            let (xs, ys) = (cell_lerp(w, cw, c), cell_lerp(h, ch, c));
+            let bilinear = |e: &[f32], y: usize, x: usize| {
+                let ((j, fy), (i, fx)) = (ys[y], xs[x]);
+                let (j1, i1) = ((j + 1).min(ch - 1), (i + 1).min(cw - 1));
+                let at = |jj: usize, ii: usize| e[jj * cw + ii] as f64;
+                let (fx, fy) = (fx as f64, fy as f64);
+                (1.0 - fy) * ((1.0 - fx) * at(j, i) + fx * at(j, i1))
+                    + fy * ((1.0 - fx) * at(j1, i) + fx * at(j1, i1))
+            };
+            let cond = Conditioning {
+                min_max_window: Some(n),
+                ..Default::default()
+            };
+            let out = run(&img, &cond, None);
+            let floor = 1e-6 * (gmax - gmin) as f64;
+            for ((y, x), &o) in out.indexed_iter() {
+                let (l, u) = (bilinear(&lo, y, x), bilinear(&hi, y, x));
+                let want = ((img[[y, x]] as f64 - l) / (u - l).max(floor)).clamp(0.0, 1.0);
+                assert!(
+                    (o as f64 - want).abs() < 1e-4,
+                    "{w}x{h} n {n} at ({y}, {x}): {o} vs {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn hot_pixels_match_the_plain_rule() {
+        // spikes, zeros and negatives (a high-passed frame), edges and corners
+        for (w, h) in [(17usize, 11usize), (1, 5), (6, 1), (2, 2)] {
+            let img = Array2::from_shape_fn((h, w), |(y, x)| {
+                let v = ((x * 7919 + y * 104729) % 53) as f32 - 10.0;
+                if (x + 3 * y) % 7 == 0 {
+                    v * 40.0
+                } else {
+                    v
+                }
+            });
+            let c = Conditioning {
+                hot_pixels: Some(3.0),
+                ..Default::default()
+            };
+            let out = run(&img, &c, None);
+            for ((y, x), &o) in out.indexed_iter() {
+                let v = img[[y, x]];
+                let mut m = f32::NEG_INFINITY;
+                for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                    for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                        if (yy, xx) != (y, x) {
+                            m = m.max(img[[yy, xx]]);
+                        }
+                    }
+                }
+                let want = if v > 0.0 && m > f32::NEG_INFINITY && v > 3.0 * m.max(0.0) {
+                    m
+                } else {
+                    v
+                };
+                assert_eq!(o, want, "{w}x{h} at ({y}, {x})");
+            }
+        }
+    }
+
+    #[test]
+    fn conditioned_copy_equals_in_place_on_a_copy() {
+        let raw = Array2::from_shape_fn((37, 53), |(y, x)| ((x * 7919 + y * 104729) % 4096) as u16);
+        let bg = Array2::from_shape_fn((37, 53), |(y, x)| (x + y) as f32);
+        let f = raw.mapv(|v| v as f32);
+        let configs = [
+            Conditioning::default(),
+            Conditioning {
+                hot_pixels: Some(3.0),
+                high_pass_sigma: Some(2.0),
+                ..Default::default()
+            },
+            Conditioning {
+                cap_sigma: Some(2.0),
+                min_max_window: Some(9),
+                ..Default::default()
+            },
+        ];
+        for c in &configs {
+            for b in [None, Some(&bg)] {
+                let want = run(&f, c, b);
+                let got = conditioned(raw.view(), c, b.map(|b| b.view())).unwrap();
+                assert_eq!(got, want, "{c:?} background {}", b.is_some());
+                let got = conditioned(f.view(), c, b.map(|b| b.view())).unwrap();
+                assert_eq!(got, want);
+            }
+        }
+        let mut bad = f.clone();
+        bad[[3, 4]] = f32::INFINITY;
+        let e = conditioned(bad.view(), &configs[0], Some(bg.view())).unwrap_err();
+        assert!(e.to_string().contains("NaN or infinite"), "{e}");
+        assert!(conditioned(
+            raw.view(),
+            &configs[0],
+            Some(bg.slice(ndarray::s![1.., ..]))
+        )
+        .is_err());
     }
 
     #[test]
@@ -560,5 +941,8 @@ mod tests {
         assert!(e.to_string().contains("differs in shape"));
         img[[1, 1]] = f32::NAN;
         assert!(condition(img.view_mut(), &Conditioning::default(), None).is_err());
+        let bg = Array2::from_elem((4, 4), 1.0f32);
+        let e = condition(img.view_mut(), &Conditioning::default(), Some(bg.view())).unwrap_err();
+        assert!(e.to_string().contains("NaN"), "{e}");
     }
 }

@@ -22,7 +22,7 @@ pub mod multipass;
 pub mod synth;
 pub mod validate;
 
-pub use condition::{condition, Conditioning};
+pub use condition::{condition, conditioned, conditioned_into, Conditioning};
 pub use correlate::{Correlator, Peak, SubPixel};
 pub use error::PivError;
 pub use grid::Grid;

@@ -1,10 +1,58 @@
-//! Binding of piv-core's image conditioning: `condition` works in place on a float32 frame the
-//! Python facade (`rspiv.preprocess`) has copied once.
+//! Binding of piv-core's image conditioning: `conditioned` returns a new float32 frame from a
+//! frame of any pixel type (the conversion fused with the first steps, what the Python facade
+//! `rspiv.preprocess` uses); `condition` works in place on a float32 frame.
 
-use crate::errors::PyRspivErr;
-use numpy::{PyReadonlyArray2, PyReadwriteArray2};
+use crate::errors::{invalid, PyRspivErr};
+use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray2, PyReadwriteArray2};
 use piv_core::Conditioning;
 use pyo3::prelude::*;
+
+/// A new conditioned float32 copy of `frame` (uint8, uint16, float32 or float64, read in
+/// place): hot pixels, background, high-pass, intensity cap, min-max normalisation (each off
+/// when None).
+#[pyfunction]
+#[pyo3(signature = (frame, hot_pixels=None, high_pass=None, cap=None, min_max=None, background=None))]
+fn conditioned<'py>(
+    py: Python<'py>,
+    frame: &Bound<'py, PyAny>,
+    hot_pixels: Option<f32>,
+    high_pass: Option<f32>,
+    cap: Option<f32>,
+    min_max: Option<usize>,
+    background: Option<PyReadonlyArray2<'py, f32>>,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    let c = Conditioning {
+        hot_pixels,
+        high_pass_sigma: high_pass,
+        cap_sigma: cap,
+        min_max_window: min_max,
+    };
+    let bg = background.as_ref().map(|b| b.as_array());
+    macro_rules! run {
+        ($t:ty) => {
+            if let Ok(a) = frame.extract::<PyReadonlyArray2<'py, $t>>() {
+                let view = a.as_array();
+                // numpy's allocator (huge pages for large arrays: first touch is cheap)
+                // SAFETY: every element is written by `conditioned_into` before it is read.
+                let out = unsafe { PyArray2::<f32>::new(py, view.dim(), false) };
+                {
+                    let mut rw = out.readwrite();
+                    let ov = rw.as_array_mut();
+                    py.detach(|| piv_core::conditioned_into(view, ov, &c, bg))
+                        .map_err(PyRspivErr::from)?;
+                }
+                return Ok(out);
+            }
+        };
+    }
+    run!(u16);
+    run!(u8);
+    run!(f32);
+    run!(f64);
+    Err(invalid(
+        "frame must be a 2D uint8, uint16, float32 or float64 array",
+    ))
+}
 
 /// Condition `frame` (float32, C-contiguous, written in place): hot pixels, background,
 /// high-pass, intensity cap, min-max normalisation (each off when None).
@@ -35,5 +83,6 @@ fn condition(
 /// Register the conditioning function in the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(condition, m)?)?;
+    m.add_function(wrap_pyfunction!(conditioned, m)?)?;
     Ok(())
 }
