@@ -298,6 +298,46 @@ def test_unwritable_output_folder(synth, tmp_path, capsys):
     assert "output folder is not writable" in err and str(blocker / "out") in err
 
 
+def test_bad_recordings_are_refused_before_anything_is_written(synth, tmp_path, capsys):
+    """A stack whose frames differ in size, a mask of the wrong shape, a run with one readable
+    pair for the background: `rspiv process` exits 2 with one line naming the file and what is
+    wrong, and the output folder stays empty (the checks and the background pass run before the
+    calibration writes its figures)."""
+    import tifffile
+
+    files = sorted((synth / "raw").glob("*.tif"))
+    a, b = tifffile.imread(files[0]), tifffile.imread(files[1])
+    h, w = a.shape
+    stack = tmp_path / "stack.tif"
+    tifffile.imwrite(stack, a, photometric="minisblack")
+    tifffile.imwrite(stack, b[:-8], photometric="minisblack", append=True)
+    mask = tmp_path / "mask.tif"
+    tifffile.imwrite(mask, np.zeros((h + 1, w), np.uint8))
+    one_pair = [(files[0], files[1]), (tmp_path / "gone_a.tif", files[3])]
+    cases = {
+        "stack": (stack, None, f"stack.tif[0, 1]) is {w} x {h - 8} px, the campaign's images"),
+        "mask": (None, mask, f"mask.tif: mask is {w} x {h + 1} px, the images are {w} x {h} px"),
+        # the run's background over a single pair would be the frames themselves
+        "one": (one_pair, None, "over 1 usable pair of 2 would be the frames themselves"),
+    }
+    for name, (images, mask_path, message) in cases.items():
+        cfg = load_campaign_config(synth / "campaign.toml")
+        if images is not None:
+            cfg.images.glob = None
+            if isinstance(images, list):
+                cfg.images.pairs = images
+            else:
+                cfg.images.multiframe = images
+        cfg.piv.mask = mask_path
+        cfg.calibration.monte_carlo_samples = 0
+        cfg.save(tmp_path / f"{name}.toml")
+        out = tmp_path / f"out_{name}"
+        assert main(["process", str(tmp_path / f"{name}.toml"), "-q", "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and message in err, err
+        assert not out.exists() or not any(out.iterdir()), sorted(out.rglob("*"))
+
+
 def test_cli_synth_and_process(tmp_path, capsys):
     d = tmp_path / "c"
     assert (

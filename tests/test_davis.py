@@ -5,6 +5,7 @@ The buffers are written here with lvpyio itself (nothing of lvpyio's is bundled)
 
 from __future__ import annotations
 
+import json
 import sys
 
 import numpy as np
@@ -69,12 +70,12 @@ def test_bad_davis_input_is_one_line(tmp_path, monkeypatch):
         read_image(other)
 
 
-def test_campaign_on_double_frame_davis_files_equals_the_tiff_run(tmp_path):
+def test_campaign_on_double_frame_davis_files_equals_the_tiff_run(tmp_path, capsys):
     from rspiv.campaign_config import load_campaign_config
     from rspiv.cli import main
 
     d = tmp_path / "c"
-    synth = ["synth", "campaign", str(d), "--pairs", "2", "--scale", "0.1", "--monte-carlo", "0"]
+    synth = ["synth", "campaign", str(d), "--pairs", "3", "--scale", "0.1", "--monte-carlo", "0"]
     assert main([*synth, "-q"]) == 0
     cfg = load_campaign_config(d / "campaign.toml")
     cfg.correction.compare_uncorrected = False
@@ -99,6 +100,21 @@ def test_campaign_on_double_frame_davis_files_equals_the_tiff_run(tmp_path):
     v = xr.load_dataset(tmp_path / "v" / "statistics_method_II.nc", engine="h5netcdf")
     np.testing.assert_array_equal(t["u"].values, v["u"].values)
     np.testing.assert_array_equal(t["count"].values, v["count"].values)
+    # a truncated buffer in the run: that pair is skipped with one line naming the file
+    first = sorted(run.glob("*.im7"))[0]
+    first.write_bytes(first.read_bytes()[:300])
+    assert main(["process", str(d / "davis.toml"), "-q", "-o", str(tmp_path / "cut")]) == 0
+    log = (tmp_path / "cut" / "run_log.jsonl").read_text().splitlines()
+    skipped = [r["reason"] for r in map(json.loads, log) if r["event"] == "skipped"]
+    assert len(skipped) == 1 and f"{first.name}: cannot read the DaVis buffer" in skipped[0]
+    # every buffer truncated: refused in one line, nothing written
+    for f in run.glob("*.im7"):
+        f.write_bytes(f.read_bytes()[:300])
+    capsys.readouterr()
+    assert main(["process", str(d / "davis.toml"), "-q", "-o", str(tmp_path / "none")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "cannot read the DaVis buffer" in err, err
+    assert not any((tmp_path / "none").iterdir())
 
 
 def test_cli_piv_reads_a_double_frame_buffer_and_reports_its_scale(tmp_path, capsys):

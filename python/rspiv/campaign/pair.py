@@ -21,13 +21,33 @@ from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image
 from rspiv.multipass import run_grid
 
-__all__ = ["process_pair", "read_frame"]
+__all__ = ["process_pair", "read_checked_pair", "read_frame"]
 
 
 def read_frame(path: str, index: int | None) -> np.ndarray:
     """One 2D frame: a file, or frame ``index`` of a multi-frame TIFF (:func:`rspiv.io.read_image`;
     InvalidInputError naming the file when it is missing, unreadable or not 2D)."""
     return read_image(path, 0 if index is None else int(index))
+
+
+def read_checked_pair(pair: PairSpec, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Frames A and B of ``pair``, each checked to be of the campaign's ``shape = (h, w)``.
+
+    Raises
+    ------
+    InvalidInputError
+        One line naming the file: a frame missing, unreadable (truncated, foreign) or not 2D,
+        or of another size than ``shape`` (e.g. a page of a stack written at another size).
+    """
+    a = read_frame(pair.a, pair.frame_a)
+    b = read_frame(pair.b, pair.frame_b)
+    for name, f in (("frame A", a), ("frame B", b)):
+        if f.shape != tuple(shape):
+            raise InvalidInputError(
+                f"{name} ({pair.describe()}) is {f.shape[1]} x {f.shape[0]} px, the campaign's "
+                f"images are {shape[1]} x {shape[0]} px"
+            )
+    return a, b
 
 
 def _window_positions(context: PairContext, corrected: bool) -> np.ndarray:
@@ -79,21 +99,10 @@ def process_pair(context: PairContext, pair: PairSpec) -> PairResult:
     t = {k: 0.0 for k in STAGES[:3]}
     t0 = time.perf_counter()
     try:
-        a = read_frame(pair.a, pair.frame_a)
-        b = read_frame(pair.b, pair.frame_b)
+        a, b = read_checked_pair(pair, context.image_shape)
     except (RspivError, ValueError, OSError) as exc:
         return PairResult(pair.pair_id, False, str(exc), timings=t)
     t["read"] = time.perf_counter() - t0
-    shape = tuple(context.image_shape)
-    for name, f in (("frame A", a), ("frame B", b)):
-        if f.shape != shape:
-            return PairResult(
-                pair.pair_id,
-                False,
-                f"{name} ({pair.describe()}) is {f.shape[1]} x {f.shape[0]} px, the campaign's "
-                f"images are {shape[1]} x {shape[0]} px",
-                timings=t,
-            )
     try:
         a, b = context.condition(a, b)
     except (RspivError, ValueError) as exc:

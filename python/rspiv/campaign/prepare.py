@@ -22,7 +22,7 @@ from rspiv.campaign.analysis import calibration_table, find_run_wall, wall_dict
 from rspiv.campaign.spec import PairContext, PairSpec
 from rspiv.campaign.state import check_writable, json_default
 from rspiv.errors import InvalidInputError, RspivError
-from rspiv.io import read_image
+from rspiv.io import read_image, read_mask
 from rspiv.montecarlo import monte_carlo
 from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.preprocess import Background
@@ -60,10 +60,17 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     info: dict[str, Any] = {"figures": {}, "wall_deviation": {}}
     mapping_json = None
     cal = None
-    image_shape = None
-    if cfg.calibration.target is not None:
+    # Everything that can refuse the inputs runs before anything is written: the frames' shape
+    # (the target's, else the first readable frame's), the mask against it, the background
+    # pass over every pair; then the calibration and its figures.
+    image = None if cfg.calibration.target is None else read_image(cfg.calibration.target)
+    image_shape = _first_shape(pairs) if image is None else tuple(image.shape)
+    if cfg.piv.mask is not None:
+        read_mask(cfg.piv.mask, image_shape)
+    pre = cfg.preprocess.settings()
+    background = _backgrounds(camp, pairs, pre, image_shape) if pre.background != "none" else None
+    if image is not None:
         t0 = time.perf_counter()
-        image = read_image(cfg.calibration.target)
         cc = cfg.calibration
         cal = calibrate(
             image,
@@ -73,7 +80,6 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
             pitch_sigma_mm=cc.pitch_sigma_mm if cc.pitch_sigma_mm > 0 else None,
             marker_size_px=cc.marker_size_px if cc.marker_size_px > 0 else None,
         )
-        image_shape = tuple(cal.image_shape)
         camp.say(f"calibration: {cal!r} ({time.perf_counter() - t0:.1f} s)")
         info["calibration_table"] = calibration_table(cal)
         try:
@@ -90,12 +96,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
                 f"Monte Carlo: {cc.monte_carlo_samples} samples "
                 f"({time.perf_counter() - t0:.1f} s)"
             )
-    if image_shape is None:
-        image_shape = _first_shape(pairs)
-    pre = cfg.preprocess.settings()
-    background_paths = (
-        _backgrounds(camp, pairs, pre, out, image_shape) if pre.background != "none" else None
-    )
+    background_paths = None if background is None else _save_backgrounds(background, out)
     base = PairContext(
         runs=runs,
         image_shape=image_shape,
@@ -164,51 +165,70 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     )
     return ctx
 
-def _backgrounds(
-    camp, pairs: list[PairSpec], pre, out: pathlib.Path, shape: tuple[int, int]
-) -> tuple[str, str]:
+def _backgrounds(camp, pairs: list[PairSpec], pre, shape: tuple[int, int]) -> tuple[Any, Any]:
     """The run's backgrounds of frames A and B (``pre.background``: min or mean over every
-    pair), streaming over the files (one pair in memory), saved as ``OUT/background_a.npy``
-    and ``background_b.npy``. A pair that cannot be read or is not of the run's ``shape`` is
-    left out here (the pair step reports it as skipped)."""
+    pair, :class:`rspiv.preprocess.Background`), streaming over the files (one pair in memory).
+    A pair that cannot be read or is not of the run's ``shape`` is left out here (the pair step
+    reports it as skipped); InvalidInputError with the first such reason when fewer than two
+    are left (over one pair the background is the frames themselves)."""
     t0 = time.perf_counter()
     est = (Background(pre.background), Background(pre.background))
     used = 0
+    first_reason = ""
     for p in pairs:
         try:
-            a = pair_work.read_frame(p.a, p.frame_a)
-            b = pair_work.read_frame(p.b, p.frame_b)
-        except (RspivError, ValueError, OSError):
-            continue
-        if a.shape != tuple(shape) or b.shape != tuple(shape):
+            a, b = pair_work.read_checked_pair(p, shape)
+        except (RspivError, ValueError, OSError) as exc:
+            first_reason = first_reason or str(exc)
             continue
         est[0].add(a)
         est[1].add(b)
         used += 1
     if not used:
-        raise InvalidInputError("background: no readable image pair of the run's shape")
-    paths = []
-    for name, e in zip(("a", "b"), est, strict=True):
-        path = out / f"background_{name}.npy"
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as fh:
-                np.save(fh, e.value)
-        paths.append(str(path))
+        raise InvalidInputError(
+            f"background: none of the {len(pairs)} image pair(s) can be used"
+            + (f"; the first: {first_reason}" if first_reason else "")
+        )
+    if used < 2:
+        raise InvalidInputError(
+            f"background ({pre.background}) over 1 usable pair of {len(pairs)} would be the "
+            "frames themselves and leave nothing to correlate: give more pairs or set "
+            '[preprocess] background = "none"'
+            + (f" (skipped: {first_reason})" if first_reason else "")
+        )
     camp.say(
         f"background ({pre.background}) of frames A and B over {used} pair(s) "
         f"({time.perf_counter() - t0:.1f} s)"
     )
+    return est[0].value, est[1].value
+
+
+def _save_backgrounds(background: tuple[Any, Any], out: pathlib.Path) -> tuple[str, str]:
+    """Write the backgrounds of frames A and B as ``OUT/background_a.npy``/``background_b.npy``
+    (atomically); their paths."""
+    paths = []
+    for name, value in zip(("a", "b"), background, strict=True):
+        path = out / f"background_{name}.npy"
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, value)
+        paths.append(str(path))
     return paths[0], paths[1]
 
 
 def _first_shape(pairs: list[PairSpec]) -> tuple[int, int]:
+    first_reason = ""
     for p in pairs:
         try:
             a = pair_work.read_frame(p.a, p.frame_a)
-        except (RspivError, ValueError, OSError):
+        except (RspivError, ValueError, OSError) as exc:
+            first_reason = first_reason or str(exc)
             continue
         return (int(a.shape[0]), int(a.shape[1]))
-    raise InvalidInputError("no readable image in the campaign")
+    raise InvalidInputError(
+        f"no readable image among the campaign's {len(pairs)} pair(s)"
+        + (f"; the first: {first_reason}" if first_reason else "")
+    )
 
 
 def _monte_carlo(camp: Any, cal: Any, n: int, figdir: pathlib.Path) -> dict[str, Any]:
