@@ -24,6 +24,10 @@ pub(crate) struct Projection {
     ax: [f64; 6],
     ay: [f64; 6],
     cost: f64,
+    /// Bound on the rounding error of `cost` (each residual `f - t` carries about
+    /// `eps (|f| + |t|)`, so the cost about `2 eps sum |r| (|f| + |t|)`): cost changes below
+    /// it are not resolved.
+    noise: f64,
 }
 
 /// For denominator coefficients `d`, the least-squares numerators (both axes share the Gram
@@ -71,6 +75,7 @@ pub(crate) fn project<const Q: usize, const R: usize>(
     let mut l = [0.0; 36];
     l[..q * q].copy_from_slice(&dense[..q * q]);
     let mut cost = 0.0;
+    let mut noise = 0.0;
     for (o, i) in obj.iter().zip(img) {
         let (phi, psi) = rational_bases(model, o[0], o[1]);
         let mut den = 1.0;
@@ -82,13 +87,17 @@ pub(crate) fn project<const Q: usize, const R: usize>(
             nx += bx[a] * phi[a];
             ny += by[a] * phi[a];
         }
-        cost += (nx / den - i[0]).powi(2) + (ny / den - i[1]).powi(2);
+        let (fx, fy) = (nx / den, ny / den);
+        let (rx, ry) = (fx - i[0], fy - i[1]);
+        cost += rx * rx + ry * ry;
+        noise += rx.abs() * (fx.abs() + i[0].abs()) + ry.abs() * (fy.abs() + i[1].abs());
     }
     cost.is_finite().then_some(Projection {
         l,
         ax: bx,
         ay: by,
         cost,
+        noise: 2.0 * f64::EPSILON * noise,
     })
 }
 
@@ -273,13 +282,6 @@ pub(crate) fn varpro_impl<const Q: usize, const R: usize>(
                 step[k] = -gd[k];
             }
             cholesky_solve(&a[..r * r], r, &mut step[..r]);
-            let mut dn = d;
-            for k in 0..r {
-                dn[k] += step[k];
-            }
-            let trial = project::<Q, R>(model, &dn, obj, img);
-            n_evals += 1;
-            let cost_new = trial.as_ref().map_or(f64::INFINITY, |t| t.cost);
             let mut dg = 0.0;
             let mut sds = 0.0;
             for i in 0..r {
@@ -291,6 +293,24 @@ pub(crate) fn varpro_impl<const Q: usize, const R: usize>(
                 sds += step[i] * t;
             }
             let pred = (-2.0 * dg - sds).max(0.0);
+            if lambda == 0.0 && pred <= cur.noise {
+                // The full Newton step promises less than the cost's rounding error: this is
+                // the optimum to double precision (further trials would only compare noise).
+                finish(&cur, &d, coeffs);
+                return Ok(summary(
+                    cur.cost,
+                    n_evals,
+                    n_jac,
+                    lm::Termination::SmallFtol,
+                ));
+            }
+            let mut dn = d;
+            for k in 0..r {
+                dn[k] += step[k];
+            }
+            let trial = project::<Q, R>(model, &dn, obj, img);
+            n_evals += 1;
+            let cost_new = trial.as_ref().map_or(f64::INFINITY, |t| t.cost);
             let prered = pred / cur.cost;
             let actred = if cost_new.is_finite() {
                 1.0 - cost_new / cur.cost
