@@ -6,7 +6,7 @@
 //! are mirrored (whole-sample symmetric).
 //!
 //! Files: this one (the view and the spline coefficients), `field` ([`GridField`]), `sample`
-//! (window samplers and the deformation of a frame pair).
+//! (window samplers), `deform` (the deformation of a whole frame pair).
 //!
 //! Pixel frame: x = column, y = row, origin at the centre of the top-left pixel, y down.
 
@@ -185,10 +185,12 @@ pub fn bspline5_coeffs<T: Pixel>(img: &Img<'_, T>) -> Img<'static, f32> {
     spline_coeffs(img, SplineOrder::Quintic)
 }
 
+mod deform;
 mod field;
 mod sample;
 #[cfg(test)]
 mod tests;
 
+pub use deform::deform_pair;
 pub use field::GridField;
-pub use sample::{deform_pair, inside, sample_pair, Source, WindowSpec};
+pub use sample::{inside, sample_pair, Source, WindowSpec};

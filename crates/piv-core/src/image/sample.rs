@@ -4,9 +4,6 @@
 use super::field::*;
 use super::{Img, Pixel};
 use image_core::kernels::{floor_i, mirror};
-use ndarray::parallel::prelude::*;
-use ndarray::CowArray;
-use rayon::prelude::*;
 
 /// How a window pair is sampled: top-left pixel position of the window (may be fractional), the
 /// constant displacement `(du, dv)` and an optional displacement field added per pixel.
@@ -131,7 +128,7 @@ pub(crate) fn sample_field_2d<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy,
 /// Longest window row and source line (px) of [`sample_field_sep`] (stack buffers).
 pub(crate) const FIELD_LINE: usize = 512;
 
-/// A window pair deformed by a field, sampled separably as [`deform_pair`] does for a whole
+/// A window pair deformed by a field, sampled separably as [`super::deform_pair`] does for a whole
 /// frame: output pixel `p` of frame A takes the interpolant at `p - d(p) / 2`, of frame B at
 /// `p + d(p) / 2` (`d` = field + `(du, dv)`).
 ///
@@ -142,7 +139,7 @@ pub(crate) const FIELD_LINE: usize = 512;
 /// linearly beyond them), and the row of these values is interpolated along x (`N` taps) at
 /// each pixel's source position: `2 N` taps per pixel (plus `N` per extra column) instead of
 /// `N^2`. It equals the 2D interpolation up to the change of the vertical displacement across
-/// the taps times the tap distance (second order, as [`deform_pair`], the deformation of
+/// the taps times the tap distance (second order, as [`super::deform_pair`], the deformation of
 /// Method I's regular grid; exact when `d_y` does not vary along x).
 ///
 /// Pixels whose source lies outside the image are NaN. Returns `Some(all inside)`, or `None`
@@ -224,115 +221,6 @@ pub(crate) fn sample_field_sep<
         }
     }
     Some(ok)
-}
-
-/// Deform a whole frame pair symmetrically by the field `f`: `A'(p) = A(p - f(p)/2)`,
-/// `B'(p) = B(p + f(p)/2)`, sampled from `ia`, `ib` with kernel `wf` (rows in parallel). Windows
-/// of a regular grid are then plain copies of the deformed images, which costs one
-/// interpolation per pixel instead of one per pixel and overlapping window. A pixel whose
-/// source position lies outside its frame (see [`inside`]) is set to NaN, as in
-/// [`sample_pair`].
-///
-/// The separable kernel is applied in two 1D passes per output row (`2 N` taps per pixel
-/// instead of `N^2`): first every column `i` of the source is interpolated along y at
-/// `y -+ f_y(i +- f_x(i)/2)/2`, the vertical displacement of the output pixel whose source
-/// column is `i`; then the row of these values is interpolated along x at `x -+ f_x(x)/2`.
-/// This equals the 2D interpolation up to the change of the field across the `N` taps times
-/// the displacement (second order: below 1e-4 px for a field varying by 0.01 px/px).
-pub fn deform_pair<U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, const N: usize>(
-    ia: &Img<'_, U>,
-    ib: &Img<'_, U>,
-    wf: W,
-    f: &GridField,
-) -> (Img<'static, f32>, Img<'static, f32>) {
-    let (w, h) = (ia.width, ia.height);
-    let mut da = vec![0.0f32; w * h];
-    let mut db = vec![0.0f32; w * h];
-    let g = &f.grid;
-    // the x interpolation state of every column, shared by all rows
-    let cols: Vec<(usize, usize, f64)> = (0..w)
-        .map(|x| GridField::axis(x as f64, g.x0, g.dx, g.nx))
-        .collect();
-    let (us, vs) = (
-        f.u.as_slice().expect("standard layout"),
-        f.v.as_slice().expect("standard layout"),
-    );
-    da.par_chunks_mut(w)
-        .zip(db.par_chunks_mut(w))
-        .enumerate()
-        .for_each_init(
-            || {
-                (
-                    vec![0.0f64; g.nx],
-                    vec![0.0f64; g.nx],
-                    vec![0.0f32; w],
-                    vec![0.0f32; w],
-                )
-            },
-            |(ur, vr, ta, tb), (y, (ra, rb))| {
-                let yf = y as f64;
-                // half the field interpolated to this row at every grid column
-                let (j0, j1, ty) = f.row(yf);
-                for i in 0..g.nx {
-                    let (k0, k1) = (j0 * g.nx + i, j1 * g.nx + i);
-                    ur[i] = 0.5 * (us[k0] * (1.0 - ty) + us[k1] * ty);
-                    vr[i] = 0.5 * (vs[k0] * (1.0 - ty) + vs[k1] * ty);
-                }
-                let half = |&(i0, i1, tx): &(usize, usize, f64)| {
-                    (
-                        ur[i0] * (1.0 - tx) + ur[i1] * tx,
-                        vr[i0] * (1.0 - tx) + vr[i1] * tx,
-                    )
-                };
-                let half_v_at = |x: f64| half(&GridField::axis(x, g.x0, g.dx, g.nx)).1;
-                // 1. columns along y
-                for (i, (oa, ob)) in ta.iter_mut().zip(tb.iter_mut()).enumerate() {
-                    let hu = half(&cols[i]).0;
-                    let xi = i as f64;
-                    *oa = ia.column_interp(i, yf - half_v_at(xi + hu), wf);
-                    *ob = ib.column_interp(i, yf + half_v_at(xi - hu), wf);
-                }
-                // 2. the row along x
-                for (x, ((oa, ob), c)) in ra.iter_mut().zip(rb.iter_mut()).zip(&cols).enumerate() {
-                    let xf = x as f64;
-                    let (hu, hv) = half(c);
-                    let (xa, ya, xb, yb) = (xf - hu, yf - hv, xf + hu, yf + hv);
-                    *oa = if inside(xa, ya, w, h) {
-                        line_interp(ta, xa, wf)
-                    } else {
-                        f32::NAN
-                    };
-                    *ob = if inside(xb, yb, w, h) {
-                        line_interp(tb, xb, wf)
-                    } else {
-                        f32::NAN
-                    };
-                }
-            },
-        );
-    let wrap = |v: Vec<f32>| Img {
-        data: CowArray::from(ndarray::Array2::from_shape_vec((h, w), v).expect("shape")),
-        width: w,
-        height: h,
-    };
-    (wrap(da), wrap(db))
-}
-
-/// Interpolate the line `t` at position `x` with kernel `wf` (mirrored beyond its ends).
-#[inline(always)]
-pub(crate) fn line_interp<W: Fn(f32) -> [f32; N], const N: usize>(t: &[f32], x: f64, wf: W) -> f32 {
-    let ix = floor_i(x);
-    let wx = wf((x - ix as f64) as f32);
-    let i0 = ix - (N / 2 - 1) as isize;
-    if i0 >= 0 && i0 as usize + N <= t.len() {
-        let row = &t[i0 as usize..i0 as usize + N];
-        wx.iter().zip(row).map(|(a, b)| a * b).sum()
-    } else {
-        wx.iter()
-            .enumerate()
-            .map(|(k, a)| a * t[mirror(i0 + k as isize, t.len())])
-            .sum()
-    }
 }
 
 /// Sample a `w` x `h` window whose top-left pixel sits at (x0, y0) (constant shift): straight
