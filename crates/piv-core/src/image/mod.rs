@@ -191,6 +191,6 @@ mod sample;
 #[cfg(test)]
 mod tests;
 
-pub use deform::deform_pair;
+pub use deform::{deform_pair, into_buffers};
 pub use field::GridField;
 pub use sample::{inside, sample_pair, Source, WindowSpec};

@@ -241,7 +241,7 @@ fn separable_deformation_matches_the_2d_interpolation() {
         field(x, y).1
     });
     let f = GridField { grid, u, v };
-    let (da, db) = deform_pair(&c, &c, bspline5_weights, &f);
+    let (da, db) = deform_pair(&c, &c, bspline5_weights, &f, None);
     let (mut worst, mut n) = (0.0f32, 0);
     let (x_in, y_in) = (
         grid.x0 + 3.0..=grid.x0 + (grid.nx - 1) as f64 * grid.dx - 3.0,
@@ -288,7 +288,8 @@ fn rejects_nan() {
 
 /// The deformation's AVX2 row (vector weights and gathers) equals the portable one bit for bit,
 /// over a field strong enough that tap rows and offsets change inside the 8-pixel chunks, with
-/// samples outside the frame (NaN) and mirrored taps at the edges; for each kernel.
+/// samples outside the frame (NaN) and mirrored taps at the edges; for each kernel. Reused
+/// buffers give the same pair as fresh ones.
 #[test]
 fn deformation_vector_and_portable_paths_agree_exactly() {
     let (h, w) = (61, 203);
@@ -309,18 +310,30 @@ fn deformation_vector_and_portable_paths_agree_exactly() {
     let f = GridField { grid, u, v };
     let c5 = bspline5_coeffs(&img);
     let c3 = bspline_coeffs(&img);
+    // buffers handed back for reuse (here full of garbage) give the same pair as fresh ones
+    let fresh = deform_pair(&c5, &c5, bspline5_weights, &f, None);
+    let garbage = (vec![7.5f32; w * h], vec![f32::NAN; w * h]);
+    let reused = deform_pair(&c5, &c5, bspline5_weights, &f, Some(garbage));
+    for (p, q) in fresh.0.slice().iter().zip(reused.0.slice()) {
+        assert!(p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()));
+    }
+    for (p, q) in fresh.1.slice().iter().zip(reused.1.slice()) {
+        assert!(p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()));
+    }
+    let (ba, bb) = into_buffers(reused).expect("owned buffers");
+    assert_eq!((ba.len(), bb.len()), (w * h, w * h));
     let runs = [
         (
-            super::deform::deform_pair_with(&c5, &c5, bspline5_weights, &f, true),
-            super::deform::deform_pair_with(&c5, &c5, bspline5_weights, &f, false),
+            super::deform::deform_pair_with(&c5, &c5, bspline5_weights, &f, None, true),
+            super::deform::deform_pair_with(&c5, &c5, bspline5_weights, &f, None, false),
         ),
         (
-            super::deform::deform_pair_with(&c3, &c3, bspline_weights, &f, true),
-            super::deform::deform_pair_with(&c3, &c3, bspline_weights, &f, false),
+            super::deform::deform_pair_with(&c3, &c3, bspline_weights, &f, None, true),
+            super::deform::deform_pair_with(&c3, &c3, bspline_weights, &f, None, false),
         ),
         (
-            super::deform::deform_pair_with(&img, &img, keys_weights, &f, true),
-            super::deform::deform_pair_with(&img, &img, keys_weights, &f, false),
+            super::deform::deform_pair_with(&img, &img, keys_weights, &f, None, true),
+            super::deform::deform_pair_with(&img, &img, keys_weights, &f, None, false),
         ),
     ];
     for ((va, vb), (pa, pb)) in &runs {

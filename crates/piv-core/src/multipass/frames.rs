@@ -6,8 +6,8 @@ use super::window::*;
 use crate::correlate::{Peak, SubPixel};
 use crate::error::Result;
 use crate::image::{
-    bspline5_coeffs, bspline5_weights, bspline_coeffs, bspline_weights, deform_pair, keys_weights,
-    GridField, Img, Pixel, Source,
+    bspline5_coeffs, bspline5_weights, bspline_coeffs, bspline_weights, deform_pair, into_buffers,
+    keys_weights, GridField, Img, Pixel, Source,
 };
 use ndarray::ArrayView2;
 use rayon::prelude::*;
@@ -57,6 +57,13 @@ pub(crate) fn frame_variance<T: Pixel>(img: &Img<'_, T>) -> f64 {
     (s2 / n - m * m).max(0.0)
 }
 
+impl Frames<'static, f32> {
+    /// The pixel buffers of deformed frames, for the `reuse` of the next [`Frames::deformed`].
+    pub(crate) fn into_buffers(self) -> Option<(Vec<f32>, Vec<f32>)> {
+        into_buffers((self.a, self.b))
+    }
+}
+
 impl<'a, T: Pixel> Frames<'a, T> {
     pub(crate) fn new(
         a: ArrayView2<'a, T>,
@@ -89,12 +96,17 @@ impl<'a, T: Pixel> Frames<'a, T> {
         })
     }
 
-    /// The frames deformed symmetrically by `f` (see [`deform_pair`]).
-    pub(crate) fn deformed(&self, f: &GridField) -> Frames<'static, f32> {
+    /// The frames deformed symmetrically by `f` (see [`deform_pair`]), written into `reuse`
+    /// (the buffers of an earlier deformed pair, [`Frames::into_buffers`]) when given.
+    pub(crate) fn deformed(
+        &self,
+        f: &GridField,
+        reuse: Option<(Vec<f32>, Vec<f32>)>,
+    ) -> Frames<'static, f32> {
         let (a, b) = match self.coeffs() {
-            Coeffs::Quintic(ca, cb) => deform_pair(ca, cb, bspline5_weights, f),
-            Coeffs::Cubic(ca, cb) => deform_pair(ca, cb, bspline_weights, f),
-            Coeffs::Keys => deform_pair(&self.a, &self.b, keys_weights, f),
+            Coeffs::Quintic(ca, cb) => deform_pair(ca, cb, bspline5_weights, f, reuse),
+            Coeffs::Cubic(ca, cb) => deform_pair(ca, cb, bspline_weights, f, reuse),
+            Coeffs::Keys => deform_pair(&self.a, &self.b, keys_weights, f, reuse),
         };
         Frames {
             a,

@@ -155,13 +155,12 @@ pub(crate) fn at_points<T: Pixel>(
     for &(w, h) in windows {
         for _ in 0..iterations {
             let no_offset = du.iter().chain(&dv).all(|&d| d == 0.0);
-            let peaks =
-                match base {
-                    Some(f) if no_offset => deformed
-                        .get_or_insert_with(|| frames.deformed(f))
-                        .sweep(w, h, &xs, &ys, &du, &dv, &skip, None, settings.subpixel),
-                    _ => frames.sweep(w, h, &xs, &ys, &du, &dv, &skip, base, settings.subpixel),
-                };
+            let peaks = match base {
+                Some(f) if no_offset => deformed
+                    .get_or_insert_with(|| frames.deformed(f, None))
+                    .sweep(w, h, &xs, &ys, &du, &dv, &skip, None, settings.subpixel),
+                _ => frames.sweep(w, h, &xs, &ys, &du, &dv, &skip, base, settings.subpixel),
+            };
             let mut u = Array2::from_shape_fn(shape, |(j, i)| {
                 let k = j * shape.1 + i;
                 bu[k] + du[k] + peaks[k].dx

@@ -47,6 +47,7 @@ pub(crate) fn grid_passes<T: Pixel>(
 ) -> Result<PivField> {
     let mut pred: Option<GridField> = None;
     let mut last = None;
+    let mut spare = None;
     for (pass, grid) in s.passes.iter().zip(grids) {
         let n = grid.len();
         let mut xs = Vec::with_capacity(n);
@@ -82,10 +83,13 @@ pub(crate) fn grid_passes<T: Pixel>(
             };
             let peaks = match base {
                 // grid windows sit on integer positions: deform the whole pair once, then the
-                // windows are plain copies
-                Some(f) => frames
-                    .deformed(f)
-                    .sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel),
+                // windows are plain copies (the deformed pair's buffers serve the next one)
+                Some(f) => {
+                    let d = frames.deformed(f, spare.take());
+                    let peaks = d.sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel);
+                    spare = d.into_buffers();
+                    peaks
+                }
                 None => frames.sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel),
             };
             let mut u = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
