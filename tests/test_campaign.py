@@ -168,13 +168,13 @@ def test_interrupted_run_resumes_to_the_same_statistics(processed, synth, tmp_pa
     calls = {"n": 0}
     real = campaign_mod.process_pair
 
-    def flaky(ctx, pair):
+    def flaky(ctx, pair, frames=None):
         if not ctx.runs[0].name == "method_II" or len(ctx.runs) == 1:
-            return real(ctx, pair)  # the pilot
+            return real(ctx, pair, frames)  # the pilot
         calls["n"] += 1
         if calls["n"] == 3:
             raise KeyboardInterrupt
-        return real(ctx, pair)
+        return real(ctx, pair, frames)
 
     monkeypatch.setattr(campaign_mod, "process_pair", flaky)
     out = tmp_path / "out"
@@ -280,6 +280,46 @@ def test_bad_pairs_are_skipped_and_reported(synth, tmp_path):
     skipped = {r["pair_id"]: r["reason"] for r in log if r["event"] == "skipped"}
     assert set(skipped) == {1, 2}
     assert res.result("uncorrected") is not None  # the good pairs are analysed
+
+
+def test_the_next_pair_is_read_while_the_current_one_is_processed(synth, tmp_path, monkeypatch):
+    """The local executor reads pair k + 1 in its reader thread while pair k's PIV runs: the
+    PIV of each pair but the last sees the next pair's read start (it waits for it, so a
+    sequential reader would show False after the timeout); results as before."""
+    import threading
+
+    cfg = load_campaign_config(synth / "campaign.toml")
+    cfg.correction.method = "none"
+    cfg.correction.compare_uncorrected = False
+    cfg.calibration.monte_carlo_samples = 0
+    cfg.output.report = False
+    started: dict[str, threading.Event] = {}
+    real_read, real_piv = campaign_mod.read_frame, campaign_mod.run_grid
+
+    def read_frame(path, index):
+        started.setdefault(str(path), threading.Event()).set()
+        return real_read(path, index)
+
+    files = sorted(str(p) for p in (synth / "raw").glob("*.tif"))
+    seen = []
+
+    def run_grid(a, b, settings, mask):
+        k = len(seen)
+        if 2 * k + 2 < len(files):  # the next pair's frame A
+            ev = started.setdefault(files[2 * k + 2], threading.Event())
+            seen.append(ev.wait(timeout=20))
+        else:
+            seen.append(None)
+        return real_piv(a, b, settings, mask)
+
+    monkeypatch.setattr(campaign_mod, "read_frame", read_frame)
+    monkeypatch.setattr(campaign_mod, "run_grid", run_grid)
+    camp = Campaign(cfg, progress=False, out_dir=tmp_path / "out")
+    camp.prepare()
+    started.clear()
+    seen.clear()
+    res = camp.run()
+    assert res.n_done == 3 and seen == [True, True, None], seen
 
 
 def test_malformed_toml_names_the_key(tmp_path, capsys):

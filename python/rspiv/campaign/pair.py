@@ -21,7 +21,7 @@ from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image
 from rspiv.multipass import run_grid
 
-__all__ = ["process_pair", "read_checked_pair", "read_frame"]
+__all__ = ["process_pair", "read_ahead", "read_checked_pair", "read_frame"]
 
 
 def read_frame(path: str, index: int | None) -> np.ndarray:
@@ -89,20 +89,39 @@ def _field_arrays(
     return u, v, valid
 
 
-def process_pair(context: PairContext, pair: PairSpec) -> PairResult:
+def read_ahead(pair: PairSpec, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | str:
+    """Frames A and B of ``pair`` (:func:`read_checked_pair`), or the one-line reason they
+    cannot be used: what :func:`process_pair` takes as ``frames`` when the reading was done
+    ahead, e.g. in a thread while the previous pair's PIV runs."""
+    try:
+        return read_checked_pair(pair, shape)
+    except (RspivError, ValueError, OSError) as exc:
+        return str(exc)
+
+
+def process_pair(
+    context: PairContext,
+    pair: PairSpec,
+    frames: tuple[np.ndarray, np.ndarray] | str | None = None,
+) -> PairResult:
     """Process one pair for every run of ``context`` (pure: no files written, no state kept
     beyond the context's cache of the parsed mapping).
+
+    ``frames``: the pair's frames already read (:func:`read_ahead`: the arrays or the reason
+    they cannot be used); None reads them here (``timings["read"]`` is then the read itself,
+    else the caller's wait, see :class:`rspiv.campaign.executors.local.LocalExecutor`).
 
     Bad data (missing or unreadable frame, frames of different sizes or not of the campaign's
     size) gives ``PairResult(ok=False, reason=...)``; programming errors propagate.
     """
     t = {k: 0.0 for k in STAGES[:3]}
     t0 = time.perf_counter()
-    try:
-        a, b = read_checked_pair(pair, context.image_shape)
-    except (RspivError, ValueError, OSError) as exc:
-        return PairResult(pair.pair_id, False, str(exc), timings=t)
-    t["read"] = time.perf_counter() - t0
+    if frames is None:
+        frames = read_ahead(pair, context.image_shape)
+        t["read"] = time.perf_counter() - t0
+    if isinstance(frames, str):
+        return PairResult(pair.pair_id, False, frames, timings=t)
+    a, b = frames
     try:
         a, b = context.condition(a, b)
     except (RspivError, ValueError) as exc:
