@@ -25,18 +25,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 
 import numpy as np
-
-
-def best(f, repeat):
-    t = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f()
-        t.append(time.perf_counter() - t0)
-    return min(t)
+from bench_piv import best_of  # the one best-of-n timer of the benches
 
 
 def main() -> None:
@@ -87,11 +78,11 @@ def main() -> None:
     print(f"pair {w} x {h} uint16, {os.cpu_count()} cpus, best of {args.repeat}")
     print(f"{'step':32s} {'rspiv':>9s} {'OpenCV':>9s} {'OpenCV/rspiv':>13s}")
     for name, ours, peer in rows:
-        t_ours = best(ours, args.repeat)
+        t_ours = best_of(ours, args.repeat)[0]
         if peer is None:
             print(f"{name:32s} {t_ours:8.3f}s {'-':>9s} {'-':>13s}")
             continue
-        t_peer = best(peer, args.repeat)
+        t_peer = best_of(peer, args.repeat)[0]
         print(f"{name:32s} {t_ours:8.3f}s {t_peer:8.3f}s {t_peer / t_ours:12.2f}x")
 
 

@@ -14,18 +14,9 @@ from __future__ import annotations
 import argparse
 import pathlib
 import tempfile
-import time
 
 import numpy as np
-
-
-def best(f, repeat: int) -> float:
-    t = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f()
-        t.append(time.perf_counter() - t0)
-    return min(t)
+from bench_piv import best_of  # the one best-of-n timer of the benches
 
 
 def main() -> None:
@@ -63,8 +54,8 @@ def main() -> None:
         for name, ours, theirs in cases:
             a, b = [], []
             for _ in range(args.repeat):
-                a.append(best(ours, 1))
-                b.append(best(theirs, 1))
+                a.append(best_of(ours, 1)[0])
+                b.append(best_of(theirs, 1)[0])
             assert np.array_equal(ours(), theirs())
             print(f"| {name} | {min(a) * 1e3:.1f} ms | {min(b) * 1e3:.1f} ms | "
                   f"{min(a) / min(b):.2f} |")  # fmt: skip
