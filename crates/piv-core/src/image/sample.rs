@@ -270,9 +270,86 @@ pub(crate) fn sample_shift<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N], const N: 
     let wy = wf(ty as f32);
     let o = (N / 2 - 1) as isize;
     let (ix, iy) = (fx as isize - o, fy as isize - o);
+    if !shift_separable(interp, &wx, &wy, w, h, ix, iy, out) {
+        shift_per_pixel(interp, &wx, &wy, w, h, ix, iy, out);
+    }
+}
+
+/// Longest window row (px) of [`shift_separable`] (its ring of `N` rows is on the stack).
+pub(crate) const SHIFT_LINE: usize = 128;
+
+/// The window of a constant sub-pixel shift, pixel by pixel: the `N x N` taps whose top-left
+/// is `(ix + c, iy + r)` (mirrored beyond the image). The reference of [`shift_separable`] and
+/// its fallback.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn shift_per_pixel<U: Pixel, const N: usize>(
+    interp: &Img<'_, U>,
+    wx: &[f32; N],
+    wy: &[f32; N],
+    w: usize,
+    h: usize,
+    ix: isize,
+    iy: isize,
+    out: &mut [f32],
+) {
     for r in 0..h {
         for c in 0..w {
-            out[r * w + c] = interp.taps(ix + c as isize, iy + r as isize, &wx, &wy);
+            out[r * w + c] = interp.taps(ix + c as isize, iy + r as isize, wx, wy);
         }
     }
+}
+
+/// The window of a constant sub-pixel shift, separably: the weights are the same for every
+/// pixel, so each source row's horizontal sums are computed once (kept in a ring of the last
+/// `N` rows) and each output row is the vertical sum of `N` of them: `(2h + N - 1) N` taps
+/// per column instead of `h N^2`, in loops over the columns that vectorise. Bit for bit
+/// [`shift_per_pixel`] (the same products summed in the same order). Returns false, writing
+/// nothing, when a tap lies outside the image, the window is wider than [`SHIFT_LINE`] or the
+/// kernel has more than 6 taps (the caller falls back to [`shift_per_pixel`]).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn shift_separable<U: Pixel, const N: usize>(
+    interp: &Img<'_, U>,
+    wx: &[f32; N],
+    wy: &[f32; N],
+    w: usize,
+    h: usize,
+    ix: isize,
+    iy: isize,
+    out: &mut [f32],
+) -> bool {
+    let inside = ix >= 0
+        && iy >= 0
+        && ix as usize + w + N - 1 <= interp.width
+        && iy as usize + h + N - 1 <= interp.height;
+    if !inside || w > SHIFT_LINE || N > 6 {
+        return false;
+    }
+    let (s, stride) = (interp.slice(), interp.width);
+    let (ix, iy) = (ix as usize, iy as usize);
+    let mut ring = [0.0f32; 6 * SHIFT_LINE];
+    // the horizontal sums of source row `iy + k` into ring slot `k % N`
+    let horizontal = |k: usize, ring: &mut [f32; 6 * SHIFT_LINE]| {
+        let src = &s[(iy + k) * stride + ix..][..w + N - 1];
+        let dst = &mut ring[(k % N) * w..][..w];
+        dst.fill(0.0);
+        for (j, &a) in wx.iter().enumerate() {
+            for (d, p) in dst.iter_mut().zip(&src[j..j + w]) {
+                *d += a * p.to_f32();
+            }
+        }
+    };
+    for k in 0..N - 1 {
+        horizontal(k, &mut ring);
+    }
+    for (r, row) in out[..h * w].chunks_exact_mut(w).enumerate() {
+        horizontal(r + N - 1, &mut ring);
+        row.fill(0.0);
+        for (j, &b) in wy.iter().enumerate() {
+            let t = &ring[((r + j) % N) * w..][..w];
+            for (o, v) in row.iter_mut().zip(t) {
+                *o += b * v;
+            }
+        }
+    }
+    true
 }

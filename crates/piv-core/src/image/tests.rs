@@ -354,3 +354,71 @@ fn deformation_vector_and_portable_paths_agree_exactly() {
         assert!(nan > 100 && nan < n / 4, "{nan} of {n}");
     }
 }
+
+/// The separable constant-shift window equals the per-pixel one bit for bit, for the three
+/// kernels, square and rectangular windows, any fraction; it declines windows whose taps
+/// leave the image or rows wider than SHIFT_LINE (the caller then goes pixel by pixel).
+#[test]
+fn separable_shift_equals_the_per_pixel_taps() {
+    let (h, w) = (90, 300);
+    let a = Array2::from_shape_fn((h, w), |(y, x)| {
+        let (x, y) = (x as f64, y as f64);
+        (700.0 + 250.0 * (0.77 * x).sin() * (0.61 * y + 0.4).cos() + 1.5 * x - y) as f32
+    });
+    let img = Img::new(a.view(), "a").unwrap();
+    let c5 = bspline5_coeffs(&img);
+    let c3 = bspline_coeffs(&img);
+    let mut n = 0;
+    for (k, &(ww, wh)) in [(32usize, 32usize), (32, 8), (64, 16), (8, 32), (128, 4)]
+        .iter()
+        .enumerate()
+    {
+        for (ix, iy) in [
+            (0isize, 0isize),
+            (17, 5),
+            (w as isize - ww as isize - 5, 40),
+        ] {
+            let t = 0.137 + 0.19 * k as f32;
+            let (mut sep, mut per) = (vec![0.0f32; ww * wh], vec![0.0f32; ww * wh]);
+            let w5 = bspline5_weights(t);
+            let w5y = bspline5_weights(1.0 - t);
+            assert!(shift_separable(&c5, &w5, &w5y, ww, wh, ix, iy, &mut sep));
+            shift_per_pixel(&c5, &w5, &w5y, ww, wh, ix, iy, &mut per);
+            assert!(sep
+                .iter()
+                .zip(&per)
+                .all(|(p, q)| p.to_bits() == q.to_bits()));
+            let w3 = bspline_weights(t);
+            assert!(shift_separable(&c3, &w3, &w3, ww, wh, ix, iy, &mut sep));
+            shift_per_pixel(&c3, &w3, &w3, ww, wh, ix, iy, &mut per);
+            assert!(sep
+                .iter()
+                .zip(&per)
+                .all(|(p, q)| p.to_bits() == q.to_bits()));
+            let wk = keys_weights(t);
+            assert!(shift_separable(&img, &wk, &wk, ww, wh, ix, iy, &mut sep));
+            shift_per_pixel(&img, &wk, &wk, ww, wh, ix, iy, &mut per);
+            assert!(sep
+                .iter()
+                .zip(&per)
+                .all(|(p, q)| p.to_bits() == q.to_bits()));
+            n += 3;
+        }
+    }
+    assert_eq!(n, 45);
+    let w5 = bspline5_weights(0.3);
+    let mut out = vec![0.0f32; 256 * 4];
+    assert!(!shift_separable(&c5, &w5, &w5, 32, 8, -1, 3, &mut out)); // taps left of the image
+    assert!(!shift_separable(&c5, &w5, &w5, 32, 8, 270, 3, &mut out)); // right of it
+    assert!(!shift_separable(&c5, &w5, &w5, 32, 8, 3, 83, &mut out)); // below it
+    assert!(!shift_separable(
+        &c5,
+        &w5,
+        &w5,
+        SHIFT_LINE + 1,
+        2,
+        0,
+        0,
+        &mut out
+    )); // too wide
+}
