@@ -3,9 +3,10 @@
 //! Each output row is built in phases over arrays (positions, integer bases and fractions,
 //! the kernel's weights for every pixel of the row, then the taps), so that the weights, the
 //! costliest part (a quintic B-spline weight set is ~20 flops), are computed by vector
-//! instructions; on x86-64 with AVX2 and FMA the row is compiled for them (runtime detection;
-//! the same code and the same rounding as the portable path: no fused multiply-adds are formed,
-//! tested bit for bit).
+//! instructions, and 8-pixel chunks whose taps start on the same source row (column pass) or
+//! at the same offset (row pass) read contiguous values per tap; on x86-64 with AVX2 and FMA
+//! the row is compiled for them (runtime detection; the same code and the same rounding as the
+//! portable path: no fused multiply-adds are formed, tested bit for bit).
 
 use super::field::*;
 use super::sample::inside;
@@ -41,8 +42,9 @@ pub fn deform_pair<U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, const N: usiz
     deform_pair_with(ia, ib, wf, f, reuse, simd_available())
 }
 
-/// The pixel buffers of a deformed pair, for the `reuse` of the next [`deform_pair`] (`None`
-/// if the images do not own their pixels).
+/// The pixel buffers of a deformed pair, for the `reuse` of the next [`deform_pair`] (the
+/// images [`deform_pair`] returns own their pixels, which are handed over without a copy;
+/// `None` if the data does not start at the buffer's beginning).
 pub fn into_buffers(pair: (Img<'static, f32>, Img<'static, f32>)) -> Option<(Vec<f32>, Vec<f32>)> {
     let own = |img: Img<'static, f32>| {
         let (v, off) = img.data.into_owned().into_raw_vec_and_offset();
