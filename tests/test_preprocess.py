@@ -66,6 +66,13 @@ def test_bad_input_is_one_line(tmp_path):
         condition(np.zeros((4, 5)), NEAR_WALL, background=np.zeros((5, 4)))
     with pytest.raises(rspiv.InvalidInputError, match="NaN"):
         condition(np.full((4, 5), np.nan, np.float32), NEAR_WALL)
+    # the native entry point itself: a pixel type it does not take, an empty frame
+    from rspiv import _rspiv
+
+    with pytest.raises(rspiv.InvalidInputError, match="uint8, uint16, float32 or float64"):
+        _rspiv.conditioned(np.zeros((4, 5), np.int64))
+    with pytest.raises(rspiv.InvalidInputError, match="empty"):
+        _rspiv.conditioned(np.zeros((0, 5), np.uint16))
 
 
 def test_steps_on_exact_answers():

@@ -231,17 +231,6 @@ def render_particles(
     area, plus Gaussian noise (counts), rounded and clipped to [0, max_count]. ``diameter`` holds
     one value or one per particle. Deterministic for a seed whatever the thread count."""
 
-def condition(
-    frame: npt.NDArray[np.float32],
-    hot_pixels: float | None = None,
-    high_pass: float | None = None,
-    cap: float | None = None,
-    min_max: int | None = None,
-    background: npt.NDArray[np.float32] | None = None,
-) -> None:
-    """Condition a C-contiguous float32 frame in place (piv_core::condition): hot pixels,
-    background, high-pass, cap, min-max normalisation, each off when None."""
-
 def conditioned(
     frame: npt.NDArray[np.generic],
     hot_pixels: float | None = None,

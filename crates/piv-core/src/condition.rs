@@ -85,7 +85,7 @@ impl Conditioning {
 /// [`PivError::InvalidInput`] for a non-contiguous or empty image, a background of another
 /// shape, NaN/inf pixels, or parameters out of range. After a NaN/inf error the frame may
 /// already hold the background subtraction (the check is fused with it); callers condition a
-/// copy (`rspiv.preprocess.condition` does).
+/// copy, or use [`conditioned`] (what `rspiv.preprocess.condition` calls).
 pub fn condition(
     mut img: ArrayViewMut2<'_, f32>,
     c: &Conditioning,
@@ -97,47 +97,28 @@ pub fn condition(
     let buf = img
         .as_slice_mut()
         .ok_or_else(|| PivError::InvalidInput("image must be C-contiguous".into()))?;
-    let non_finite =
-        || PivError::InvalidInput("image contains NaN or infinite pixel values".into());
-    match (c.hot_pixels, &background) {
-        // the finite check fused with the subtraction (one pass over the frame)
-        (None, Some(b)) => {
-            let b = b.as_standard_layout();
-            let bs = b.as_slice().expect("standard layout");
-            let bad = buf
-                .par_chunks_mut(1 << 16)
-                .zip(bs.par_chunks(1 << 16))
-                .map(|(v, b)| {
-                    let mut ok = true;
-                    for (v, &b) in v.iter_mut().zip(b) {
+    let bg = background.as_ref().map(|b| b.as_standard_layout());
+    let bs = bg.as_ref().map(|b| b.as_slice().expect("standard layout"));
+    // the finite check (and the subtraction when nothing comes before it) in one pass
+    let fused = if c.hot_pixels.is_none() { bs } else { None };
+    let finite = buf
+        .par_chunks_mut(CHUNK)
+        .enumerate()
+        .map(|(k, v)| {
+            let mut ok = true;
+            match fused {
+                Some(b) => {
+                    for (v, &b) in v.iter_mut().zip(&b[k * CHUNK..]) {
                         ok &= v.is_finite();
                         *v = (*v - b).max(0.0);
                     }
-                    !ok
-                })
-                .reduce(|| false, |a, b| a || b);
-            if bad {
-                return Err(non_finite());
+                }
+                None => v.iter().for_each(|v| ok &= v.is_finite()),
             }
-        }
-        _ => {
-            if buf.par_iter().any(|v| !v.is_finite()) {
-                return Err(non_finite());
-            }
-            if let Some(f) = c.hot_pixels {
-                remove_hot_pixels(buf, w, h, f);
-            }
-            if let Some(b) = background {
-                let b = b.as_standard_layout();
-                let bs = b.as_slice().expect("standard layout");
-                buf.par_iter_mut()
-                    .zip(bs.par_iter())
-                    .for_each(|(v, &b)| *v = (*v - b).max(0.0));
-            }
-        }
-    }
-    later_steps(buf, w, h, c);
-    Ok(())
+            ok
+        })
+        .reduce(|| true, |a, b| a && b);
+    remaining_steps(buf, w, h, c, finite, bs, fused.is_some())
 }
 
 /// The conditioned copy of a frame of any pixel type as a new `f32` array (module docs): the
@@ -188,7 +169,6 @@ pub fn conditioned_into<T: Pixel>(
     let buf = out
         .as_slice_mut()
         .ok_or_else(|| PivError::InvalidInput("output must be C-contiguous".into()))?;
-    const CHUNK: usize = 1 << 16;
     // convert (and subtract the background when nothing comes before it)
     let fused = if c.hot_pixels.is_none() { bs } else { None };
     let finite = buf
@@ -214,16 +194,34 @@ pub fn conditioned_into<T: Pixel>(
             ok
         })
         .reduce(|| true, |a, b| a && b);
+    remaining_steps(buf, w, h, c, finite, bs, fused.is_some())
+}
+
+/// Pixels per parallel chunk of the first pass.
+const CHUNK: usize = 1 << 16;
+
+/// After the first pass over an `f32` frame (`finite`: no NaN/inf seen): the hot pixels and the
+/// background subtraction unless `subtracted` (fused into that pass, possible only without hot
+/// pixels), then [`later_steps`].
+fn remaining_steps(
+    buf: &mut [f32],
+    w: usize,
+    h: usize,
+    c: &Conditioning,
+    finite: bool,
+    background: Option<&[f32]>,
+    subtracted: bool,
+) -> Result<()> {
     if !finite {
         return Err(PivError::InvalidInput(
             "image contains NaN or infinite pixel values".into(),
         ));
     }
-    if fused.is_none() {
+    if !subtracted {
         if let Some(f) = c.hot_pixels {
             remove_hot_pixels(buf, w, h, f);
         }
-        if let Some(b) = bs {
+        if let Some(b) = background {
             buf.par_iter_mut()
                 .zip(b.par_iter())
                 .for_each(|(v, &b)| *v = (*v - b).max(0.0));
