@@ -8,7 +8,7 @@ wall-normal from the wall, in metres and wall units.
 
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import BoundaryLayerResult, analyse_profile
-from rspiv.calibration import Calibration, calibrate
+from rspiv.calibration import Calibration, calibrate, calibrate_points
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.correction import piv_vectors
@@ -29,7 +29,7 @@ __all__ += ["FieldAccumulator", "CampaignConfig", "load_campaign_config", "analy
 __all__ += ["BoundaryLayerResult", "load_dns"]
 __all__ += ["Mapping", "fit_mapping"]
 __all__ += ["PivField", "PivSettings", "piv", "piv_at"]
-__all__ += ["Calibration", "calibrate", "MonteCarloResult", "monte_carlo"]
+__all__ += ["Calibration", "calibrate", "calibrate_points", "MonteCarloResult", "monte_carlo"]
 __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]

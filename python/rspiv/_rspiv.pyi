@@ -73,8 +73,12 @@ def render_target(
     read_noise: float = 4.0,
     full_scale: float = 4095.0,
     seed: int = 0,
+    radius_px: npt.NDArray[np.float64] | None = None,
+    plate: float = 0.0,
 ) -> npt.NDArray[np.uint16]:
-    """Render Gaussian dots centred at ``centres`` (N, 2) image px, with illumination and noise."""
+    """Render Gaussian dots (or, where ``radius_px > 0``, discs of that radius blurred by
+    ``sigma_px``) centred at ``centres`` (N, 2) image px on a plate of level ``plate`` under the
+    illumination, with camera noise; negative amplitudes give dark dots."""
 
 def detect_markers(
     image: npt.NDArray[np.generic],
@@ -82,11 +86,14 @@ def detect_markers(
     size_px: float | None = None,
     threshold: float = 0.25,
     min_snr: float = 8.0,
-    dark: bool = False,
+    dark: bool | None = None,
+    profile: str = "auto",
 ) -> dict[str, object]:
     """Markers of a target image (uint8/uint16/float32/float64): keys ``image_px`` (N, 2),
-    ``cov_px2`` (N, 2, 2), ``amplitude``, ``width_px``, ``strength`` (N,), ``size_px``,
-    ``downsample``."""
+    ``cov_px2`` (N, 2, 2), ``amplitude``, ``width_px``, ``radius_px``, ``strength`` (N,),
+    ``size_px``, ``downsample``, ``profile`` ("gaussian", "disc" or "cross"), ``dark`` (the
+    polarity used) and, when size or polarity were surveyed, ``survey_lattice``,
+    ``survey_detected``, ``survey_snr``."""
 
 def index_grid(
     points_px: npt.NDArray[np.float64], centre: tuple[float, float], tol: float = 0.3

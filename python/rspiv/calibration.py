@@ -1,16 +1,23 @@
-"""Calibration from a target image (paper section 3.1; DESIGN.md "Calibration from a target
-image"): sub-pixel markers with their uncertainty, grid indexing, magnification, object points,
-and the choice of mapping model by held-out error.
+"""Calibration from a target image or from given marker positions (paper section 3.1;
+DESIGN.md "Calibration from a target image"): sub-pixel markers with their uncertainty, grid
+indexing, magnification, object points, the choice of mapping model by held-out error, and a
+refusal of fits that do not follow the markers.
 
 Frames
 ------
 Image px: the raw camera image (README pixel frame: x = column, y = row, origin at the centre of
-the top-left pixel, y down). Object px: the dewarped frame, an axis-aligned square grid whose
-origin is the central marker: ``P_o = P_ic + M * pitch_mm * (i, j)``, with ``P_ic`` the image
-position of the central marker (the marker nearest the image centre), ``(i, j)`` the grid index
-(i along +x, j along +y) and ``M`` the magnification measured from the central marker and its four
-neighbours. A target rotation on the sensor is thus part of the mapping (see
+the top-left pixel, y down). Object px: the dewarped frame, whose origin is the central marker:
+``P_o = P_ic + M * (X_mm - X_c)``, with ``X_mm`` a marker's position on the target plane (mm),
+``X_c`` and ``P_ic`` the target-plane and image positions of the central marker (the marker
+nearest the image centre) and ``M`` the magnification (px/mm) measured from the central marker
+and its nearest neighbours. For a target image ``X_mm = pitch_mm * (i, j)`` with ``(i, j)`` the
+grid index (i along +x, j along +y), so ``P_o = P_ic + M * pitch_mm * (i, j)``: an axis-aligned
+square grid. A target rotation on the sensor is thus part of the mapping (see
 :meth:`Calibration.with_rotation` for the wall-alignment correction).
+
+:func:`calibrate` (detection and indexing) and :func:`calibrate_points` (positions found by
+another tool or by hand) share one path from the points on: magnification, object points, model
+comparison, fit, fit-quality check and uncertainties.
 """
 
 from __future__ import annotations
@@ -25,9 +32,19 @@ import numpy as np
 import numpy.typing as npt
 
 from rspiv import _rspiv
-from rspiv.errors import InvalidInputError, RspivError
+from rspiv import calibration_input as check
+from rspiv.calibration_fit import (
+    MIN_POINTS,
+    N_PARAMS,
+    check_fit,
+    choose_model,
+    compare_models,
+    fit_stats,
+    magnification,
+)
+from rspiv.errors import InvalidInputError
 from rspiv.io import read_image
-from rspiv.mapping import MODELS, Mapping, fit_mapping
+from rspiv.mapping import Mapping, fit_mapping
 from rspiv.outputs import atomic_write_text
 
 __all__ = [
@@ -35,11 +52,14 @@ __all__ = [
     "Calibration",
     "CalibrationReport",
     "calibrate",
+    "calibrate_points",
     "compare_models",
 ]
 
 FORMAT = "rspiv-calibration"
-VERSION = 1
+VERSION = 1  # later additions (warnings, lattice, image_sigma_source) are optional keys
+POINTS = "points"  # the ``marker`` of a calibration from given points
+DETECTOR = "marker detector"  # the image sigma's source for a target image
 
 
 @dataclass
@@ -80,13 +100,19 @@ class CalibrationReport(dict):
 
     def __str__(self) -> str:
         r = self
+        if r.get("marker") == POINTS:
+            count = f"{r['n_markers']} given"
+        else:
+            count = f"{r['n_markers']} indexed of {r['n_detected']} detected"
         lines = [
-            f"markers                      {r['n_markers']} indexed of {r['n_detected']} detected",
+            f"markers                      {count}",
             f"pitch (mm)                   {r['pitch_mm']:.3f} +/- {r['pitch_sigma_mm']:.3f}",
             "magnification M (px/mm)      {:.3f} +/- {:.3f}".format(
                 r["magnification"], r["magnification_sigma"]
             ),
-            "image sigma (px)             {:.4f}".format(r["image_sigma_px"]),
+            "image sigma (px)             {:.4f} ({})".format(
+                r["image_sigma_px"], r.get("image_sigma_source", DETECTOR)
+            ),
             "object sigma (px)            {:.4f} ({})".format(
                 r["object_sigma_px"], r["object_sigma_source"]
             ),
@@ -109,6 +135,7 @@ class CalibrationReport(dict):
                 f"   {s['rms_px'][0]:7.3f} {s['rms_px'][1]:7.3f}   {_fmt_loo(s['loo_rms_px'])}"
             )
         lines.append(f"model: {r['model']} ({r['model_reason']})")
+        lines += [f"WARNING: {w}" for w in r.get("warnings", [])]
         return "\n".join(lines)
 
 
@@ -116,53 +143,9 @@ def _fmt_loo(v: Any) -> str:
     return "        -" if v is None else f"{v:9.4f}"
 
 
-def _loo_rms(obj: np.ndarray, img: np.ndarray, centre: int, model: str, scale: float) -> float:
-    """RMS held-out error (px): each non-central marker predicted by a fit without it."""
-    errs = []
-    n = len(obj)
-    for k in range(n):
-        if k == centre:
-            continue
-        keep = np.arange(n) != k
-        c = centre - (1 if k < centre else 0)
-        m = fit_mapping(obj[keep], img[keep], model, center_index=c, scale=scale)
-        errs.append(np.sum((m.forward(obj[k : k + 1])[0] - img[k]) ** 2))
-    return float(np.sqrt(np.mean(errs)))
-
-
-def compare_models(
-    object_px: npt.ArrayLike,
-    image_px: npt.ArrayLike,
-    centre: int,
-    models: tuple[str, ...] = MODELS,
-) -> dict[str, dict[str, Any]]:
-    """Fit each model and measure its residuals and its leave-one-out (held-out) error.
-
-    Returns ``{model: {"max_abs_px", "mean_px", "rms_px", "loo_rms_px"}}`` for the models that
-    have enough markers; models that cannot be fitted are left out.
-    """
-    obj = np.asarray(object_px, dtype=np.float64)
-    img = np.asarray(image_px, dtype=np.float64)
-    scale = float(np.max(np.abs(obj[:, 0])))
-    out: dict[str, dict[str, Any]] = {}
-    for model in models:
-        try:
-            m = fit_mapping(obj, img, model, center_index=centre, scale=scale)
-            loo = _loo_rms(obj, img, centre, model, scale)
-        except RspivError:
-            continue
-        st = m.stats
-        out[model] = {
-            "max_abs_px": [float(v) for v in st["max_abs_px"]],
-            "mean_px": [float(v) for v in st["mean_px"]],
-            "rms_px": [float(v) for v in st["rms_px"]],
-            "loo_rms_px": loo,
-        }
-    return out
-
-
 class Calibration:
-    """A camera calibration from a target image.
+    """A camera calibration from a target image (:func:`calibrate`) or from given marker
+    positions (:func:`calibrate_points`).
 
     Attributes
     ----------
@@ -176,19 +159,32 @@ class Calibration:
         Per-model residual statistics and held-out error (see :func:`compare_models`).
     pitch_mm, pitch_sigma_mm : float
     magnification, magnification_sigma : float
-        M (px/mm) from the central marker and its four neighbours, and the standard deviation
-        of those four estimates.
+        M (px/mm) from the central marker and its nearest neighbours (on a grid: its four
+        neighbours), and the standard deviation of those estimates.
     object_sigma_px : float
         Uncertainty of the object points, px: ``pitch_sigma_mm * M`` when the pitch uncertainty
         is given, else estimated from the chosen fit's residuals beyond the image noise.
     object_sigma_source : str
+    image_sigma_source : str
+        Where the markers' image covariances come from: ``"marker detector"`` (a target image),
+        the caller (``cov_px2`` / ``sigma_px`` of :func:`calibrate_points`), or the fit residuals.
     image_shape : tuple of int
         (height, width) of the calibrated sensor.
     marker : str
+        Marker shape (``"dot"``, ``"cross"``), or ``"points"`` for given positions.
     size_px : float
-        Marker size used by the detector (Gaussian sigma, px).
+        Marker size used by the detector (Gaussian sigma, px); 0 for given positions.
     n_detected : int
-        Blobs detected (markers + rejected spurious blobs).
+        Blobs detected (markers + rejected spurious blobs); the number of given points.
+    lattice : dict or None
+        The lattice the grid indexing found (target images): ``pitch_px`` (its two steps at the
+        central marker, px, along i and j), ``angle_deg`` (direction of the i step from +x
+        towards +y), ``axes_angle_deg`` (angle between the two steps), ``n_indexed``,
+        ``n_detected``, ``n_rejected`` (detected but not indexed), ``size_px`` and
+        ``rejected_px`` (the rejected blobs' positions, ndarray (k, 2)). None for given points.
+    warnings : list of str
+        What the caller should know about this calibration (a fit looser than the markers'
+        noise, an estimated image sigma); empty when nothing is to be said.
     """
 
     def __init__(self, **kw: Any) -> None:
@@ -203,10 +199,13 @@ class Calibration:
         self.magnification_sigma: float = float(kw["magnification_sigma"])
         self.object_sigma_px: float = float(kw["object_sigma_px"])
         self.object_sigma_source: str = kw["object_sigma_source"]
+        self.image_sigma_source: str = str(kw.get("image_sigma_source", DETECTOR))
         self.image_shape: tuple[int, int] = (int(kw["image_shape"][0]), int(kw["image_shape"][1]))
         self.marker: str = kw["marker"]
         self.size_px: float = float(kw["size_px"])
         self.n_detected: int = int(kw["n_detected"])
+        self.lattice: dict[str, Any] | None = kw.get("lattice")
+        self.warnings: list[str] = [str(w) for w in kw.get("warnings", [])]
 
     @property
     def image_sigma_px(self) -> float:
@@ -224,8 +223,24 @@ class Calibration:
         return {k: getattr(self, k) for k in (
             "markers", "mapping", "model", "model_reason", "models", "pitch_mm",
             "pitch_sigma_mm", "magnification", "magnification_sigma", "object_sigma_px",
-            "object_sigma_source", "image_shape", "marker", "size_px", "n_detected",
+            "object_sigma_source", "image_sigma_source", "image_shape", "marker", "size_px",
+            "n_detected", "lattice", "warnings",
         )}  # fmt: skip
+
+    def lattice_summary(self) -> str | None:
+        """One line describing the lattice the grid indexing found (None for given points)."""
+        la = self.lattice
+        if la is None:
+            return None
+        return (
+            "lattice: pitch {:.2f} x {:.2f} px (i, j), i axis at {:+.2f} deg from +x (towards "
+            "+y), axes {:.2f} deg apart; {} markers indexed of {} detected ({} rejected); "
+            "{} {} dots, size {:.2f} px".format(
+                *la["pitch_px"], la["angle_deg"], la["axes_angle_deg"], la["n_indexed"],
+                la["n_detected"], la["n_rejected"], la.get("polarity", "bright"),
+                la.get("profile", "gaussian"), la["size_px"],
+            )
+        )  # fmt: skip
 
     def report(self) -> CalibrationReport:
         """The quantities of the paper's Table 3 (and the model comparison)."""
@@ -245,6 +260,8 @@ class Calibration:
             image_sigma_px=self.image_sigma_px,
             object_sigma_px=self.object_sigma_px,
             object_sigma_source=self.object_sigma_source,
+            image_sigma_source=self.image_sigma_source,
+            marker=self.marker,
             centre_image_px=[float(v) for v in ci],
             centre_object_px=[float(v) for v in co],
             x_o_max=float(s),
@@ -256,6 +273,8 @@ class Calibration:
             model=self.model,
             model_reason=self.model_reason,
             image_shape=list(self.image_shape),
+            lattice=_lattice_json(self.lattice),
+            warnings=list(self.warnings),
         )
 
     # -- files ----------------------------------------------------------------------------
@@ -271,12 +290,15 @@ class Calibration:
             "magnification_sigma": self.magnification_sigma,
             "object_sigma_px": self.object_sigma_px,
             "object_sigma_source": self.object_sigma_source,
+            "image_sigma_source": self.image_sigma_source,
             "marker": self.marker,
             "size_px": self.size_px,
             "n_detected": self.n_detected,
             "model": self.model,
             "model_reason": self.model_reason,
             "models": self.models,
+            "warnings": list(self.warnings),
+            "lattice": _lattice_json(self.lattice),
             "markers": {
                 "image_px": mk.image_px.tolist(),
                 "object_px": mk.object_px.tolist(),
@@ -319,6 +341,10 @@ class Calibration:
                 "magnification", "magnification_sigma", "object_sigma_px",
                 "object_sigma_source", "image_shape", "marker", "size_px", "n_detected",
             )}  # fmt: skip
+            # Optional keys (absent from older files and from rspiv-engine's).
+            fields["image_sigma_source"] = str(d.get("image_sigma_source", DETECTOR))
+            fields["warnings"] = _string_list(d.get("warnings", []))
+            fields["lattice"] = _lattice_from_json(d.get("lattice"))
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"{name}: corrupt calibration ({exc})") from None
         return cls(markers=markers, mapping=mapping, **fields)
@@ -352,9 +378,11 @@ def calibrate(
     marker_size_px: float | None = None,
     threshold: float = 0.25,
     min_snr: float = 8.0,
-    dark: bool = False,
+    dark: bool | None = None,
+    profile: str = "auto",
     grid_tolerance: float = 0.3,
     compare: bool = True,
+    accept_poor_fit: bool = False,
 ) -> Calibration:
     """Calibrate from a target image.
 
@@ -372,102 +400,265 @@ def calibrate(
         Uncertainty of the pitch (mm); gives ``object_sigma_px = pitch_sigma_mm * M``. Default:
         estimated from the chosen fit's residuals beyond the image noise.
     marker_size_px : float, optional
-        Marker size (Gaussian sigma, px); default estimated from the image.
+        Marker size (Gaussian sigma, px); default read from the image (the size at which the
+        detections form the strongest lattice, refined from the strongest markers' fits).
     threshold, min_snr : float
-        Detection thresholds (fraction of the strongest correlation peak; multiple of the
-        correlation noise).
-    dark : bool
-        Markers darker than the background.
+        Detection thresholds (fraction of the lattice's median correlation level, or of the
+        strongest peak when size and polarity are both given; multiple of the correlation
+        noise).
+    dark : bool, optional
+        Markers darker than the background; default found from the image (the polarity whose
+        detections form the stronger lattice).
+    profile : {"auto", "gaussian", "disc"}
+        Dot profile of the sub-pixel fit: a Gaussian blob or a printed disc blurred by the lens;
+        ``"auto"`` takes the disc when the strongest dots' Gaussian fits show a flat top.
     grid_tolerance : float
         Grid acceptance radius as a fraction of the pitch.
     compare : bool
         Compare all models (residuals and held-out error). Forced on for ``model="auto"``.
+    accept_poor_fit : bool
+        Keep a fit whose residual RMS exceeds ``max(10 x`` the markers' image sigma, 0.5 px)
+        (recorded in :attr:`Calibration.warnings`) instead of refusing it.
 
     Returns
     -------
     Calibration
+        With :attr:`Calibration.lattice` (the lattice found) and :attr:`Calibration.warnings`
+        (a residual RMS above 3 x the markers' image sigma).
 
     Raises
     ------
     InvalidInputError
-        Unreadable file, blank image, no grid, pitch <= 0, too few markers for the model.
+        Unreadable file, blank image, no grid, pitch <= 0, too few markers for the model, a fit
+        that does not follow the markers (see ``accept_poor_fit``).
     """
-    pitch = _positive("pitch_mm", pitch_mm)
-    psig = None if pitch_sigma_mm is None else _nonneg("pitch_sigma_mm", pitch_sigma_mm)
-    if not isinstance(model, str) or model.lower() not in (*MODELS, "auto"):
-        raise InvalidInputError(f"unknown model {model!r} (expected auto, r1, r2 or p3)")
-    model = model.lower()
+    pitch = check.positive("pitch_mm", pitch_mm)
+    psig = None if pitch_sigma_mm is None else check.nonneg("pitch_sigma_mm", pitch_sigma_mm)
+    model = check.model_name(model)
     img = read_image(image)
     h, w = img.shape
+    if profile not in ("auto", "gaussian", "disc"):
+        raise InvalidInputError(f"profile must be auto, gaussian or disc, got {profile!r}")
     det = _rspiv.detect_markers(
-        img, marker, size_px=marker_size_px, threshold=threshold, min_snr=min_snr, dark=dark
-    )
+        img, marker, size_px=marker_size_px, threshold=threshold, min_snr=min_snr,
+        dark=None if dark is None else bool(dark), profile=profile,
+    )  # fmt: skip
     pts = det["image_px"]
-    idx, found, origin, _, _ = _rspiv.index_grid(
+    idx, found, origin, a1, a2 = _rspiv.index_grid(
         pts, (0.5 * (w - 1), 0.5 * (h - 1)), grid_tolerance
     )
     keep = np.flatnonzero(found)
-    image_px = np.ascontiguousarray(pts[keep])
-    index = idx[keep].astype(np.int64)
-    cov = det["cov_px2"][keep]
-    centre = int(np.flatnonzero(keep == origin)[0])
-    # Magnification from the central marker and its (up to) four neighbours.
-    pc = image_px[centre]
-    dists = []
-    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        hit = np.flatnonzero((index[:, 0] == di) & (index[:, 1] == dj))
-        if len(hit):
-            dists.append(float(np.hypot(*(image_px[hit[0]] - pc))))
-    if len(dists) < 2:
-        raise InvalidInputError("calibration: the central marker has fewer than 2 neighbours")
-    mag = float(np.mean(dists)) / pitch
-    mag_sigma = float(np.std(dists, ddof=1)) / pitch
-    object_px = np.ascontiguousarray(pc + mag * pitch * index.astype(np.float64))
-    needed = {"r1": 5, "r2": 9, "p3": 11}
-    if model != "auto" and len(image_px) < needed[model]:
+    size_px = float(det["size_px"])
+    origin_of_points = _Origin(
+        unit="markers", verb="indexed", marker=marker, size_px=size_px, n_detected=len(pts),
+        image_sigma_source=DETECTOR, lattice=_lattice(pts, found, a1, a2, det),
+    )  # fmt: skip
+    return _calibrate_points(
+        np.ascontiguousarray(pts[keep]),
+        pitch * idx[keep].astype(np.float64),
+        det["cov_px2"][keep],
+        centre=int(np.flatnonzero(keep == origin)[0]),
+        pitch_mm=pitch,
+        pitch_sigma_mm=psig,
+        model=model,
+        compare=compare,
+        image_shape=(h, w),
+        accept_poor_fit=accept_poor_fit,
+        origin=origin_of_points,
+    )
+
+
+def calibrate_points(
+    image_px: npt.ArrayLike,
+    object_mm: npt.ArrayLike,
+    *,
+    image_shape: tuple[int, int],
+    pitch_mm: float | None = None,
+    model: str = "p3",
+    cov_px2: npt.ArrayLike | None = None,
+    sigma_px: float | npt.ArrayLike | None = None,
+    pitch_sigma_mm: float | None = None,
+    centre: int | None = None,
+    compare: bool = True,
+    accept_poor_fit: bool = False,
+) -> Calibration:
+    """Calibrate from marker positions found by another tool or by hand.
+
+    The points go through the same path as :func:`calibrate` after its detection and indexing
+    (magnification, object points, model comparison, fit, fit-quality check, uncertainties):
+    given :func:`calibrate`'s own indexed markers it returns the same calibration.
+
+    Parameters
+    ----------
+    image_px : array_like, shape (n, 2)
+        Marker positions (x, y) on the image, px (README pixel frame).
+    object_mm : array_like, shape (n, 2)
+        The same markers' positions on the target plane, mm, row by row (any origin; x and y
+        along the target's axes, e.g. ``pitch_mm * (i, j)``).
+    image_shape : (int, int)
+        (height, width) of the sensor, px.
+    pitch_mm : float, optional
+        Marker pitch (mm), > 0: the unit of :attr:`Markers.index` (``(object_mm -
+        object_mm[centre]) / pitch_mm``, rounded) and of ``pitch_sigma_mm``. Default: the
+        distance on the target from the central point to its nearest neighbour.
+    model : {"auto", "r1", "r2", "p3"}
+        Mapping model; ``"auto"`` picks the smallest held-out (leave-one-out) error.
+    cov_px2 : array_like, shape (n, 2, 2), optional
+        Covariance of each image position (px^2), symmetric positive definite.
+    sigma_px : float or array_like (n,), optional
+        Isotropic standard uncertainty of the image positions (px), > 0; instead of
+        ``cov_px2``. When neither is given the image sigma is estimated from the chosen fit's
+        residuals (:attr:`Calibration.image_sigma_source` says so, and a warning notes that the
+        fit could not be checked against the markers' noise).
+    pitch_sigma_mm : float, optional
+        Uncertainty of the pitch (mm); gives ``object_sigma_px = pitch_sigma_mm * M``. Default:
+        estimated from the chosen fit's residuals beyond the image noise.
+    centre : int, optional
+        Row of the central point (the origin of the object frame). Default: the point nearest
+        the image centre.
+    compare : bool
+        Compare all models (residuals and held-out error). Forced on for ``model="auto"``.
+    accept_poor_fit : bool
+        Keep a fit whose residual RMS exceeds ``max(10 x`` the image sigma, 0.5 px) (recorded in
+        :attr:`Calibration.warnings`) instead of refusing it.
+
+    Returns
+    -------
+    Calibration
+        ``marker == "points"``, ``size_px == 0``, ``lattice is None``.
+
+    Raises
+    ------
+    InvalidInputError
+        Shapes other than (n, 2) / (n, 2, 2), different row counts, NaN or inf (naming the
+        row), points outside the image, repeated target positions, a bad image_shape, pitch or
+        covariance, fewer points than the model needs, a central point without two neighbours,
+        a fit that does not follow the points (see ``accept_poor_fit``).
+    """
+    model = check.model_name(model)
+    shape = check.image_shape(image_shape)
+    img = check.rows("image_px", image_px)
+    obj = check.rows("object_mm", object_mm)
+    if len(img) != len(obj):
         raise InvalidInputError(
-            f"calibration: model {model} needs at least {needed[model]} markers, "
-            f"{len(image_px)} were indexed"
+            f"image_px has {len(img)} rows and object_mm {len(obj)}: they must pair up row by row"
         )
-    models = compare_models(object_px, image_px, centre) if (compare or model == "auto") else {}
-    if model == "auto":
-        if not models:
-            raise InvalidInputError(
-                f"calibration: no model can be fitted to {len(image_px)} indexed markers"
-            )
-        ranked = sorted(models, key=lambda m: models[m]["loo_rms_px"])
-        model = ranked[0]
-        reason = "smallest held-out error: " + " < ".join(
-            f"{m} {models[m]['loo_rms_px']:.4f} px" for m in ranked
-        )
+    check.inside_image(img, shape)
+    check.distinct("object_mm", obj)
+    cov = check.covariance(cov_px2, sigma_px, len(img))
+    pitch = None if pitch_mm is None else check.positive("pitch_mm", pitch_mm)
+    psig = None if pitch_sigma_mm is None else check.nonneg("pitch_sigma_mm", pitch_sigma_mm)
+    if centre is None:
+        mid = np.array([0.5 * (shape[1] - 1), 0.5 * (shape[0] - 1)])
+        c = int(np.argmin(np.hypot(*(img - mid).T))) if len(img) else 0
+    elif isinstance(centre, bool) or not isinstance(centre, (int, np.integer)):
+        raise InvalidInputError(f"centre must be a row number, got {centre!r}")
+    elif not 0 <= int(centre) < len(img):
+        raise InvalidInputError(f"centre {centre} is out of range for {len(img)} points")
     else:
-        reason = "chosen by the user"
-        if model in models and len(models) > 1:
-            best = min(models, key=lambda m: models[m]["loo_rms_px"])
-            if best != model:
-                reason += f" (note: {best} has a smaller held-out error)"
+        c = int(centre)
+    origin = _Origin(
+        unit="points", verb="given", marker=POINTS, size_px=0.0, n_detected=len(img),
+        image_sigma_source="given cov_px2" if cov_px2 is not None else "given sigma_px",
+    )  # fmt: skip
+    return _calibrate_points(
+        img, obj, cov, centre=c, pitch_mm=pitch, pitch_sigma_mm=psig, model=model,
+        compare=compare, image_shape=shape, accept_poor_fit=accept_poor_fit, origin=origin,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Origin:
+    """Where the points of a calibration come from: the wording of messages (``unit``,
+    ``verb``: "markers"/"indexed", "points"/"given") and the detector's fields."""
+
+    unit: str
+    verb: str
+    marker: str
+    size_px: float
+    n_detected: int
+    image_sigma_source: str
+    lattice: dict[str, Any] | None = None
+
+    @property
+    def one(self) -> str:
+        """The singular of ``unit``."""
+        return self.unit[:-1]
+
+    def what(self, n: int) -> str:
+        """``"91 indexed markers"``, ``"40 given points"``."""
+        return f"{n} {self.verb} {self.unit}"
+
+
+def _calibrate_points(
+    image_px: np.ndarray,
+    object_mm: np.ndarray,
+    cov_px2: np.ndarray | None,
+    *,
+    centre: int,
+    pitch_mm: float | None,
+    pitch_sigma_mm: float | None,
+    model: str,
+    compare: bool,
+    image_shape: tuple[int, int],
+    accept_poor_fit: bool,
+    origin: _Origin,
+) -> Calibration:
+    """The one path from paired points to a Calibration (validated inputs; ``cov_px2`` None:
+    estimated from the fit residuals)."""
+    n = len(image_px)
+    if model == "auto" and n < min(MIN_POINTS.values()):
+        raise InvalidInputError(
+            f"calibration: no model can be fitted to {origin.what(n)} "
+            f"(r1 needs at least {MIN_POINTS['r1']})"
+        )
+    if model != "auto" and n < MIN_POINTS[model]:
+        raise InvalidInputError(
+            f"calibration: model {model} needs at least {MIN_POINTS[model]} {origin.unit}, "
+            f"{n} were {origin.verb}"
+        )
+    mag, mag_sigma, nearest_mm = magnification(image_px, object_mm, centre, origin.one)
+    pitch = nearest_mm if pitch_mm is None else pitch_mm
+    rel = object_mm - object_mm[centre]
+    object_px = np.ascontiguousarray(image_px[centre] + mag * rel)
+    index = np.rint(rel / pitch).astype(np.int64)
+    models = compare_models(object_px, image_px, centre) if (compare or model == "auto") else {}
+    model, reason = choose_model(model, models, origin.what(n))
     scale = float(np.max(np.abs(object_px[:, 0])))
     mapping = fit_mapping(object_px, image_px, model, center_index=centre, scale=scale)
     if model not in models:
-        st = mapping.stats
-        models[model] = {
-            "max_abs_px": [float(v) for v in st["max_abs_px"]],
-            "mean_px": [float(v) for v in st["mean_px"]],
-            "rms_px": [float(v) for v in st["rms_px"]],
-            "loo_rms_px": None,  # not computed (compare=False)
-        }
+        models[model] = fit_stats(mapping, None)  # held-out error not computed (compare=False)
+    res = np.asarray(mapping.residuals)
+    mean_sq = float(np.mean(res**2))  # per axis, px^2
+    dof = max(1e-9, 1.0 - N_PARAMS[model] / (2.0 * n))
+    estimated = cov_px2 is None
+    warnings: list[str] = []
+    sigma_source = origin.image_sigma_source
+    if estimated:
+        cov_px2 = np.tile(np.eye(2) * (mean_sq / dof), (n, 1, 1))
+        sigma_source = f"{model} fit residuals (no cov_px2 or sigma_px given)"
+        warnings.append(
+            f"the image sigma was estimated from the {model} fit residuals (no cov_px2 or "
+            "sigma_px given): the fit could not be checked against the markers' noise"
+        )
     markers = Markers(
-        image_px=image_px, object_px=object_px, cov_px2=cov, index=index, centre=centre
+        image_px=image_px, object_px=object_px, cov_px2=cov_px2, index=index, centre=centre
     )
-    if psig is not None:
-        osig, source = psig * mag, "pitch_sigma_mm * M"
-        pitch_sigma = psig
+    image_var = float(np.mean(markers.sigma_px**2))
+    if not estimated:
+        warnings += check_fit(
+            model, float(np.sqrt(mean_sq)), float(np.sqrt(image_var)), origin.what(n),
+            mag * pitch, accept_poor_fit,
+        )  # fmt: skip
+    if pitch_sigma_mm is not None:
+        osig, source, pitch_sigma = pitch_sigma_mm * mag, "pitch_sigma_mm * M", pitch_sigma_mm
     else:
-        res = np.asarray(mapping.residuals)
-        dof = max(1.0, 1.0 - mapping.coefficients.size / (2.0 * len(res)))
-        excess = float(np.mean(res**2)) / dof - float(np.mean(markers.sigma_px**2))
+        # Nothing is left beyond an image sigma estimated from these very residuals.
+        excess = 0.0 if estimated else mean_sq / dof - image_var
         osig = float(np.sqrt(max(0.0, excess)))
-        source = f"{model} residuals beyond the image noise"
+        source = f"{model} residuals beyond the image noise" + (
+            " (none: the image sigma comes from the same residuals)" if estimated else ""
+        )
         pitch_sigma = osig / mag
     return Calibration(
         markers=markers,
@@ -481,28 +672,60 @@ def calibrate(
         magnification_sigma=mag_sigma,
         object_sigma_px=osig,
         object_sigma_source=source,
-        image_shape=(h, w),
-        marker=marker,
-        size_px=float(det["size_px"]),
-        n_detected=len(pts),
+        image_sigma_source=sigma_source,
+        image_shape=image_shape,
+        marker=origin.marker,
+        size_px=origin.size_px,
+        n_detected=origin.n_detected,
+        lattice=origin.lattice,
+        warnings=warnings,
     )
 
 
-def _positive(name: str, v: Any) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number, got {v!r}") from None
-    if not (np.isfinite(f) and f > 0):
-        raise InvalidInputError(f"{name} must be > 0, got {v!r}")
-    return f
+def _lattice(
+    pts: np.ndarray, found: np.ndarray, a1: Any, a2: Any, det: dict[str, Any]
+) -> dict[str, Any]:
+    """The lattice summary of a detection and its grid indexing (see
+    :attr:`Calibration.lattice`)."""
+    s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
+    l1, l2 = float(np.hypot(*s1)), float(np.hypot(*s2))
+    cos = float(np.dot(s1, s2)) / (l1 * l2) if l1 > 0 and l2 > 0 else 0.0
+    n_indexed = int(np.count_nonzero(found))
+    return {
+        "pitch_px": [l1, l2],
+        "angle_deg": float(np.degrees(np.arctan2(s1[1], s1[0]))),
+        "axes_angle_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
+        "n_indexed": n_indexed,
+        "n_detected": int(len(pts)),
+        "n_rejected": int(len(pts)) - n_indexed,
+        "size_px": float(det["size_px"]),
+        "polarity": "dark" if det.get("dark") else "bright",
+        "profile": str(det.get("profile", "gaussian")),
+        "rejected_px": np.ascontiguousarray(pts[~np.asarray(found, dtype=bool)]).reshape(-1, 2),
+    }
 
 
-def _nonneg(name: str, v: Any) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number, got {v!r}") from None
-    if not (np.isfinite(f) and f >= 0):
-        raise InvalidInputError(f"{name} must be >= 0, got {v!r}")
-    return f
+def _lattice_json(lattice: dict[str, Any] | None) -> dict[str, Any] | None:
+    if lattice is None:
+        return None
+    return {**lattice, "rejected_px": np.asarray(lattice["rejected_px"]).tolist()}
+
+
+def _lattice_from_json(d: Any) -> dict[str, Any] | None:
+    if d is None:
+        return None
+    if not isinstance(d, dict):
+        raise ValueError("lattice is not an object")
+    out = {k: d[k] for k in ("pitch_px", "angle_deg", "axes_angle_deg", "size_px")}
+    out["polarity"] = str(d.get("polarity", "bright"))
+    out["profile"] = str(d.get("profile", "gaussian"))
+    out.update({k: int(d[k]) for k in ("n_indexed", "n_detected", "n_rejected")})
+    out["pitch_px"] = [float(v) for v in out["pitch_px"]]
+    out["rejected_px"] = np.asarray(d["rejected_px"], dtype=np.float64).reshape(-1, 2)
+    return out
+
+
+def _string_list(v: Any) -> list[str]:
+    if not isinstance(v, list) or not all(isinstance(w, str) for w in v):
+        raise ValueError("warnings is not a list of strings")
+    return list(v)

@@ -45,6 +45,7 @@ fn bench(c: &mut Criterion) {
         centres.view(),
         sigma.view(),
         amp.view(),
+        None,
         &TargetScene::default(),
     )
     .expect("render");

@@ -1,14 +1,20 @@
 //! Synthetic calibration-target renderer: the ground truth of marker detection.
 //!
 //! Each marker is rendered as an isotropic 2D Gaussian blob of intensity
-//! `A_k exp(-|p - c_k|^2 / (2 s_k^2))` centred *exactly* at its image position `c_k` (the image
+//! `A_k exp(-|p - c_k|^2 / (2 s_k^2))`, or, when it has a radius `R_k > 0`, as a printed disc
+//! seen through the lens: a uniform disc of radius `R_k` blurred by a Gaussian of standard
+//! deviation `s_k`, `A_k P(|p - c_k|; R_k, s_k)` (the profile of [`crate::markers`]' disc
+//! model, tabulated to 1e-7 and checked there against a brute-force convolution), centred
+//! *exactly* at its image position `c_k` (the image
 //! of the dot's centre under the lens distortion, computed by the caller), so the true marker
 //! position is known exactly. The local change of magnification across one dot (< 0.5 % for the
 //! paper's lens) is neglected: the blob stays circular. The blob value is evaluated at the
 //! pixel centre (the pixel frame of the README: x = column, y = row, origin at the centre of
 //! the top-left pixel).
 //!
-//! The scene is `I = B + G(x, y) * sum_k blob_k`, with a background `B`, an illumination field
+//! The scene is `I = B + G(x, y) * (L + sum_k blob_k)`, with a background `B` (the dark level),
+//! an illuminated plate level `L` (0 for bright dots on a black plate; a bright plate with
+//! negative amplitudes gives dark dots on a bright plate, vignetted like a real one), an illumination field
 //! `G = (1 + gx xn + gy yn) (1 - v r_n^2)` (xn, yn in [-1, 1] across the sensor, r_n the
 //! distance from the sensor centre over the half-diagonal), then camera noise: shot noise of
 //! variance `gain * signal` (counts) and Gaussian read noise, quantised and clipped to
@@ -16,6 +22,7 @@
 //! `seed`, so a render is identical whatever the thread count.
 
 use crate::error::{DewarpError, Result};
+use crate::markers::disc::DiscTable;
 use ndarray::{Array2, ArrayView1, ArrayView2, Axis};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -35,6 +42,8 @@ pub struct TargetScene {
     pub gain: f64,
     /// Read noise standard deviation (counts); 0 disables.
     pub read_noise: f64,
+    /// Illuminated plate level (counts, under the illumination field `G`).
+    pub plate: f64,
     /// Largest representable count (4095 for a 12-bit camera).
     pub full_scale: f64,
     /// Seed of the noise.
@@ -49,6 +58,7 @@ impl Default for TargetScene {
             vignetting: 0.15,
             gain: 0.5,
             read_noise: 4.0,
+            plate: 0.0,
             full_scale: 4095.0,
             seed: 0,
         }
@@ -58,13 +68,15 @@ impl Default for TargetScene {
 /// Render a target image of `height` x `width` pixels (uint16 counts).
 ///
 /// `centres` is `(n, 2)` image px (x, y); `sigma_px` and `amplitude` have one entry per marker
-/// (blob standard deviation in px, peak counts before illumination).
+/// (blob standard deviation in px, or a disc's blur; peak counts before illumination, negative
+/// for a dark dot); `radius_px`, if given, one disc radius (px) per marker, 0 for a Gaussian.
 pub fn render_target(
     height: usize,
     width: usize,
     centres: ArrayView2<f64>,
     sigma_px: ArrayView1<f64>,
     amplitude: ArrayView1<f64>,
+    radius_px: Option<ArrayView1<f64>>,
     scene: &TargetScene,
 ) -> Result<Array2<u16>> {
     if height == 0 || width == 0 || height.saturating_mul(width) > 400_000_000 {
@@ -81,12 +93,26 @@ pub fn render_target(
             amplitude.len()
         )));
     }
+    if radius_px.is_some_and(|r| r.len() != n) {
+        return Err(DewarpError::InvalidInput(format!(
+            "render_target: {n} markers but {} radii",
+            radius_px.map_or(0, |r| r.len())
+        )));
+    }
+    let radius = |k: usize| radius_px.map_or(0.0, |r| r[k]);
     for k in 0..n {
         let (cx, cy, s, a) = (centres[[k, 0]], centres[[k, 1]], sigma_px[k], amplitude[k]);
-        let valid = cx.is_finite() && cy.is_finite() && a.is_finite() && s > 0.0 && s.is_finite();
+        let r = radius(k);
+        let valid = cx.is_finite()
+            && cy.is_finite()
+            && a.is_finite()
+            && s > 0.0
+            && s.is_finite()
+            && r >= 0.0
+            && r.is_finite();
         if !valid {
             return Err(DewarpError::InvalidInput(format!(
-                "render_target: marker {k} has a non-finite position/amplitude or sigma <= 0"
+                "render_target: marker {k} has a non-finite position/amplitude, sigma <= 0 or radius < 0"
             )));
         }
     }
@@ -97,6 +123,7 @@ pub fn render_target(
         scene.vignetting,
         scene.gain,
         scene.read_noise,
+        scene.plate,
         scene.full_scale,
     ];
     if fields.iter().any(|v| !v.is_finite()) || scene.gain < 0.0 || scene.read_noise < 0.0 {
@@ -119,8 +146,22 @@ pub fn render_target(
                 centres[[k, 1]],
                 0.5 / (s * s),
                 amplitude[k],
-                (5.0 * s).ceil(),
+                (radius(k) + 5.0 * s).ceil(),
             ]
+        })
+        .collect();
+    // Discs: their tabulated profile (None for Gaussian blobs).
+    let discs: Vec<Option<DiscTable>> = (0..n)
+        .map(|k| {
+            (radius(k) > 0.0).then(|| {
+                let mut t = DiscTable::default();
+                t.ensure(
+                    radius(k),
+                    sigma_px[k],
+                    blobs[k][4] * std::f64::consts::SQRT_2 + 2.0,
+                );
+                t
+            })
         })
         .collect();
     let hx = 0.5 * (width as f64 - 1.0);
@@ -134,18 +175,24 @@ pub fn render_target(
             || vec![0.0f64; width],
             |row_buf, (y, mut row)| {
                 let yf = y as f64;
-                row_buf.iter_mut().for_each(|v| *v = 0.0);
-                for b in &blobs {
+                row_buf.iter_mut().for_each(|v| *v = scene.plate);
+                for (b, disc) in blobs.iter().zip(&discs) {
                     let dy = yf - b[1];
                     if dy.abs() > b[4] {
                         continue;
                     }
-                    let ey = (-dy * dy * b[2]).exp() * b[3];
                     let x0 = ((b[0] - b[4]).floor().max(0.0)) as usize;
                     let x1 = ((b[0] + b[4]).ceil().min(width as f64 - 1.0)).max(-1.0);
                     if x1 < 0.0 {
                         continue;
                     }
+                    if let Some(t) = disc {
+                        for x in x0..=(x1 as usize) {
+                            row_buf[x] += b[3] * t.value((x as f64 - b[0]).hypot(dy));
+                        }
+                        continue;
+                    }
+                    let ey = (-dy * dy * b[2]).exp() * b[3];
                     for x in x0..=(x1 as usize) {
                         let dx = x as f64 - b[0];
                         row_buf[x] += ey * (-dx * dx * b[2]).exp();
@@ -190,6 +237,7 @@ mod tests {
             vignetting: 0.0,
             gain: 0.0,
             read_noise: 0.0,
+            plate: 0.0,
             full_scale: 65535.0,
             seed: 1,
         };
@@ -199,6 +247,7 @@ mod tests {
             c.view(),
             Array1::from(vec![2.5]).view(),
             Array1::from(vec![1000.0]).view(),
+            None,
             &scene,
         )
         .unwrap();
@@ -226,12 +275,12 @@ mod tests {
         };
         let s = Array1::from(vec![2.0]);
         let a = Array1::from(vec![1e6]);
-        let a1 = render_target(12, 12, c.view(), s.view(), a.view(), &scene).unwrap();
-        let a2 = render_target(12, 12, c.view(), s.view(), a.view(), &scene).unwrap();
+        let a1 = render_target(12, 12, c.view(), s.view(), a.view(), None, &scene).unwrap();
+        let a2 = render_target(12, 12, c.view(), s.view(), a.view(), None, &scene).unwrap();
         assert_eq!(a1, a2);
         assert_eq!(a1[[5, 5]], 4095);
-        assert!(render_target(0, 12, c.view(), s.view(), a.view(), &scene).is_err());
+        assert!(render_target(0, 12, c.view(), s.view(), a.view(), None, &scene).is_err());
         let bad = Array1::from(vec![0.0]);
-        assert!(render_target(12, 12, c.view(), bad.view(), a.view(), &scene).is_err());
+        assert!(render_target(12, 12, c.view(), bad.view(), a.view(), None, &scene).is_err());
     }
 }

@@ -3,7 +3,7 @@
 //! `rspiv.synth.target`) validates, orchestrates and documents.
 
 use crate::errors::{invalid, PyRspivErr};
-use dewarp_core::markers::{DetectOptions, Detection, MarkerKind, Pixel};
+use dewarp_core::markers::{DetectOptions, Detection, DotProfile, MarkerKind, Pixel};
 use dewarp_core::montecarlo::{MonteCarloConfig, MonteCarloResult};
 use dewarp_core::target::TargetScene;
 use dewarp_core::Model;
@@ -16,7 +16,7 @@ use pyo3::types::PyDict;
 #[pyfunction]
 #[pyo3(signature = (height, width, centres, sigma_px, amplitude, background = 200.0,
     gradient = (0.08, -0.05), vignetting = 0.15, gain = 0.5, read_noise = 4.0,
-    full_scale = 4095.0, seed = 0))]
+    full_scale = 4095.0, seed = 0, radius_px = None, plate = 0.0))]
 fn render_target<'py>(
     py: Python<'py>,
     height: usize,
@@ -31,8 +31,11 @@ fn render_target<'py>(
     read_noise: f64,
     full_scale: f64,
     seed: u64,
+    radius_px: Option<PyReadonlyArray1<'py, f64>>,
+    plate: f64,
 ) -> PyResult<Bound<'py, PyArray2<u16>>> {
     let scene = TargetScene {
+        plate,
         background,
         gradient,
         vignetting,
@@ -46,8 +49,9 @@ fn render_target<'py>(
         sigma_px.as_array(),
         amplitude.as_array(),
     );
+    let r = radius_px.as_ref().map(|r| r.as_array());
     let img = py
-        .detach(|| dewarp_core::target::render_target(height, width, c, s, a, &scene))
+        .detach(|| dewarp_core::target::render_target(height, width, c, s, a, r, &scene))
         .map_err(PyRspivErr::from)?;
     Ok(img.into_pyarray(py))
 }
@@ -69,7 +73,7 @@ fn detect<T: Pixel + numpy::Element>(
 /// Detect markers; returns a dict of arrays (see `rspiv._rspiv.pyi`).
 #[pyfunction]
 #[pyo3(signature = (image, marker = "dot", size_px = None, threshold = 0.25, min_snr = 8.0,
-    dark = false))]
+    dark = None, profile = "auto"))]
 fn detect_markers<'py>(
     py: Python<'py>,
     image: &Bound<'py, PyAny>,
@@ -77,15 +81,18 @@ fn detect_markers<'py>(
     size_px: Option<f64>,
     threshold: f64,
     min_snr: f64,
-    dark: bool,
+    dark: Option<bool>,
+    profile: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
     let kind: MarkerKind = marker.parse().map_err(PyRspivErr::from)?;
+    let profile: DotProfile = profile.parse().map_err(PyRspivErr::from)?;
     let opts = DetectOptions {
         kind,
         size_px,
         threshold,
         min_snr,
         dark,
+        profile,
     };
     let res = match detect::<u16>(py, image, &opts)? {
         Some(r) => r,
@@ -110,6 +117,7 @@ fn detect_markers<'py>(
     let mut cov = Array3::<f64>::zeros((n, 2, 2));
     let mut amp = Array1::<f64>::zeros(n);
     let mut width = Array1::<f64>::zeros(n);
+    let mut radius = Array1::<f64>::zeros(n);
     let mut strength = Array1::<f64>::zeros(n);
     for (k, m) in det.markers.iter().enumerate() {
         pos[[k, 0]] = m.x;
@@ -120,6 +128,7 @@ fn detect_markers<'py>(
         cov[[k, 1, 0]] = m.cov_xy;
         amp[k] = m.amplitude;
         width[k] = m.width;
+        radius[k] = m.radius;
         strength[k] = m.strength;
     }
     let d = PyDict::new(py);
@@ -129,7 +138,15 @@ fn detect_markers<'py>(
     d.set_item("width_px", width.into_pyarray(py))?;
     d.set_item("strength", strength.into_pyarray(py))?;
     d.set_item("size_px", det.size_px)?;
+    d.set_item("radius_px", radius.into_pyarray(py))?;
     d.set_item("downsample", det.downsample)?;
+    d.set_item("profile", det.profile)?;
+    d.set_item("dark", det.dark)?;
+    if let Some(sv) = &det.survey {
+        d.set_item("survey_lattice", sv.n_lattice)?;
+        d.set_item("survey_detected", sv.n_detected)?;
+        d.set_item("survey_snr", sv.snr)?;
+    }
     Ok(d)
 }
 

@@ -81,6 +81,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
             marker_size_px=cc.marker_size_px if cc.marker_size_px > 0 else None,
         )
         camp.say(f"calibration: {cal!r} ({time.perf_counter() - t0:.1f} s)")
+        for warning in cal.warnings:
+            camp.say(f"WARNING: calibration: {warning}")
         info["calibration_table"] = calibration_table(cal)
         try:
             from rspiv.plots.calibration import write_all  # deferred: matplotlib

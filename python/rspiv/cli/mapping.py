@@ -22,6 +22,23 @@ from rspiv.outputs import atomic_write_text
 
 def _read_csv(path: str, cols: list[str]) -> np.ndarray:
     """The named columns of a numeric CSV file with a header row, as an (N, len(cols)) array."""
+    data = read_csv_columns(path, cols)
+    return np.column_stack([data[c] for c in cols])
+
+
+def read_csv_columns(
+    path: str, cols: list[str], optional: tuple[str, ...] = (), *, finite: bool = False
+) -> dict[str, np.ndarray]:
+    """The columns of a numeric CSV file with a header row (``#`` lines and blank lines are
+    skipped), by name: every one of ``cols`` and those of ``optional`` the header holds.
+
+    Raises
+    ------
+    InvalidInputError
+        One line naming the file (and the line): not UTF-8, no header (or a header of
+        numbers), a missing column, a row of the wrong length, a field that is not a number
+        (or, with ``finite``, is NaN or inf), no data rows.
+    """
     try:
         text = pathlib.Path(path).read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -34,14 +51,19 @@ def _read_csv(path: str, cols: list[str]) -> np.ndarray:
     if not lines:
         raise InvalidInputError(f"{path}: empty file (expected a header row)")
     names = [n.strip().strip('"') for n in lines[0][1].split(",")]
-    idx = []
+    if all(_is_number(n) for n in names):
+        raise InvalidInputError(
+            f"{path}: line {lines[0][0]}: expected a header row naming the columns "
+            f"({','.join(cols)}), got numbers"
+        )
     for c in cols:
         if c not in names:
             raise InvalidInputError(
                 f"{path}: missing column {c!r} (header has {','.join(names)}; "
                 f"expected {','.join(cols)})"
             )
-        idx.append(names.index(c))
+    wanted = [*cols, *(c for c in optional if c in names)]
+    idx = [names.index(c) for c in wanted]
     rows = []
     for lineno, line in lines[1:]:
         fields = [f.strip() for f in line.split(",")]
@@ -50,17 +72,31 @@ def _read_csv(path: str, cols: list[str]) -> np.ndarray:
                 f"{path}: line {lineno}: {len(fields)} fields, the header has {len(names)}"
             )
         row = []
-        for k, c in zip(idx, cols, strict=True):
+        for k, c in zip(idx, wanted, strict=True):
             try:
-                row.append(float(fields[k]))
+                v = float(fields[k])
             except ValueError:
                 raise InvalidInputError(
                     f"{path}: line {lineno}: column {c}: cannot parse {fields[k]!r} as a number"
                 ) from None
+            if finite and not np.isfinite(v):
+                raise InvalidInputError(
+                    f"{path}: line {lineno}: column {c}: {fields[k]!r} is not a finite number"
+                )
+            row.append(v)
         rows.append(row)
     if not rows:
         raise InvalidInputError(f"{path}: no data rows")
-    return np.asarray(rows, dtype=np.float64)
+    data = np.asarray(rows, dtype=np.float64)
+    return {c: data[:, k] for k, c in enumerate(wanted)}
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
 
 
 def _write_csv(path: str | None, pts: np.ndarray) -> None:

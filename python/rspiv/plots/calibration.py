@@ -1,6 +1,7 @@
 """Calibration figures (matplotlib, Agg backend, written to PNG files).
 
-- :func:`detection_overlay`: the target image with the indexed markers.
+- :func:`detection_overlay`: the target image with the indexed markers, the central marker,
+  the rejected blobs and the lattice found.
 - :func:`object_image_arrows`: normalised object points with arrows to the image points,
   magnified x20 (the paper's Fig. 5).
 - :func:`monte_carlo_jpdfs`: per-marker joint PDFs of the Monte Carlo residuals with the 1 and
@@ -30,30 +31,59 @@ def _plt() -> Any:
 def detection_overlay(
     image: np.ndarray, calibration: Any, path: str | os.PathLike[str], max_px: int = 1600
 ) -> pathlib.Path:
-    """Draw the image (strided to at most ``max_px`` wide) with each marker and its index."""
+    """Draw the target image with what the calibration found.
+
+    The image is strided to at most ``max_px`` pixels along its longer side and contrast
+    stretched (1st to 99.5th percentile of the strided pixels); on it each indexed marker (a
+    circle of 3 marker sigmas, with its (i, j)), the central marker (0, 0), and the blobs that
+    were detected but not indexed (:attr:`Calibration.lattice` ``rejected_px``) as red crosses,
+    with a legend; the title summarises the lattice (:meth:`Calibration.lattice_summary`).
+    """
     plt = _plt()
     img = np.asarray(image)
     step = max(1, int(np.ceil(max(img.shape) / max_px)))
     small = img[::step, ::step]
     mk = calibration.markers
-    fig, ax = plt.subplots(figsize=(12, 12 * small.shape[0] / small.shape[1] + 0.6))
+    fig, ax = plt.subplots(figsize=(12, 12 * small.shape[0] / small.shape[1] + 0.9))
     lo, hi = np.percentile(small, [1, 99.5])
     ax.imshow(small, cmap="gray", vmin=lo, vmax=hi, extent=(
         -0.5, img.shape[1] - 0.5, img.shape[0] - 0.5, -0.5))  # fmt: skip
-    r = 3 * calibration.size_px
-    for k, (x, y) in enumerate(mk.image_px):
-        c = "red" if k == mk.centre else "lime"
-        ax.add_patch(plt.Circle((x, y), r, fill=False, color=c, lw=0.8))
-        ax.text(x + r, y - r, f"{mk.index[k][0]},{mk.index[k][1]}", color=c, fontsize=6)
-    ax.set_title(
-        f"{len(mk)} markers indexed of {calibration.n_detected} detected (red: central marker)"
+    r = 3 * max(calibration.size_px, 1.0)
+    xy, c = mk.image_px, mk.centre
+    others = np.arange(len(mk)) != c
+    ax.add_collection(
+        _circles(plt, xy[others], r, "lime", f"indexed marker ({len(mk)}), with its (i, j)")
     )
+    ax.add_collection(_circles(plt, xy[c : c + 1], 1.6 * r, "orange", "central marker (0, 0)"))
+    for k, (x, y) in enumerate(xy):
+        ax.text(x + r, y - r, f"{mk.index[k][0]},{mk.index[k][1]}", fontsize=6,
+                color="orange" if k == c else "lime")  # fmt: skip
+    lattice = calibration.lattice
+    if lattice is not None and len(lattice["rejected_px"]):
+        rej = np.asarray(lattice["rejected_px"])
+        ax.plot(rej[:, 0], rej[:, 1], "x", color="red", ms=9, mew=1.5, ls="none",
+                label=f"rejected blob ({len(rej)}): detected, not on the grid")  # fmt: skip
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.07), ncol=3, fontsize=8, frameon=False)
+    summary = calibration.lattice_summary()
+    if summary is None:
+        summary = f"{len(mk)} markers indexed of {calibration.n_detected} detected"
+    ax.set_title(summary.replace("; ", "\n", 1), fontsize=9)
     ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
+    ax.set_xlim(-0.5, img.shape[1] - 0.5)
+    ax.set_ylim(img.shape[0] - 0.5, -0.5)
     out = pathlib.Path(path)
     fig.savefig(out, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return out
+
+
+def _circles(plt: Any, xy: np.ndarray, radius: float, colour: str, label: str) -> Any:
+    """Hollow circles of ``radius`` (data units) at ``xy``, as one collection with a label."""
+    from matplotlib.collections import PatchCollection
+
+    patches = [plt.Circle((float(x), float(y)), radius) for x, y in xy]
+    return PatchCollection(patches, facecolor="none", edgecolor=colour, linewidth=0.8, label=label)
 
 
 def object_image_arrows(

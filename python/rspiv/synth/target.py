@@ -11,9 +11,13 @@ The target is a square grid of ``n_markers = (13, 7)`` dots at ``pitch_mm``; mar
 the target plane. Its *ideal* image (a perfect lens) is ``c + M R(rotation) pitch (i, j)`` with
 ``c`` the sensor centre plus ``grid_offset_px`` and ``M`` the magnification (px/mm); the lens then
 moves it to its *true image position* :meth:`LensDistortion.distort` (or ``mapping.forward``).
-Dots are rendered as isotropic Gaussian blobs of standard deviation ``dot_sigma_mm * M`` centred
-exactly at that position (the true marker position); see ``dewarp_core::target`` for the
-illumination (gradient, vignetting) and camera noise (shot + read noise, 12-bit clipping).
+Dots are rendered as isotropic Gaussian blobs of standard deviation ``dot_sigma_mm * M``, or
+(``dot="disc"``) as printed discs of diameter ``dot_diameter_px`` blurred by a Gaussian PSF of
+``blur_px``, centred exactly at that position (the true marker position); bright on a dark plate
+or (``dark=True``) dark on a bright, vignetted plate. See ``dewarp_core::target`` for the
+illumination (gradient, vignetting) and camera noise (shot + read noise, clipping to the bit
+depth). ``clutter`` adds blobs off the plate (random sizes, the markers' polarity) and glare
+spots: what a real photograph holds besides the target.
 """
 
 from __future__ import annotations
@@ -241,6 +245,13 @@ def calibration_target(
     grid_offset_px: tuple[float, float] = (0.37, -0.21),
     read_noise: float = 4.0,
     gain: float = 0.5,
+    dot: str = "gaussian",
+    dot_diameter_px: float | None = None,
+    blur_px: float = 1.0,
+    dark: bool = False,
+    vignetting: float = 0.15,
+    bit_depth: int | None = None,
+    clutter: int = 0,
 ) -> CalibrationTarget:
     """Render a synthetic calibration target (uint16, 12-bit range) with its true markers.
 
@@ -269,6 +280,25 @@ def calibration_target(
         Number of spurious blobs (random size and brightness, away from every grid site).
     grid_offset_px : tuple of float
         Grid centre relative to the sensor centre (px at full scale).
+    read_noise, gain : float
+        Read noise (counts) and shot-noise gain (variance per count of signal), for 12 bit;
+        scaled with the full scale for other bit depths.
+    dot : {"gaussian", "disc"}
+        Marker profile: a Gaussian blob, or a printed disc blurred by the lens.
+    dot_diameter_px : float, optional
+        Disc diameter (px, at the rendered scale); default ``4 * dot_sigma_mm * M``.
+    blur_px : float
+        Standard deviation of the disc's Gaussian blur (px).
+    dark : bool
+        Dark dots on a bright plate (the plate vignetted with the illumination).
+    vignetting : float
+        Fraction by which the illumination falls at the corners (0.8: a 5x fall).
+    bit_depth : int, optional
+        8, 12 or 16; default the optics' (12).
+    clutter : int
+        Number of blobs off the plate (random Gaussian or disc blobs of 0.5-3x the marker size
+        and the markers' polarity, every fifth a large bright glare spot), at least one pitch
+        beyond the outermost markers.
 
     Returns
     -------
@@ -278,8 +308,15 @@ def calibration_target(
         raise InvalidInputError(f"scale must lie in [0.05, 1], got {scale!r}")
     if not np.isfinite(rotation_deg):
         raise InvalidInputError(f"rotation_deg must be finite, got {rotation_deg!r}")
-    if not isinstance(spurious, (int, np.integer)) or spurious < 0:
-        raise InvalidInputError(f"spurious must be a non-negative integer, got {spurious!r}")
+    for name, v in (("spurious", spurious), ("clutter", clutter)):
+        if not isinstance(v, (int, np.integer)) or v < 0:
+            raise InvalidInputError(f"{name} must be a non-negative integer, got {v!r}")
+    if dot not in ("gaussian", "disc"):
+        raise InvalidInputError(f"dot must be 'gaussian' or 'disc', got {dot!r}")
+    if not (np.isfinite(blur_px) and blur_px > 0):
+        raise InvalidInputError(f"blur_px must be > 0, got {blur_px!r}")
+    if not (np.isfinite(vignetting) and 0.0 <= vignetting < 1.0):
+        raise InvalidInputError(f"vignetting must lie in [0, 1), got {vignetting!r}")
     o = optics.scaled(scale) if scale != 1.0 else optics
     if isinstance(lens, str):
         if lens != "paper":
@@ -317,35 +354,95 @@ def calibration_target(
             for i in range(-(nx // 2) - 1, nx // 2 + 2)
         ]
     )
-    dot = o.dot_sigma_mm * o.magnification
+    dot_sigma = o.dot_sigma_mm * o.magnification
+    bits = o.bit_depth if bit_depth is None else int(bit_depth)
+    if bits not in (8, 12, 16):
+        raise InvalidInputError(f"bit_depth must be 8, 12 or 16, got {bit_depth!r}")
+    full = float(2**bits - 1)
+    counts = full / 4095.0  # levels, noise and gain are given for 12 bit
+    if dot == "disc":
+        diameter = 4.0 * dot_sigma if dot_diameter_px is None else float(dot_diameter_px)
+        if not (np.isfinite(diameter) and diameter > 0):
+            raise InvalidInputError(f"dot_diameter_px must be > 0, got {dot_diameter_px!r}")
+        radius, size, dot_size = 0.5 * diameter, float(blur_px), 0.5 * diameter
+    else:
+        radius, size, dot_size = 0.0, dot_sigma, 2.0 * dot_sigma
     rng = np.random.default_rng(seed)
     spur = []
     step = o.magnification * o.pitch_mm
     while len(spur) < spurious:
-        p = rng.uniform([4 * dot, 4 * dot], [o.width - 4 * dot, o.height - 4 * dot])
+        m = 2 * dot_size
+        p = rng.uniform([m, m], [o.width - m, o.height - m])
         if np.min(np.hypot(*(sites - p).T)) > 0.35 * step and all(
-            np.hypot(*(p - q)) > 6 * dot for q in spur
+            np.hypot(*(p - q)) > 3 * dot_size for q in spur
         ):
             spur.append(p)
     spur_arr = np.array(spur, dtype=np.float64).reshape(-1, 2)
-    centres = np.vstack([pts, spur_arr])
-    sig = np.concatenate([np.full(len(pts), dot), dot * rng.uniform(0.6, 1.4, size=len(spur_arr))])
-    amp = np.concatenate(
-        [np.full(len(pts), o.amplitude), o.amplitude * rng.uniform(0.5, 1.0, len(spur_arr))]
+    # Clutter: off the plate, at least one pitch beyond the outermost markers.
+    lo, hi = sites.min(axis=0), sites.max(axis=0)
+    clut: list[np.ndarray] = []
+    tries = 0
+    while len(clut) < clutter:
+        tries += 1
+        if tries > 200 * (clutter + 1):
+            raise InvalidInputError(
+                f"clutter: no room for {clutter} blobs off a plate spanning {hi - lo} px"
+            )
+        m = 3 * dot_size
+        p = rng.uniform([m, m], [o.width - m, o.height - m])
+        off_plate = bool(np.any(p < lo - 0.2 * step) or np.any(p > hi + 0.2 * step))
+        if off_plate and all(np.hypot(*(p - q)) > 6 * dot_size for q in clut):
+            clut.append(p)
+    clut_arr = np.array(clut, dtype=np.float64).reshape(-1, 2)
+    contrast = o.amplitude * counts * (-1.0 if dark else 1.0)
+    n_m, n_s, n_c = len(pts), len(spur_arr), len(clut_arr)
+    centres = np.vstack([pts, spur_arr, clut_arr])
+    glare = np.arange(n_c) % 5 == 4
+    c_scale = np.where(glare, rng.uniform(6.0, 12.0, n_c), rng.uniform(0.5, 3.0, n_c))
+    sig = np.concatenate(
+        [
+            np.full(n_m, size),
+            size * rng.uniform(0.6, 1.4, size=n_s),
+            np.where(glare | (radius == 0.0), dot_sigma * c_scale, size),
+        ]
     )
-    full = float(2**o.bit_depth - 1)
+    amp = np.concatenate(
+        [
+            np.full(n_m, contrast),
+            contrast * rng.uniform(0.5, 1.0, n_s),
+            np.where(glare, abs(contrast) * 0.8, contrast * rng.uniform(0.5, 1.5, n_c)),
+        ]
+    )
+    rad = np.concatenate(
+        [
+            np.full(n_m, radius),
+            radius * rng.uniform(0.6, 1.4, size=n_s),
+            np.where(glare | (radius == 0.0), 0.0, radius * c_scale),
+        ]
+    )
+    background = 200.0 * counts
+    plate = 0.7 * full - background if dark else 0.0
     tgt.image = _rspiv.render_target(
         o.height,
         o.width,
         np.ascontiguousarray(centres),
-        sig,
-        amp,
-        gain=gain if noise else 0.0,
-        read_noise=read_noise if noise else 0.0,
+        np.ascontiguousarray(sig),
+        np.ascontiguousarray(amp),
+        background=background,
+        vignetting=float(vignetting),
+        gain=gain * counts if noise else 0.0,
+        read_noise=read_noise * counts if noise else 0.0,
         full_scale=full,
         seed=int(seed),
+        radius_px=np.ascontiguousarray(rad),
+        plate=plate,
     )
+    if bits == 8:
+        tgt.image = tgt.image.astype(np.uint8)
     tgt.markers_px = pts
     tgt.spurious_px = spur_arr
-    tgt.extra["dot_sigma_px"] = dot
+    tgt.extra.update(
+        dot_sigma_px=dot_sigma, dot=dot, disc_radius_px=radius, blur_px=float(blur_px),
+        dark=bool(dark), bit_depth=bits, clutter_px=clut_arr,
+    )
     return tgt

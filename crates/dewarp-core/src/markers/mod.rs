@@ -1,0 +1,393 @@
+//! Marker detection on a calibration-target image, with a per-marker uncertainty.
+//!
+//! Pipeline (bright dots on a darker background; pass `dark = true` for dark dots):
+//!
+//! 1. **Size.** The dot size (standard deviation `s` of a Gaussian blob, px) is taken from the
+//!    caller or estimated from the brightest blob of a block-averaged copy (half-maximum radius
+//!    / 1.1774).
+//! 2. **Coarse detection.** The image is block-averaged by `d = max(1, floor(s / 2.5))` (47 MP
+//!    stays memory-light and fast) and cross-correlated, by FFT (rustfft, zero padding against
+//!    wrap-around), with a zero-mean template: a Gaussian dot of standard deviation `s / d`, or a
+//!    cross of arm length `6 s / d` and arm width `s / d`. A zero-mean template ignores smooth
+//!    background and illumination. Peaks are local maxima over a `(2r+1)^2` neighbourhood above
+//!    both `threshold` x the strongest peak and `min_snr` x the robust (MAD) noise of the
+//!    correlation.
+//! 3. **Sub-pixel fit.** Around each peak, at full resolution in a window of half-width
+//!    `ceil(2.5 s)`, the model `b0 + bx xw + by yw + A exp(-((x-x0)^2 + (y-y0)^2) / (2 w^2))`
+//!    (7 parameters, a plane for the uneven illumination) is fitted to the pixel values by
+//!    the project's Levenberg-Marquardt ([`crate::lm`], MINPACK stopping rules) on normal
+//!    equations accumulated pixel by pixel (7 x 7, no per-pixel storage). The covariance
+//!    of (x0, y0) is the heteroscedasticity-consistent sandwich estimate
+//!    `(J^T J)^-1 (sum r_k^2 J_k^T J_k) (J^T J)^-1 * n / (n - 7)`, valid under shot noise whose
+//!    variance grows with the signal. For crosses (arms longer than the window) the blob term is
+//!    the brighter of two perpendicular Gaussian bars, `A max(exp(-dx^2/2w^2), exp(-dy^2/2w^2))`;
+//!    `size_px` is then the bar's Gaussian sigma.
+//!    Fits that diverge (centre moving more than `s`, width outside `[0.3 s, 3 s]`, amplitude of
+//!    the wrong sign) are dropped; duplicates closer than `s` are merged.
+
+mod blob;
+mod coarse;
+pub(crate) mod disc;
+mod survey;
+
+use crate::error::{DewarpError, Result};
+use blob::{fit_blob, BlobScratch, Profile};
+use coarse::{block_mean, correlate, local_maxima, robust_stats, template};
+pub use image_core::Pixel;
+use ndarray::ArrayView2;
+use rayon::prelude::*;
+pub use survey::{survey, Survey};
+
+/// The shape of the markers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MarkerKind {
+    /// Round dots.
+    Dot,
+    /// Crosses (+).
+    Cross,
+}
+
+impl std::str::FromStr for MarkerKind {
+    type Err = DewarpError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "dot" => Ok(Self::Dot),
+            "cross" => Ok(Self::Cross),
+            _ => Err(DewarpError::InvalidInput(format!(
+                "marker kind {s:?} is not one of \"dot\", \"cross\""
+            ))),
+        }
+    }
+}
+
+/// Options of [`detect_markers`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectOptions {
+    /// Marker shape.
+    pub kind: MarkerKind,
+    /// Dot size as a Gaussian standard deviation in px; `None` estimates it.
+    pub size_px: Option<f64>,
+    /// Keep correlation peaks above this fraction of the strongest peak.
+    pub threshold: f64,
+    /// Keep correlation peaks above this multiple of the correlation's robust noise.
+    pub min_snr: f64,
+    /// Markers darker than the background; `None` finds the polarity ([`survey`]).
+    pub dark: Option<bool>,
+    /// The dot profile of the sub-pixel fit.
+    pub profile: DotProfile,
+}
+
+/// The dot profile of the sub-pixel fit ([`MarkerKind::Dot`] only; crosses use their bars).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DotProfile {
+    /// Chosen from the image: the blurred disc when the strongest dots' Gaussian fits show a
+    /// flat top (median score above [`FLAT_TOP_THRESHOLD`]), else the Gaussian.
+    Auto,
+    /// Isotropic Gaussian blob.
+    Gaussian,
+    /// Uniform disc blurred by a Gaussian point-spread function (a printed dot).
+    Disc,
+}
+
+impl std::str::FromStr for DotProfile {
+    type Err = DewarpError;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "auto" => Ok(Self::Auto),
+            "gaussian" | "gauss" => Ok(Self::Gaussian),
+            "disc" | "disk" => Ok(Self::Disc),
+            _ => Err(DewarpError::InvalidInput(format!(
+                "dot profile {s:?} is not one of \"auto\", \"gaussian\", \"disc\""
+            ))),
+        }
+    }
+}
+
+/// The size refinement and the automatic profile choice fit this many of the strongest dots.
+pub const PROFILE_SAMPLE: usize = 24;
+/// ... and take the disc when the median flat-top score of their Gaussian fits exceeds this
+/// (under a Gaussian profile the score follows a chi-square of one degree of freedom, median
+/// 0.45).
+pub const FLAT_TOP_THRESHOLD: f64 = 25.0;
+/// Discs whose median radius is at least this many blur sigmas are fitted with a tilted top
+/// (the illumination gradient across a large disc; see `blob`'s `DiscTilted`).
+pub const TILT_FLATNESS: f64 = 6.0;
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        Self {
+            kind: MarkerKind::Dot,
+            size_px: None,
+            threshold: 0.25,
+            min_snr: 8.0,
+            dark: None,
+            profile: DotProfile::Auto,
+        }
+    }
+}
+
+/// One detected marker (image px).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Marker {
+    pub x: f64,
+    pub y: f64,
+    /// Standard uncertainty of x and y (px) and their covariance (px^2).
+    pub sigma_x: f64,
+    pub sigma_y: f64,
+    pub cov_xy: f64,
+    /// Fitted blob amplitude (counts) and width (px): the Gaussian sigma, or for a disc the
+    /// blur sigma of its edge.
+    pub amplitude: f64,
+    pub width: f64,
+    /// Disc radius (px); 0 for a Gaussian dot or a cross.
+    pub radius: f64,
+    /// Normalised correlation strength of the coarse peak.
+    pub strength: f64,
+}
+
+/// Result of [`detect_markers`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    pub markers: Vec<Marker>,
+    /// Dot size used (Gaussian sigma, px).
+    pub size_px: f64,
+    /// Block-averaging factor of the coarse detection.
+    pub downsample: usize,
+    /// The profile fitted: "gaussian", "disc" or "cross".
+    pub profile: &'static str,
+    /// The polarity used (markers darker than the background).
+    pub dark: bool,
+    /// The survey that chose the size and polarity (`None` when both were given).
+    pub survey: Option<Survey>,
+}
+
+/// Detect the markers of a calibration-target image; see the module documentation.
+pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> Result<Detection> {
+    let (h, w) = image.dim();
+    if h < 16 || w < 16 {
+        return Err(DewarpError::InvalidInput(format!(
+            "marker detection: image of {h} x {w} px is too small"
+        )));
+    }
+    let valid = opts.threshold > 0.0 && opts.threshold < 1.0 && opts.min_snr > 0.0;
+    if !valid {
+        return Err(DewarpError::InvalidInput(
+            "marker detection: threshold must lie in (0, 1) and min_snr be > 0".into(),
+        ));
+    }
+    if image.iter().any(|v| !v.to_f64().is_finite()) {
+        return Err(DewarpError::InvalidInput(
+            "marker detection: image contains NaN or inf".into(),
+        ));
+    }
+    if let Some(s) = opts.size_px {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(DewarpError::InvalidInput(format!(
+                "marker detection: marker size {s} px must be > 0"
+            )));
+        }
+    }
+    // Size and polarity from the survey unless both are given.
+    let surveyed = match (opts.size_px, opts.dark) {
+        (Some(_), Some(_)) => None,
+        _ => Some(survey(
+            image,
+            opts.kind,
+            opts.size_px,
+            opts.dark,
+            opts.min_snr,
+        )?),
+    };
+    let (s, dark) = match &surveyed {
+        Some(sv) => (sv.size_px, sv.dark),
+        None => (opts.size_px.unwrap_or(1.0), opts.dark.unwrap_or(false)),
+    };
+    let sign = if dark { -1.0 } else { 1.0 };
+    if s * 6.0 > h.min(w) as f64 {
+        return Err(DewarpError::InvalidInput(format!(
+            "marker detection: marker size {s:.1} px is too large for a {h} x {w} image"
+        )));
+    }
+    let d = ((s / 2.5).floor() as usize).max(1);
+    let coarse = block_mean(image, d, sign);
+    let sc = s / d as f64;
+    let tpl = template(opts.kind, sc);
+    let corr = correlate(&coarse, &tpl);
+    let (_, noise) = robust_stats(&corr);
+    let (hc, wc) = corr.dim();
+    let r = ((1.5 * sc).round() as usize).max(1);
+    let cmax = corr.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    // The threshold's reference: the lattice's median level when surveyed (glare and
+    // vignetting leave it alone), else the strongest peak.
+    let reference = surveyed.as_ref().map_or(cmax, |sv| sv.level);
+    let thr = (opts.threshold * reference).max(opts.min_snr * noise.max(1e-300));
+    if cmax.is_nan() || cmax <= thr {
+        return Err(DewarpError::InvalidInput(
+            "marker detection: no marker-like peaks found (blank image or wrong marker kind)"
+                .into(),
+        ));
+    }
+    let peaks = local_maxima(&corr, 1.0, thr, r);
+    let off = 0.5 * (d as f64 - 1.0);
+    let sub = |a: f64, b: f64, c: f64| {
+        let den = a - 2.0 * b + c;
+        if den < 0.0 {
+            (0.5 * (a - c) / den).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    // Coarse peak -> full-resolution start of the fit.
+    let starts: Vec<(f64, f64, f64)> = peaks
+        .iter()
+        .map(|&(y, x, v)| {
+            let fx = if x > 0 && x + 1 < wc {
+                sub(corr[[y, x - 1]], v, corr[[y, x + 1]])
+            } else {
+                0.0
+            };
+            let fy = if y > 0 && y + 1 < hc {
+                sub(corr[[y - 1, x]], v, corr[[y + 1, x]])
+            } else {
+                0.0
+            };
+            let x0 = (x as f64 + fx) * d as f64 + off;
+            let y0 = (y as f64 + fy) * d as f64 + off;
+            (x0, y0, v)
+        })
+        .collect();
+    // The survey's size is a ladder step: refine it from the strongest markers' fitted widths,
+    // and choose the dot profile from the same fits.
+    let base = if opts.kind == MarkerKind::Cross {
+        Profile::Cross
+    } else {
+        Profile::Gauss
+    };
+    let auto = opts.kind == MarkerKind::Dot && opts.profile == DotProfile::Auto;
+    let (width, auto_profile) = if auto || opts.size_px.is_none() {
+        sample_fits(image, &starts, s, sign, base)
+    } else {
+        (s, base)
+    };
+    let s = if opts.size_px.is_none() { width } else { s };
+    let profile = match (opts.kind, opts.profile) {
+        (MarkerKind::Cross, _) => Profile::Cross,
+        (MarkerKind::Dot, DotProfile::Gaussian) => Profile::Gauss,
+        (MarkerKind::Dot, DotProfile::Disc) => Profile::Disc,
+        (MarkerKind::Dot, DotProfile::Auto) => auto_profile,
+    };
+    // One scratch (LM solver, border buffer, disc table) per rayon job: no allocation per
+    // marker once sized.
+    let mut markers: Vec<Marker> = starts
+        .par_iter()
+        .map_init(BlobScratch::default, |scratch, &(x0, y0, v)| {
+            let f = fit_blob(image, x0, y0, s, sign, profile, scratch)?;
+            Some(Marker {
+                x: f.p[1],
+                y: f.p[2],
+                sigma_x: f.cov[0][0].sqrt(),
+                sigma_y: f.cov[1][1].sqrt(),
+                cov_xy: f.cov[0][1],
+                amplitude: sign * f.p[0],
+                width: f.p[3],
+                radius: f.p[7],
+                strength: v / cmax,
+            })
+        })
+        .flatten()
+        .collect();
+    // Merge duplicates (two peaks converging on one blob): keep the stronger.
+    markers.sort_by(|a, b| b.strength.total_cmp(&a.strength));
+    let mut kept: Vec<Marker> = Vec::with_capacity(markers.len());
+    for m in markers {
+        if kept.iter().all(|k| (k.x - m.x).hypot(k.y - m.y) > s) {
+            kept.push(m);
+        }
+    }
+    if kept.is_empty() {
+        return Err(DewarpError::InvalidInput(
+            "marker detection: no marker survived the sub-pixel fit".into(),
+        ));
+    }
+    kept.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    Ok(Detection {
+        markers: kept,
+        size_px: s,
+        downsample: d,
+        profile: match profile {
+            Profile::Gauss => "gaussian",
+            Profile::Cross => "cross",
+            Profile::Disc | Profile::DiscTilted => "disc",
+        },
+        dark,
+        survey: surveyed,
+    })
+}
+
+/// The [`PROFILE_SAMPLE`] strongest starts (by coarse correlation).
+fn strongest(starts: &[(f64, f64, f64)]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..starts.len()).collect();
+    order.sort_by(|&a, &b| starts[b].2.total_cmp(&starts[a].2));
+    order.truncate(PROFILE_SAMPLE);
+    order
+}
+
+/// The strongest markers' fits with `profile` (Gauss or Cross): their median width (`s` if
+/// fewer than 3 fits succeed) and, for dots, the profile to fit: the blurred disc when the
+/// median flat-top score of the Gaussian fits exceeds [`FLAT_TOP_THRESHOLD`] (failed Gaussian
+/// fits count as flat-topped), tilted when the discs are flat-topped (radius at least
+/// [`TILT_FLATNESS`] blur sigmas), else the Gaussian.
+fn sample_fits<T: Pixel>(
+    image: ArrayView2<T>,
+    starts: &[(f64, f64, f64)],
+    s: f64,
+    sign: f64,
+    profile: Profile,
+) -> (f64, Profile) {
+    let fits: Vec<Option<(f64, f64)>> = strongest(starts)
+        .par_iter()
+        .map_init(BlobScratch::default, |scratch, &k| {
+            let (x0, y0, _) = starts[k];
+            fit_blob(image, x0, y0, s, sign, profile, scratch).map(|f| (f.p[3], f.flat_top))
+        })
+        .collect();
+    let mut widths: Vec<f64> = fits.iter().flatten().map(|f| f.0).collect();
+    let width = if widths.len() >= 3 {
+        coarse::median_mut(&mut widths)
+    } else {
+        s
+    };
+    if profile != Profile::Gauss {
+        return (width, profile);
+    }
+    let mut scores: Vec<f64> = fits
+        .iter()
+        .map(|f| f.map_or(f64::INFINITY, |f| f.1))
+        .collect();
+    if scores.is_empty() || coarse::median_mut(&mut scores) <= FLAT_TOP_THRESHOLD {
+        return (width, Profile::Gauss);
+    }
+    let mut flat: Vec<f64> = strongest(starts)[..starts.len().min(8)]
+        .par_iter()
+        .map_init(BlobScratch::default, |scratch, &k| {
+            let (x0, y0, _) = starts[k];
+            fit_blob(image, x0, y0, width, sign, Profile::Disc, scratch).map(|f| f.p[7] / f.p[3])
+        })
+        .flatten()
+        .collect();
+    if flat.is_empty() {
+        return (width, Profile::Gauss);
+    }
+    let tilted = coarse::median_mut(&mut flat) >= TILT_FLATNESS;
+    (
+        width,
+        if tilted {
+            Profile::DiscTilted
+        } else {
+            Profile::Disc
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests;

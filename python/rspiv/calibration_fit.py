@@ -1,0 +1,190 @@
+"""The fit of a calibration: model comparison by held-out (leave-one-out) error, the choice
+of the model, the magnification from the central marker's neighbours, and the check that the
+fit follows the markers to their precision (used by :mod:`rspiv.calibration`).
+
+Residuals and sigmas are per axis (the RMS over x and y), px.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from rspiv.errors import InvalidInputError, RspivError
+from rspiv.mapping import MODELS, Mapping, fit_mapping
+
+__all__ = [
+    "MIN_POINTS",
+    "N_PARAMS",
+    "check_fit",
+    "choose_model",
+    "compare_models",
+    "fit_stats",
+    "magnification",
+]
+
+# Points each model needs and its free coefficients (dewarp_core::Model::min_points, n_params).
+MIN_POINTS = {"r1": 5, "r2": 9, "p3": 11}
+N_PARAMS = {"r1": 8, "r2": 17, "p3": 20}
+# Fit-quality limits (residual RMS against the markers' image sigma, both per axis, px): above
+# max(REFUSE_FACTOR * sigma, REFUSE_FLOOR_PX) a calibration is refused unless accept_poor_fit;
+# above WARN_FACTOR * sigma it is kept with a warning.
+REFUSE_FACTOR = 10.0
+REFUSE_FLOOR_PX = 0.5
+WARN_FACTOR = 3.0
+# Neighbours of the central marker that give the magnification: those within this factor of
+# the nearest one's distance on the target (on a square grid: the four axial neighbours).
+NEIGHBOUR_SHELL = 1.2
+
+
+def _loo_rms(obj: np.ndarray, img: np.ndarray, centre: int, model: str, scale: float) -> float:
+    """RMS held-out error (px): each non-central marker predicted by a fit without it."""
+    errs = []
+    n = len(obj)
+    for k in range(n):
+        if k == centre:
+            continue
+        keep = np.arange(n) != k
+        c = centre - (1 if k < centre else 0)
+        m = fit_mapping(obj[keep], img[keep], model, center_index=c, scale=scale)
+        errs.append(np.sum((m.forward(obj[k : k + 1])[0] - img[k]) ** 2))
+    return float(np.sqrt(np.mean(errs)))
+
+
+def compare_models(
+    object_px: npt.ArrayLike,
+    image_px: npt.ArrayLike,
+    centre: int,
+    models: tuple[str, ...] = MODELS,
+) -> dict[str, dict[str, Any]]:
+    """Fit each model and measure its residuals and its leave-one-out (held-out) error.
+
+    Returns ``{model: {"max_abs_px", "mean_px", "rms_px", "loo_rms_px"}}`` for the models that
+    have enough markers; models that cannot be fitted are left out.
+    """
+    obj = np.asarray(object_px, dtype=np.float64)
+    img = np.asarray(image_px, dtype=np.float64)
+    scale = float(np.max(np.abs(obj[:, 0])))
+    out: dict[str, dict[str, Any]] = {}
+    for model in models:
+        try:
+            m = fit_mapping(obj, img, model, center_index=centre, scale=scale)
+            loo = _loo_rms(obj, img, centre, model, scale)
+        except RspivError:
+            continue
+        out[model] = fit_stats(m, loo)
+    return out
+
+
+def fit_stats(m: Mapping, loo: float | None) -> dict[str, Any]:
+    """A fit's residual statistics (px) and its held-out RMS (None: not computed)."""
+    st = m.stats
+    return {
+        "max_abs_px": [float(v) for v in st["max_abs_px"]],
+        "mean_px": [float(v) for v in st["mean_px"]],
+        "rms_px": [float(v) for v in st["rms_px"]],
+        "loo_rms_px": loo,
+    }
+
+
+def choose_model(model: str, models: dict[str, dict[str, Any]], what: str) -> tuple[str, str]:
+    """The model to fit and why: the user's, or (``"auto"``) the smallest held-out error
+    among ``models`` (:func:`compare_models`); InvalidInputError when ``"auto"`` finds no
+    model (``what``: the points, for the message)."""
+    if model == "auto":
+        if not models:
+            raise InvalidInputError(f"calibration: no model can be fitted to {what}")
+        ranked = sorted(models, key=lambda m: models[m]["loo_rms_px"])
+        return ranked[0], "smallest held-out error: " + " < ".join(
+            f"{m} {models[m]['loo_rms_px']:.4f} px" for m in ranked
+        )
+    reason = "chosen by the user"
+    if model in models and len(models) > 1:
+        best = min(models, key=lambda m: models[m]["loo_rms_px"])
+        if best != model:
+            reason += f" (note: {best} has a smaller held-out error)"
+    return model, reason
+
+
+def magnification(
+    image_px: np.ndarray, object_mm: np.ndarray, centre: int, one: str
+) -> tuple[float, float, float]:
+    """M (px/mm) as the mean ratio image distance / target distance from the central point to
+    its nearest neighbours on the target (those within ``NEIGHBOUR_SHELL`` x the nearest one's
+    distance, at least two; on a square grid the four axial neighbours), the standard deviation
+    of those ratios, and the nearest neighbour's distance (mm). ``one``: "marker" or "point",
+    for the message of the InvalidInputError raised when there are fewer than 2 neighbours."""
+    d_obj = np.hypot(*(object_mm - object_mm[centre]).T)
+    d_obj[centre] = np.inf
+    order = np.argsort(d_obj, kind="stable")
+    nearest = float(d_obj[order[0]])
+    near = order[d_obj[order] <= NEIGHBOUR_SHELL * nearest]
+    if len(near) < 2:
+        near = order[:2]
+    if len(near) < 2 or not np.all(np.isfinite(d_obj[near])):
+        raise InvalidInputError(f"calibration: the central {one} has fewer than 2 neighbours")
+    ratios = np.hypot(*(image_px[near] - image_px[centre]).T) / d_obj[near]
+    return float(np.mean(ratios)), float(np.std(ratios, ddof=1)), nearest
+
+
+def check_fit(
+    model: str,
+    rms: float,
+    sigma: float,
+    what: str,
+    pitch_px: float,
+    accept_poor_fit: bool,
+) -> list[str]:
+    """Check that a fit follows the markers to their precision.
+
+    Parameters
+    ----------
+    model : str
+        The fitted model.
+    rms : float
+        RMS of its residuals (per axis, px).
+    sigma : float
+        The markers' image sigma (RMS per axis, px).
+    what : str
+        The points, for the message (``"91 indexed markers"``).
+    pitch_px : float
+        The lattice pitch at the centre (px), for the message.
+    accept_poor_fit : bool
+        Keep (with a warning) a fit that would be refused.
+
+    Returns
+    -------
+    list of str
+        The warning to record (empty, or one line): ``rms`` above ``WARN_FACTOR`` x ``sigma``,
+        or a poor fit kept.
+
+    Raises
+    ------
+    InvalidInputError
+        ``rms`` above ``max(REFUSE_FACTOR * sigma, REFUSE_FLOOR_PX)`` and not
+        ``accept_poor_fit``: one line saying what was seen.
+    """
+    seen = (
+        f"{model} leaves {rms:.3g} px RMS residuals against a marker sigma of {sigma:.3g} px "
+        f"over {what} (lattice pitch {pitch_px:.1f} px)"
+    )
+    if rms > max(REFUSE_FACTOR * sigma, REFUSE_FLOOR_PX):
+        why = (
+            f"this is not a flat target {model} can follow (oblique view? particles? mixed "
+            f"plate levels? a distortion beyond {model}: try model='auto'?)"
+        )
+        if not accept_poor_fit:
+            raise InvalidInputError(
+                f"calibration refused: {seen}: {why}; pass accept_poor_fit=True "
+                "(rspiv calibrate --accept-poor-fit) to keep it"
+            )
+        return [f"poor fit kept (accept_poor_fit=True): {seen}: {why}"]
+    if rms > WARN_FACTOR * sigma:
+        return [
+            f"{seen}, {rms / sigma:.1f} x the sigma: the model follows the target less closely "
+            f"than the markers' precision (a distortion beyond {model}? a slightly oblique "
+            "view? a few misplaced markers?)"
+        ]
+    return []
