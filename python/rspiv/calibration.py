@@ -46,6 +46,13 @@ from rspiv.errors import InvalidInputError
 from rspiv.io import read_image
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.outputs import atomic_write_text
+from rspiv.plate import (
+    analyse_plate,
+    lattice_from_json,
+    lattice_line,
+    lattice_record,
+    lattice_to_json,
+)
 
 __all__ = [
     "Markers",
@@ -78,6 +85,10 @@ class Markers:
         Grid index (i, j); (0, 0) is the central marker.
     centre : int
         Row of the central marker.
+    object_mm : ndarray (n, 2) or None
+        Target-plane coordinates (mm) relative to the plate's origin: its fiducial when it has
+        one (:mod:`rspiv.plate`), else the central marker; for given points, as given. Two
+        calibrations of the same plate agree in this frame. None in files written before it.
     """
 
     image_px: np.ndarray
@@ -85,6 +96,7 @@ class Markers:
     cov_px2: np.ndarray
     index: np.ndarray
     centre: int
+    object_mm: np.ndarray | None = None
 
     @property
     def sigma_px(self) -> np.ndarray:
@@ -232,15 +244,7 @@ class Calibration:
         la = self.lattice
         if la is None:
             return None
-        return (
-            "lattice: pitch {:.2f} x {:.2f} px (i, j), i axis at {:+.2f} deg from +x (towards "
-            "+y), axes {:.2f} deg apart; {} markers indexed of {} detected ({} rejected); "
-            "{} {} dots, size {:.2f} px".format(
-                *la["pitch_px"], la["angle_deg"], la["axes_angle_deg"], la["n_indexed"],
-                la["n_detected"], la["n_rejected"], la.get("polarity", "bright"),
-                la.get("profile", "gaussian"), la["size_px"],
-            )
-        )  # fmt: skip
+        return lattice_line(la)
 
     def report(self) -> CalibrationReport:
         """The quantities of the paper's Table 3 (and the model comparison)."""
@@ -273,7 +277,7 @@ class Calibration:
             model=self.model,
             model_reason=self.model_reason,
             image_shape=list(self.image_shape),
-            lattice=_lattice_json(self.lattice),
+            lattice=lattice_to_json(self.lattice),
             warnings=list(self.warnings),
         )
 
@@ -298,13 +302,14 @@ class Calibration:
             "model_reason": self.model_reason,
             "models": self.models,
             "warnings": list(self.warnings),
-            "lattice": _lattice_json(self.lattice),
+            "lattice": lattice_to_json(self.lattice),
             "markers": {
                 "image_px": mk.image_px.tolist(),
                 "object_px": mk.object_px.tolist(),
                 "cov_px2": mk.cov_px2.tolist(),
                 "index": mk.index.tolist(),
                 "centre": int(mk.centre),
+                **({} if mk.object_mm is None else {"object_mm": mk.object_mm.tolist()}),
             },
             "mapping": json.loads(self.mapping.to_json()),
         }
@@ -332,8 +337,16 @@ class Calibration:
                 cov_px2=np.asarray(m["cov_px2"], dtype=np.float64).reshape(-1, 2, 2),
                 index=np.asarray(m["index"], dtype=np.int64).reshape(-1, 2),
                 centre=int(m["centre"]),
+                object_mm=(
+                    np.asarray(m["object_mm"], dtype=np.float64).reshape(-1, 2)
+                    if "object_mm" in m
+                    else None
+                ),
             )
-            if not (len(markers.object_px) == len(markers.image_px) == len(markers.index)):
+            om = markers.object_mm
+            if not (len(markers.object_px) == len(markers.image_px) == len(markers.index)) or (
+                om is not None and len(om) != len(markers.index)
+            ):
                 raise ValueError("marker arrays differ in length")
             mapping = Mapping.from_json(json.dumps(d["mapping"]))
             fields = {k: d[k] for k in (
@@ -344,7 +357,7 @@ class Calibration:
             # Optional keys (absent from older files and from rspiv-engine's).
             fields["image_sigma_source"] = str(d.get("image_sigma_source", DETECTOR))
             fields["warnings"] = _string_list(d.get("warnings", []))
-            fields["lattice"] = _lattice_from_json(d.get("lattice"))
+            fields["lattice"] = lattice_from_json(d.get("lattice"))
         except (KeyError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"{name}: corrupt calibration ({exc})") from None
         return cls(markers=markers, mapping=mapping, **fields)
@@ -380,6 +393,8 @@ def calibrate(
     min_snr: float = 8.0,
     dark: bool | None = None,
     profile: str = "auto",
+    levels: int | None = None,
+    level: int | None = None,
     grid_tolerance: float = 0.3,
     compare: bool = True,
     accept_poor_fit: bool = False,
@@ -412,6 +427,13 @@ def calibrate(
     profile : {"auto", "gaussian", "disc"}
         Dot profile of the sub-pixel fit: a Gaussian blob or a printed disc blurred by the lens;
         ``"auto"`` takes the disc when the strongest dots' Gaussian fits show a flat top.
+    levels : {None, 1, 2}
+        Levels of the plate; default read from the image (:mod:`rspiv.plate`: two interleaved
+        lattices told apart by their scale or their dots; an ambiguous plate is refused).
+    level : {None, 1, 2}
+        The level to calibrate on (1 = the nearer); default the level holding the fiducial,
+        else level 1. The grid origin ``(0, 0)`` is the fiducial when the level has one, else
+        its marker nearest the image centre.
     grid_tolerance : float
         Grid acceptance radius as a fraction of the pitch.
     compare : bool
@@ -444,20 +466,24 @@ def calibrate(
         dark=None if dark is None else bool(dark), profile=profile,
     )  # fmt: skip
     pts = det["image_px"]
-    idx, found, origin, a1, a2 = _rspiv.index_grid(
+    idx, found, _, a1, a2 = _rspiv.index_grid(
         pts, (0.5 * (w - 1), 0.5 * (h - 1)), grid_tolerance
     )
-    keep = np.flatnonzero(found)
+    size = np.where(det["radius_px"] > 0, det["radius_px"], det["width_px"])
+    plate = analyse_plate(
+        pts, idx, found, a1, a2, size, det["amplitude"], (h, w), levels=levels, level=level
+    )
     size_px = float(det["size_px"])
     origin_of_points = _Origin(
         unit="markers", verb="indexed", marker=marker, size_px=size_px, n_detected=len(pts),
-        image_sigma_source=DETECTOR, lattice=_lattice(pts, found, a1, a2, det),
+        image_sigma_source=DETECTOR, lattice=lattice_record(pts, found, a1, a2, det, plate),
     )  # fmt: skip
+    keep = np.flatnonzero(plate.use)
     return _calibrate_points(
         np.ascontiguousarray(pts[keep]),
-        pitch * idx[keep].astype(np.float64),
+        pitch * plate.index[keep].astype(np.float64),
         det["cov_px2"][keep],
-        centre=int(np.flatnonzero(keep == origin)[0]),
+        centre=int(np.flatnonzero(keep == plate.central)[0]),
         pitch_mm=pitch,
         pitch_sigma_mm=psig,
         model=model,
@@ -642,8 +668,9 @@ def _calibrate_points(
             "sigma_px given): the fit could not be checked against the markers' noise"
         )
     markers = Markers(
-        image_px=image_px, object_px=object_px, cov_px2=cov_px2, index=index, centre=centre
-    )
+        image_px=image_px, object_px=object_px, cov_px2=cov_px2, index=index, centre=centre,
+        object_mm=np.array(object_mm, dtype=np.float64),
+    )  # fmt: skip
     image_var = float(np.mean(markers.sigma_px**2))
     if not estimated:
         warnings += check_fit(
@@ -680,49 +707,6 @@ def _calibrate_points(
         lattice=origin.lattice,
         warnings=warnings,
     )
-
-
-def _lattice(
-    pts: np.ndarray, found: np.ndarray, a1: Any, a2: Any, det: dict[str, Any]
-) -> dict[str, Any]:
-    """The lattice summary of a detection and its grid indexing (see
-    :attr:`Calibration.lattice`)."""
-    s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
-    l1, l2 = float(np.hypot(*s1)), float(np.hypot(*s2))
-    cos = float(np.dot(s1, s2)) / (l1 * l2) if l1 > 0 and l2 > 0 else 0.0
-    n_indexed = int(np.count_nonzero(found))
-    return {
-        "pitch_px": [l1, l2],
-        "angle_deg": float(np.degrees(np.arctan2(s1[1], s1[0]))),
-        "axes_angle_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
-        "n_indexed": n_indexed,
-        "n_detected": int(len(pts)),
-        "n_rejected": int(len(pts)) - n_indexed,
-        "size_px": float(det["size_px"]),
-        "polarity": "dark" if det.get("dark") else "bright",
-        "profile": str(det.get("profile", "gaussian")),
-        "rejected_px": np.ascontiguousarray(pts[~np.asarray(found, dtype=bool)]).reshape(-1, 2),
-    }
-
-
-def _lattice_json(lattice: dict[str, Any] | None) -> dict[str, Any] | None:
-    if lattice is None:
-        return None
-    return {**lattice, "rejected_px": np.asarray(lattice["rejected_px"]).tolist()}
-
-
-def _lattice_from_json(d: Any) -> dict[str, Any] | None:
-    if d is None:
-        return None
-    if not isinstance(d, dict):
-        raise ValueError("lattice is not an object")
-    out = {k: d[k] for k in ("pitch_px", "angle_deg", "axes_angle_deg", "size_px")}
-    out["polarity"] = str(d.get("polarity", "bright"))
-    out["profile"] = str(d.get("profile", "gaussian"))
-    out.update({k: int(d[k]) for k in ("n_indexed", "n_detected", "n_rejected")})
-    out["pitch_px"] = [float(v) for v in out["pitch_px"]]
-    out["rejected_px"] = np.asarray(d["rejected_px"], dtype=np.float64).reshape(-1, 2)
-    return out
 
 
 def _string_list(v: Any) -> list[str]:

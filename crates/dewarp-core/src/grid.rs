@@ -19,6 +19,10 @@ use std::collections::{HashMap, VecDeque};
 /// Per point: its grid index or `None`.
 type Indices = Vec<Option<(i32, i32)>>;
 
+/// Largest median deviation of indexed markers from their predicted sites, as a fraction of the
+/// local step, that is still a lattice.
+pub const MAX_IRREGULARITY: f64 = 0.08;
+
 /// Result of [`index_grid`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridIndex {
@@ -29,6 +33,8 @@ pub struct GridIndex {
     /// Grid steps at the origin (image px): a1 along i, a2 along j.
     pub a1: [f64; 2],
     pub a2: [f64; 2],
+    /// Median distance of the indexed markers from their predicted sites over the local step.
+    pub irregularity: f64,
 }
 
 fn local_lattice(points: &[[f64; 2]], c: usize, tol: f64) -> Option<([f64; 2], [f64; 2])> {
@@ -119,22 +125,23 @@ pub fn index_grid(points: &[[f64; 2]], centre: [f64; 2], tol: f64) -> Result<Gri
     let d2 = |p: [f64; 2]| (p[0] - centre[0]).powi(2) + (p[1] - centre[1]).powi(2);
     order.sort_by(|&a, &b| d2(points[a]).total_cmp(&d2(points[b])));
     // Try the first few grid-like candidates nearest the centre; keep the largest grid.
-    let mut best: Option<(usize, Indices, [f64; 2], [f64; 2])> = None;
+    let mut best: Option<(usize, Indices, [f64; 2], [f64; 2], Vec<f64>)> = None;
     let mut tried = 0;
+    let buckets = Buckets::new(points);
     for &c in &order {
         let Some((a1, a2)) = local_lattice(points, c, tol) else {
             continue;
         };
-        let (idx, count) = grow(points, c, a1, a2, tol);
+        let (idx, count, dev) = grow(points, &buckets, c, a1, a2, tol);
         if best.as_ref().is_none_or(|b| count > b.0) {
-            best = Some((count, idx, a1, a2));
+            best = Some((count, idx, a1, a2, dev));
         }
         tried += 1;
         if tried >= 6 || count * 2 > n {
             break;
         }
     }
-    let Some((count, mut index, a1, a2)) = best else {
+    let Some((count, mut index, a1, a2, mut dev)) = best else {
         return Err(DewarpError::InvalidInput(
             "grid indexing: no marker has a grid-like neighbourhood (no grid in the image?)".into(),
         ));
@@ -174,6 +181,21 @@ pub fn index_grid(points: &[[f64; 2]], centre: [f64; 2], tol: f64) -> Result<Gri
             "grid indexing: only {count} markers form a grid, at least 5 are needed"
         )));
     }
+    let irregularity = if dev.is_empty() {
+        0.0
+    } else {
+        let k = dev.len() / 2;
+        *dev.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+    };
+    if irregularity > MAX_IRREGULARITY {
+        return Err(DewarpError::InvalidInput(format!(
+            "grid indexing: the {count} points found form no regular lattice (median deviation \
+             from the predicted site {:.0} % of the pitch, a target's is below {:.0} %): not a \
+             target?",
+            100.0 * irregularity,
+            100.0 * MAX_IRREGULARITY
+        )));
+    }
     // Re-centre on the indexed marker nearest the centre.
     let origin = order
         .iter()
@@ -189,17 +211,76 @@ pub fn index_grid(points: &[[f64; 2]], centre: [f64; 2], tol: f64) -> Result<Gri
         origin,
         a1,
         a2,
+        irregularity,
     })
 }
 
+/// Points bucketed on a square grid of cells (about 4 points per cell) for the growth's
+/// nearest-to-prediction queries.
+struct Buckets {
+    cell: f64,
+    x0: f64,
+    y0: f64,
+    cells: HashMap<(i64, i64), Vec<usize>>,
+}
+
+impl Buckets {
+    fn new(points: &[[f64; 2]]) -> Self {
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for p in points {
+            x0 = x0.min(p[0]);
+            y0 = y0.min(p[1]);
+            x1 = x1.max(p[0]);
+            y1 = y1.max(p[1]);
+        }
+        let area = ((x1 - x0) * (y1 - y0)).max(1.0);
+        let cell = (4.0 * area / points.len().max(1) as f64).sqrt().max(1.0);
+        let mut cells: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+        for (q, p) in points.iter().enumerate() {
+            let key = (((p[0] - x0) / cell) as i64, ((p[1] - y0) / cell) as i64);
+            cells.entry(key).or_default().push(q);
+        }
+        Buckets {
+            cell,
+            x0,
+            y0,
+            cells,
+        }
+    }
+
+    /// Calls `f(q)` for every point within the cells covering the disc `(c, rad)`.
+    fn near(&self, c: [f64; 2], rad: f64, mut f: impl FnMut(usize)) {
+        let ka = (((c[0] - rad - self.x0) / self.cell).floor() as i64).max(-1);
+        let kb = ((c[0] + rad - self.x0) / self.cell).floor() as i64;
+        let la = (((c[1] - rad - self.y0) / self.cell).floor() as i64).max(-1);
+        let lb = ((c[1] + rad - self.y0) / self.cell).floor() as i64;
+        if (kb - ka + 1).saturating_mul(lb - la + 1) > 4 * self.cells.len() as i64 {
+            // A radius wider than the cloud: look at every cell.
+            self.cells.values().flatten().for_each(|&q| f(q));
+            return;
+        }
+        for k in ka..=kb {
+            for l in la..=lb {
+                if let Some(v) = self.cells.get(&(k, l)) {
+                    v.iter().for_each(|&q| f(q));
+                }
+            }
+        }
+    }
+}
+
+/// Grow the grid from `origin`: the indices, their count and each added marker's distance from
+/// its prediction over the step.
 fn grow(
     points: &[[f64; 2]],
+    buckets: &Buckets,
     origin: usize,
     a1: [f64; 2],
     a2: [f64; 2],
     tol: f64,
-) -> (Vec<Option<(i32, i32)>>, usize) {
+) -> (Vec<Option<(i32, i32)>>, usize, Vec<f64>) {
     let n = points.len();
+    let mut dev = Vec::new();
     let mut index: Vec<Option<(i32, i32)>> = vec![None; n];
     let mut at: HashMap<(i32, i32), usize> = HashMap::new();
     index[origin] = Some((0, 0));
@@ -221,18 +302,21 @@ fn grow(
                 }
             };
             let pred = [p[0] + step[0], p[1] + step[1]];
-            let rad = tol * step[0].hypot(step[1]);
+            let len = step[0].hypot(step[1]);
+            let rad = tol * len;
             let mut best: Option<(f64, usize)> = None;
-            for q in 0..n {
+            buckets.near(pred, rad, |q| {
                 if index[q].is_some() {
-                    continue;
+                    return;
                 }
                 let dd = (points[q][0] - pred[0]).hypot(points[q][1] - pred[1]);
-                if dd < rad && best.is_none_or(|(b, _)| dd < b) {
+                // Ties go to the lower index, as a scan in order would.
+                if dd < rad && best.is_none_or(|(b, bq)| dd < b || (dd == b && q < bq)) {
                     best = Some((dd, q));
                 }
-            }
-            if let Some((_, q)) = best {
+            });
+            if let Some((dd, q)) = best {
+                dev.push(dd / len.max(1e-300));
                 index[q] = Some(key);
                 at.insert(key, q);
                 queue.push_back(key);
@@ -240,7 +324,7 @@ fn grow(
         }
     }
     let count = at.len();
-    (index, count)
+    (index, count, dev)
 }
 
 #[cfg(test)]
@@ -296,6 +380,28 @@ mod tests {
         assert_eq!(g.index, rel);
         let (pts, truth) = grid(-4.0, &[], &[]);
         assert_eq!(index_grid(&pts, [690.0, 390.0], 0.3).unwrap().index, truth);
+    }
+
+    #[test]
+    fn random_points_are_no_lattice() {
+        // A dense random cloud (particles): every prediction finds some point within the
+        // tolerance, but never where a lattice would put it.
+        let mut state = 12345u64;
+        let mut rnd = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let pts: Vec<[f64; 2]> = (0..3000).map(|_| [1152.0 * rnd(), 768.0 * rnd()]).collect();
+        let e = index_grid(&pts, [576.0, 384.0], 0.3)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("no regular lattice"), "{e}");
+        // A distorted lattice is regular: its deviations are far below the limit.
+        let (pts, _) = grid(3.0, &[], &[]);
+        let g = index_grid(&pts, [700.0, 400.0], 0.3).unwrap();
+        assert!(g.irregularity < 0.01, "{}", g.irregularity);
     }
 
     #[test]

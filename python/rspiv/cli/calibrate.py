@@ -58,6 +58,8 @@ def _calibrate(args: argparse.Namespace) -> int:
             marker_size_px=args.marker_size_px,
             dark=args.dark,
             profile=args.profile,
+            levels=args.levels,
+            level=args.level,
             accept_poor_fit=args.accept_poor_fit,
         )
         print(f"calibration of {args.target}: {image.shape[1]} x {image.shape[0]} px")
@@ -190,6 +192,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     pol.add_argument(
         "--bright", dest="dark", action="store_const", const=False,
         help="markers brighter than the background (default: found from the image)",
+    )  # fmt: skip
+    p.add_argument(
+        "--levels", type=int, choices=[1, 2], default=None,
+        help="levels of the plate (default: read from the image; an ambiguous plate is refused)",
+    )  # fmt: skip
+    p.add_argument(
+        "--level", type=int, choices=[1, 2], default=None,
+        help="the level of a two-level plate to calibrate on (1: the nearer; default: the level "
+        "holding the fiducial, else 1)",
     )  # fmt: skip
     p.add_argument(
         "--profile", default="auto", choices=["auto", "gaussian", "disc"],

@@ -252,6 +252,11 @@ def calibration_target(
     vignetting: float = 0.15,
     bit_depth: int | None = None,
     clutter: int = 0,
+    levels: int = 1,
+    level_scale: float = 0.995,
+    level_contrast: float = 0.8,
+    fiducial: str | None = None,
+    fiducial_site: tuple[int, int] = (1, 0),
 ) -> CalibrationTarget:
     """Render a synthetic calibration target (uint16, 12-bit range) with its true markers.
 
@@ -299,6 +304,16 @@ def calibration_target(
         Number of blobs off the plate (random Gaussian or disc blobs of 0.5-3x the marker size
         and the markers' polarity, every fifth a large bright glare spot), at least one pitch
         beyond the outermost markers.
+    levels : {1, 2}
+        A two-level plate: a second lattice of the same pitch, staggered by half a pitch along
+        both axes (sites ``(i + 1/2, j + 1/2)``), on a level farther from the camera: its image
+        is scaled by ``level_scale`` about the sensor centre (the principal point) before the
+        lens, and its dots have ``level_contrast`` times the amplitude. Its true positions and
+        indices are ``extra["level2_px"]``, ``extra["level2_index"]`` (half-integer sites).
+    fiducial : {"large", "ring", "missing"}, optional
+        A fiducial at ``fiducial_site`` of the first level: a dot 1.6 times larger, a hollow
+        ring (outer radius 1.6, inner 1.0 times the dot's), or a missing dot. It is left out of
+        ``markers_px``/``index``; its true position is ``extra["fiducial_px"]``.
 
     Returns
     -------
@@ -317,13 +332,20 @@ def calibration_target(
         raise InvalidInputError(f"blur_px must be > 0, got {blur_px!r}")
     if not (np.isfinite(vignetting) and 0.0 <= vignetting < 1.0):
         raise InvalidInputError(f"vignetting must lie in [0, 1), got {vignetting!r}")
+    if levels not in (1, 2):
+        raise InvalidInputError(f"levels must be 1 or 2, got {levels!r}")
+    if fiducial not in (None, "large", "ring", "missing"):
+        raise InvalidInputError(
+            f"fiducial must be None, 'large', 'ring' or 'missing', got {fiducial!r}"
+        )
     o = optics.scaled(scale) if scale != 1.0 else optics
     if isinstance(lens, str):
         if lens != "paper":
             raise InvalidInputError(f"lens must be a LensDistortion, 'paper' or None, got {lens!r}")
         lens = paper_lens(o)
     nx, ny = o.n_markers
-    miss = {(int(a), int(b)) for a, b in missing}
+    fid = (int(fiducial_site[0]), int(fiducial_site[1]))
+    miss = {(int(a), int(b)) for a, b in missing} | ({fid} if fiducial else set())
     ij = np.array(
         [
             (i, j)
@@ -345,6 +367,22 @@ def calibration_target(
         grid_offset_px=(grid_offset_px[0] * scale, grid_offset_px[1] * scale),
     )
     pts = tgt.true_image_px(ij)
+    # The second level: half-pitch staggered sites, scaled about the sensor centre.
+    ij2 = np.array(
+        [(i + 0.5, j + 0.5) for j in range(-(ny // 2), ny // 2) for i in range(-(nx // 2), nx // 2)]
+    ).reshape(-1, 2)
+    if levels == 2:
+        c0 = np.array([0.5 * (o.width - 1), 0.5 * (o.height - 1)])
+        ideal2 = c0 + float(level_scale) * (tgt.ideal_px(ij2) - c0)
+        if mapping is not None:
+            pts2 = np.asarray(mapping.forward(ideal2))
+        elif lens is not None:
+            pts2 = lens.distort(ideal2)
+        else:
+            pts2 = ideal2
+    else:
+        ij2, pts2 = np.zeros((0, 2)), np.zeros((0, 2))
+    fid_px = tgt.true_image_px([fid]) if fiducial else np.zeros((0, 2))
     # Spurious blobs keep away from every grid site, missing ones and a ring beyond the edge
     # included (a blob there would be indistinguishable from a marker).
     sites = tgt.true_image_px(
@@ -354,6 +392,7 @@ def calibration_target(
             for i in range(-(nx // 2) - 1, nx // 2 + 2)
         ]
     )
+    sites = np.vstack([sites, pts2])
     dot_sigma = o.dot_sigma_mm * o.magnification
     bits = o.bit_depth if bit_depth is None else int(bit_depth)
     if bits not in (8, 12, 16):
@@ -395,27 +434,42 @@ def calibration_target(
             clut.append(p)
     clut_arr = np.array(clut, dtype=np.float64).reshape(-1, 2)
     contrast = o.amplitude * counts * (-1.0 if dark else 1.0)
-    n_m, n_s, n_c = len(pts), len(spur_arr), len(clut_arr)
-    centres = np.vstack([pts, spur_arr, clut_arr])
+    # Level 2 and the fiducial ride with the markers: (centre, sigma, amplitude, radius).
+    extra_rows = [(p, size, contrast * level_contrast, radius) for p in pts2]
+    big = 1.6 * (radius if radius > 0 else size)
+    if fiducial == "large":
+        fid_sigma, fid_radius = (size, big) if radius > 0 else (big, 0.0)
+        extra_rows.append((fid_px[0], fid_sigma, contrast, fid_radius))
+    elif fiducial == "ring":
+        inner = radius if radius > 0 else 2.0 * size
+        blur = size if radius > 0 else 0.5 * size
+        extra_rows += [(fid_px[0], blur, contrast, 1.6 * inner)]
+        extra_rows += [(fid_px[0], blur, -contrast, inner)]
+    pts_all = np.vstack([pts, np.array([r[0] for r in extra_rows]).reshape(-1, 2)])
+    n_s, n_c = len(spur_arr), len(clut_arr)
+    centres = np.vstack([pts_all, spur_arr, clut_arr])
     glare = np.arange(n_c) % 5 == 4
     c_scale = np.where(glare, rng.uniform(6.0, 12.0, n_c), rng.uniform(0.5, 3.0, n_c))
     sig = np.concatenate(
         [
-            np.full(n_m, size),
+            np.full(len(pts), size),
+            [r[1] for r in extra_rows],
             size * rng.uniform(0.6, 1.4, size=n_s),
             np.where(glare | (radius == 0.0), dot_sigma * c_scale, size),
         ]
     )
     amp = np.concatenate(
         [
-            np.full(n_m, contrast),
+            np.full(len(pts), contrast),
+            [r[2] for r in extra_rows],
             contrast * rng.uniform(0.5, 1.0, n_s),
             np.where(glare, abs(contrast) * 0.8, contrast * rng.uniform(0.5, 1.5, n_c)),
         ]
     )
     rad = np.concatenate(
         [
-            np.full(n_m, radius),
+            np.full(len(pts), radius),
+            [r[3] for r in extra_rows],
             radius * rng.uniform(0.6, 1.4, size=n_s),
             np.where(glare | (radius == 0.0), 0.0, radius * c_scale),
         ]
@@ -443,6 +497,8 @@ def calibration_target(
     tgt.spurious_px = spur_arr
     tgt.extra.update(
         dot_sigma_px=dot_sigma, dot=dot, disc_radius_px=radius, blur_px=float(blur_px),
-        dark=bool(dark), bit_depth=bits, clutter_px=clut_arr,
+        dark=bool(dark), bit_depth=bits, clutter_px=clut_arr, level2_px=pts2,
+        level2_index=ij2, fiducial=fiducial, fiducial_px=fid_px,
+        fiducial_index=np.array(fid) if fiducial else None,
     )
     return tgt

@@ -88,6 +88,8 @@ pub fn survey<T: Pixel>(
         None => vec![false, true],
     };
     let mut cands: Vec<Candidate> = Vec::new();
+    // The most blobs seen at one size (for the error message).
+    let mut most = (0usize, 0.0f64);
     let mut best_snr = 0.0f64;
     let mut below = 0;
     for &s in &ladder {
@@ -123,6 +125,9 @@ pub fn survey<T: Pixel>(
                 x0 as f64 + 0.5 * (cw as f64 - 1.0),
                 y0 as f64 + 0.5 * (ch as f64 - 1.0),
             ];
+            if pts.len() > most.0 {
+                most = (pts.len(), s);
+            }
             let Ok(g) = index_grid(&pts, centre, 0.3) else {
                 continue;
             };
@@ -195,13 +200,22 @@ pub fn survey<T: Pixel>(
         }),
         None => Err(DewarpError::InvalidInput(format!(
             "marker detection: no lattice of marker-like blobs found at any size from {:.1} to \
-             {:.1} px (sigma), {} (blank image, not a target, or markers of another kind)",
+             {:.1} px (sigma), {}; {} (blank image, particles, not a target, or markers of \
+             another kind)",
             ladder.last().copied().unwrap_or(0.0),
             ladder.first().copied().unwrap_or(0.0),
             match dark {
                 Some(true) => "dark markers",
                 Some(false) => "bright markers",
                 None => "either polarity",
+            },
+            if most.0 > 0 {
+                format!(
+                    "at most {} blobs at {:.1} px, in no regular lattice",
+                    most.0, most.1
+                )
+            } else {
+                "no blobs above the noise".to_string()
             }
         ))),
     }

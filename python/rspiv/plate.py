@@ -1,0 +1,505 @@
+"""The target plate behind an indexed lattice: one level or two, and the fiducial.
+
+Commercial calibration plates often carry two interleaved square lattices of the same pitch at
+two depths, staggered by half a pitch along both axes. Seen together they form one square
+lattice of pitch ``pitch / sqrt(2)`` at 45 degrees to the plate's axes: calibrating on it mixes
+two depths and reports a magnification off by ``sqrt(2)``. This module reads, from the grid
+indexing of all detected markers (the *union* lattice, indices ``(i, j)`` from
+:func:`rspiv._rspiv.index_grid`), whether the plate has one level or two, splits the levels,
+indexes each on its own square lattice and finds the fiducial.
+
+Levels
+------
+The union lattice's two parity classes (``i + j`` even or odd) are the candidate levels. They
+are told apart by
+
+- **geometry**: a level farther from the camera is imaged smaller about the principal point
+  (taken at the image centre). A cubic polynomial in ``(i, j)`` is fitted to all positions, and
+  again with a parity-dependent similarity (shift, scale ``eps``, rotation); ``F`` is the
+  extra-sum-of-squares statistic of those 4 parameters (``F >> 1``: two depths);
+- **appearance**: each marker's log size and log amplitude minus the mean of its union
+  neighbours (which are of the other class): smooth illumination and blur cancel, a level
+  difference (contrast, focus, dot size) alternates. ``z`` is the class difference of its mean
+  over its standard error.
+
+Two levels when ``F > F_LEVELS`` or either ``|z| > Z_LEVELS``. If neither and the union
+lattice's axes lie within 10 degrees of 45 degrees from the image axes, the plate is ambiguous
+(a single-level plate turned 45 degrees, or two levels that look and scale alike) and is
+refused unless the caller says ``levels=1`` or ``levels=2``. Level 1 is the nearer one (the
+larger magnification) when the scale difference is significant, else the one of brighter dots.
+
+Fiducials
+---------
+On each level, a marker whose size or amplitude departs from the median of its (at least three)
+level neighbours' by more than
+``FIDUCIAL_SIZE`` / ``FIDUCIAL_AMPLITUDE`` (log ratio: a larger dot, a hollow ring fitted as a
+dot), or an interior site whose four neighbours are all present while it is empty (a missing
+dot), is a fiducial candidate. A level with exactly one candidate holds the fiducial; the origin
+``(0, 0)`` is then its site and the marker there (if any) is left out of the fit. Otherwise the
+origin is the level's marker nearest the image centre (the paper's central marker).
+
+Indices
+-------
+A level's ``(u, v)`` index its own square lattice (``u`` along the axis nearest +x, ``v`` nearest
++y, both integers), relative to the origin; object coordinates are ``pitch_mm * (u, v)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rspiv.errors import InvalidInputError
+
+__all__ = [
+    "PlateLayout",
+    "analyse_plate",
+    "lattice_record",
+    "lattice_line",
+    "lattice_to_json",
+    "lattice_from_json",
+    "F_LEVELS",
+    "Z_LEVELS",
+]
+
+#: Geometric test: F of the parity-dependent similarity above which the classes are two depths.
+F_LEVELS = 50.0
+#: Appearance test: |z| of the alternating log size or log amplitude above which they differ.
+Z_LEVELS = 8.0
+#: Fiducial candidates: |log(size / neighbours' size)| and |log(amplitude / neighbours')| above.
+FIDUCIAL_SIZE = 0.1
+FIDUCIAL_AMPLITUDE = 0.3
+
+_NB4 = ((1, 0), (-1, 0), (0, 1), (0, -1))
+
+
+@dataclass
+class PlateLayout:
+    """What :func:`analyse_plate` found.
+
+    Attributes
+    ----------
+    levels : int
+        1 or 2.
+    level : int
+        The level calibrated (1 or 2; 1 for a single-level plate).
+    use : ndarray of bool (n,)
+        Detections used for the calibration (the chosen level, the fiducial left out).
+    index : ndarray of int (n, 2)
+        ``(u, v)`` on the chosen level's lattice relative to the origin (rows not in ``use``: 0).
+    central : int
+        Row (into the detections) of the chosen level's marker nearest the image centre.
+    fiducial : dict or None
+        ``kind`` ("larger", "smaller", "brighter", "dimmer" or "missing"), ``level``, ``site``
+        (its ``(u, v)`` before re-centring), ``image_px``.
+    summary : dict
+        Per level: counts, pitch (px), and the tests' statistics, the scale ratio.
+    other_px : ndarray (k, 2)
+        The other level's markers (two-level plates).
+    """
+
+    levels: int
+    level: int
+    use: np.ndarray
+    index: np.ndarray
+    central: int
+    fiducial: dict[str, Any] | None
+    summary: dict[str, Any] = field(default_factory=dict)
+    other_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+
+def _local_contrast(
+    ij: np.ndarray, values: np.ndarray, steps: tuple, min_neighbours: int = 1
+) -> np.ndarray:
+    """log(value) minus the median log of the neighbours at ``steps`` (NaN with fewer than
+    ``min_neighbours``; the median keeps one odd neighbour, a fiducial, from marking the
+    others)."""
+    at = {(int(a), int(b)): k for k, (a, b) in enumerate(ij)}
+    lv = np.log(np.maximum(np.abs(values), 1e-300))
+    out = np.full(len(ij), np.nan)
+    for k, (a, b) in enumerate(ij):
+        nb = [at.get((int(a) + da, int(b) + db)) for da, db in steps]
+        nb = [q for q in nb if q is not None]
+        if nb and len(nb) >= min_neighbours:
+            out[k] = lv[k] - float(np.median(lv[nb]))
+    return out
+
+
+def _class_z(contrast: np.ndarray, parity: np.ndarray) -> float:
+    """The difference of the classes' mean contrast over its standard error."""
+    ok = np.isfinite(contrast)
+    a, b = contrast[(parity == 0) & ok], contrast[(parity == 1) & ok]
+    if len(a) < 3 or len(b) < 3:
+        return 0.0
+    se = np.sqrt(np.var(a, ddof=1) / len(a) + np.var(b, ddof=1) / len(b))
+    d = float(np.mean(a) - np.mean(b))
+    return d / se if se > 0 else (np.inf if d != 0 else 0.0)
+
+
+def _geometry_test(
+    ij: np.ndarray, px: np.ndarray, parity: np.ndarray, centre: np.ndarray
+) -> tuple[float, float, float]:
+    """F of a parity-dependent similarity on top of a cubic in (i, j); the scale eps of class 1
+    relative to class 0 and its standard error."""
+    i, j = ij[:, 0].astype(np.float64), ij[:, 1].astype(np.float64)
+    span = max(1.0, float(np.max(np.abs(ij))))
+    i, j = i / span, j / span
+    poly = np.column_stack([i**a * j**b for a in range(4) for b in range(4 - a)])  # 10 terms
+    n, m = len(ij), poly.shape[1]
+    z = np.zeros((n, m))
+    base = np.block([[poly, z], [z, poly]])
+    y = np.concatenate([px[:, 0], px[:, 1]])
+    c1 = (parity == 1).astype(np.float64)
+    dx, dy = (px[:, 0] - centre[0]) * c1, (px[:, 1] - centre[1]) * c1
+    extra = np.column_stack(
+        [
+            np.concatenate([c1, np.zeros(n)]),
+            np.concatenate([np.zeros(n), c1]),
+            np.concatenate([dx, dy]),  # scale
+            np.concatenate([-dy, dx]),  # rotation
+        ]
+    )
+    full = np.hstack([base, extra])
+    dof = 2 * n - full.shape[1]
+    if dof < 4:
+        return 0.0, 0.0, np.inf
+    r0 = y - base @ np.linalg.lstsq(base, y, rcond=None)[0]
+    coef, *_ = np.linalg.lstsq(full, y, rcond=None)
+    r1 = y - full @ coef
+    rss0, rss1 = float(r0 @ r0), float(r1 @ r1)
+    s2 = rss1 / dof
+    f = ((rss0 - rss1) / 4.0) / s2 if s2 > 0 else np.inf
+    try:
+        cov = np.linalg.inv(full.T @ full) * s2
+        se = float(np.sqrt(cov[-2, -2]))
+    except np.linalg.LinAlgError:
+        se = np.inf
+    return f, float(coef[-2]), se
+
+
+def _orient(uv: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Rotate integer lattice indices by a multiple of 90 degrees so that +u points nearest +x
+    and +v nearest +y in the image."""
+    best, out = -np.inf, uv
+    for k in range(4):
+        r = uv.copy()
+        for _ in range(k):
+            r = np.column_stack([-r[:, 1], r[:, 0]])
+        design = np.column_stack([np.ones(len(r)), r.astype(np.float64)])
+        coef, *_ = np.linalg.lstsq(design, px, rcond=None)
+        su, sv = coef[1], coef[2]  # image step of +u and +v
+        score = su[0] / np.hypot(*su) + sv[1] / np.hypot(*sv)
+        if score > best:
+            best, out = score, r
+    return out
+
+
+def _fiducial(uv: np.ndarray, size: np.ndarray, amp: np.ndarray) -> list[dict[str, Any]]:
+    """Fiducial candidates on one level's lattice (see the module documentation)."""
+    cands: list[dict[str, Any]] = []
+    cs = _local_contrast(uv, size, _NB4, min_neighbours=3)
+    ca = _local_contrast(uv, amp, _NB4, min_neighbours=3)
+    for k in range(len(uv)):
+        kind = None
+        if np.isfinite(cs[k]) and abs(cs[k]) > FIDUCIAL_SIZE:
+            kind = "larger" if cs[k] > 0 else "smaller"
+        elif np.isfinite(ca[k]) and abs(ca[k]) > FIDUCIAL_AMPLITUDE:
+            kind = "brighter" if ca[k] > 0 else "dimmer"
+        if kind:
+            cands.append({"kind": kind, "row": k, "site": (int(uv[k, 0]), int(uv[k, 1]))})
+    at = {(int(a), int(b)) for a, b in uv}
+    for a, b in at:
+        for da, db in _NB4:
+            s = (a + da, b + db)
+            if s in at:
+                continue
+            if all((s[0] + ea, s[1] + eb) in at for ea, eb in _NB4):
+                cand = {"kind": "missing", "row": None, "site": s}
+                if cand not in cands:
+                    cands.append(cand)
+    return cands
+
+
+def analyse_plate(
+    image_px: np.ndarray,
+    union_index: np.ndarray,
+    found: np.ndarray,
+    a1: Any,
+    a2: Any,
+    size: np.ndarray,
+    amplitude: np.ndarray,
+    image_shape: tuple[int, int],
+    *,
+    levels: int | None = None,
+    level: int | None = None,
+) -> PlateLayout:
+    """Levels, indices and fiducial of a target plate from its union lattice.
+
+    Parameters
+    ----------
+    image_px : ndarray (n, 2)
+        All detections (px).
+    union_index, found : ndarray (n, 2) int, ndarray (n,) bool
+        The grid indexing of all detections (:func:`rspiv._rspiv.index_grid`).
+    a1, a2 : pair of float
+        The union lattice's steps (px).
+    size, amplitude : ndarray (n,)
+        Each detection's fitted size (disc radius or Gaussian width, px) and amplitude.
+    image_shape : (int, int)
+        Height and width (the image centre stands for the principal point).
+    levels : {None, 1, 2}
+        Force one or two levels; None decides from the image.
+    level : {None, 1, 2}
+        The level to calibrate on; default the one holding the fiducial, else level 1.
+
+    Returns
+    -------
+    PlateLayout
+
+    Raises
+    ------
+    InvalidInputError
+        An ambiguous plate (see the module documentation), a level that does not exist, or too
+        few markers on the chosen level.
+    """
+    if levels not in (None, 1, 2):
+        raise InvalidInputError(f"levels must be 1 or 2, got {levels!r}")
+    if level not in (None, 1, 2):
+        raise InvalidInputError(f"level must be 1 or 2, got {level!r}")
+    rows = np.flatnonzero(found)
+    ij = np.asarray(union_index)[rows].astype(np.int64)
+    px = np.asarray(image_px, dtype=np.float64)[rows]
+    sz, am = np.asarray(size)[rows], np.asarray(amplitude)[rows]
+    h, w = image_shape
+    centre = np.array([0.5 * (w - 1), 0.5 * (h - 1)])
+    s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
+    angle = float(np.degrees(np.arctan2(s1[1], s1[0])))
+    diagonal = abs(abs(angle) % 90.0 - 45.0) < 10.0
+    parity = (ij.sum(axis=1) % 2).astype(np.int64)
+    n0, n1 = int(np.sum(parity == 0)), int(np.sum(parity == 1))
+    f_geo, eps, eps_se = _geometry_test(ij, px, parity, centre) if min(n0, n1) >= 12 else (0, 0, 0)
+    z_size = _class_z(_local_contrast(ij, sz, _NB4), parity)
+    z_amp = _class_z(_local_contrast(ij, am, _NB4), parity)
+    summary: dict[str, Any] = {
+        "union_pitch_px": float(0.5 * (np.hypot(*s1) + np.hypot(*s2))),
+        "union_angle_deg": angle,
+        "parity_counts": [n0, n1],
+        "levels_f": float(f_geo),
+        "levels_scale": float(1.0 + eps),
+        "levels_scale_se": float(eps_se),
+        "levels_z_size": float(z_size),
+        "levels_z_amplitude": float(z_amp),
+    }
+    told_apart = f_geo > F_LEVELS or abs(z_size) > Z_LEVELS or abs(z_amp) > Z_LEVELS
+    if levels is None:
+        if told_apart:
+            levels = 2
+        elif diagonal and min(n0, n1) >= 5:
+            raise InvalidInputError(
+                f"ambiguous plate: a lattice of {len(rows)} markers at {angle:+.1f} deg "
+                f"(pitch {summary['union_pitch_px']:.1f} px) whose two interleaved halves "
+                f"({n0} and {n1} markers) look and scale alike (scale ratio {1 + eps:.4f} "
+                f"+/- {eps_se:.5f}, size z {z_size:+.1f}, amplitude z {z_amp:+.1f}): a "
+                "single-level plate turned 45 degrees, or two levels that cannot be told apart; "
+                "say levels=1 or levels=2"
+            )
+        else:
+            levels = 1
+    if levels == 1:
+        if level == 2:
+            raise InvalidInputError(
+                f"level 2 does not exist: the plate has one level ({len(rows)} markers)"
+            )
+        uv_all = {0: ij}
+        members = {0: np.arange(len(rows))}
+        names = {0: 1}
+    else:
+        # Level 1: the nearer (larger image) when the scale difference is significant, else
+        # the class of brighter dots.
+        if f_geo > F_LEVELS:
+            first = 1 if eps > 0 else 0
+        else:
+            first = 0 if np.nanmedian(np.abs(am[parity == 0])) >= np.nanmedian(
+                np.abs(am[parity == 1])
+            ) else 1  # fmt: skip
+        uv_all, members, names = {}, {}, {}
+        for c in (0, 1):
+            m = np.flatnonzero(parity == c)
+            i, j = ij[m, 0] - c, ij[m, 1]
+            uv_all[c] = np.column_stack([(i + j) // 2, (j - i) // 2])
+            members[c] = m
+            names[c] = 1 if c == first else 2
+        summary["level_counts"] = {names[c]: len(members[c]) for c in (0, 1)}
+    # Orient each level, find fiducial candidates.
+    fid_of: dict[int, list[dict[str, Any]]] = {}
+    for c in uv_all:
+        m = members[c]
+        if len(m) >= 3:
+            uv_all[c] = _orient(uv_all[c], px[m])
+        fid_of[c] = _fiducial(uv_all[c], sz[m], am[m]) if len(m) >= 5 else []
+    with_fid = [c for c in uv_all if len(fid_of[c]) == 1]
+    if level is None:
+        chosen = with_fid[0] if len(with_fid) == 1 else next(c for c in uv_all if names[c] == 1)
+    else:
+        chosen = next(c for c in uv_all if names[c] == level)
+    m = members[chosen]
+    uv = uv_all[chosen]
+    fiducial = None
+    keep = np.ones(len(m), dtype=bool)
+    if len(fid_of[chosen]) == 1:
+        f = fid_of[chosen][0]
+        origin = np.array(f["site"])
+        fid_px = (
+            px[m[f["row"]]]
+            if f["row"] is not None
+            else _predict(uv, px[m], np.array(f["site"]))
+        )
+        fiducial = {"kind": f["kind"], "level": names[chosen], "site": f["site"],
+                    "image_px": [float(v) for v in fid_px]}  # fmt: skip
+        if f["row"] is not None:
+            keep[f["row"]] = False
+    else:
+        k0 = int(np.argmin(np.hypot(*(px[m] - centre).T)))
+        origin = uv[k0]
+    summary["fiducial_candidates"] = {names[c]: len(fid_of[c]) for c in uv_all}
+    used = m[keep]
+    if len(used) < 5:
+        raise InvalidInputError(
+            f"level {names[chosen]} holds only {len(used)} markers, at least 5 are needed"
+        )
+    use = np.zeros(len(image_px), dtype=bool)
+    use[rows[used]] = True
+    index = np.zeros((len(image_px), 2), dtype=np.int64)
+    index[rows[m]] = uv - origin
+    central = int(rows[used][np.argmin(np.hypot(*(px[used] - centre).T))])
+    steps = [np.hypot(*d) for d in _level_steps(uv, px[m])]
+    summary["level_pitch_px"] = [float(v) for v in steps]
+    other = px[members[1 - chosen]] if levels == 2 else np.zeros((0, 2))
+    if levels == 2:
+        # The other level's image scale relative to the chosen one's (class 1 / class 0 is
+        # 1 + eps): below 1, the other level is farther from the camera.
+        r = 1.0 + eps if chosen == 0 else 1.0 / (1.0 + eps)
+        summary["other_scale"] = float(r)
+        summary["other_scale_se"] = float(eps_se)
+    return PlateLayout(
+        levels=int(levels),
+        level=int(names[chosen]),
+        use=use,
+        index=index,
+        central=central,
+        fiducial=fiducial,
+        summary=summary,
+        other_px=np.ascontiguousarray(other),
+    )
+
+
+def _level_steps(uv: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean image steps of +u and +v over a level (affine fit)."""
+    design = np.column_stack([np.ones(len(uv)), uv.astype(np.float64)])
+    coef, *_ = np.linalg.lstsq(design, px, rcond=None)
+    return coef[1], coef[2]
+
+
+def _predict(uv: np.ndarray, px: np.ndarray, site: np.ndarray) -> np.ndarray:
+    """Image position of an empty site from its four neighbours (mean)."""
+    at = {(int(a), int(b)): k for k, (a, b) in enumerate(uv)}
+    nb = [at[(int(site[0]) + da, int(site[1]) + db)] for da, db in _NB4]
+    return np.mean(px[nb], axis=0)
+
+
+def lattice_record(
+    pts: np.ndarray,
+    found: np.ndarray,
+    a1: Any,
+    a2: Any,
+    det: dict[str, Any],
+    plate: PlateLayout,
+) -> dict[str, Any]:
+    """The lattice summary of a detection, its grid indexing and plate analysis (see
+    :attr:`Calibration.lattice`)."""
+    steps = plate.summary["level_pitch_px"]
+    s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
+    if plate.levels == 2:  # the level's own axes: the union's diagonals
+        s1, s2 = s1 + s2, s2 - s1
+    l1, l2 = float(np.hypot(*s1)), float(np.hypot(*s2))
+    cos = float(np.dot(s1, s2)) / (l1 * l2) if l1 > 0 and l2 > 0 else 0.0
+    n_used = int(np.count_nonzero(plate.use))
+    angle = float(np.degrees(np.arctan2(s1[1], s1[0])))
+    angle = (angle + 45.0) % 90.0 - 45.0  # the axis nearest +x
+    return {
+        "pitch_px": [float(v) for v in steps],
+        "angle_deg": angle,
+        "axes_angle_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
+        "n_indexed": n_used,
+        "n_detected": int(len(pts)),
+        "n_rejected": int(len(pts)) - int(np.count_nonzero(found)),
+        "size_px": float(det["size_px"]),
+        "polarity": "dark" if det.get("dark") else "bright",
+        "profile": str(det.get("profile", "gaussian")),
+        "levels": plate.levels,
+        "level": plate.level,
+        "other_level_px": np.ascontiguousarray(plate.other_px).reshape(-1, 2),
+        "fiducial": plate.fiducial,
+        "plate": {k: v for k, v in plate.summary.items()},
+        "rejected_px": np.ascontiguousarray(pts[~np.asarray(found, dtype=bool)]).reshape(-1, 2),
+    }
+
+
+def lattice_to_json(lattice: dict[str, Any] | None) -> dict[str, Any] | None:
+    if lattice is None:
+        return None
+    out = {**lattice, "rejected_px": np.asarray(lattice["rejected_px"]).tolist()}
+    if "other_level_px" in lattice:
+        out["other_level_px"] = np.asarray(lattice["other_level_px"]).tolist()
+    return out
+
+
+def lattice_from_json(d: Any) -> dict[str, Any] | None:
+    if d is None:
+        return None
+    if not isinstance(d, dict):
+        raise ValueError("lattice is not an object")
+    out = {k: d[k] for k in ("pitch_px", "angle_deg", "axes_angle_deg", "size_px")}
+    out["polarity"] = str(d.get("polarity", "bright"))
+    out["profile"] = str(d.get("profile", "gaussian"))
+    out["levels"] = int(d.get("levels", 1))
+    out["level"] = int(d.get("level", 1))
+    out["fiducial"] = d.get("fiducial")
+    out["plate"] = d.get("plate", {})
+    out["other_level_px"] = np.asarray(d.get("other_level_px", []), dtype=np.float64).reshape(-1, 2)
+    out.update({k: int(d[k]) for k in ("n_indexed", "n_detected", "n_rejected")})
+    out["pitch_px"] = [float(v) for v in out["pitch_px"]]
+    out["rejected_px"] = np.asarray(d["rejected_px"], dtype=np.float64).reshape(-1, 2)
+    return out
+
+
+def lattice_line(la: dict[str, Any]) -> str:
+    """One line describing a lattice record (:func:`lattice_record`)."""
+    line = (
+        "lattice: pitch {:.2f} x {:.2f} px (i, j), i axis at {:+.2f} deg from +x (towards "
+        "+y), axes {:.2f} deg apart; {} markers indexed of {} detected ({} rejected); "
+        "{} {} dots, size {:.2f} px".format(
+            *la["pitch_px"], la["angle_deg"], la["axes_angle_deg"], la["n_indexed"],
+            la["n_detected"], la["n_rejected"], la.get("polarity", "bright"),
+            la.get("profile", "gaussian"), la["size_px"],
+        )
+    )  # fmt: skip
+    pl = la.get("plate") or {}
+    if la.get("levels", 1) == 2:
+        r = pl.get("other_scale", 1.0)
+        line += (
+            f"; two-level plate: level {la['level']} used, the other level's "
+            f"{len(la['other_level_px'])} markers imaged at {r:.5f} x its scale "
+            f"(+/- {pl.get('other_scale_se', 0.0):.5f}: {100 * (1 / r - 1):+.2f} % of the "
+            "working distance farther)"
+        )
+    fid = la.get("fiducial")
+    if fid:
+        line += "; origin on the {} fiducial at ({:.1f}, {:.1f}) px".format(
+            fid["kind"], *fid["image_px"]
+        )
+    else:
+        line += "; origin on the central marker (no fiducial found)"
+    return line
