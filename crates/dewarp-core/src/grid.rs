@@ -125,7 +125,9 @@ pub fn index_grid(points: &[[f64; 2]], centre: [f64; 2], tol: f64) -> Result<Gri
     let d2 = |p: [f64; 2]| (p[0] - centre[0]).powi(2) + (p[1] - centre[1]).powi(2);
     order.sort_by(|&a, &b| d2(points[a]).total_cmp(&d2(points[b])));
     // Try the first few grid-like candidates nearest the centre; keep the largest grid.
-    let mut best: Option<(usize, Indices, [f64; 2], [f64; 2], Vec<f64>)> = None;
+    // (count, indices, a1, a2, deviations) of the largest grid grown so far.
+    type Grown = (usize, Indices, [f64; 2], [f64; 2], Vec<f64>);
+    let mut best: Option<Grown> = None;
     let mut tried = 0;
     let buckets = Buckets::new(points);
     for &c in &order {
