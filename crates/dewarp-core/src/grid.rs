@@ -280,10 +280,10 @@ fn grow(
     a1: [f64; 2],
     a2: [f64; 2],
     tol: f64,
-) -> (Vec<Option<(i32, i32)>>, usize, Vec<f64>) {
+) -> (Indices, usize, Vec<f64>) {
     let n = points.len();
     let mut dev = Vec::new();
-    let mut index: Vec<Option<(i32, i32)>> = vec![None; n];
+    let mut index: Indices = vec![None; n];
     let mut at: HashMap<(i32, i32), usize> = HashMap::new();
     index[origin] = Some((0, 0));
     at.insert((0, 0), origin);
