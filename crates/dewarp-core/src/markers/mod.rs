@@ -1,34 +1,43 @@
 //! Marker detection on a calibration-target image, with a per-marker uncertainty.
 //!
-//! Pipeline (bright dots on a darker background; pass `dark = true` for dark dots):
+//! Files: [`mod@survey`] (size and polarity from the image), `coarse` (block averaging, template,
+//! FFT correlation, peaks), `blob` (the sub-pixel fit and its covariance), `disc` (the
+//! blurred-disc profile), this file (the pipeline).
 //!
-//! 1. **Size.** The dot size (standard deviation `s` of a Gaussian blob, px) is taken from the
-//!    caller or estimated from the brightest blob of a block-averaged copy (half-maximum radius
-//!    / 1.1774).
+//! Pipeline:
+//!
+//! 1. **Size and polarity.** Taken from the caller when both are given; otherwise read from
+//!    the image by the [`mod@survey`]: the size on a geometric ladder and the polarity at which the
+//!    detections form the strongest regular lattice (clutter, glare and particles form none).
 //! 2. **Coarse detection.** The image is block-averaged by `d = max(1, floor(s / 2.5))` (47 MP
 //!    stays memory-light and fast) and cross-correlated, by FFT (rustfft, zero padding against
 //!    wrap-around), with a zero-mean template: a Gaussian dot of standard deviation `s / d`, or a
 //!    cross of arm length `6 s / d` and arm width `s / d`. A zero-mean template ignores smooth
 //!    background and illumination. Peaks are local maxima over a `(2r+1)^2` neighbourhood above
-//!    both `threshold` x the strongest peak and `min_snr` x the robust (MAD) noise of the
-//!    correlation.
-//! 3. **Sub-pixel fit.** Around each peak, at full resolution in a window of half-width
-//!    `ceil(2.5 s)`, the model `b0 + bx xw + by yw + A exp(-((x-x0)^2 + (y-y0)^2) / (2 w^2))`
-//!    (7 parameters, a plane for the uneven illumination) is fitted to the pixel values by
-//!    the project's Levenberg-Marquardt ([`crate::lm`], MINPACK stopping rules) on normal
-//!    equations accumulated pixel by pixel (7 x 7, no per-pixel storage). The covariance
-//!    of (x0, y0) is the heteroscedasticity-consistent sandwich estimate
-//!    `(J^T J)^-1 (sum r_k^2 J_k^T J_k) (J^T J)^-1 * n / (n - 7)`, valid under shot noise whose
-//!    variance grows with the signal. For crosses (arms longer than the window) the blob term is
-//!    the brighter of two perpendicular Gaussian bars, `A max(exp(-dx^2/2w^2), exp(-dy^2/2w^2))`;
-//!    `size_px` is then the bar's Gaussian sigma.
-//!    Fits that diverge (centre moving more than `s`, width outside `[0.3 s, 3 s]`, amplitude of
-//!    the wrong sign) are dropped; duplicates closer than `s` are merged.
+//!    both `threshold` x a reference and `min_snr` x the robust (MAD) noise of the correlation;
+//!    the reference is the surveyed lattice's median level (a glare spot or a 5x vignetting
+//!    leaves it alone), or the strongest peak when size and polarity were given.
+//! 3. **Size and profile.** When the size was surveyed (a ladder step) it is refined to the
+//!    median fitted width of the [`PROFILE_SAMPLE`] strongest markers; the same Gaussian fits
+//!    choose the dot profile ([`DotProfile::Auto`]): a printed disc when they show a flat top
+//!    (a score test, [`FLAT_TOP_THRESHOLD`]), with a tilted top when the discs are large
+//!    ([`TILT_FLATNESS`]).
+//! 4. **Sub-pixel fit.** Around each peak, at full resolution, the profile plus a plane
+//!    (`b0 + bx xw + by yw + A g`, see `blob`) is fitted to the pixel values by the project's
+//!    Levenberg-Marquardt ([`crate::lm`], MINPACK stopping rules) on normal equations
+//!    accumulated pixel by pixel (no per-pixel storage). The covariance of (x0, y0) is the
+//!    heteroscedasticity-consistent sandwich estimate
+//!    `(J^T J)^-1 (sum r_k^2 J_k^T J_k) (J^T J)^-1 * n / (n - p)`, valid under shot noise whose
+//!    variance grows with the signal, and honest because the profile fits (its residuals are
+//!    noise, not misfit). For crosses the blob term is the brighter of two perpendicular
+//!    Gaussian bars; `size_px` is then the bar's Gaussian sigma.
+//!    Fits that diverge (centre moving more than `s`, width out of range, amplitude of the
+//!    wrong sign) are dropped; duplicates closer than `s` are merged.
 
 mod blob;
 mod coarse;
 pub(crate) mod disc;
-mod survey;
+pub mod survey;
 
 use crate::error::{DewarpError, Result};
 use blob::{fit_blob, BlobScratch, Profile};
@@ -71,7 +80,7 @@ pub struct DetectOptions {
     pub threshold: f64,
     /// Keep correlation peaks above this multiple of the correlation's robust noise.
     pub min_snr: f64,
-    /// Markers darker than the background; `None` finds the polarity ([`survey`]).
+    /// Markers darker than the background; `None` finds the polarity ([`mod@survey`]).
     pub dark: Option<bool>,
     /// The dot profile of the sub-pixel fit.
     pub profile: DotProfile,

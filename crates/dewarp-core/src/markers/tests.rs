@@ -133,3 +133,53 @@ fn fft_correlation_matches_direct_sum() {
         }
     }
 }
+
+#[test]
+fn survey_finds_size_polarity_and_profile_of_a_dark_disc_lattice() {
+    // Dark printed discs (radius 5 px, blur 1 px) on a bright vignetted plate, 9 x 6 at 60 px.
+    let mut pts = Vec::new();
+    for j in 0..6 {
+        for i in 0..9 {
+            pts.push((40.3 + 60.0 * i as f64, 35.8 + 60.0 * j as f64));
+        }
+    }
+    let n = pts.len();
+    let c = Array2::from_shape_fn((n, 2), |(k, a)| if a == 0 { pts[k].0 } else { pts[k].1 });
+    let scene = TargetScene {
+        plate: 2500.0,
+        vignetting: 0.6,
+        ..TargetScene::default()
+    };
+    let img = render_target(
+        380,
+        560,
+        c.view(),
+        Array1::from_elem(n, 1.0).view(),
+        Array1::from_elem(n, -1800.0).view(),
+        Some(Array1::from_elem(n, 5.0).view()),
+        &scene,
+    )
+    .unwrap();
+    let det = detect_markers(img.view(), &DetectOptions::default()).unwrap();
+    assert!(det.dark, "polarity");
+    assert_eq!(det.profile, "disc");
+    let sv = det.survey.as_ref().unwrap();
+    assert!(sv.n_lattice >= 40, "{sv:?}");
+    assert_eq!(det.markers.len(), n);
+    let mut worst: f64 = 0.0;
+    for m in &det.markers {
+        let d = pts
+            .iter()
+            .map(|p| (m.x - p.0).hypot(m.y - p.1))
+            .fold(f64::INFINITY, f64::min);
+        worst = worst.max(d);
+        assert!((m.radius - 5.0).abs() < 0.2, "radius {}", m.radius);
+    }
+    assert!(worst < 0.05, "worst {worst}");
+    // Given the wrong polarity, the bright "lattice" is the side lobes: no markers fit there.
+    let o = DetectOptions {
+        dark: Some(false),
+        ..DetectOptions::default()
+    };
+    assert!(detect_markers(img.view(), &o).map_or(true, |d| d.markers.len() < n));
+}
