@@ -87,6 +87,8 @@ class PlateLayout:
         The level calibrated (1 or 2; 1 for a single-level plate).
     use : ndarray of bool (n,)
         Detections used for the calibration (the chosen level, the fiducial left out).
+    indexed : ndarray of bool (n,)
+        Detections on a lattice site of either level (the rest are rejected blobs).
     index : ndarray of int (n, 2)
         ``(u, v)`` on the chosen level's lattice relative to the origin (rows not in ``use``: 0).
     central : int
@@ -103,6 +105,7 @@ class PlateLayout:
     levels: int
     level: int
     use: np.ndarray
+    indexed: np.ndarray
     index: np.ndarray
     central: int
     fiducial: dict[str, Any] | None
@@ -331,6 +334,17 @@ def analyse_plate(
             uv_all[c] = np.column_stack([(i + j) // 2, (j - i) // 2])
             members[c] = m
             names[c] = 1 if c == first else 2
+        # The union indexing prunes a level's corners (one union neighbour each): take back
+        # detections that sit on a level's extrapolated sites.
+        spare = np.flatnonzero(~np.asarray(found, dtype=bool))
+        for c in (0, 1):
+            for k, site in _extend(uv_all[c], px[members[c]], image_px[spare]):
+                rows = np.append(rows, spare[k])
+                px = np.vstack([px, image_px[spare[k]]])
+                sz = np.append(sz, np.asarray(size)[spare[k]])
+                am = np.append(am, np.asarray(amplitude)[spare[k]])
+                members[c] = np.append(members[c], len(rows) - 1)
+                uv_all[c] = np.vstack([uv_all[c], site])
         summary["level_counts"] = {names[c]: len(members[c]) for c in (0, 1)}
     # Orient each level, find fiducial candidates.
     fid_of: dict[int, list[dict[str, Any]]] = {}
@@ -371,6 +385,8 @@ def analyse_plate(
         )
     use = np.zeros(len(image_px), dtype=bool)
     use[rows[used]] = True
+    indexed = np.zeros(len(image_px), dtype=bool)
+    indexed[rows] = True
     index = np.zeros((len(image_px), 2), dtype=np.int64)
     index[rows[m]] = uv - origin
     central = int(rows[used][np.argmin(np.hypot(*(px[used] - centre).T))])
@@ -387,12 +403,46 @@ def analyse_plate(
         levels=int(levels),
         level=int(names[chosen]),
         use=use,
+        indexed=indexed,
         index=index,
         central=central,
         fiducial=fiducial,
         summary=summary,
         other_px=np.ascontiguousarray(other),
     )
+
+
+def _extend(
+    uv: np.ndarray, px: np.ndarray, cand: np.ndarray, tol: float = 0.1
+) -> list[tuple[int, tuple[int, int]]]:
+    """Candidates (rows of ``cand``) within ``tol`` of the local step of an empty site next to
+    the lattice, predicted by linear extrapolation from the two sites before it along u or v."""
+    if len(cand) == 0 or len(uv) < 5:
+        return []
+    at = {(int(a), int(b)): k for k, (a, b) in enumerate(uv)}
+    su, sv = _level_steps(uv, px)
+    step = 0.5 * (np.hypot(*su) + np.hypot(*sv))
+    free = np.ones(len(cand), dtype=bool)
+    out: list[tuple[int, tuple[int, int]]] = []
+    empty = {
+        (a + da, b + db) for a, b in at for da, db in _NB4 if (a + da, b + db) not in at
+    }
+    for site in sorted(empty):
+        preds = []
+        for da, db in _NB4:
+            k1 = at.get((site[0] - da, site[1] - db))
+            k2 = at.get((site[0] - 2 * da, site[1] - 2 * db))
+            if k1 is not None and k2 is not None:
+                preds.append(2.0 * px[k1] - px[k2])
+        if not preds:
+            continue
+        d = np.hypot(*(cand - np.mean(preds, axis=0)).T)
+        d[~free] = np.inf
+        k = int(np.argmin(d))
+        if d[k] < tol * step:
+            free[k] = False
+            out.append((k, site))
+    return out
 
 
 def _level_steps(uv: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -426,6 +476,7 @@ def lattice_record(
     l1, l2 = float(np.hypot(*s1)), float(np.hypot(*s2))
     cos = float(np.dot(s1, s2)) / (l1 * l2) if l1 > 0 and l2 > 0 else 0.0
     n_used = int(np.count_nonzero(plate.use))
+    indexed = plate.indexed
     angle = float(np.degrees(np.arctan2(s1[1], s1[0])))
     angle = (angle + 45.0) % 90.0 - 45.0  # the axis nearest +x
     return {
@@ -434,7 +485,7 @@ def lattice_record(
         "axes_angle_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
         "n_indexed": n_used,
         "n_detected": int(len(pts)),
-        "n_rejected": int(len(pts)) - int(np.count_nonzero(found)),
+        "n_rejected": int(len(pts)) - int(np.count_nonzero(indexed)),
         "size_px": float(det["size_px"]),
         "polarity": "dark" if det.get("dark") else "bright",
         "profile": str(det.get("profile", "gaussian")),
@@ -443,7 +494,7 @@ def lattice_record(
         "other_level_px": np.ascontiguousarray(plate.other_px).reshape(-1, 2),
         "fiducial": plate.fiducial,
         "plate": {k: v for k, v in plate.summary.items()},
-        "rejected_px": np.ascontiguousarray(pts[~np.asarray(found, dtype=bool)]).reshape(-1, 2),
+        "rejected_px": np.ascontiguousarray(pts[~indexed]).reshape(-1, 2),
     }
 
 

@@ -35,9 +35,12 @@ def detection_overlay(
 
     The image is strided to at most ``max_px`` pixels along its longer side and contrast
     stretched (1st to 99.5th percentile of the strided pixels); on it each indexed marker (a
-    circle of 3 marker sigmas, with its (i, j)), the central marker (0, 0), and the blobs that
-    were detected but not indexed (:attr:`Calibration.lattice` ``rejected_px``) as red crosses,
-    with a legend; the title summarises the lattice (:meth:`Calibration.lattice_summary`).
+    circle of 3 marker sigmas, with its (i, j) on the plate: relative to the fiducial when the
+    plate has one, else to the central marker), the central marker, the fiducial (a magenta
+    star), the other level's markers of a two-level plate (cyan dots, not used) and the blobs
+    that were detected but not indexed (:attr:`Calibration.lattice` ``rejected_px``) as red
+    crosses, with a legend; the title summarises the lattice, level, polarity and origin
+    (:meth:`Calibration.lattice_summary`).
     """
     plt = _plt()
     img = np.asarray(image)
@@ -54,11 +57,25 @@ def detection_overlay(
     ax.add_collection(
         _circles(plt, xy[others], r, "lime", f"indexed marker ({len(mk)}), with its (i, j)")
     )
-    ax.add_collection(_circles(plt, xy[c : c + 1], 1.6 * r, "orange", "central marker (0, 0)"))
+    ax.add_collection(_circles(plt, xy[c : c + 1], 1.6 * r, "orange", "central marker"))
+    pitch = float(calibration.pitch_mm)
+    labels = (
+        np.rint(mk.object_mm / pitch).astype(np.int64)
+        if mk.object_mm is not None and pitch > 0
+        else mk.index
+    )
     for k, (x, y) in enumerate(xy):
-        ax.text(x + r, y - r, f"{mk.index[k][0]},{mk.index[k][1]}", fontsize=6,
+        ax.text(x + r, y - r, f"{labels[k][0]},{labels[k][1]}", fontsize=6,
                 color="orange" if k == c else "lime")  # fmt: skip
     lattice = calibration.lattice
+    other = np.asarray((lattice or {}).get("other_level_px", np.zeros((0, 2)))).reshape(-1, 2)
+    if len(other):
+        ax.plot(other[:, 0], other[:, 1], ".", color="cyan", ms=4, ls="none",
+                label=f"other level ({len(other)}), not used")  # fmt: skip
+    fid = (lattice or {}).get("fiducial")
+    if fid:
+        ax.plot(*fid["image_px"], "*", color="magenta", ms=16, mfc="none", mew=1.5, ls="none",
+                label=f"fiducial ({fid['kind']}): origin (0, 0)")  # fmt: skip
     if lattice is not None and len(lattice["rejected_px"]):
         rej = np.asarray(lattice["rejected_px"])
         ax.plot(rej[:, 0], rej[:, 1], "x", color="red", ms=9, mew=1.5, ls="none",
@@ -67,7 +84,7 @@ def detection_overlay(
     summary = calibration.lattice_summary()
     if summary is None:
         summary = f"{len(mk)} markers indexed of {calibration.n_detected} detected"
-    ax.set_title(summary.replace("; ", "\n", 1), fontsize=9)
+    ax.set_title(summary.replace("; ", "\n"), fontsize=8)
     ax.set_xlabel("x (px)")
     ax.set_ylabel("y (px)")
     ax.set_xlim(-0.5, img.shape[1] - 0.5)
