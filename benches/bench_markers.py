@@ -6,7 +6,8 @@ paper's lens) rendered by rspiv.synth with an exact answer:
 
 - gaussian: Gaussian dots of sigma 17.3 px, bright on dark, 12 bit (the paper's target);
 - disc 70: printed discs 70 px across, 1.5 px blur, 12 bit;
-- disc 70 dark 8-bit: dark discs on a bright plate, 8 bit, vignetting 5x, 30 clutter blobs;
+- disc 70 dark 8-bit: dark discs on a bright plate, 8 bit, vignetting 5x, 30 clutter blobs
+  (9 x 5 markers: room off the plate for the clutter);
 - disc 8: small printed discs 8 px across, 1 px blur.
 
 rspiv is given nothing but the image (size, polarity and profile read from it); OpenCV is given
@@ -20,11 +21,13 @@ Run: python benches/bench_markers.py [--repeat 3] [--kinds gaussian,disc70,...]
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import numpy as np
 from rspiv import _rspiv
 from rspiv.synth import calibration_target
+from rspiv.synth.target import PAPER_OPTICS
 from scipy.spatial import cKDTree
 
 KINDS = {
@@ -33,6 +36,7 @@ KINDS = {
     "disc70-dark-8bit": {
         "dot": "disc", "dot_diameter_px": 70.0, "blur_px": 1.5, "dark": True, "bit_depth": 8,
         "vignetting": 0.8, "clutter": 30,
+        "optics": dataclasses.replace(PAPER_OPTICS, n_markers=(9, 5)),  # room for the clutter
     },  # fmt: skip
     "disc8": {"dot": "disc", "dot_diameter_px": 8.0, "blur_px": 1.0},
 }

@@ -22,7 +22,7 @@
 //! Residuals `model - sign * pixel`, row-major over the window `[ya, yb] x [xa, xb]`
 //! (inclusive).
 
-use super::disc::{disc_slopes, DiscTable};
+use super::disc::DiscTable;
 use crate::lm::{LeastSquaresProblem, LmConfig, LmSolver};
 use image_core::Pixel;
 use nalgebra::DMatrix;
@@ -62,12 +62,25 @@ pub(crate) struct FitOut {
     pub flat_top: f64,
 }
 
-/// Per-worker scratch of [`fit_blob`]: the LM solver, a border buffer and the disc table.
+/// Per-worker scratch of [`fit_blob`]: the LM solver, a border buffer and the disc table, and
+/// the evaluation budget of each fit (0: the LM default, `100 (n + 1)`).
 #[derive(Default)]
 pub(crate) struct BlobScratch {
     solver: LmSolver,
     border: Vec<f64>,
     table: DiscTable,
+    pub max_evals: usize,
+}
+
+impl BlobScratch {
+    /// Scratch whose fits give up after `max_evals` evaluations (the sample fits of the size
+    /// and profile choice: a Gaussian converges in a few tens, a misfit is evidence enough).
+    pub(crate) fn with_budget(max_evals: usize) -> Self {
+        Self {
+            max_evals,
+            ..Self::default()
+        }
+    }
 }
 
 struct BlobProblem<'a, T: Pixel> {
@@ -111,14 +124,17 @@ impl<T: Pixel> BlobProblem<'_, T> {
                 for x in self.xa..=self.xb {
                     let dx = x as f64 - p[1];
                     let rho = dx.hypot(dy);
-                    let g = table.value(rho);
                     let xw = (x as f64 - self.xc) / self.sc;
                     let t = 1.0 + ax * xw + ay * yw;
                     let at = p[0] * t;
+                    let (g, slope_over_rho, d_r, d_w) = if want_jac {
+                        table.value_and_slopes(rho)
+                    } else {
+                        (table.value(rho), 0.0, 0.0, 0.0)
+                    };
                     let m = p[4] + p[5] * xw + p[6] * yw + at * g;
                     let r = m - self.sign * self.img[[y, x]].to_f64();
                     if want_jac {
-                        let (slope_over_rho, d_r, d_w) = disc_slopes(rho, radius, w);
                         j[0] = t * g;
                         // d/dx0 of P(|p - c|) = -(dP/drho / rho) dx.
                         j[1] = -at * slope_over_rho * dx;
@@ -393,9 +409,14 @@ pub(crate) fn fit_blob<T: Pixel>(
     };
     let n = problem.n_residuals();
     let np = profile.n_params();
-    let solved = scratch
-        .solver
-        .solve_in_place(&problem, &mut p[..np], &blob_lm_config());
+    let solved = scratch.solver.solve_in_place(
+        &problem,
+        &mut p[..np],
+        &LmConfig {
+            max_evals: scratch.max_evals,
+            ..blob_lm_config()
+        },
+    );
     let mut problem = problem;
     let out = (|| {
         let summary = solved.ok()?;
@@ -493,8 +514,13 @@ mod tests {
                 pm[c] -= hstep;
                 pb.residuals(pp, &mut rp);
                 pb.residuals(pm, &mut rm);
-                // The disc's profile is tabulated (Simpson + Hermite, error ~1e-7): a looser bound.
-                let tol = if profile.is_disc() { 1e-5 } else { 1e-6 };
+                // The disc's profile is tabulated (Simpson + Hermite, error ~1e-7), its dP/dR
+                // and dP/dw interpolated quadratically (~1e-4): looser bounds.
+                let tol = match (profile.is_disc(), c) {
+                    (true, 3 | 7) => 5e-4,
+                    (true, _) => 1e-5,
+                    _ => 1e-6,
+                };
                 let scale = (0..m).map(|i| jac[i * n + c].abs()).fold(0.0, f64::max);
                 assert!(scale > 0.0);
                 for i in 0..m {

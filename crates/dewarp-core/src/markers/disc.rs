@@ -80,15 +80,17 @@ pub(crate) fn disc_slopes(rho: f64, radius: f64, w: f64) -> (f64, f64, f64) {
     (slope_over_rho, d_r, d_w)
 }
 
-/// `P(rho)` of one `(radius, w)` tabulated on `[0, rho_max]`.
+/// `P(rho)` of one `(radius, w)` tabulated on `[0, rho_max]`, with its derivatives.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct DiscTable {
     radius: f64,
     w: f64,
     h: f64,
-    /// `P` and `dP/drho` at `k h`.
+    /// `P`, `dP/drho`, `dP/dR` and `dP/dw` at `k h`.
     p: Vec<f64>,
     g: Vec<f64>,
+    d_r: Vec<f64>,
+    d_w: Vec<f64>,
 }
 
 impl DiscTable {
@@ -103,23 +105,76 @@ impl DiscTable {
         self.w = w;
         self.h = (w / 16.0).max(1e-3);
         let n = (rho_max / self.h).ceil() as usize + 2;
-        self.p.clear();
-        self.g.clear();
+        for v in [&mut self.p, &mut self.g, &mut self.d_r, &mut self.d_w] {
+            v.clear();
+        }
         let slope = |rho: f64| disc_slopes(rho, radius, w).0 * rho;
         let b = radius / w;
         let mut p = -(-0.5 * b * b).exp_m1();
         let mut g0 = 0.0;
+        let (_, dr0, dw0) = disc_slopes(0.0, radius, w);
         self.p.push(p);
         self.g.push(g0);
+        self.d_r.push(dr0);
+        self.d_w.push(dw0);
         for k in 1..n {
             let r1 = k as f64 * self.h;
             let gm = slope(r1 - 0.5 * self.h);
-            let g1 = slope(r1);
+            let (so, dr, dw) = disc_slopes(r1, radius, w);
+            let g1 = so * r1;
             p += self.h / 6.0 * (g0 + 4.0 * gm + g1);
             self.p.push(p);
             self.g.push(g1);
+            self.d_r.push(dr);
+            self.d_w.push(dw);
             g0 = g1;
         }
+    }
+
+    /// `(P, dP/drho / rho, dP/dR, dP/dw)` at `rho`: `P` and its slope from the cubic Hermite
+    /// interpolant (the slope is the interpolant's own derivative, so the Jacobian is the
+    /// model's), `dP/dR` and `dP/dw` interpolated quadratically (relative error ~1e-4, enough for
+    /// the Levenberg-Marquardt steps and the covariance). Below one table step the slope comes
+    /// from the closed form (finite `dP/drho / rho` at the centre). 0 beyond the table.
+    #[inline(always)]
+    pub(crate) fn value_and_slopes(&self, rho: f64) -> (f64, f64, f64, f64) {
+        let u = rho / self.h;
+        let k = u as usize;
+        if k + 1 >= self.p.len() {
+            return (*self.p.last().unwrap_or(&0.0), 0.0, 0.0, 0.0);
+        }
+        let t = u - k as f64;
+        let t2 = t * t;
+        let t3 = t2 * t;
+        let (p0, p1) = (self.p[k], self.p[k + 1]);
+        let (m0, m1) = (self.h * self.g[k], self.h * self.g[k + 1]);
+        let value = (2.0 * t3 - 3.0 * t2 + 1.0) * p0
+            + (t3 - 2.0 * t2 + t) * m0
+            + (-2.0 * t3 + 3.0 * t2) * p1
+            + (t3 - t2) * m1;
+        let slope_over_rho = if k == 0 {
+            disc_slopes(rho, self.radius, self.w).0
+        } else {
+            let dt = (6.0 * t2 - 6.0 * t) * p0
+                + (3.0 * t2 - 4.0 * t + 1.0) * m0
+                + (-6.0 * t2 + 6.0 * t) * p1
+                + (3.0 * t2 - 2.0 * t) * m1;
+            dt / (self.h * rho)
+        };
+        // Quadratic (Lagrange) through k, k+1, k+2 (k-1, k, k+1 at the table's end).
+        let (j, s) = if k + 2 < self.p.len() {
+            (k, t)
+        } else {
+            (k - 1, t + 1.0)
+        };
+        let (l0, l1, l2) = (
+            0.5 * (s - 1.0) * (s - 2.0),
+            s * (2.0 - s),
+            0.5 * s * (s - 1.0),
+        );
+        let d_r = l0 * self.d_r[j] + l1 * self.d_r[j + 1] + l2 * self.d_r[j + 2];
+        let d_w = l0 * self.d_w[j] + l1 * self.d_w[j + 1] + l2 * self.d_w[j + 2];
+        (value, slope_over_rho, d_r, d_w)
     }
 
     /// `P(rho)` by cubic Hermite interpolation (0 beyond the table).

@@ -112,8 +112,10 @@ impl std::str::FromStr for DotProfile {
     }
 }
 
-/// The size refinement and the automatic profile choice fit this many of the strongest dots.
-pub const PROFILE_SAMPLE: usize = 24;
+/// The size refinement and the automatic profile choice fit this many of the strongest dots,
+pub const PROFILE_SAMPLE: usize = 12;
+/// ... each fit within this many evaluations (a non-converged Gaussian fit counts as a flat top).
+pub const SAMPLE_MAX_EVALS: usize = 100;
 /// ... and take the disc when the median flat-top score of their Gaussian fits exceeds this
 /// (under a Gaussian profile the score follows a chi-square of one degree of freedom, median
 /// 0.45).
@@ -353,9 +355,10 @@ fn sample_fits<T: Pixel>(
     sign: f64,
     profile: Profile,
 ) -> (f64, Profile) {
+    let budget = || BlobScratch::with_budget(SAMPLE_MAX_EVALS);
     let fits: Vec<Option<(f64, f64)>> = strongest(starts)
         .par_iter()
-        .map_init(BlobScratch::default, |scratch, &k| {
+        .map_init(budget, |scratch, &k| {
             let (x0, y0, _) = starts[k];
             fit_blob(image, x0, y0, s, sign, profile, scratch).map(|f| (f.p[3], f.flat_top))
         })
@@ -378,7 +381,7 @@ fn sample_fits<T: Pixel>(
     }
     let mut flat: Vec<f64> = strongest(starts)[..starts.len().min(8)]
         .par_iter()
-        .map_init(BlobScratch::default, |scratch, &k| {
+        .map_init(budget, |scratch, &k| {
             let (x0, y0, _) = starts[k];
             fit_blob(image, x0, y0, width, sign, Profile::Disc, scratch).map(|f| f.p[7] / f.p[3])
         })
