@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.mapping import MODELS
+from rspiv.mapping import MODELS, as_points
 
 __all__ = [
     "covariance",
@@ -44,12 +44,7 @@ def image_shape(v: Any) -> tuple[int, int]:
 def rows(name: str, a: Any) -> np.ndarray:
     """``a`` as a C-contiguous float64 (n, 2) array of finite numbers, or InvalidInputError
     naming the first bad row."""
-    try:
-        arr = np.asarray(a, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"{name}: not an array of numbers ({exc})") from None
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise InvalidInputError(f"{name} must have shape (n, 2), got {arr.shape}")
+    arr = as_points(name, a)
     bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
     if len(bad):
         k = int(bad[0])

@@ -40,14 +40,15 @@ MODELS = SETTINGS_MODELS  # the one vocabulary (rspiv.settings)
 __all__ = ["MODELS", "Mapping", "fit_mapping"]
 
 
-def _points(name: str, a: Any) -> np.ndarray:
-    """``a`` as a C-contiguous float64 ``(N, 2)`` array, or InvalidInputError."""
+def as_points(name: str, a: Any) -> np.ndarray:
+    """``a`` as a C-contiguous float64 ``(N, 2)`` array, or InvalidInputError (shared with the
+    calibration's input checks)."""
     try:
         arr = np.asarray(a, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"{name}: not an array of numbers ({exc})") from None
     if arr.ndim != 2 or arr.shape[1] != 2:
-        raise InvalidInputError(f"{name} must have shape (N, 2), got {arr.shape}")
+        raise InvalidInputError(f"{name} must have shape (n, 2), got {arr.shape}")
     return np.ascontiguousarray(arr)
 
 
@@ -99,12 +100,12 @@ class Mapping:
         ndarray, shape (N, 2)
             Image points in image px (rotation included). Vectorised in Rust, GIL released.
         """
-        return self._native.forward(_points("object_px", object_px))
+        return self._native.forward(as_points("object_px", object_px))
 
     def forward_jacobian(self, object_px: npt.ArrayLike) -> np.ndarray:
         """``d(image px) / d(object px)`` at each object point, shape (N, 2, 2):
         ``J[k] = [[dxi/dxo, dxi/dyo], [dyi/dxo, dyi/dyo]]``."""
-        return self._native.forward_jacobian(_points("object_px", object_px))
+        return self._native.forward_jacobian(as_points("object_px", object_px))
 
     def inverse(self, image_px: npt.ArrayLike, *, on_fail: str = "raise") -> np.ndarray:
         """Map image px to object px by Newton's method on the analytic Jacobian.
@@ -126,7 +127,7 @@ class Mapping:
         """
         if on_fail not in ("raise", "nan"):
             raise InvalidInputError(f'on_fail must be "raise" or "nan", got {on_fail!r}')
-        pts = _points("image_px", image_px)
+        pts = as_points("image_px", image_px)
         out, ok = self._native.inverse(pts)
         finite = np.isfinite(pts).all(axis=1)
         out[~finite] = np.nan  # NaN in, NaN out (e.g. masked vectors): not a failure
@@ -275,8 +276,8 @@ def fit_mapping(
         raise InvalidInputError(
             f"unknown mapping model {model!r} (expected one of {', '.join(MODELS)})"
         )
-    obj = _points("object_px", object_px)
-    img = _points("image_px", image_px)
+    obj = as_points("object_px", object_px)
+    img = as_points("image_px", image_px)
     if obj.shape != img.shape:
         raise InvalidInputError(
             f"object_px {obj.shape} and image_px {img.shape} must have the same shape"
