@@ -9,6 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 import tifffile
+from lens_cases import Oblique
 from rspiv.calibration import Calibration
 from rspiv.cli import main
 from rspiv.synth import calibration_target
@@ -185,3 +186,32 @@ def test_engine_calibrate_matches_python(target_tif, tmp_path, engine):
     )
     assert bad.returncode == 2 and "pitch" in bad.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+def test_engine_refuses_two_level_plates_and_poor_fits(tmp_path, engine):
+    # The engine calibrates axis-aligned single-level plates; a 45-degree union lattice (two
+    # levels) and a fit far above the markers' noise are refused in one line, nothing written.
+    two = calibration_target(scale=0.25, seed=1, levels=2, fiducial="missing")
+    oblique = calibration_target(
+        scale=0.25, seed=3, lens=None, mapping=Oblique((2216, 1322))
+    )  # fmt: skip
+    for name, img, expect in (
+        ("two_level", two.image, "two-level plate"),
+        ("oblique", oblique.image, "calibration refused"),
+    ):
+        tif, out = tmp_path / f"{name}.tif", tmp_path / f"{name}.json"
+        tifffile.imwrite(tif, img)
+        r = subprocess.run(
+            [engine, "calibrate", str(tif), "--pitch-mm", "19.51", "-o", str(out)],
+            capture_output=True,
+            text=True,
+        )
+        assert r.returncode == 2 and expect in r.stderr, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
+    r = subprocess.run(
+        [engine, "calibrate", str(tmp_path / "oblique.tif"), "--pitch-mm", "19.51", "-o",
+         str(tmp_path / "kept.json"), "--accept-poor-fit"],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert r.returncode == 0 and (tmp_path / "kept.json").exists()
+

@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 import tifffile
+from lens_cases import Oblique
 from rspiv import _rspiv, calibrate
 from rspiv.cli import main
 from rspiv.errors import InvalidInputError
@@ -131,19 +132,6 @@ def test_levels_that_cannot_be_told_apart_are_refused():
         calibrate(calibration_target(scale=0.25).image, PITCH, level=2)
 
 
-class _Oblique:
-    """An oblique view (the image scale changes by ~40 % across the sensor): a homography that
-    no polynomial of degree 3 follows to the markers' precision."""
-
-    def __init__(self, w: int, h: int) -> None:
-        self.c = np.array([0.5 * (w - 1), 0.5 * (h - 1)])
-
-    def forward(self, p: np.ndarray) -> np.ndarray:
-        q = (np.asarray(p) - self.c) / 1000.0
-        den = 1.0 + 0.2 * q[:, 0] + 0.12 * q[:, 1]
-        return self.c + 1000.0 * q / den[:, None]
-
-
 def test_not_a_target_is_refused_with_one_line(tmp_path, capsys):
     shape = (768, 1152)
     particles, _ = particle_pair(shape, (0.0, 0.0), density=0.03, diameter=3.0)
@@ -152,7 +140,7 @@ def test_not_a_target_is_refused_with_one_line(tmp_path, capsys):
         with pytest.raises(InvalidInputError, match="no lattice of marker-like blobs") as e:
             calibrate(img, 1.0)
         assert "\n" not in str(e.value)
-    oblique = calibration_target(scale=0.25, seed=3, lens=None, mapping=_Oblique(2216, 1322))
+    oblique = calibration_target(scale=0.25, seed=3, lens=None, mapping=Oblique((2216, 1322)))
     msg = r"calibration refused: p3 leaves [\d.]+ px RMS"
     with pytest.raises(InvalidInputError, match=msg):
         calibrate(oblique.image, PITCH, model="p3")

@@ -34,6 +34,9 @@ pub struct CalibrateArgs {
     /// Output calibration JSON.
     #[arg(short = 'o', long)]
     pub output: PathBuf,
+    /// Keep a fit whose residual RMS exceeds max(10 x the markers' image sigma, 0.5 px).
+    #[arg(long)]
+    pub accept_poor_fit: bool,
 }
 
 fn read_grey(path: &Path) -> Result<Array2<u16>, String> {
@@ -132,6 +135,16 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<(), String> {
     let pts: Vec<[f64; 2]> = det.markers.iter().map(|m| [m.x, m.y]).collect();
     let centre_px = [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)];
     let g = index_grid(&pts, centre_px, 0.3).map_err(|e| format!("{name}: {e}"))?;
+    // A lattice at 45 degrees may be the union of a two-level plate's levels: the engine
+    // calibrates single-level plates only (the Python `rspiv calibrate` splits the levels).
+    let angle = g.a1[1].atan2(g.a1[0]).to_degrees();
+    if ((angle.abs() % 90.0) - 45.0).abs() < 10.0 {
+        return Err(format!(
+            "{name}: the marker lattice runs at {angle:+.1} deg: a two-level plate (two \
+             staggered lattices) or a plate turned 45 degrees; rspiv-engine calibrates \
+             axis-aligned single-level plates: use `rspiv calibrate` (levels, fiducials)"
+        ));
+    }
     let keep: Vec<usize> = (0..pts.len()).filter(|&k| g.index[k].is_some()).collect();
     let n = keep.len();
     let centre = keep
@@ -236,6 +249,24 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<(), String> {
             )
         }
     };
+    // Never write a fit far above the markers' noise (as `rspiv calibrate` does).
+    let res_rms = (mapping
+        .residuals
+        .iter()
+        .map(|r| 0.5 * (r[0] * r[0] + r[1] * r[1]))
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
+    let limit = (10.0 * img_var.sqrt()).max(0.5);
+    if res_rms > limit && !args.accept_poor_fit {
+        return Err(format!(
+            "{name}: calibration refused: {} leaves {res_rms:.3} px RMS residuals against a \
+             marker sigma of {:.4} px over {n} indexed markers (lattice pitch {step:.1} px): not \
+             a flat target this model can follow; --accept-poor-fit keeps it",
+            chosen.name(),
+            img_var.sqrt()
+        ));
+    }
     let mapping_json: Value =
         serde_json::from_str(&mapping.to_json()).map_err(|e| e.to_string())?;
     let doc = json!({
