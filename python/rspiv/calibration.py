@@ -50,6 +50,7 @@ from rspiv.plate import (
     analyse_plate,
     lattice_from_json,
     lattice_line,
+    lattice_problems,
     lattice_record,
     lattice_to_json,
 )
@@ -474,11 +475,21 @@ def calibrate(
         pts, idx, found, a1, a2, size, det["amplitude"], (h, w), levels=levels, level=level
     )
     size_px = float(det["size_px"])
+    keep = np.flatnonzero(plate.use)
+    lattice = lattice_record(pts, found, a1, a2, det, plate)
+    # Too few markers for the model is its own (more specific) error, raised by the fit.
+    needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
+    problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []
+    if problems and not accept_poor_fit:
+        raise InvalidInputError(
+            f"calibration refused: {problems[0]}; pass accept_poor_fit=True (rspiv calibrate "
+            "--accept-poor-fit) to keep it"
+        )
     origin_of_points = _Origin(
         unit="markers", verb="indexed", marker=marker, size_px=size_px, n_detected=len(pts),
-        image_sigma_source=DETECTOR, lattice=lattice_record(pts, found, a1, a2, det, plate),
+        image_sigma_source=DETECTOR, lattice=lattice,
+        warnings=tuple(f"kept (accept_poor_fit=True): {p}" for p in problems),
     )  # fmt: skip
-    keep = np.flatnonzero(plate.use)
     return _calibrate_points(
         np.ascontiguousarray(pts[keep]),
         pitch * plate.index[keep].astype(np.float64),
@@ -605,6 +616,7 @@ class _Origin:
     n_detected: int
     image_sigma_source: str
     lattice: dict[str, Any] | None = None
+    warnings: tuple[str, ...] = ()
 
     @property
     def one(self) -> str:
@@ -658,7 +670,7 @@ def _calibrate_points(
     mean_sq = float(np.mean(res**2))  # per axis, px^2
     dof = max(1e-9, 1.0 - N_PARAMS[model] / (2.0 * n))
     estimated = cov_px2 is None
-    warnings: list[str] = []
+    warnings: list[str] = list(origin.warnings)
     sigma_source = origin.image_sigma_source
     if estimated:
         cov_px2 = np.tile(np.eye(2) * (mean_sq / dof), (n, 1, 1))
@@ -673,8 +685,12 @@ def _calibrate_points(
     )  # fmt: skip
     image_var = float(np.mean(markers.sigma_px**2))
     if not estimated:
+        # The typical marker (median: one bad blob must not raise the bar), and the target's
+        # own errors when the user states them.
+        typical = float(np.median(np.mean(markers.sigma_px**2, axis=1)))
+        target = 0.0 if pitch_sigma_mm is None else (pitch_sigma_mm * mag) ** 2
         warnings += check_fit(
-            model, float(np.sqrt(mean_sq)), float(np.sqrt(image_var)), origin.what(n),
+            model, float(np.sqrt(mean_sq)), float(np.sqrt(typical + target)), origin.what(n),
             mag * pitch, accept_poor_fit,
         )  # fmt: skip
     if pitch_sigma_mm is not None:

@@ -59,6 +59,7 @@ __all__ = [
     "lattice_record",
     "lattice_line",
     "lattice_to_json",
+    "lattice_problems",
     "lattice_from_json",
     "F_LEVELS",
     "Z_LEVELS",
@@ -68,8 +69,13 @@ __all__ = [
 F_LEVELS = 50.0
 #: Appearance test: |z| of the alternating log size or log amplitude above which they differ.
 Z_LEVELS = 8.0
+#: A plate's lattice: axes within this many degrees of square (an oblique view skews them a
+#: little; a 3-D target or clutter lined up, much more), and at least this many markers along
+#: each axis (a mapping of degree 2-3 in x and y needs them).
+MAX_SKEW_DEG = 15.0
+MIN_SPAN = 4
 #: Fiducial candidates: |log(size / neighbours' size)| and |log(amplitude / neighbours')| above.
-FIDUCIAL_SIZE = 0.1
+FIDUCIAL_SIZE = 0.15
 FIDUCIAL_AMPLITUDE = 0.3
 
 _NB4 = ((1, 0), (-1, 0), (0, 1), (0, -1))
@@ -554,3 +560,24 @@ def lattice_line(la: dict[str, Any]) -> str:
     else:
         line += "; origin on the central marker (no fiducial found)"
     return line
+
+
+def lattice_problems(la: dict[str, Any], index: np.ndarray) -> list[str]:
+    """What makes a lattice record (:func:`lattice_record`) no plate to calibrate on, given the
+    used markers' ``(u, v)``: axes more than :data:`MAX_SKEW_DEG` from square, or fewer than
+    :data:`MIN_SPAN` markers along an axis. Empty when it is fine."""
+    out = []
+    skew = float(la["axes_angle_deg"]) - 90.0
+    if abs(skew) > MAX_SKEW_DEG:
+        out.append(
+            f"the lattice's axes are {la['axes_angle_deg']:.1f} deg apart ({la['n_indexed']} "
+            "markers): no square plate lattice (a 3-D target? clutter lined up?)"
+        )
+    idx = np.asarray(index).reshape(-1, 2)
+    span = [len(np.unique(idx[:, a])) for a in (0, 1)]
+    if min(span) < MIN_SPAN:
+        out.append(
+            f"the lattice spans only {span[0]} x {span[1]} markers ({len(idx)} indexed): too "
+            f"narrow for a mapping in x and y (at least {MIN_SPAN} along each axis)"
+        )
+    return out

@@ -23,6 +23,9 @@ type Indices = Vec<Option<(i32, i32)>>;
 /// local step, that is still a lattice.
 pub const MAX_IRREGULARITY: f64 = 0.08;
 
+/// At most this many points nearest the centre are tried as the origin.
+pub const ORIGIN_CANDIDATES: usize = 256;
+
 /// Result of [`index_grid`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct GridIndex {
@@ -130,7 +133,9 @@ pub fn index_grid(points: &[[f64; 2]], centre: [f64; 2], tol: f64) -> Result<Gri
     let mut best: Option<Grown> = None;
     let mut tried = 0;
     let buckets = Buckets::new(points);
-    for &c in &order {
+    // Origin candidates: the points nearest the centre (a lattice has one among them; the
+    // cap keeps a cloud without any lattice from costing O(n^2 log n)).
+    for &c in order.iter().take(ORIGIN_CANDIDATES) {
         let Some((a1, a2)) = local_lattice(points, c, tol) else {
             continue;
         };

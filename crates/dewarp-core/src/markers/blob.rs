@@ -70,6 +70,10 @@ pub(crate) struct BlobScratch {
     border: Vec<f64>,
     table: DiscTable,
     pub max_evals: usize,
+    /// Window half-width in units of `s` (at least 2.5, the default) and its cap in px (0: none;
+    /// half the lattice pitch keeps the neighbours out of a dense lattice's fits).
+    pub hw_factor: f64,
+    pub max_hw: usize,
 }
 
 impl BlobScratch {
@@ -80,6 +84,13 @@ impl BlobScratch {
             max_evals,
             ..Self::default()
         }
+    }
+
+    /// Scratch whose windows never exceed `max_hw` px (0: no cap) and reach `hw_factor` s.
+    pub(crate) fn windows(mut self, hw_factor: f64, max_hw: usize) -> Self {
+        self.hw_factor = hw_factor;
+        self.max_hw = max_hw;
+        self
     }
 }
 
@@ -319,7 +330,8 @@ fn blob_lm_config() -> LmConfig {
 }
 
 /// Fit one marker near `(x0, y0)` with a blob of size `s` (Gaussian sigma, px) in a window of
-/// half-width `ceil(2.5 s)` (a disc: at least `1.4 R0 + 4`, `R0` its half-maximum radius);
+/// half-width `ceil(2.5 s)` or the scratch's `hw_factor s` (a disc: at least `1.4 R0 + 4`,
+/// `R0` its half-maximum radius), never beyond the scratch's `max_hw`;
 /// `None` if the fit fails or is implausible (centre moved more than
 /// `max(s, 2)`, width outside `[0.3 s, 3 s]` (Gaussian) or `[0.05, 3 s]` with radius below
 /// `4 s` (disc), amplitude of the wrong sign).
@@ -367,10 +379,14 @@ pub(crate) fn fit_blob<T: Pixel>(
     // pixel at the peak; a disc's radius from the area above half that amplitude in a window
     // of half-width 3.5 s, and its window then reaches 1.4 R + 4 px (the blurred edge and a
     // ring of background).
-    let mut hw = (2.5 * s).ceil().max(3.0) as i64;
+    let cap = |hw: i64| match scratch.max_hw {
+        0 => hw,
+        m => hw.min(m as i64),
+    };
+    let mut hw = cap((scratch.hw_factor.max(2.5) * s).ceil().max(3.0) as i64);
     let mut p = [0.0, x0, y0, s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
     if profile.is_disc() {
-        let wide = window((3.5 * s).ceil().max(4.0) as i64);
+        let wide = window(cap((3.5 * s).ceil().max(4.0) as i64));
         let b0 = border_median(wide, &mut scratch.border);
         let half = b0 + 0.5 * (pk - b0);
         let mut above = 0usize;
@@ -382,7 +398,7 @@ pub(crate) fn fit_blob<T: Pixel>(
         let r0 = (above as f64 / std::f64::consts::PI).sqrt().max(0.5);
         p[7] = r0;
         p[3] = (0.25 * r0).clamp(0.5, s.max(0.5));
-        hw = hw.max((1.4 * r0 + 4.0).ceil() as i64);
+        hw = cap(hw.max((1.4 * r0 + 4.0).ceil() as i64));
     }
     let (xa, xb, ya, yb) = window(hw);
     if xb < xa + 4 || yb < ya + 4 {

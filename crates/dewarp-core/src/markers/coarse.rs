@@ -47,12 +47,39 @@ pub(crate) fn median_mut(v: &mut [f64]) -> f64 {
 
 /// Median and MAD-based standard deviation of (a subsample of) an array.
 pub(crate) fn robust_stats(a: &Array2<f64>) -> (f64, f64) {
-    let n = a.len();
+    robust_stats_of(a.iter().copied(), a.len())
+}
+
+fn robust_stats_of(values: impl Iterator<Item = f64>, n: usize) -> (f64, f64) {
     let step = (n / 200_000).max(1);
-    let sample: Vec<f64> = a.iter().step_by(step).copied().collect();
+    let sample: Vec<f64> = values.step_by(step).collect();
     let med = median(sample.clone());
     let mad = median(sample.iter().map(|v| (v - med).abs()).collect());
     (med, 1.4826 * mad)
+}
+
+/// The noise of a correlation with a unit-norm template (`corr`) of a block-averaged image
+/// (`coarse`, block `d`): the smaller of the correlation's robust spread (inflated where
+/// markers cover much of the image: a dense lattice is structure, not noise) and the pixel
+/// noise read from horizontal differences of `coarse` (`MAD / sqrt 2`; edges are a minority),
+/// for integer counts (`integer`) never below their quantisation noise averaged over `d^2`
+/// pixels (an image whose background is exactly 0 has no spread at all).
+pub(crate) fn correlation_noise(
+    coarse: &Array2<f64>,
+    corr: &Array2<f64>,
+    d: usize,
+    integer: bool,
+) -> f64 {
+    let (_, spread) = robust_stats(corr);
+    let (h, w) = coarse.dim();
+    let diffs = (0..h).flat_map(|y| (1..w).map(move |x| coarse[[y, x]] - coarse[[y, x - 1]]));
+    let (_, dn) = robust_stats_of(diffs, h * w.saturating_sub(1));
+    let floor = if integer {
+        (1.0f64 / 12.0).sqrt() / d as f64
+    } else {
+        1e-300
+    };
+    spread.min(dn / std::f64::consts::SQRT_2).max(floor)
 }
 
 /// In-place 2D FFT of a row-major (h, w) complex buffer.
@@ -173,4 +200,12 @@ pub(crate) fn local_maxima(
             })
         })
         .collect()
+}
+
+/// Whether the pixel type holds integer counts (quantised).
+pub(crate) fn is_integer<T: Pixel>() -> bool {
+    matches!(
+        T::KIND,
+        image_core::PixelKind::U8 | image_core::PixelKind::U16
+    )
 }

@@ -41,7 +41,7 @@ pub mod survey;
 
 use crate::error::{DewarpError, Result};
 use blob::{fit_blob, BlobScratch, Profile};
-use coarse::{block_mean, correlate, local_maxima, robust_stats, template};
+use coarse::{block_mean, correlate, correlation_noise, local_maxima, template};
 pub use image_core::Pixel;
 use ndarray::ArrayView2;
 use rayon::prelude::*;
@@ -116,6 +116,9 @@ impl std::str::FromStr for DotProfile {
 pub const PROFILE_SAMPLE: usize = 12;
 /// ... each fit within this many evaluations (a non-converged Gaussian fit counts as a flat top).
 pub const SAMPLE_MAX_EVALS: usize = 100;
+/// Each marker's fit gives up after this many evaluations (a blob that needs more is no marker
+/// this model describes: it is dropped, never kept unconverged).
+pub const FIT_MAX_EVALS: usize = 300;
 /// ... and take the disc when the median flat-top score of their Gaussian fits exceeds this
 /// (under a Gaussian profile the score follows a chi-square of one degree of freedom, median
 /// 0.45).
@@ -224,7 +227,7 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     let sc = s / d as f64;
     let tpl = template(opts.kind, sc);
     let corr = correlate(&coarse, &tpl);
-    let (_, noise) = robust_stats(&corr);
+    let noise = correlation_noise(&coarse, &corr, d, coarse::is_integer::<T>());
     let (hc, wc) = corr.dim();
     let r = ((1.5 * sc).round() as usize).max(1);
     let cmax = corr.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -275,12 +278,21 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
         Profile::Gauss
     };
     let auto = opts.kind == MarkerKind::Dot && opts.profile == DotProfile::Auto;
+    // Fit windows stay within half the lattice's pitch (a dense lattice's neighbours out).
+    let max_hw = surveyed
+        .as_ref()
+        .map_or(0, |sv| (0.5 * sv.pitch_px).floor().max(3.0) as usize);
     let (width, auto_profile) = if auto || opts.size_px.is_none() {
-        sample_fits(image, &starts, s, sign, base)
+        sample_fits(image, &starts, s, sign, base, max_hw)
     } else {
         (s, base)
     };
-    let s = if opts.size_px.is_none() { width } else { s };
+    // A dot is smaller than a fifth of the pitch in sigma (its template stays within a pitch).
+    let s = match (&surveyed, opts.size_px) {
+        (Some(sv), None) => width.min(0.2 * sv.pitch_px),
+        (None, None) => width,
+        (_, Some(_)) => s,
+    };
     let profile = match (opts.kind, opts.profile) {
         (MarkerKind::Cross, _) => Profile::Cross,
         (MarkerKind::Dot, DotProfile::Gaussian) => Profile::Gauss,
@@ -291,20 +303,23 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     // marker once sized.
     let mut markers: Vec<Marker> = starts
         .par_iter()
-        .map_init(BlobScratch::default, |scratch, &(x0, y0, v)| {
-            let f = fit_blob(image, x0, y0, s, sign, profile, scratch)?;
-            Some(Marker {
-                x: f.p[1],
-                y: f.p[2],
-                sigma_x: f.cov[0][0].sqrt(),
-                sigma_y: f.cov[1][1].sqrt(),
-                cov_xy: f.cov[0][1],
-                amplitude: sign * f.p[0],
-                width: f.p[3],
-                radius: f.p[7],
-                strength: v / cmax,
-            })
-        })
+        .map_init(
+            || BlobScratch::with_budget(FIT_MAX_EVALS).windows(2.5, max_hw),
+            |scratch, &(x0, y0, v)| {
+                let f = fit_blob(image, x0, y0, s, sign, profile, scratch)?;
+                Some(Marker {
+                    x: f.p[1],
+                    y: f.p[2],
+                    sigma_x: f.cov[0][0].sqrt(),
+                    sigma_y: f.cov[1][1].sqrt(),
+                    cov_xy: f.cov[0][1],
+                    amplitude: sign * f.p[0],
+                    width: f.p[3],
+                    radius: f.p[7],
+                    strength: v / cmax,
+                })
+            },
+        )
         .flatten()
         .collect();
     // Merge duplicates (two peaks converging on one blob): keep the stronger.
@@ -354,8 +369,10 @@ fn sample_fits<T: Pixel>(
     s: f64,
     sign: f64,
     profile: Profile,
+    max_hw: usize,
 ) -> (f64, Profile) {
-    let budget = || BlobScratch::with_budget(SAMPLE_MAX_EVALS);
+    // Wide windows (4 s): a disc's flat top and its background ring both in view.
+    let budget = || BlobScratch::with_budget(SAMPLE_MAX_EVALS).windows(4.0, max_hw);
     let fits: Vec<Option<(f64, f64)>> = strongest(starts)
         .par_iter()
         .map_init(budget, |scratch, &k| {

@@ -23,7 +23,9 @@
 //! SNR. The lattice's median correlation level is returned as the reference of the detection
 //! threshold (robust to glare and vignetting, unlike the strongest peak).
 
-use super::coarse::{block_mean, correlate, local_maxima, median_mut, robust_stats, template};
+use super::coarse::{
+    block_mean, correlate, correlation_noise, is_integer, local_maxima, median_mut, template,
+};
 use super::MarkerKind;
 use crate::error::{DewarpError, Result};
 use crate::grid::index_grid;
@@ -49,6 +51,8 @@ pub struct Survey {
     /// robust noise (SNR) and per unit of block-averaged intensity (`level`).
     pub snr: f64,
     pub level: f64,
+    /// The lattice's pitch (mean step, px).
+    pub pitch_px: f64,
 }
 
 struct Candidate {
@@ -58,7 +62,7 @@ struct Candidate {
     n_det: usize,
     snr: f64,
     level: f64,
-    area: f64,
+    pitch: f64,
 }
 
 /// Survey the image; `size_px` and `dark` restrict the search when given.
@@ -100,8 +104,7 @@ pub fn survey<T: Pixel>(
         let coarse = block_mean(crop, d, 1.0);
         let sc = s / d as f64;
         let corr = correlate(&coarse, &template(kind, sc));
-        let (_, noise) = robust_stats(&corr);
-        let noise = noise.max(1e-300);
+        let noise = correlation_noise(&coarse, &corr, d, is_integer::<T>());
         let r = ((1.5 * sc).round() as usize).max(1);
         let off = 0.5 * (d as f64 - 1.0);
         let mut step_best = 0.0f64;
@@ -158,7 +161,7 @@ pub fn survey<T: Pixel>(
                 n_det: pk.len(),
                 snr,
                 level,
-                area: (ch * cw) as f64,
+                pitch: 0.5 * (g.a1[0].hypot(g.a1[1]) + g.a2[0].hypot(g.a2[1])),
             };
             // One polarity per size: the stronger lattice. The other polarity's "lattice" is
             // the side lobes of the zero-mean template between the dots, at most about half
@@ -169,25 +172,28 @@ pub fn survey<T: Pixel>(
             }
         }
         cands.extend(step_cand);
-        let big_enough = cands.iter().any(|c| c.n >= 12);
+        // Stop once two finer sizes in a row held lattices of less than half the best SNR
+        // (sizes without a lattice do not count: a coarse junk lattice must not end the scan).
         if step_best > best_snr {
             best_snr = step_best;
             below = 0;
-        } else if big_enough && step_best < 0.5 * best_snr {
+        } else if step_best > 0.0 && step_best < 0.5 * best_snr && best_snr > 0.0 {
             below += 1;
-            if below >= 2 {
+            if below >= 2 && cands.iter().any(|c| c.n >= 12) {
                 break;
             }
         }
     }
-    // Lattices are compared by density (points per px of the surveyed region, which grows
-    // with the block size): the matched size sees the same lattice as its neighbours, only
-    // stronger.
-    let density = |c: &Candidate| c.n as f64 / c.area;
-    let d_max = cands.iter().map(density).fold(0.0, f64::max);
+    // The matched size: the strongest lattice (SNR) among those of at least 12 points (5 when
+    // none has 12: a small target).
+    let n_min = if cands.iter().any(|c| c.n >= 12) {
+        12
+    } else {
+        5
+    };
     let best = cands
         .iter()
-        .filter(|c| density(c) >= 0.5 * d_max)
+        .filter(|c| c.n >= n_min)
         .max_by(|a, b| a.snr.total_cmp(&b.snr));
     match best {
         Some(c) => Ok(Survey {
@@ -197,6 +203,7 @@ pub fn survey<T: Pixel>(
             n_detected: c.n_det,
             snr: c.snr,
             level: c.level,
+            pitch_px: c.pitch,
         }),
         None => Err(DewarpError::InvalidInput(format!(
             "marker detection: no lattice of marker-like blobs found at any size from {:.1} to \
