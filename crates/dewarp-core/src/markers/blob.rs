@@ -70,8 +70,9 @@ pub(crate) struct BlobScratch {
     border: Vec<f64>,
     table: DiscTable,
     pub max_evals: usize,
-    /// Window half-width in units of `s` (at least 2.5, the default) and its cap in px (0: none;
-    /// half the lattice pitch keeps the neighbours out of a dense lattice's fits).
+    /// Window half-width in units of `s` (at least 2.5, the default; beyond it at most 8 px
+    /// more) and its cap in px (0: none; half the lattice pitch keeps the neighbours out of a
+    /// dense lattice's fits).
     pub hw_factor: f64,
     pub max_hw: usize,
 }
@@ -383,7 +384,12 @@ pub(crate) fn fit_blob<T: Pixel>(
         0 => hw,
         m => hw.min(m as i64),
     };
-    let mut hw = cap((scratch.hw_factor.max(2.5) * s).ceil().max(3.0) as i64);
+    // The scratch's wider factor adds at most 8 px (a small disc's flat top and its ring).
+    let base = 2.5 * s;
+    let mut hw = cap(base
+        .max((scratch.hw_factor * s).min(base + 8.0))
+        .ceil()
+        .max(3.0) as i64);
     let mut p = [0.0, x0, y0, s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
     if profile.is_disc() {
         let wide = window(cap((3.5 * s).ceil().max(4.0) as i64));

@@ -119,6 +119,8 @@ pub const SAMPLE_MAX_EVALS: usize = 100;
 /// Each marker's fit gives up after this many evaluations (a blob that needs more is no marker
 /// this model describes: it is dropped, never kept unconverged).
 pub const FIT_MAX_EVALS: usize = 300;
+/// ... and a start off the coarse lattice (reported as a rejected blob) after this many.
+pub const OFF_LATTICE_MAX_EVALS: usize = 60;
 /// ... and take the disc when the median flat-top score of their Gaussian fits exceeds this
 /// (under a Gaussian profile the score follows a chi-square of one degree of freedom, median
 /// 0.45).
@@ -282,6 +284,16 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     let max_hw = surveyed
         .as_ref()
         .map_or(0, |sv| (0.5 * sv.pitch_px).floor().max(3.0) as usize);
+    // Starts off the lattice (clutter, glare, noise) are only reported: a short budget, so that
+    // a junk blob never costs a full fit (when the starts form no lattice, all get the full one).
+    let on_lattice: Vec<bool> = {
+        let pts: Vec<[f64; 2]> = starts.iter().map(|s| [s.0, s.1]).collect();
+        let centre = [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)];
+        match crate::grid::index_grid(&pts, centre, 0.3) {
+            Ok(g) => g.index.iter().map(|i| i.is_some()).collect(),
+            Err(_) => vec![true; starts.len()],
+        }
+    };
     let (width, auto_profile) = if auto || opts.size_px.is_none() {
         sample_fits(image, &starts, s, sign, base, max_hw)
     } else {
@@ -303,9 +315,15 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     // marker once sized.
     let mut markers: Vec<Marker> = starts
         .par_iter()
+        .zip(on_lattice.par_iter())
         .map_init(
             || BlobScratch::with_budget(FIT_MAX_EVALS).windows(2.5, max_hw),
-            |scratch, &(x0, y0, v)| {
+            |scratch, (&(x0, y0, v), &lattice)| {
+                scratch.max_evals = if lattice {
+                    FIT_MAX_EVALS
+                } else {
+                    OFF_LATTICE_MAX_EVALS
+                };
                 let f = fit_blob(image, x0, y0, s, sign, profile, scratch)?;
                 Some(Marker {
                     x: f.p[1],

@@ -148,12 +148,6 @@ pub fn survey<T: Pixel>(
             let level = median_mut(&mut vals);
             let snr = level / noise;
             step_best = step_best.max(snr);
-            if std::env::var_os("RSPIV_DEBUG_SURVEY").is_some() {
-                eprintln!(
-                    "survey s {s:.2} d {d} dark {dk} n {n} det {} snr {snr:.1}",
-                    pk.len()
-                );
-            }
             let c = Candidate {
                 s,
                 dark: dk,
