@@ -476,7 +476,7 @@ def calibrate(
     )
     size_px = float(det["size_px"])
     keep = np.flatnonzero(plate.use)
-    lattice = lattice_record(pts, found, a1, a2, det, plate)
+    lattice = lattice_record(pts, a1, a2, det, plate)
     # Too few markers for the model is its own (more specific) error, raised by the fit.
     needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
     problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []

@@ -467,7 +467,6 @@ def _predict(uv: np.ndarray, px: np.ndarray, site: np.ndarray) -> np.ndarray:
 
 def lattice_record(
     pts: np.ndarray,
-    found: np.ndarray,
     a1: Any,
     a2: Any,
     det: dict[str, Any],
