@@ -91,6 +91,8 @@ def detect_markers(
 ) -> dict[str, object]:
     """Markers of a target image (uint8/uint16/float32/float64): keys ``image_px`` (N, 2),
     ``cov_px2`` (N, 2, 2), ``amplitude``, ``width_px``, ``radius_px``, ``strength`` (N,),
+    ``rejected_px`` (K, 2: blobs off the coarse lattice, reported at their coarse positions,
+    not fitted),
     ``size_px``, ``downsample``, ``profile`` ("gaussian", "disc" or "cross"), ``dark`` (the
     polarity used) and, when size or polarity were surveyed, ``survey_lattice``,
     ``survey_detected``, ``survey_snr``."""

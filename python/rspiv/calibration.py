@@ -68,6 +68,8 @@ FORMAT = "rspiv-calibration"
 VERSION = 1  # later additions (warnings, lattice, image_sigma_source) are optional keys
 POINTS = "points"  # the ``marker`` of a calibration from given points
 DETECTOR = "marker detector"  # the image sigma's source for a target image
+# Detected markers whose median sub-pixel sigma exceeds this (px) place nothing: refused.
+MAX_MARKER_SIGMA_PX = 0.3
 
 
 @dataclass
@@ -480,14 +482,23 @@ def calibrate(
     # Too few markers for the model is its own (more specific) error, raised by the fit.
     needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
     problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []
+    # Markers a sub-pixel fit cannot place (a wrong polarity or size, or no markers at all).
+    cov = det["cov_px2"][keep]
+    typical = float(np.sqrt(np.median(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])))) if len(keep) else 0.0
+    if typical > MAX_MARKER_SIGMA_PX:
+        problems.append(
+            f"the {len(keep)} indexed markers are poorly defined (median sigma {typical:.2f} px, "
+            f"a target's is below {MAX_MARKER_SIGMA_PX} px): wrong polarity or size? (dark=, "
+            "marker_size_px=)"
+        )
     if problems and not accept_poor_fit:
         raise InvalidInputError(
             f"calibration refused: {problems[0]}; pass accept_poor_fit=True (rspiv calibrate "
             "--accept-poor-fit) to keep it"
         )
     origin_of_points = _Origin(
-        unit="markers", verb="indexed", marker=marker, size_px=size_px, n_detected=len(pts),
-        image_sigma_source=DETECTOR, lattice=lattice,
+        unit="markers", verb="indexed", marker=marker, size_px=size_px,
+        n_detected=lattice["n_detected"], image_sigma_source=DETECTOR, lattice=lattice,
         warnings=tuple(f"kept (accept_poor_fit=True): {p}" for p in problems),
     )  # fmt: skip
     return _calibrate_points(

@@ -482,6 +482,9 @@ def lattice_record(
     cos = float(np.dot(s1, s2)) / (l1 * l2) if l1 > 0 and l2 > 0 else 0.0
     n_used = int(np.count_nonzero(plate.use))
     indexed = plate.indexed
+    # Rejected: detections off every level's lattice, and the blobs the detector left unfitted.
+    unfitted = np.asarray(det.get("rejected_px", np.zeros((0, 2))), dtype=np.float64)
+    rejected = np.vstack([pts[~indexed], unfitted.reshape(-1, 2)])
     angle = float(np.degrees(np.arctan2(s1[1], s1[0])))
     angle = (angle + 45.0) % 90.0 - 45.0  # the axis nearest +x
     return {
@@ -489,8 +492,8 @@ def lattice_record(
         "angle_deg": angle,
         "axes_angle_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
         "n_indexed": n_used,
-        "n_detected": int(len(pts)),
-        "n_rejected": int(len(pts)) - int(np.count_nonzero(indexed)),
+        "n_detected": int(len(pts)) + len(unfitted),
+        "n_rejected": len(rejected),
         "size_px": float(det["size_px"]),
         "polarity": "dark" if det.get("dark") else "bright",
         "profile": str(det.get("profile", "gaussian")),
@@ -499,7 +502,7 @@ def lattice_record(
         "other_level_px": np.ascontiguousarray(plate.other_px).reshape(-1, 2),
         "fiducial": plate.fiducial,
         "plate": {k: v for k, v in plate.summary.items()},
-        "rejected_px": np.ascontiguousarray(pts[~indexed]).reshape(-1, 2),
+        "rejected_px": np.ascontiguousarray(rejected),
     }
 
 

@@ -139,6 +139,8 @@ fn detect_markers<'py>(
     d.set_item("strength", strength.into_pyarray(py))?;
     d.set_item("size_px", det.size_px)?;
     d.set_item("radius_px", radius.into_pyarray(py))?;
+    let rej = Array2::from_shape_fn((det.rejected.len(), 2), |(k, a)| det.rejected[k][a]);
+    d.set_item("rejected_px", rej.into_pyarray(py))?;
     d.set_item("downsample", det.downsample)?;
     d.set_item("profile", det.profile)?;
     d.set_item("dark", det.dark)?;

@@ -41,7 +41,7 @@ pub mod survey;
 
 use crate::error::{DewarpError, Result};
 use blob::{fit_blob, BlobScratch, Profile};
-use coarse::{block_mean, correlate, correlation_noise, local_maxima, template};
+use coarse::{block_mean, correlate_marker, correlation_noise, local_maxima};
 pub use image_core::Pixel;
 use ndarray::ArrayView2;
 use rayon::prelude::*;
@@ -119,8 +119,6 @@ pub const SAMPLE_MAX_EVALS: usize = 100;
 /// Each marker's fit gives up after this many evaluations (a blob that needs more is no marker
 /// this model describes: it is dropped, never kept unconverged).
 pub const FIT_MAX_EVALS: usize = 300;
-/// ... and a start off the coarse lattice (reported as a rejected blob) after this many.
-pub const OFF_LATTICE_MAX_EVALS: usize = 60;
 /// ... and take the disc when the median flat-top score of their Gaussian fits exceeds this
 /// (under a Gaussian profile the score follows a chi-square of one degree of freedom, median
 /// 0.45).
@@ -175,6 +173,9 @@ pub struct Detection {
     pub dark: bool,
     /// The survey that chose the size and polarity (`None` when both were given).
     pub survey: Option<Survey>,
+    /// Blobs off the coarse lattice (clutter, glare), at their coarse positions (px): reported,
+    /// not fitted (empty when the detections formed no lattice: then every one was fitted).
+    pub rejected: Vec<[f64; 2]>,
 }
 
 /// Detect the markers of a calibration-target image; see the module documentation.
@@ -227,8 +228,7 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     let d = ((s / 2.5).floor() as usize).max(1);
     let coarse = block_mean(image, d, sign);
     let sc = s / d as f64;
-    let tpl = template(opts.kind, sc);
-    let corr = correlate(&coarse, &tpl);
+    let corr = correlate_marker(&coarse, opts.kind, sc);
     let noise = correlation_noise(&coarse, &corr, d, coarse::is_integer::<T>());
     let (hc, wc) = corr.dim();
     let r = ((1.5 * sc).round() as usize).max(1);
@@ -284,8 +284,7 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     let max_hw = surveyed
         .as_ref()
         .map_or(0, |sv| (0.5 * sv.pitch_px).floor().max(3.0) as usize);
-    // Starts off the lattice (clutter, glare, noise) are only reported: a short budget, so that
-    // a junk blob never costs a full fit (when the starts form no lattice, all get the full one).
+    // Which starts the coarse lattice holds (all when they form none).
     let on_lattice: Vec<bool> = {
         let pts: Vec<[f64; 2]> = starts.iter().map(|s| [s.0, s.1]).collect();
         let centre = [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)];
@@ -295,7 +294,7 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
         }
     };
     let (width, auto_profile) = if auto || opts.size_px.is_none() {
-        sample_fits(image, &starts, s, sign, base, max_hw)
+        sample_fits(image, &starts, &on_lattice, s, sign, base, max_hw)
     } else {
         (s, base)
     };
@@ -313,17 +312,21 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     };
     // One scratch (LM solver, border buffer, disc table) per rayon job: no allocation per
     // marker once sized.
+    // Starts off the coarse lattice (clutter, glare, noise) are reported, not fitted: a junk
+    // blob never costs a fit (when the starts form no lattice, every start is fitted).
+    let rejected: Vec<[f64; 2]> = starts
+        .iter()
+        .zip(&on_lattice)
+        .filter(|(_, &on)| !on)
+        .map(|(st, _)| [st.0, st.1])
+        .collect();
     let mut markers: Vec<Marker> = starts
         .par_iter()
         .zip(on_lattice.par_iter())
+        .filter(|(_, &on)| on)
         .map_init(
             || BlobScratch::with_budget(FIT_MAX_EVALS).windows(2.5, max_hw),
-            |scratch, (&(x0, y0, v), &lattice)| {
-                scratch.max_evals = if lattice {
-                    FIT_MAX_EVALS
-                } else {
-                    OFF_LATTICE_MAX_EVALS
-                };
+            |scratch, (&(x0, y0, v), _)| {
                 let f = fit_blob(image, x0, y0, s, sign, profile, scratch)?;
                 Some(Marker {
                     x: f.p[1],
@@ -365,12 +368,14 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
         },
         dark,
         survey: surveyed,
+        rejected,
     })
 }
 
-/// The [`PROFILE_SAMPLE`] strongest starts (by coarse correlation).
-fn strongest(starts: &[(f64, f64, f64)]) -> Vec<usize> {
-    let mut order: Vec<usize> = (0..starts.len()).collect();
+/// The [`PROFILE_SAMPLE`] strongest starts on the coarse lattice (by coarse correlation):
+/// markers, not clutter or glare.
+fn strongest(starts: &[(f64, f64, f64)], on_lattice: &[bool]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..starts.len()).filter(|&k| on_lattice[k]).collect();
     order.sort_by(|&a, &b| starts[b].2.total_cmp(&starts[a].2));
     order.truncate(PROFILE_SAMPLE);
     order
@@ -384,6 +389,7 @@ fn strongest(starts: &[(f64, f64, f64)]) -> Vec<usize> {
 fn sample_fits<T: Pixel>(
     image: ArrayView2<T>,
     starts: &[(f64, f64, f64)],
+    on_lattice: &[bool],
     s: f64,
     sign: f64,
     profile: Profile,
@@ -391,7 +397,8 @@ fn sample_fits<T: Pixel>(
 ) -> (f64, Profile) {
     // Wide windows (4 s): a disc's flat top and its background ring both in view.
     let budget = || BlobScratch::with_budget(SAMPLE_MAX_EVALS).windows(4.0, max_hw);
-    let fits: Vec<Option<(f64, f64)>> = strongest(starts)
+    let sample = strongest(starts, on_lattice);
+    let fits: Vec<Option<(f64, f64)>> = sample
         .par_iter()
         .map_init(budget, |scratch, &k| {
             let (x0, y0, _) = starts[k];
@@ -414,7 +421,7 @@ fn sample_fits<T: Pixel>(
     if scores.is_empty() || coarse::median_mut(&mut scores) <= FLAT_TOP_THRESHOLD {
         return (width, Profile::Gauss);
     }
-    let mut flat: Vec<f64> = strongest(starts)[..starts.len().min(8)]
+    let mut flat: Vec<f64> = sample[..sample.len().min(8)]
         .par_iter()
         .map_init(budget, |scratch, &k| {
             let (x0, y0, _) = starts[k];

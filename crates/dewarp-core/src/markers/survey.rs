@@ -24,7 +24,7 @@
 //! threshold (robust to glare and vignetting, unlike the strongest peak).
 
 use super::coarse::{
-    block_mean, correlate, correlation_noise, is_integer, local_maxima, median_mut, template,
+    block_mean, correlate_marker, correlation_noise, is_integer, local_maxima, median_mut,
 };
 use super::MarkerKind;
 use crate::error::{DewarpError, Result};
@@ -103,7 +103,7 @@ pub fn survey<T: Pixel>(
         let crop = image.slice(s![y0..y0 + ch, x0..x0 + cw]);
         let coarse = block_mean(crop, d, 1.0);
         let sc = s / d as f64;
-        let corr = correlate(&coarse, &template(kind, sc));
+        let corr = correlate_marker(&coarse, kind, sc);
         let noise = correlation_noise(&coarse, &corr, d, is_integer::<T>());
         let r = ((1.5 * sc).round() as usize).max(1);
         let off = 0.5 * (d as f64 - 1.0);

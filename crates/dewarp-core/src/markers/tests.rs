@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::target::{render_target, TargetScene};
-use coarse::{correlate, template};
+use coarse::{correlate, correlate_marker, template};
 use ndarray::{Array1, Array2};
 
 fn scene_img(pts: &[(f64, f64)], s: f64, h: usize, w: usize, seed: u64) -> Array2<u16> {
@@ -182,4 +182,20 @@ fn survey_finds_size_polarity_and_profile_of_a_dark_disc_lattice() {
         ..DetectOptions::default()
     };
     assert!(detect_markers(img.view(), &o).map_or(true, |d| d.markers.len() < n));
+}
+
+#[test]
+fn separable_dot_correlation_equals_the_fft_one() {
+    // A textured image with a bright corner (the zero padding matters at the edges).
+    let img = Array2::from_shape_fn((37, 53), |(y, x)| {
+        ((y * 13 + x * 7) % 17) as f64 + if x + y < 10 { 50.0 } else { 0.0 }
+    });
+    for sc in [1.0, 1.7, 2.6, 4.9] {
+        let a = correlate(&img, &template(MarkerKind::Dot, sc));
+        let b = correlate_marker(&img, MarkerKind::Dot, sc);
+        let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (p, q) in a.iter().zip(b.iter()) {
+            assert!((p - q).abs() <= 1e-9 * scale, "sc {sc}: {p} vs {q}");
+        }
+    }
 }
