@@ -249,15 +249,13 @@ impl<T: Pixel> BlobProblem<'_, T> {
         let mut jtj = DMatrix::<f64>::zeros(7, 7);
         let mut jtz = DMatrix::<f64>::zeros(7, 1);
         let (mut ztz, mut rtz, mut ssr, mut n) = (0.0, 0.0, 0.0, 0.0f64);
-        self.for_each_pixel(p, true, |_, r, j| {
-            // j[0] is g for the Gaussian; rho^2 from the width derivative: j[3] = A g rho^2 / w^3.
+        let width = self.xb - self.xa + 1;
+        self.for_each_pixel(p, true, |k, r, j| {
+            // j[0] is g for the Gaussian; pixel k of the (square) window is row-major.
             let g = j[0];
-            let rho2 = if p[0] != 0.0 {
-                j[3] * p[3] / (p[0] * inv2)
-            } else {
-                0.0
-            };
-            let t = 0.5 * rho2 * inv2;
+            let dx = (self.xa + k % width) as f64 - p[1];
+            let dy = (self.ya + k / width) as f64 - p[2];
+            let t = 0.5 * (dx * dx + dy * dy) * inv2;
             let z = g * t * t;
             for a in 0..7 {
                 jtz[a] += j[a] * z;

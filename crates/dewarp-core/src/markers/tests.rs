@@ -199,3 +199,39 @@ fn separable_dot_correlation_equals_the_fft_one() {
         }
     }
 }
+
+#[test]
+fn flat_top_score_separates_discs_from_gaussians() {
+    // One noisy blob each: a Gaussian (sigma 2.5 px) and a printed disc (radius 5 px, blur 1 px)
+    // of similar extent; the score test of the Gaussian fit flags only the disc.
+    let c = Array2::from_shape_vec((1, 2), vec![32.3, 30.8]).unwrap();
+    let scene = TargetScene::default();
+    let score = |sigma: f64, radius: Option<f64>| {
+        let r = radius.map(|r| Array1::from_elem(1, r));
+        let img = render_target(
+            64,
+            64,
+            c.view(),
+            Array1::from_elem(1, sigma).view(),
+            Array1::from_elem(1, 2000.0).view(),
+            r.as_ref().map(|r| r.view()),
+            &scene,
+        )
+        .unwrap();
+        let mut scratch = blob::BlobScratch::default();
+        blob::fit_blob(
+            img.view(),
+            32.0,
+            31.0,
+            2.5,
+            1.0,
+            blob::Profile::Gauss,
+            &mut scratch,
+        )
+        .map(|f| f.flat_top)
+    };
+    let g = score(2.5, None).expect("gaussian fit");
+    assert!(g < FLAT_TOP_THRESHOLD, "gaussian scored {g}");
+    // The flat-topped disc defeats the Gaussian fit or scores far above the threshold.
+    assert!(score(1.0, Some(5.0)).is_none_or(|d| d > FLAT_TOP_THRESHOLD));
+}
