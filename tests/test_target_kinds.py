@@ -152,3 +152,26 @@ def test_not_a_target_is_refused_with_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and ("refused" in err or "no lattice" in err), err
         assert not out.exists() and not list(tmp_path.glob(f"{name}.json*"))
+
+
+def test_bad_options_are_one_line_errors():
+    img = calibration_target(scale=0.25).image
+    for kw, msg in (
+        ({"profile": "square"}, "profile must be"),
+        ({"levels": 3}, "levels must be 1 or 2"),
+        ({"level": 0}, "level must be 1 or 2"),
+    ):
+        with pytest.raises(InvalidInputError, match=msg) as e:
+            calibrate(img, PITCH, **kw)
+        assert "\n" not in str(e.value)
+    for kw, msg in (
+        ({"dot": "star"}, "dot must be"),
+        ({"levels": 3}, "levels must be 1 or 2"),
+        ({"fiducial": "cross"}, "fiducial must be"),
+        ({"bit_depth": 10}, "bit_depth must be"),
+        ({"clutter": -1}, "clutter must be"),
+        ({"vignetting": 1.0}, "vignetting must lie"),
+        ({"dot": "disc", "dot_diameter_px": -2.0}, "dot_diameter_px must be"),
+    ):
+        with pytest.raises(InvalidInputError, match=msg):
+            calibration_target(scale=0.25, **kw)
