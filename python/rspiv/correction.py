@@ -170,6 +170,51 @@ def map_displacements(
     return out
 
 
+def map_sigmas(
+    mapping: Any, object_xy: np.ndarray, sigma: np.ndarray, mode: str = "full"
+) -> np.ndarray:
+    """Object-frame standard uncertainties of image displacements, as :func:`map_displacements`
+    carries the displacements (``correction_core::map_sigmas``, the same equations).
+
+    To first order the object displacement is ``J d`` with ``J`` the Jacobian of the inverse
+    mapping at the image point, the inverse of the forward mapping's Jacobian at the object
+    point (central differences over 1 object px); with independent errors of u and v,
+    ``sigma_U^2 = J11^2 sigma_u^2 + J12^2 sigma_v^2`` and ``sigma_V^2 = J21^2 sigma_u^2 +
+    J22^2 sigma_v^2``.
+
+    Parameters
+    ----------
+    mapping : Mapping
+        Object px -> image px.
+    object_xy, sigma : ndarray, shape (N, 2)
+        Object points of the vectors and the (sigma_u, sigma_v) of their image displacements.
+    mode : {"full", "positions"}
+        ``"positions"`` returns ``sigma`` unchanged.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Uncertainties in object px (NaN where a sigma is not finite or ``J`` is singular).
+    """
+    sigma = np.array(sigma, dtype=np.float64, copy=True)
+    if parse_mapping_mode(mode) == "positions":
+        return sigma
+    p = np.asarray(object_xy, dtype=np.float64)
+    ex, ey = np.array([0.5, 0.0]), np.array([0.0, 0.5])
+    f = mapping.forward(np.concatenate([p + ex, p - ex, p + ey, p - ey]))
+    n = len(p)
+    jx, jy = f[:n] - f[n : 2 * n], f[2 * n : 3 * n] - f[3 * n :]
+    a, c, b, d = jx[:, 0], jx[:, 1], jy[:, 0], jy[:, 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        det = a * d - b * c
+        det = np.where(np.abs(det) > 1e-12, det, np.nan)
+        j11, j12, j21, j22 = d / det, -b / det, -c / det, a / det
+    su, sv = sigma[:, 0], sigma[:, 1]
+    return np.column_stack(
+        [np.hypot(j11 * su, j12 * sv), np.hypot(j21 * su, j22 * sv)]
+    )
+
+
 def position_only_bias(calibration: Any, object_xy: np.ndarray, d_object: np.ndarray) -> np.ndarray:
     """Bias (object px) of the position-only correction for a true object displacement.
 
@@ -357,6 +402,8 @@ def method_two(
         )
     d = np.column_stack([f.u.ravel(), f.v.ravel()])
     dob = map_displacements(m, img, d, mode).reshape(gx.shape + (2,))
+    sig = np.column_stack([f.sigma_u.ravel(), f.sigma_v.ravel()])
+    sob = map_sigmas(m, obj, sig, mode).reshape(gx.shape + (2,))
     lost = ~np.all(np.isfinite(dob), axis=-1) & ~f.masked
     masked = f.masked | lost
     valid = f.valid & ~masked
@@ -377,6 +424,8 @@ def method_two(
         masked=masked,
         peak_ratio=f.peak_ratio,
         coef=f.coef,
+        sigma_u=np.where(masked, np.nan, sob[..., 0]),
+        sigma_v=np.where(masked, np.nan, sob[..., 1]),
         window=tuple(window),
         grid=grid,
     )

@@ -39,6 +39,12 @@ class PivField:
         Highest correlation peak over the second-highest (capped at 1000).
     coef : ndarray of float64
         Correlation coefficient: height of the normalised correlation peak.
+    sigma_u, sigma_v : ndarray of float64
+        Standard uncertainty (one sigma) of ``u`` and ``v``, px (object px for a corrected
+        field), of every valid vector, from the statistics of its last correlation (Wieneke
+        2015: the scatter of the per-pixel contributions to the peak's asymmetry carried
+        through the 3-point Gaussian estimator; DESIGN.md "Per-vector uncertainty"); NaN where
+        the vector is not valid (replaced, masked).
     window : tuple of int
         Final window ``(w, h)`` in px (w along x).
     grid : tuple of float or None
@@ -55,13 +61,15 @@ class PivField:
     peak_ratio: np.ndarray
     coef: np.ndarray
     peak_choice: np.ndarray
+    sigma_u: np.ndarray
+    sigma_v: np.ndarray
     window: tuple[int, int]
     grid: tuple[float, float, float, float] | None
 
     @classmethod
     def _from_native(cls, d: dict, window: tuple[int, int], shape=None) -> PivField:
         keys = ("x", "y", "u", "v", "valid", "replaced", "masked", "peak_ratio", "coef")
-        keys += ("peak_choice",)
+        keys += ("peak_choice", "sigma_u", "sigma_v")
         arrays = {k: d[k] if shape is None else d[k].reshape(shape) for k in keys}
         grid = None if d["grid"] is None else tuple(float(g) for g in d["grid"])
         return cls(**arrays, window=tuple(window), grid=grid)
@@ -88,7 +96,7 @@ class PivField:
         """The field as an :class:`xarray.Dataset` compatible with pivpy.
 
         Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
-        ``peak_ratio``, ``coef``, ``valid``, ``replaced``, ``masked``, ``peak_choice``; dims
+        ``peak_ratio``, ``coef``, ``sigma_u``, ``sigma_v`` (px), ``valid``, ``replaced``, ``masked``, ``peak_choice``; dims
         ``(y, x)``. For a
         grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
         arbitrary points (:func:`piv_at`) the dims are indexed 0..n-1 and the positions are the
@@ -104,6 +112,16 @@ class PivField:
             "chc": (dims, chc, {"long_name": "1 valid, 0 replaced, -1 not computed"}),
             "peak_ratio": (dims, self.peak_ratio),
             "coef": (dims, self.coef),
+            "sigma_u": (
+                dims,
+                self.sigma_u,
+                {"units": "pix", "long_name": "standard uncertainty of u (correlation statistics)"},
+            ),
+            "sigma_v": (
+                dims,
+                self.sigma_v,
+                {"units": "pix", "long_name": "standard uncertainty of v (correlation statistics)"},
+            ),
             "valid": (dims, self.valid),
             "replaced": (dims, self.replaced),
             "masked": (dims, self.masked),

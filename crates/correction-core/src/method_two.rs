@@ -67,6 +67,52 @@ pub fn map_displacements(
     (du, dv)
 }
 
+/// The standard uncertainties `(sigma_u, sigma_v)` of image displacements carried to the
+/// object frame as [`map_displacements`] carries the displacements: to first order the mapped
+/// displacement is `J d` with `J` the Jacobian of the inverse mapping at the image point, the
+/// inverse of the forward mapping's Jacobian at the object point `(gx, gy)` (central
+/// differences over 1 object px); with independent errors of u and v, `sigma_U^2 = J11^2
+/// sigma_u^2 + J12^2 sigma_v^2` and `sigma_V^2 = J21^2 sigma_u^2 + J22^2 sigma_v^2`. Unchanged
+/// for [`DisplacementMapping::Positions`]; NaN where a sigma is NaN or `J` is singular.
+pub fn map_sigmas(
+    mapping: &Mapping,
+    gx: ArrayView2<'_, f64>,
+    gy: ArrayView2<'_, f64>,
+    su: ArrayView2<'_, f64>,
+    sv: ArrayView2<'_, f64>,
+    mode: DisplacementMapping,
+) -> (Array2<f64>, Array2<f64>) {
+    if mode == DisplacementMapping::Positions {
+        return (su.to_owned(), sv.to_owned());
+    }
+    let mut ou = Array2::from_elem(su.dim(), f64::NAN);
+    let mut ov = Array2::from_elem(su.dim(), f64::NAN);
+    Zip::from(&mut ou)
+        .and(&mut ov)
+        .and(gx)
+        .and(gy)
+        .and(su)
+        .and(sv)
+        .par_for_each(|ou, ov, &x, &y, &su, &sv| {
+            if !(su.is_finite() && sv.is_finite()) {
+                return;
+            }
+            let (xp, xm) = (mapping.forward(x + 0.5, y), mapping.forward(x - 0.5, y));
+            let (yp, ym) = (mapping.forward(x, y + 0.5), mapping.forward(x, y - 0.5));
+            // forward Jacobian [[a, b], [c, d]] (image per object px)
+            let (a, c) = (xp.0 - xm.0, xp.1 - xm.1);
+            let (b, d) = (yp.0 - ym.0, yp.1 - ym.1);
+            let det = a * d - b * c;
+            if !(det.is_finite() && det.abs() > 1e-12) {
+                return;
+            }
+            let (j11, j12, j21, j22) = (d / det, -b / det, -c / det, a / det);
+            *ou = ((j11 * su).powi(2) + (j12 * sv).powi(2)).sqrt();
+            *ov = ((j21 * su).powi(2) + (j22 * sv).powi(2)).sqrt();
+        });
+    (ou, ov)
+}
+
 /// Method II: the passes of `settings` but the last as the raw-frame predictor, the last pass
 /// (its window and iterations) at the images `F(X)` of the points `X` of [`object_grid`], on
 /// one prepared frame pair ([`piv_core::piv_with_final_points`]); the measured displacements
@@ -75,7 +121,8 @@ pub fn map_displacements(
 /// The result lives on the object grid (`grid`, `x`, `y` in object px, displacements in object
 /// px). A vector whose displacement cannot be mapped back (the inverse fails) is masked;
 /// `valid`, `replaced` and `peak_choice` are cleared where masked; peak ratio and correlation coefficient
-/// are those of the final correlation at the image point.
+/// are those of the final correlation at the image point; the uncertainties are mapped by
+/// [`map_sigmas`].
 pub fn method_two<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -123,6 +170,14 @@ pub fn method_two<T: Pixel>(
     let replaced = Zip::from(&f.replaced)
         .and(&masked)
         .map_collect(|&r, &m| r && !m);
+    let (su, sv) = map_sigmas(
+        mapping,
+        gx.view(),
+        gy.view(),
+        f.sigma_u.view(),
+        f.sigma_v.view(),
+        mode,
+    );
     let peak_choice = Zip::from(&f.peak_choice)
         .and(&masked)
         .map_collect(|&c, &m| if m { 0 } else { c });
@@ -134,6 +189,8 @@ pub fn method_two<T: Pixel>(
         v: nan_where(dv),
         peak_ratio: f.peak_ratio,
         coef: f.coef,
+        sigma_u: nan_where(su),
+        sigma_v: nan_where(sv),
         valid,
         replaced,
         peak_choice,

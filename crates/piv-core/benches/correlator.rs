@@ -26,13 +26,21 @@ fn pair(h: usize, w: usize, u: f64, v: f64) -> (Array2<u16>, Array2<u16>) {
 fn correlator(c: &mut Criterion) {
     let (a, b) = pair(256, 256, 1.3, -0.6);
     let mut g = c.benchmark_group("correlate_window_pair");
-    for (w, h) in [(128, 32), (64, 64), (32, 32), (32, 8), (16, 16)] {
+    // "+sigma": with the per-vector uncertainty (Correlator::uncertainty), as on the last
+    // iteration of a PIV
+    let cases = [(128, 32), (64, 64), (32, 32), (32, 8), (16, 16)]
+        .into_iter()
+        .map(|s| (s, false))
+        .chain([((32, 32), true), ((32, 8), true), ((16, 16), true)]);
+    for ((w, h), sigma) in cases {
         g.throughput(Throughput::Elements(1));
+        let name = format!("{w}x{h}{}", if sigma { "+sigma" } else { "" });
         g.bench_with_input(
-            BenchmarkId::from_parameter(format!("{w}x{h}")),
+            BenchmarkId::from_parameter(name),
             &(w, h),
             |bch, &(w, h)| {
                 let mut cor = Correlator::new(w, h);
+                cor.uncertainty = sigma;
                 for r in 0..h {
                     for c in 0..w {
                         cor.wa[r * w + c] = a[[r + 10, c + 10]] as f32;

@@ -1,5 +1,6 @@
 //! `piv`: multipass PIV of an image pair, plain or distortion-corrected (Method I or II through
-//! a calibration); writes a CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice.
+//! a calibration); writes a CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice,sigma_u,sigma_v
+//! (sigma: the per-vector standard uncertainty in px, NaN where not valid).
 //!
 //! Settings: `--settings FILE.json` holds the keys of the one vocabulary (`rspiv.PivSettings`,
 //! `piv_core::PivSettings::from_json`: passes, overlap, iterations, deformation, interpolation,
@@ -148,11 +149,11 @@ fn image_shape(path: &Path) -> Option<(usize, usize)> {
 /// The CSV of a field: one row per vector, row-major over the grid.
 fn field_csv(f: &PivField) -> String {
     let mut out = String::with_capacity(f.u.len() * 96);
-    out.push_str("x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice\n");
+    out.push_str("x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice,sigma_u,sigma_v\n");
     for ((j, i), &u) in f.u.indexed_iter() {
         let _ = writeln!(
             out,
-            "{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{}",
             f.x[[j, i]],
             f.y[[j, i]],
             u,
@@ -162,7 +163,9 @@ fn field_csv(f: &PivField) -> String {
             u8::from(f.masked[[j, i]]),
             f.peak_ratio[[j, i]],
             f.coef[[j, i]],
-            f.peak_choice[[j, i]]
+            f.peak_choice[[j, i]],
+            f.sigma_u[[j, i]],
+            f.sigma_v[[j, i]]
         );
     }
     out

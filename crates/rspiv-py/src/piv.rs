@@ -25,6 +25,8 @@ pub(crate) fn field_dict<'py>(py: Python<'py>, f: PivField) -> PyResult<Bound<'p
     d.set_item("v", f.v.into_pyarray(py))?;
     d.set_item("peak_ratio", f.peak_ratio.into_pyarray(py))?;
     d.set_item("coef", f.coef.into_pyarray(py))?;
+    d.set_item("sigma_u", f.sigma_u.into_pyarray(py))?;
+    d.set_item("sigma_v", f.sigma_v.into_pyarray(py))?;
     d.set_item("valid", f.valid.into_pyarray(py))?;
     d.set_item("replaced", f.replaced.into_pyarray(py))?;
     d.set_item("peak_choice", f.peak_choice.into_pyarray(py))?;

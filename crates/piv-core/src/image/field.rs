@@ -87,6 +87,30 @@ impl GridField {
         }
     }
 
+    /// The mean of the field's bilinear interpolant (constant beyond the outer grid points, as
+    /// [`Self::at`]) over the `w` x `h` px window centred at (x, y) (top-hat, the pixel areas
+    /// `[x - w/2, x + w/2] x [y - h/2, y + h/2]`): the displacement a deformed window centred
+    /// there measures when the frames move by this field. At grid points it equals
+    /// [`Self::window_average`]; between them it is exact where the bilinear interpolation of
+    /// the averaged nodes is not (a curved field's chord error).
+    pub fn window_mean_at(&self, x: f64, y: f64, w: usize, h: usize) -> (f64, f64) {
+        let g = &self.grid;
+        let nx = g.nx;
+        let (us, vs) = (
+            self.u.as_slice().expect("standard layout"),
+            self.v.as_slice().expect("standard layout"),
+        );
+        let (mut su, mut sv) = (0.0, 0.0);
+        box_weights(y, g.y0, g.dy, g.ny, h as f64, |j, wy| {
+            box_weights(x, g.x0, g.dx, nx, w as f64, |i, wx| {
+                let k = j * nx + i;
+                su += wy * wx * us[k];
+                sv += wy * wx * vs[k];
+            });
+        });
+        (su, sv)
+    }
+
     /// Displacement (u, v) at (x, y).
     #[inline]
     pub fn at(&self, x: f64, y: f64) -> (f64, f64) {
@@ -102,6 +126,46 @@ impl GridField {
     }
 }
 
+/// The integral of the unit hat (support `[-1, 1]`) from `-inf` to `x`.
+#[inline]
+fn hat_int(x: f64) -> f64 {
+    if x <= -1.0 {
+        0.0
+    } else if x <= 0.0 {
+        0.5 * (x + 1.0) * (x + 1.0)
+    } else if x <= 1.0 {
+        1.0 - 0.5 * (1.0 - x) * (1.0 - x)
+    } else {
+        1.0
+    }
+}
+
+/// Calls `f(node, weight)` for the nodes (indices clamped to `0..n`: the interpolant is constant
+/// beyond the outer nodes) of an axis `p0 + i step` in the mean of their linear interpolant over
+/// `[p - win/2, p + win/2]`; the weights sum to one. A single node, a window <= 0 or a bad step
+/// give the plain linear interpolation weights.
+#[inline]
+fn box_weights(p: f64, p0: f64, step: f64, n: usize, win: f64, mut f: impl FnMut(usize, f64)) {
+    if n < 2 || step.is_nan() || step <= 0.0 || win.is_nan() || win <= 0.0 {
+        let (i0, i1, t) = GridField::axis(p, p0, step, n);
+        f(i0, 1.0 - t);
+        if t > 0.0 {
+            f(i1, t);
+        }
+        return;
+    }
+    let t = (p - p0) / step;
+    let a = 0.5 * win / step;
+    let lo = (t - a).floor() as isize - 1;
+    let hi = (t + a).ceil() as isize + 1;
+    for i in lo..=hi {
+        let wt = (hat_int(t + a - i as f64) - hat_int(t - a - i as f64)) / (2.0 * a);
+        if wt > 0.0 {
+            f(i.clamp(0, n as isize - 1) as usize, wt);
+        }
+    }
+}
+
 /// Weights `(node offset, weight)` of the grid nodes (spacing `step`, `n` of them) in the mean
 /// of their linear interpolant over `[-win/2, win/2]` around a node; `[(0, 1)]` for a single
 /// node. They sum to one.
@@ -109,18 +173,6 @@ pub(crate) fn tophat_weights(win: f64, step: f64, n: usize) -> Vec<(isize, f64)>
     if n < 2 || step.is_nan() || step <= 0.0 || win.is_nan() || win <= 0.0 {
         return vec![(0, 1.0)];
     }
-    // integral of the unit hat (support [-1, 1]) from -inf to x
-    let hat_int = |x: f64| {
-        if x <= -1.0 {
-            0.0
-        } else if x <= 0.0 {
-            0.5 * (x + 1.0) * (x + 1.0)
-        } else if x <= 1.0 {
-            1.0 - 0.5 * (1.0 - x) * (1.0 - x)
-        } else {
-            1.0
-        }
-    };
     let a = 0.5 * win / step;
     let reach = a.ceil() as isize + 1;
     (-reach..=reach)

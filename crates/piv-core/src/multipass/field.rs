@@ -23,6 +23,13 @@ pub struct PivField {
     pub peak_ratio: Array2<f64>,
     /// Correlation coefficient (normalised peak height) of the last correlation.
     pub coef: Array2<f64>,
+    /// Standard uncertainty (one sigma) of `u` and `v`, px, of every valid vector from the
+    /// statistics of its last correlation (Wieneke 2015, see
+    /// [`crate::correlate::Correlator::uncertainty`]): the uncertainty of the peak the vector
+    /// comes from; NaN where the vector is not valid (replaced, masked) or the estimate has no
+    /// maximum.
+    pub sigma_u: Array2<f64>,
+    pub sigma_v: Array2<f64>,
     /// Passed the final validation.
     pub valid: Array2<bool>,
     /// Rejected and replaced by interpolation from neighbours.
@@ -189,6 +196,23 @@ pub(crate) fn finish(
     }
     let peak_ratio = Array2::from_shape_fn(dim, |(j, i)| peaks[j * dim.1 + i].ratio);
     let coef = Array2::from_shape_fn(dim, |(j, i)| peaks[j * dim.1 + i].coef);
+    let sigma = |axis: usize| {
+        Array2::from_shape_fn(dim, |(j, i)| {
+            let p = &peaks[j * dim.1 + i];
+            let s = match (valid[[j, i]], peak_choice[[j, i]]) {
+                (true, 1) => p.sigma,
+                (true, 2) => p.alt[0].sigma,
+                (true, 3) => p.alt[1].sigma,
+                _ => (f64::NAN, f64::NAN),
+            };
+            if axis == 0 {
+                s.0
+            } else {
+                s.1
+            }
+        })
+    };
+    let (sigma_u, sigma_v) = (sigma(0), sigma(1));
     PivField {
         grid,
         x,
@@ -197,6 +221,8 @@ pub(crate) fn finish(
         v,
         peak_ratio,
         coef,
+        sigma_u,
+        sigma_v,
         valid,
         replaced,
         peak_choice,

@@ -128,6 +128,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
         skip: &[bool],
         base: Option<&GridField>,
         sub: SubPixel,
+        uncertainty: bool,
     ) -> Vec<Peak> {
         // windows on integer positions are plain copies: no interpolation images needed
         let int = |p: f64| p == p.round();
@@ -154,7 +155,20 @@ impl<'a, T: Pixel> Frames<'a, T> {
                     ib: cb,
                     wf: bspline5_weights,
                 };
-                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
+                sweep(
+                    &src,
+                    w,
+                    h,
+                    xs,
+                    ys,
+                    du,
+                    dv,
+                    skip,
+                    base,
+                    sub,
+                    uncertainty,
+                    self.floor,
+                )
             }
             Coeffs::Cubic(ca, cb) => {
                 let src = Source {
@@ -164,7 +178,20 @@ impl<'a, T: Pixel> Frames<'a, T> {
                     ib: cb,
                     wf: bspline_weights,
                 };
-                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
+                sweep(
+                    &src,
+                    w,
+                    h,
+                    xs,
+                    ys,
+                    du,
+                    dv,
+                    skip,
+                    base,
+                    sub,
+                    uncertainty,
+                    self.floor,
+                )
             }
             Coeffs::Keys => {
                 let src = Source {
@@ -174,7 +201,20 @@ impl<'a, T: Pixel> Frames<'a, T> {
                     ib: &self.b,
                     wf: keys_weights,
                 };
-                sweep(&src, w, h, xs, ys, du, dv, skip, base, sub, self.floor)
+                sweep(
+                    &src,
+                    w,
+                    h,
+                    xs,
+                    ys,
+                    du,
+                    dv,
+                    skip,
+                    base,
+                    sub,
+                    uncertainty,
+                    self.floor,
+                )
             }
         }
     }

@@ -5,13 +5,24 @@
 //! pass on (and on every extra iteration of a pass) the windows follow the predictor, the
 //! previous validated field interpolated bilinearly:
 //! - [`Mode::Deform`]: symmetric image deformation; frame A is sampled at `p - d(p)/2` and frame
-//!   B at `p + d(p)/2` with `d` the predictor at every pixel (quintic B-spline by default,
-//!   cubic B-spline or Keys bicubic as options, see [`Interpolation`]). The predictor is first
-//!   averaged over the pass's window ([`GridField::window_average`]): the residual a deformed
-//!   window measures is the window mean of `true - predictor`, so a predictor that varies
-//!   inside the window (noise of the previous pass at the grid spacing) would otherwise stay in
-//!   the result and grow with every iteration (Scarano 2002's instability); with the filter a
-//!   vector is `mean_W(predictor)` + residual and the iterations converge;
+//!   B at `p + d(p)/2` with `d` the deformation field at every pixel (quintic B-spline by
+//!   default, cubic B-spline or Keys bicubic as options, see [`Interpolation`]). The
+//!   deformation field is the latest validated field averaged over the pass's window
+//!   ([`GridField::window_average`]), which keeps the noise of the previous estimate (at the
+//!   grid spacing) out of the deformed particle images. The residual a deformed window pair
+//!   measures is the window mean of `true - d` (particles matched by `d`, the rest seen as the
+//!   residual), so a vector is reported as the window mean of the deformation field at its
+//!   centre ([`GridField::window_mean_at`]) plus the residual: `mean_W(d) + mean_W(true - d)
+//!   = mean_W(true)` + the correlation's own error, whatever `d` is. Adding the residual to
+//!   the point value `d(centre)` instead (the classic predictor-corrector) adds `d(centre) -
+//!   mean_W(d)` to every vector, which sharpens the response to curved fields but feeds the
+//!   previous estimate's noise back with a gain of up to 1.25 per iteration (Scarano 2002,
+//!   Schrijer & Scarano 2008): more iterations then raise the error. Here they converge: the
+//!   deformation only reduces the correlation's error (in-window gradients, loss of pairs),
+//!   and the spatial response is fixed, that of the top-hat window: a displacement `A sin(2 pi
+//!   y / L)` is recovered with the amplitude `A sinc(h / L)` (`sinc(t) = sin(pi t) / (pi t)`;
+//!   `w / L` along x): 0.900 at `L = 4 h`, 0.955 at `6 h`, 0.974 at `8 h`, for any number of
+//!   passes and iterations (tested against the synthetic sine in `tests.rs`);
 //! - [`Mode::Offset`]: symmetric sub-pixel window offset by the predictor at the window centre.
 //!
 //! On the regular grid of [`piv`] the deformation is applied to the whole frame pair once per

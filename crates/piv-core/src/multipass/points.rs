@@ -145,21 +145,55 @@ pub(crate) fn at_points<T: Pixel>(
         ),
         Predictor::Field(f) => (Some(f), vec![0.0; n], vec![0.0; n]),
     };
-    let (bu, bv): (Vec<f64>, Vec<f64>) = match base {
-        Some(f) => xs.iter().zip(&ys).map(|(&x, &y)| f.at(x, y)).unzip(),
-        None => (vec![0.0; n], vec![0.0; n]),
-    };
+    // the field predictor's part of a vector: its mean over the window (the residual of a
+    // window deformed by it is the window mean of `true - predictor`, see `crate::multipass`)
+    let (mut bu, mut bv) = (vec![0.0; n], vec![0.0; n]);
     let mut last = None;
     // the pair deformed once by the field predictor (see `Predictor::Field`)
     let mut deformed: Option<Frames<'static, f32>> = None;
-    for &(w, h) in windows {
-        for _ in 0..iterations {
+    for (p, &(w, h)) in windows.iter().enumerate() {
+        if let Some(f) = base {
+            for k in 0..n {
+                let (mu, mv) = f.window_mean_at(xs[k], ys[k], w, h);
+                if p > 0 {
+                    // a new window: the windows keep their displacement, the offset stays
+                    // relative to the predictor's part
+                    du[k] += bu[k] - mu;
+                    dv[k] += bv[k] - mv;
+                }
+                (bu[k], bv[k]) = (mu, mv);
+            }
+        }
+        for it in 0..iterations {
+            let unc = p + 1 == windows.len() && it + 1 == iterations;
             let no_offset = du.iter().chain(&dv).all(|&d| d == 0.0);
             let peaks = match base {
                 Some(f) if no_offset => deformed
                     .get_or_insert_with(|| frames.deformed(f, None))
-                    .sweep(w, h, &xs, &ys, &du, &dv, &skip, None, settings.subpixel),
-                _ => frames.sweep(w, h, &xs, &ys, &du, &dv, &skip, base, settings.subpixel),
+                    .sweep(
+                        w,
+                        h,
+                        &xs,
+                        &ys,
+                        &du,
+                        &dv,
+                        &skip,
+                        None,
+                        settings.subpixel,
+                        unc,
+                    ),
+                _ => frames.sweep(
+                    w,
+                    h,
+                    &xs,
+                    &ys,
+                    &du,
+                    &dv,
+                    &skip,
+                    base,
+                    settings.subpixel,
+                    unc,
+                ),
             };
             let mut u = Array2::from_shape_fn(shape, |(j, i)| {
                 let k = j * shape.1 + i;

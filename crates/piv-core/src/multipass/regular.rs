@@ -64,17 +64,27 @@ pub(crate) fn grid_passes<T: Pixel>(
             .zip(&ys)
             .map(|(&x, &y)| excluded(mask, dim, x, y))
             .collect();
-        for _ in 0..pass.iterations {
+        let last_pass = std::ptr::eq(pass, s.passes.last().expect("non-empty"));
+        for it in 0..pass.iterations {
+            // the uncertainty of the vectors returned
+            let unc = last_pass && it + 1 == pass.iterations;
             // the deformation predictor: the latest field averaged over this pass's window
             // (see the module notes)
             let cur = match (&pred, s.mode) {
                 (Some(f), Mode::Deform) => Some(f.window_average(pass.w, pass.h)),
                 (p, _) => p.clone(),
             };
-            // predictor at the centres
-            let (pu, pv): (Vec<f64>, Vec<f64>) = match &cur {
-                Some(f) => xs.iter().zip(&ys).map(|(&x, &y)| f.at(x, y)).unzip(),
-                None => (vec![0.0; n], vec![0.0; n]),
+            // predictor at the centres: for deformation the window mean of the deformation
+            // field (the residual a deformed window measures is the window mean of
+            // `true - deformation`, see the module notes)
+            let (pu, pv): (Vec<f64>, Vec<f64>) = match (&cur, s.mode) {
+                (Some(f), Mode::Deform) => xs
+                    .iter()
+                    .zip(&ys)
+                    .map(|(&x, &y)| f.window_mean_at(x, y, pass.w, pass.h))
+                    .unzip(),
+                (Some(f), _) => xs.iter().zip(&ys).map(|(&x, &y)| f.at(x, y)).unzip(),
+                (None, _) => (vec![0.0; n], vec![0.0; n]),
             };
             let zeros = vec![0.0; n];
             let (du, dv, base) = match s.mode {
@@ -86,11 +96,15 @@ pub(crate) fn grid_passes<T: Pixel>(
                 // windows are plain copies (the deformed pair's buffers serve the next one)
                 Some(f) => {
                     let d = frames.deformed(f, spare.take());
-                    let peaks = d.sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel);
+                    let peaks = d.sweep(
+                        pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel, unc,
+                    );
                     spare = d.into_buffers();
                     peaks
                 }
-                None => frames.sweep(pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel),
+                None => frames.sweep(
+                    pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel, unc,
+                ),
             };
             let mut u = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
                 let k = j * grid.nx + i;
@@ -109,7 +123,7 @@ pub(crate) fn grid_passes<T: Pixel>(
             last = Some((u, v, peaks, checked));
         }
         if let Some((u, v, peaks, checked)) = last.take() {
-            if std::ptr::eq(pass, s.passes.last().expect("non-empty")) {
+            if last_pass {
                 let x = Array2::from_shape_vec((grid.ny, grid.nx), xs).expect("shape");
                 let y = Array2::from_shape_vec((grid.ny, grid.nx), ys).expect("shape");
                 return Ok(finish(Some(grid), x, y, u, v, &peaks, &skip, checked));

@@ -62,7 +62,8 @@ pub(crate) fn excluded(
 }
 
 /// One correlation sweep over a list of points: `base` (deformation field) and per-point extra
-/// displacement `du`, `dv`. Returns the peaks (FAILED where `skip`).
+/// displacement `du`, `dv`. Returns the peaks (FAILED where `skip`), with their uncertainty
+/// when `uncertainty` ([`crate::correlate::Correlator::uncertainty`]).
 pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, const N: usize>(
     src: &Source<'_, '_, '_, T, U, W>,
     w: usize,
@@ -74,6 +75,7 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
     skip: &[bool],
     base: Option<&GridField>,
     sub: SubPixel,
+    uncertainty: bool,
     floor: f32,
 ) -> Vec<Peak> {
     let hw = (w as f64 - 1.0) / 2.0;
@@ -84,6 +86,7 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
             || {
                 let mut c = Correlator::new(w, h);
                 c.min_var = floor;
+                c.uncertainty = uncertainty;
                 (c, FillScratch::new(w * h))
             },
             |(c, keep), k| {
