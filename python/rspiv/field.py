@@ -96,9 +96,8 @@ class PivField:
         """The field as an :class:`xarray.Dataset` compatible with pivpy.
 
         Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
-        ``peak_ratio``, ``coef``, ``sigma_u``, ``sigma_v`` (px), ``valid``, ``replaced``, ``masked``, ``peak_choice``; dims
-        ``(y, x)``. For a
-        grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
+        ``peak_ratio``, ``coef``, ``sigma_u``, ``sigma_v`` (px), ``valid``, ``replaced``,
+        ``masked``, ``peak_choice``; dims ``(y, x)``. For a grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
         arbitrary points (:func:`piv_at`) the dims are indexed 0..n-1 and the positions are the
         2D coordinates ``x_px``, ``y_px``.
         """
