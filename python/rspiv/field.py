@@ -97,9 +97,9 @@ class PivField:
 
         Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
         ``peak_ratio``, ``coef``, ``sigma_u``, ``sigma_v`` (px), ``valid``, ``replaced``,
-        ``masked``, ``peak_choice``; dims ``(y, x)``. For a grid field the coordinates ``x``, ``y`` are the window centres in px; for a field at
-        arbitrary points (:func:`piv_at`) the dims are indexed 0..n-1 and the positions are the
-        2D coordinates ``x_px``, ``y_px``.
+        ``masked``, ``peak_choice``; dims ``(y, x)``. For a grid field the coordinates ``x``,
+        ``y`` are the window centres in px; for a field at arbitrary points (:func:`piv_at`) the
+        dims are indexed 0..n-1 and the positions are the 2D coordinates ``x_px``, ``y_px``.
         """
         import xarray as xr
 
