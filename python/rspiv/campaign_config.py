@@ -44,6 +44,7 @@ A complete file (every key optional except where noted; defaults shown)::
     median_eps = 0.1             # px (old key: median_epsilon)
     min_peak_ratio = 0.0         # 0: off
     peak_candidates = 3          # correlation peaks tried before interpolating (1: off)
+    uncertainty = true           # per-vector uncertainty (Wieneke 2015), sigma_u / sigma_v
     mask = ""                    # optional mask: an image (non-zero = excluded) or a JSON of
                                  # polygons in px (rspiv.io.read_mask); "" : none
 
@@ -202,6 +203,7 @@ class PIVConfig:
     median_eps: float = 0.1
     min_peak_ratio: float = 0.0
     peak_candidates: int = 3
+    uncertainty: bool = True
     mask: pathlib.Path | None = None
 
     def settings(self) -> PivSettings:
@@ -533,6 +535,7 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "median_epsilon": lambda c, w, v: _number(c, w, v, minimum=0),
         "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
         "peak_candidates": lambda c, w, v: _number(c, w, v, integer=True, minimum=1, maximum=3),
+        "uncertainty": _boolean,
         "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
         "mask": lambda c, w, v: c.path(w, v, image=True, json_ok=True),
     },

@@ -453,6 +453,7 @@ def piv_vectors(
     validate: bool = True,
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
+    uncertainty: bool = True,
 ) -> PivField:
     """Method II: PIV on the raw frames at ``F(object grid)``, vectors mapped to the object frame
     (keyword form of :func:`method_two`).
@@ -484,7 +485,7 @@ def piv_vectors(
         Correlation iterations of the final pass (1, as each pass of :func:`rspiv.piv`: a
         second iteration doubles the final pass's cost for an RMS gain of ~2 %).
     subpixel, interpolation, median_threshold, median_eps, mask, validate, min_peak_ratio,
-    peak_candidates
+    peak_candidates, uncertainty
         As for :func:`rspiv.piv` / :func:`rspiv.piv_at` (both the predictor and the final
         pass).
     predictor_overlap, predictor_iterations : float or sequence, int or sequence

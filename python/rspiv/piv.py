@@ -49,6 +49,7 @@ def piv(
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
+    uncertainty: bool = True,
     settings: PivSettings | None = None,
     preprocess: Preprocess | None = None,
     backgrounds: tuple[Any, Any] | None = None,
@@ -119,6 +120,9 @@ def piv(
         Correlation peaks tried per vector (1 to 3): a vector that fails the median test takes
         its second or third peak when that passes the test, before it is interpolated
         (``PivField.peak_choice``, :meth:`PivField.peak_counts`).
+    uncertainty : bool
+        Estimate every valid vector's standard uncertainty (``PivField.sigma_u``,
+        ``sigma_v``, px) from its last correlation (Wieneke 2015); True.
     settings : PivSettings, optional
         All of the above PIV settings as one object (overrides the keywords).
     preprocess : rspiv.preprocess.Preprocess, optional
@@ -177,6 +181,7 @@ def piv_at(
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
+    uncertainty: bool = True,
 ) -> PivField:
     """PIV at arbitrary image positions with given predictor displacements (Method II).
 
@@ -205,7 +210,8 @@ def piv_at(
     validate : bool, optional
         Normalised median test among grid neighbours; defaults to True for ``(ny, nx, 2)``
         points and False for a ``(N, 2)`` list.
-    subpixel, interpolation, median_eps, median_threshold, min_peak_ratio, peak_candidates
+    subpixel, interpolation, median_eps, median_threshold, min_peak_ratio, peak_candidates,
+    uncertainty
         As for :func:`piv`.
 
     Returns
@@ -227,6 +233,7 @@ def piv_at(
         median_threshold=median_threshold,
         min_peak_ratio=min_peak_ratio,
         peak_candidates=peak_candidates,
+        uncertainty=uncertainty,
     )
     return run_points(
         frame_a,

@@ -40,7 +40,9 @@ fn correlator(c: &mut Criterion) {
             &(w, h),
             |bch, &(w, h)| {
                 let mut cor = Correlator::new(w, h);
-                cor.uncertainty = sigma;
+                if sigma {
+                    cor.uncertainty = piv_core::Uncertainty::Peak;
+                }
                 for r in 0..h {
                     for c in 0..w {
                         cor.wa[r * w + c] = a[[r + 10, c + 10]] as f32;

@@ -57,7 +57,8 @@ pub struct Peak {
     /// ([`crate::multipass`]). [`AltPeak::NONE`] where the plane has fewer maxima.
     pub alt: [AltPeak; 2],
     /// Standard uncertainty (one sigma) of `dx` and `dy`, px, from the correlation statistics
-    /// ([`Correlator::uncertainty`]); NaN unless asked for and the peak is `ok`.
+    /// ([`Correlator::sigma_at`]); NaN unless asked for ([`Correlator::uncertainty`]) and the
+    /// peak is `ok`.
     pub sigma: (f64, f64),
 }
 
@@ -123,6 +124,18 @@ impl Peak {
         alt: [AltPeak::NONE; 2],
         sigma: (f64::NAN, f64::NAN),
     };
+}
+
+/// Which peaks of a correlation get their uncertainty ([`Correlator::uncertainty`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Uncertainty {
+    /// None (the sigmas stay NaN).
+    #[default]
+    Off,
+    /// The highest peak.
+    Peak,
+    /// The highest peak and the alternatives ([`Peak::alt`]).
+    AllPeaks,
 }
 
 /// FFT plans of one padded shape.
@@ -192,8 +205,11 @@ pub struct Correlator {
     /// Per-pixel variance at or below which a window is blank and not correlated (besides the
     /// relative floor of [`Correlator::correlate`]); 0 by default.
     pub min_var: f32,
-    /// Estimate the uncertainty of every peak ([`Correlator::uncertainty`]); off by default.
-    pub uncertainty: bool,
+    /// Which peaks get their uncertainty (see [`Uncertainty`]); off by default.
+    pub uncertainty: Uncertainty,
+    /// The windows with their means removed (for the uncertainty).
+    ca: Vec<f32>,
+    cb: Vec<f32>,
 }
 
 impl Correlator {
@@ -222,7 +238,9 @@ impl Correlator {
             cw,
             ch,
             min_var: 0.0,
-            uncertainty: false,
+            uncertainty: Uncertainty::Off,
+            ca: vec![0.0; w * h],
+            cb: vec![0.0; w * h],
         }
     }
 
@@ -405,12 +423,20 @@ impl Correlator {
             }
         }
         let (mut peak, lags) = find_peak_with(&self.corr, &mut self.hm, cw, ch, w, h, sub);
-        if self.uncertainty && peak.ok {
+        if self.uncertainty != Uncertainty::Off && peak.ok {
             let scale = 1.0 / (ea * eb).sqrt();
-            peak.sigma = self.uncertainty(lags[0], (ma, mb), scale);
-            for (a, &l) in peak.alt.iter_mut().zip(&lags[1..]) {
-                if a.exists() {
-                    a.sigma = self.uncertainty(l, (ma, mb), scale);
+            for (o, &a) in self.ca.iter_mut().zip(&self.wa) {
+                *o = a - ma;
+            }
+            for (o, &b) in self.cb.iter_mut().zip(&self.wb) {
+                *o = b - mb;
+            }
+            peak.sigma = self.sigma_at(lags[0], scale);
+            if self.uncertainty == Uncertainty::AllPeaks {
+                for (k, &l) in lags[1..].iter().enumerate() {
+                    if peak.alt[k].exists() {
+                        peak.alt[k].sigma = self.sigma_at(l, scale);
+                    }
                 }
             }
         }
@@ -421,7 +447,8 @@ impl Correlator {
     /// position `(c, r)` (lag `(c - cw/2, r - ch/2)`) from the correlation statistics of the
     /// window pair (Wieneke 2015, Meas. Sci. Technol. 26 074002).
     ///
-    /// Each pixel of the overlap of A (mean `ma` removed) with B shifted by the integer lag
+    /// Each pixel of the overlap of A (its mean removed, as B's: `ca`, `cb`) with B shifted by
+    /// the integer lag
     /// `(tx, ty)` contributes `a(x, y) b(x + tx + 1, y + ty)` to the correlation at `tx + 1`
     /// and `a(x + 1, y) b(x + tx, y + ty)` to the one at `tx - 1`; their difference
     /// `dC_i` is zero for every pixel when B is A shifted by exactly the lag, and noise, loss of
@@ -437,57 +464,120 @@ impl Correlator {
     /// the 2D Gaussian estimator it is the 3-point one's. NaN where a value
     /// of the 3 x 3 neighbourhood is not positive on both sides of the fit (a parabolic fit:
     /// its own derivative) and where the overlap is empty.
-    pub fn uncertainty(
-        &self,
-        (c, r): (usize, usize),
-        (ma, mb): (f32, f32),
-        scale: f64,
-    ) -> (f64, f64) {
-        let (w, h) = (self.w as isize, self.h as isize);
+    #[inline(always)]
+    fn sigma_at(&self, (c, r): (usize, usize), scale: f64) -> (f64, f64) {
+        let (w, h) = (self.w, self.h);
         let (cw, ch) = (self.cw, self.ch);
         let tx = c as isize - (cw / 2) as isize;
         let ty = r as isize - (ch / 2) as isize;
-        let (wa, wb) = (&self.wa, &self.wb);
-        let a = |x: isize, y: isize| wa[(y * w + x) as usize] - ma;
-        let b = |x: isize, y: isize| wb[(y * w + x) as usize] - mb;
-        // the overlap of A and B shifted by (tx, ty): x in x0..x1, y in y0..y1
-        let (x0, x1) = ((-tx).max(0), (w - tx).min(w));
-        let (y0, y1) = ((-ty).max(0), (h - ty).min(h));
-        let var = |along_x: bool| -> f64 {
-            let (xe, ye) = if along_x { (x1 - 1, y1) } else { (x1, y1 - 1) };
-            let (dx, dy) = if along_x { (1, 0) } else { (0, 1) };
-            let (mut s, mut s2, mut n) = (0.0f64, 0.0f64, 0usize);
-            for y in y0..ye {
-                let (mut rs, mut rs2) = (0.0f32, 0.0f32);
-                for x in x0..xe {
-                    let d = a(x, y) * b(x + tx + dx, y + ty + dy)
-                        - a(x + dx, y + dy) * b(x + tx, y + ty);
-                    rs += d;
-                    rs2 += d * d;
-                }
-                s += rs as f64;
-                s2 += rs2 as f64;
-                n += (xe - x0).max(0) as usize;
-            }
+        // the overlap of A and B shifted by (tx, ty): x in x0..x1, y in y0..y1 of A
+        let (x0, x1) = (
+            (-tx).max(0) as usize,
+            (w as isize - tx).min(w as isize) as usize,
+        );
+        let (y0, y1) = (
+            (-ty).max(0) as usize,
+            (h as isize - ty).min(h as isize) as usize,
+        );
+        let (a, b) = (&self.ca, &self.cb);
+        let bx = |x: usize| (x as isize + tx) as usize;
+        let by = |y: usize| (y as isize + ty) as usize;
+        let var = |(s, s2, n): (f64, f64, usize)| {
             if n == 0 {
-                return f64::NAN;
+                f64::NAN
+            } else {
+                (s2 - s * s / n as f64).max(0.0)
             }
-            (s2 - s * s / n as f64).max(0.0)
         };
-        let (fw, fh) = (self.w as f64, self.h as f64);
+        // along x: a(x) b(x + tx + 1) - a(x + 1) b(x + tx), x and x + 1 in the overlap
+        let mut acc = (0.0f64, 0.0f64, 0usize);
+        if (tx, ty) == (0, 0) && w > 1 {
+            // lag 0 (a deformed pair): the whole window as one run, less the pairs that
+            // wrap from the end of a row to the start of the next
+            let nn = w * h;
+            let (mut s, mut s2) = asymmetry_sums(&a[..nn - 1], &a[1..], &b[..nn - 1], &b[1..]);
+            for r in 0..h - 1 {
+                let i = r * w + w - 1;
+                let d = a[i] * b[i + 1] - a[i + 1] * b[i];
+                s -= d;
+                s2 -= d * d;
+            }
+            acc = (s as f64, s2 as f64, h * (w - 1));
+        } else if x1 > x0 + 1 {
+            let m = x1 - x0 - 1;
+            for y in y0..y1 {
+                let ra = &a[y * w..(y + 1) * w];
+                let rb = &b[by(y) * w..(by(y) + 1) * w];
+                let (s, s2) = asymmetry_sums(
+                    &ra[x0..x0 + m],
+                    &ra[x0 + 1..x0 + 1 + m],
+                    &rb[bx(x0)..bx(x0) + m],
+                    &rb[bx(x0) + 1..bx(x0) + 1 + m],
+                );
+                acc = (acc.0 + s as f64, acc.1 + s2 as f64, acc.2 + m);
+            }
+        }
+        let vx = var(acc);
+        // along y: a(y) b(y + ty + 1) - a(y + 1) b(y + ty)
+        let mut acc = (0.0f64, 0.0f64, 0usize);
+        if (tx, ty) == (0, 0) && h > 1 {
+            let nn = w * h;
+            let (s, s2) = asymmetry_sums(&a[..nn - w], &a[w..], &b[..nn - w], &b[w..]);
+            acc = (s as f64, s2 as f64, nn - w);
+        } else if x1 > x0 {
+            let m = x1 - x0;
+            for y in y0..y1.saturating_sub(1) {
+                let (s, s2) = asymmetry_sums(
+                    &a[y * w + x0..y * w + x0 + m],
+                    &a[(y + 1) * w + x0..(y + 1) * w + x0 + m],
+                    &b[by(y) * w + bx(x0)..by(y) * w + bx(x0) + m],
+                    &b[(by(y) + 1) * w + bx(x0)..(by(y) + 1) * w + bx(x0) + m],
+                );
+                acc = (acc.0 + s as f64, acc.1 + s2 as f64, acc.2 + m);
+            }
+        }
+        let vy = var(acc);
+        let (fw, fh) = (w as f64, h as f64);
         let overlap = (1.0 - (tx as f64).abs() / fw) * (1.0 - (ty as f64).abs() / fh);
         let at = |c: usize, r: usize| {
             let ox = 1.0 - (c as f64 - (cw / 2) as f64).abs() / fw;
             let oy = 1.0 - (r as f64 - (ch / 2) as f64).abs() / fh;
             self.corr[r * cw + c] as f64 / (ox * oy)
         };
-        let sx = var(true).sqrt() * scale / overlap;
-        let sy = var(false).sqrt() * scale / overlap;
+        let sx = vx.sqrt() * scale / overlap;
+        let sy = vy.sqrt() * scale / overlap;
         (
             sx * gauss3_slope(at(c - 1, r), at(c, r), at(c + 1, r)),
             sy * gauss3_slope(at(c, r - 1), at(c, r), at(c, r + 1)),
         )
     }
+}
+
+/// Sum and sum of squares of `a0 b1 - a1 b0` over four slices of one length (8 lanes).
+#[inline(always)]
+fn asymmetry_sums(a0: &[f32], a1: &[f32], b0: &[f32], b1: &[f32]) -> (f32, f32) {
+    let n = a0.len();
+    let (a1, b0, b1) = (&a1[..n], &b0[..n], &b1[..n]);
+    let mut s = [0.0f32; 8];
+    let mut s2 = [0.0f32; 8];
+    let chunks = a0
+        .chunks_exact(8)
+        .zip(a1.chunks_exact(8))
+        .zip(b0.chunks_exact(8).zip(b1.chunks_exact(8)));
+    for ((p0, p1), (q0, q1)) in chunks {
+        for k in 0..8 {
+            let d = p0[k] * q1[k] - p1[k] * q0[k];
+            s[k] += d;
+            s2[k] += d * d;
+        }
+    }
+    let (mut t, mut t2) = (s.iter().sum::<f32>(), s2.iter().sum::<f32>());
+    for i in n / 8 * 8..n {
+        let d = a0[i] * b1[i] - a1[i] * b0[i];
+        t += d;
+        t2 += d * d;
+    }
+    (t, t2)
 }
 
 /// `|d off / d delta|` of the 3-point estimator [`gauss3`] when `p` moves by `+delta/2` and `m`
@@ -1184,7 +1274,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
         for (w, h, noise) in [(32usize, 32usize, 0.05f32), (32, 32, 0.15), (32, 8, 0.08)] {
             let mut c = Correlator::new(w, h);
-            c.uncertainty = true;
+            c.uncertainty = Uncertainty::AllPeaks;
             let nd = Normal::new(0.0f32, noise).unwrap();
             let (mut ratios, mut inside, mut n) = (Vec::new(), [0usize; 2], 0usize);
             for _ in 0..600 {
@@ -1247,13 +1337,83 @@ mod tests {
         }
     }
 
+    /// `sigma_at` (the lag-0 run over the whole window and the row-wise sums at other lags)
+    /// against the definition summed pixel by pixel.
+    #[test]
+    fn uncertainty_sums_match_the_definition() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut checked = 0;
+        let shapes = [(32usize, 32usize), (32, 8), (10, 6)];
+        for (w, h) in shapes.into_iter().cycle().take(15) {
+            let mut c = Correlator::new(w, h);
+            c.uncertainty = Uncertainty::Peak;
+            for v in c.wa.iter_mut().chain(c.wb.iter_mut()) {
+                *v = rng.random::<f32>() * 100.0;
+            }
+            c.correlate(SubPixel::Gauss3);
+            let (cw, ch) = (c.cw, c.ch);
+            for (tx, ty) in [(0isize, 0isize), (1, -1), (-2, 1)] {
+                let (pc, pr) = ((cw / 2) as isize + tx, (ch / 2) as isize + ty);
+                let got = c.sigma_at((pc as usize, pr as usize), 1.0);
+                // the definition
+                let a = |x: isize, y: isize| c.ca[(y * w as isize + x) as usize] as f64;
+                let b = |x: isize, y: isize| c.cb[(y * w as isize + x) as usize] as f64;
+                let inside = |x: isize, y: isize, dx: isize, dy: isize| {
+                    let ok =
+                        |x: isize, y: isize| x >= 0 && y >= 0 && x < w as isize && y < h as isize;
+                    ok(x, y)
+                        && ok(x + dx, y + dy)
+                        && ok(x + tx, y + ty)
+                        && ok(x + tx + dx, y + ty + dy)
+                };
+                let var = |dx: isize, dy: isize| {
+                    let (mut s, mut s2, mut n) = (0.0, 0.0, 0.0);
+                    for y in 0..h as isize {
+                        for x in 0..w as isize {
+                            if inside(x, y, dx, dy) {
+                                let d = a(x, y) * b(x + tx + dx, y + ty + dy)
+                                    - a(x + dx, y + dy) * b(x + tx, y + ty);
+                                s += d;
+                                s2 += d * d;
+                                n += 1.0;
+                            }
+                        }
+                    }
+                    s2 - s * s / n
+                };
+                let overlap =
+                    (1.0 - tx.abs() as f64 / w as f64) * (1.0 - ty.abs() as f64 / h as f64);
+                let at = |cc: isize, rr: isize| {
+                    let ox = 1.0 - (cc - (cw / 2) as isize).abs() as f64 / w as f64;
+                    let oy = 1.0 - (rr - (ch / 2) as isize).abs() as f64 / h as f64;
+                    c.corr[(rr * cw as isize + cc) as usize] as f64 / (ox * oy)
+                };
+                let want = (
+                    var(1, 0).sqrt() / overlap
+                        * gauss3_slope(at(pc - 1, pr), at(pc, pr), at(pc + 1, pr)),
+                    var(0, 1).sqrt() / overlap
+                        * gauss3_slope(at(pc, pr - 1), at(pc, pr), at(pc, pr + 1)),
+                );
+                for (g, e) in [(got.0, want.0), (got.1, want.1)] {
+                    checked += usize::from(e.is_finite());
+                    assert!(
+                        (g.is_nan() && e.is_nan()) || (g - e).abs() <= 1e-4 * e.abs(),
+                        "{w}x{h} lag ({tx}, {ty}): {got:?} vs {want:?}"
+                    );
+                }
+            }
+        }
+        assert!(checked >= 20, "{checked} finite comparisons");
+    }
+
     #[test]
     fn portable_and_avx2_paths_agree_exactly() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         for (w, h) in [(32usize, 32usize), (32, 8), (10, 6), (128, 32)] {
             let mut c = Correlator::new(w, h);
-            c.uncertainty = true;
+            c.uncertainty = Uncertainty::AllPeaks;
             for v in c.wa.iter_mut().chain(c.wb.iter_mut()) {
                 *v = rng.random::<f32>() * 4095.0;
             }

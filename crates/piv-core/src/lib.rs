@@ -23,7 +23,7 @@ pub mod synth;
 pub mod validate;
 
 pub use condition::{condition, conditioned, conditioned_into, Conditioning};
-pub use correlate::{Correlator, Peak, SubPixel};
+pub use correlate::{Correlator, Peak, SubPixel, Uncertainty};
 pub use error::PivError;
 pub use grid::Grid;
 pub use image::{GridField, Pixel};

@@ -4,7 +4,7 @@
 //!
 //! Settings: `--settings FILE.json` holds the keys of the one vocabulary (`rspiv.PivSettings`,
 //! `piv_core::PivSettings::from_json`: passes, overlap, iterations, deformation, interpolation,
-//! subpixel, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates); the flags given on the
+//! subpixel, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates, uncertainty); the flags given on the
 //! command line override the file. Pixel frame: x right, y down, origin at the centre of the
 //! top-left pixel; px (object px with a calibration). Values are written to full precision
 //! (shortest round-trip decimal), NaN where a vector is masked.

@@ -39,6 +39,7 @@ _SCALAR_KEYS = (
     "median_threshold",
     "min_peak_ratio",
     "peak_candidates",
+    "uncertainty",
 )
 
 
@@ -189,6 +190,10 @@ def register(sub) -> None:
     p.add_argument(
         "--validate", default=None, action=argparse.BooleanOptionalAction,
         help="normalised median test with replacement (default on)",
+    )  # fmt: skip
+    p.add_argument(
+        "--uncertainty", default=None, action=argparse.BooleanOptionalAction,
+        help="per-vector uncertainty sigma_u, sigma_v (default on)",
     )  # fmt: skip
     p.add_argument("--median-eps", dest="median_eps", type=float, default=None, help="px (0.1)")
     p.add_argument("--median-threshold", dest="median_threshold", type=float, default=None)

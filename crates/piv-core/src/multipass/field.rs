@@ -172,6 +172,37 @@ pub(crate) fn validate_replace(
     }
 }
 
+/// The uncertainties of the vectors that took their second or third correlation peak: the
+/// final sweep estimates only the highest peak's ([`crate::correlate::Uncertainty::Peak`]: the
+/// alternatives are rarely used and cost twice as much again), so the windows of those few
+/// vectors are correlated once more with [`crate::correlate::Uncertainty::AllPeaks`] by
+/// `again(points)` (the same windows
+/// give the same peaks) and their alternatives' sigmas copied into `peaks`.
+pub(crate) fn fill_alt_sigmas(
+    peaks: &mut [Peak],
+    checked: &Validation,
+    again: impl FnOnce(&[usize]) -> Vec<Peak>,
+) {
+    let need: Vec<usize> = checked
+        .peak_choice
+        .iter()
+        .zip(checked.valid.iter())
+        .enumerate()
+        .filter(|(_, (&c, &ok))| ok && c >= 2)
+        .map(|(k, _)| k)
+        .collect();
+    if need.is_empty() {
+        return;
+    }
+    for (k, p) in need.iter().zip(again(&need)) {
+        for (mine, theirs) in peaks[*k].alt.iter_mut().zip(p.alt) {
+            if mine.dx == theirs.dx && mine.dy == theirs.dy {
+                mine.sigma = theirs.sigma;
+            }
+        }
+    }
+}
+
 pub(crate) fn finish(
     grid: Option<Grid>,
     x: Array2<f64>,

@@ -3,7 +3,7 @@
 
 use super::settings::*;
 use super::window::*;
-use crate::correlate::{Peak, SubPixel};
+use crate::correlate::{Peak, SubPixel, Uncertainty};
 use crate::error::Result;
 use crate::image::{
     bspline5_coeffs, bspline5_weights, bspline_coeffs, bspline_weights, deform_pair, into_buffers,
@@ -128,7 +128,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
         skip: &[bool],
         base: Option<&GridField>,
         sub: SubPixel,
-        uncertainty: bool,
+        uncertainty: Uncertainty,
     ) -> Vec<Peak> {
         // windows on integer positions are plain copies: no interpolation images needed
         let int = |p: f64| p == p.round();

@@ -6,6 +6,7 @@ use super::frames::*;
 use super::regular::*;
 use super::settings::*;
 use super::window::*;
+use crate::correlate::Uncertainty;
 use crate::error::{PivError, Result};
 use crate::image::{GridField, Pixel};
 use ndarray::{Array2, ArrayView2};
@@ -165,36 +166,25 @@ pub(crate) fn at_points<T: Pixel>(
             }
         }
         for it in 0..iterations {
-            let unc = p + 1 == windows.len() && it + 1 == iterations;
-            let no_offset = du.iter().chain(&dv).all(|&d| d == 0.0);
-            let peaks = match base {
-                Some(f) if no_offset => deformed
-                    .get_or_insert_with(|| frames.deformed(f, None))
-                    .sweep(
-                        w,
-                        h,
-                        &xs,
-                        &ys,
-                        &du,
-                        &dv,
-                        &skip,
-                        None,
-                        settings.subpixel,
-                        unc,
-                    ),
-                _ => frames.sweep(
-                    w,
-                    h,
-                    &xs,
-                    &ys,
-                    &du,
-                    &dv,
-                    &skip,
-                    base,
-                    settings.subpixel,
-                    unc,
-                ),
+            let unc = if settings.uncertainty && p + 1 == windows.len() && it + 1 == iterations {
+                Uncertainty::Peak
+            } else {
+                Uncertainty::Off
             };
+            let no_offset = du.iter().chain(&dv).all(|&d| d == 0.0);
+            if no_offset && base.is_some() && deformed.is_none() {
+                deformed = base.map(|f| frames.deformed(f, None));
+            }
+            let sub = settings.subpixel;
+            let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| match (
+                base, &deformed,
+            ) {
+                (Some(_), Some(d)) if no_offset => {
+                    d.sweep(w, h, xs, ys, du, dv, skip, None, sub, u)
+                }
+                _ => frames.sweep(w, h, xs, ys, du, dv, skip, base, sub, u),
+            };
+            let mut peaks = sweep(&xs, &ys, &du, &dv, &skip, unc);
             let mut u = Array2::from_shape_fn(shape, |(j, i)| {
                 let k = j * shape.1 + i;
                 bu[k] + du[k] + peaks[k].dx
@@ -204,6 +194,20 @@ pub(crate) fn at_points<T: Pixel>(
                 bv[k] + dv[k] + peaks[k].dy
             });
             let checked = validate_replace(&mut u, &mut v, &peaks, &skip, settings);
+            if unc != Uncertainty::Off {
+                fill_alt_sigmas(&mut peaks, &checked, |need| {
+                    let pick = |a: &[f64]| need.iter().map(|&k| a[k]).collect::<Vec<f64>>();
+                    let (x, y, u, v) = (pick(&xs), pick(&ys), pick(&du), pick(&dv));
+                    sweep(
+                        &x,
+                        &y,
+                        &u,
+                        &v,
+                        &vec![false; need.len()],
+                        Uncertainty::AllPeaks,
+                    )
+                });
+            }
             for k in 0..n {
                 let (j, i) = (k / shape.1, k % shape.1);
                 du[k] = u[[j, i]] - bu[k];

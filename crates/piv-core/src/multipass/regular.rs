@@ -4,6 +4,7 @@ use super::field::*;
 use super::frames::*;
 use super::settings::*;
 use super::window::*;
+use crate::correlate::Uncertainty;
 use crate::error::{PivError, Result};
 use crate::grid::Grid;
 use crate::image::{GridField, Pixel};
@@ -67,7 +68,11 @@ pub(crate) fn grid_passes<T: Pixel>(
         let last_pass = std::ptr::eq(pass, s.passes.last().expect("non-empty"));
         for it in 0..pass.iterations {
             // the uncertainty of the vectors returned
-            let unc = last_pass && it + 1 == pass.iterations;
+            let unc = if s.uncertainty && last_pass && it + 1 == pass.iterations {
+                Uncertainty::Peak
+            } else {
+                Uncertainty::Off
+            };
             // the deformation predictor: the latest field averaged over this pass's window
             // (see the module notes)
             let cur = match (&pred, s.mode) {
@@ -91,21 +96,17 @@ pub(crate) fn grid_passes<T: Pixel>(
                 Mode::Deform => (&zeros, &zeros, cur.as_ref()),
                 Mode::Offset => (&pu, &pv, None),
             };
-            let peaks = match base {
-                // grid windows sit on integer positions: deform the whole pair once, then the
-                // windows are plain copies (the deformed pair's buffers serve the next one)
-                Some(f) => {
-                    let d = frames.deformed(f, spare.take());
-                    let peaks = d.sweep(
-                        pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel, unc,
-                    );
-                    spare = d.into_buffers();
-                    peaks
+            // grid windows sit on integer positions: deform the whole pair once, then the
+            // windows are plain copies (the deformed pair's buffers serve the next one)
+            let deformed = base.map(|f| frames.deformed(f, spare.take()));
+            let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| {
+                let sub = s.subpixel;
+                match &deformed {
+                    Some(d) => d.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, u),
+                    None => frames.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, u),
                 }
-                None => frames.sweep(
-                    pass.w, pass.h, &xs, &ys, du, dv, &skip, None, s.subpixel, unc,
-                ),
             };
+            let mut peaks = sweep(&xs, &ys, du, dv, &skip, unc);
             let mut u = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
                 let k = j * grid.nx + i;
                 pu[k] + peaks[k].dx
@@ -115,6 +116,23 @@ pub(crate) fn grid_passes<T: Pixel>(
                 pv[k] + peaks[k].dy
             });
             let checked = validate_replace(&mut u, &mut v, &peaks, &skip, s);
+            if unc != Uncertainty::Off {
+                fill_alt_sigmas(&mut peaks, &checked, |need| {
+                    let pick = |a: &[f64]| need.iter().map(|&k| a[k]).collect::<Vec<f64>>();
+                    let (x, y, u, v) = (pick(&xs), pick(&ys), pick(du), pick(dv));
+                    sweep(
+                        &x,
+                        &y,
+                        &u,
+                        &v,
+                        &vec![false; need.len()],
+                        Uncertainty::AllPeaks,
+                    )
+                });
+            }
+            if let Some(d) = deformed {
+                spare = d.into_buffers();
+            }
             pred = Some(GridField {
                 grid,
                 u: u.clone(),

@@ -17,6 +17,7 @@
 //! | median_threshold | number                     | threshold of the median test                   |
 //! | min_peak_ratio   | number                     | reject below this peak ratio (0: off)          |
 //! | peak_candidates  | 1, 2 or 3                  | correlation peaks tried per vector (see below) |
+//! | uncertainty      | bool                       | per-vector uncertainty (`PivField::sigma_u`)   |
 //!
 //! `peak_candidates`: when a vector fails the median test (or its peak is rejected), its
 //! second and then third correlation peaks ([`crate::correlate::Peak::alt`]) are tried, up to
@@ -102,6 +103,9 @@ pub struct PivSettings {
     pub min_peak_ratio: f64,
     /// Correlation peaks tried per vector, 1 to 3 (module docs); 3.
     pub peak_candidates: usize,
+    /// Estimate every vector's uncertainty on the last iteration of the last pass
+    /// ([`crate::PivField::sigma_u`]); true. Off, the sigmas are NaN.
+    pub uncertainty: bool,
 }
 
 impl Default for PivSettings {
@@ -116,6 +120,7 @@ impl Default for PivSettings {
             median_threshold: 2.0,
             min_peak_ratio: 0.0,
             peak_candidates: 3,
+            uncertainty: true,
         }
     }
 }
@@ -263,6 +268,7 @@ struct SettingsJson {
     median_threshold: f64,
     min_peak_ratio: f64,
     peak_candidates: usize,
+    uncertainty: bool,
 }
 
 impl Default for SettingsJson {
@@ -285,6 +291,7 @@ impl From<&PivSettings> for SettingsJson {
             median_threshold: s.median_threshold,
             min_peak_ratio: s.min_peak_ratio,
             peak_candidates: s.peak_candidates,
+            uncertainty: s.uncertainty,
         }
     }
 }
@@ -320,6 +327,7 @@ impl PivSettings {
             median_threshold: j.median_threshold,
             min_peak_ratio: j.min_peak_ratio,
             peak_candidates: j.peak_candidates,
+            uncertainty: j.uncertainty,
         };
         s.validate()?;
         Ok(s)
@@ -366,7 +374,7 @@ mod vocabulary_tests {
             r#"{"passes": [[64, 64], [32, 8]], "overlap": [0.5, 0.75], "iterations": 2,
                 "deformation": "Offset", "interpolation": "keys", "subpixel": "gauss2d",
                 "validate": false, "median_eps": 0.2, "median_threshold": 3,
-                "min_peak_ratio": 1.2}"#,
+                "min_peak_ratio": 1.2, "uncertainty": false}"#,
         )
         .unwrap();
         assert_eq!(
@@ -382,6 +390,7 @@ mod vocabulary_tests {
         assert_eq!(s.interpolation, Interpolation::Keys);
         assert_eq!(s.subpixel, SubPixel::Gauss2d);
         assert!(!s.validate);
+        assert!(!s.uncertainty);
         assert_eq!(
             (s.median_eps, s.median_threshold, s.min_peak_ratio),
             (0.2, 3.0, 1.2)

@@ -530,7 +530,7 @@ fn field_predictor_on_the_deformed_pair_matches_per_window_sampling() {
         &skip,
         Some(&field),
         s.subpixel,
-        false,
+        crate::correlate::Uncertainty::Off,
     );
     let (mut e_fast, mut e_slow, mut diff, mut m) = (0.0, 0.0, 0.0f64, 0);
     for k in 0..n {

@@ -1,7 +1,7 @@
 //! The work on window pairs: input checks, the blank-block (zero fill) rule of
 //! [`signal_fraction`] and the correlation sweep over a list of points.
 
-use crate::correlate::{Correlator, Peak, SubPixel};
+use crate::correlate::{Correlator, Peak, SubPixel, Uncertainty};
 use crate::error::{PivError, Result};
 use crate::image::{sample_pair, GridField, Pixel, Source, WindowSpec};
 use ndarray::ArrayView2;
@@ -62,8 +62,8 @@ pub(crate) fn excluded(
 }
 
 /// One correlation sweep over a list of points: `base` (deformation field) and per-point extra
-/// displacement `du`, `dv`. Returns the peaks (FAILED where `skip`), with their uncertainty
-/// when `uncertainty` ([`crate::correlate::Correlator::uncertainty`]).
+/// displacement `du`, `dv`. Returns the peaks (FAILED where `skip`), with the uncertainties
+/// that `uncertainty` asks for ([`Uncertainty`]).
 pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, const N: usize>(
     src: &Source<'_, '_, '_, T, U, W>,
     w: usize,
@@ -75,7 +75,7 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
     skip: &[bool],
     base: Option<&GridField>,
     sub: SubPixel,
-    uncertainty: bool,
+    uncertainty: Uncertainty,
     floor: f32,
 ) -> Vec<Peak> {
     let hw = (w as f64 - 1.0) / 2.0;
