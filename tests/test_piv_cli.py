@@ -140,7 +140,15 @@ def test_tecplot_export_round_trips_and_flags_masked_vectors(pair_files, tmp_pat
     assert np.all(data["u"][f.masked] == 0) and np.all(data["chc"][f.masked] == -1)
     np.testing.assert_array_equal(data["chc"][ok] == 1, f.valid[ok])
     header = out.read_text().splitlines()[:8]
-    assert header[1] == 'VARIABLES = "x", "y", "u", "v", "chc", "peak_ratio", "coef"'
+    assert header[1] == (
+        'VARIABLES = "x", "y", "u", "v", "chc", "peak_ratio", "coef", "sigma_u", "sigma_v"'
+    )
+    # each valid vector's uncertainty; 0 where it is not estimated
+    good = f.valid
+    np.testing.assert_array_equal(np.isfinite(f.sigma_u), good)
+    np.testing.assert_allclose(data["sigma_u"][good], f.sigma_u[good], rtol=1e-8)
+    np.testing.assert_allclose(data["sigma_v"][good], f.sigma_v[good], rtol=1e-8)
+    assert np.all(data["sigma_u"][~f.valid] == 0)
     assert any(h.startswith("ZONE") and f"I={f.shape[1]}, J={f.shape[0]}" in h for h in header)
     # the CLI picks the format from the suffix
     cli_out = tmp_path / "cli.tec"

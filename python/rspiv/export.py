@@ -6,19 +6,21 @@ module writes the same field as a Tecplot ASCII point file, the format DaVis and
 .. code-block:: text
 
     TITLE = "rspiv"
-    VARIABLES = "x", "y", "u", "v", "chc", "peak_ratio", "coef"
+    VARIABLES = "x", "y", "u", "v", "chc", "peak_ratio", "coef", "sigma_u", "sigma_v"
     DATASETAUXDATA units = "px"
     DATASETAUXDATA frame = "pixel frame: x right, y down, origin at the top-left pixel centre"
     ZONE T="frame", I=nx, J=ny, F=POINT
-    x y u v chc peak_ratio coef          (I, i.e. x, varies fastest)
+    x y u v chc peak_ratio coef sigma_u sigma_v      (I, i.e. x, varies fastest)
 
 Columns: window centres ``x``, ``y`` and displacements ``u``, ``v`` in px (object px for a
 corrected field; y and v positive downward, as everywhere in rspiv), ``chc`` 1 valid, 0 replaced,
--1 not computed (pivpy's and DaVis' flag), the peak ratio and correlation coefficient. Tecplot has
-no NaN: a vector not computed is written as ``u = v = 0`` with ``chc = -1`` (DaVis writes
-disabled vectors the same way), so readers must use ``chc``. Values are written with 9
-significant digits (below 1e-8 px for any displacement under 10 px). Files are written atomically
-(:func:`rspiv.outputs.atomic_write_text`).
+-1 not computed (pivpy's and DaVis' flag), the peak ratio and correlation coefficient, and the
+per-vector standard uncertainties ``sigma_u``, ``sigma_v`` in px (:class:`rspiv.PivField`).
+Tecplot has no NaN: a vector not computed is written as ``u = v = 0`` with ``chc = -1`` (DaVis
+writes disabled vectors the same way), and an uncertainty that is not estimated (a replaced or
+masked vector, or ``uncertainty=False``) as 0, so readers must use ``chc``. Values are written
+with 9 significant digits (below 1e-8 px for any displacement under 10 px). Files are written
+atomically (:func:`rspiv.outputs.atomic_write_text`).
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ __all__ = ["TECPLOT_SUFFIXES", "read_tecplot", "write_tecplot"]
 #: File suffixes the CLI writes as Tecplot ASCII.
 TECPLOT_SUFFIXES = (".dat", ".tec", ".plt")
 
-_VARIABLES = ("x", "y", "u", "v", "chc", "peak_ratio", "coef")
+_VARIABLES = ("x", "y", "u", "v", "chc", "peak_ratio", "coef", "sigma_u", "sigma_v")
 
 
 def _quote(text: str) -> str:
@@ -75,7 +77,8 @@ def write_tecplot(
     chc = np.where(field.masked, -1, np.where(field.valid, 1, 0))
     u = np.where(field.masked, 0.0, field.u)
     v = np.where(field.masked, 0.0, field.v)
-    cols = [field.x, field.y, u, v, chc, field.peak_ratio, field.coef]
+    su, sv = (np.where(np.isfinite(a), a, 0.0) for a in (field.sigma_u, field.sigma_v))
+    cols = [field.x, field.y, u, v, chc, field.peak_ratio, field.coef, su, sv]
     table = np.column_stack([np.asarray(c, dtype=np.float64).ravel() for c in cols])
     if not np.all(np.isfinite(table)):
         raise InvalidInputError("field holds NaN or inf outside its masked vectors")
@@ -92,7 +95,7 @@ def write_tecplot(
     for k, val in meta.items():
         out.write(f'DATASETAUXDATA {k} = "{_quote(val)}"\n')
     out.write(f'ZONE T="{_quote(zone)}", I={nx}, J={ny}, F=POINT\n')
-    np.savetxt(out, table, fmt=["%.9g"] * 4 + ["%d"] + ["%.9g"] * 2, delimiter=" ")
+    np.savetxt(out, table, fmt=["%.9g"] * 4 + ["%d"] + ["%.9g"] * 4, delimiter=" ")
     return atomic_write_text(path, out.getvalue())
 
 
