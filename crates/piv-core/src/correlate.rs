@@ -207,9 +207,10 @@ pub struct Correlator {
     pub min_var: f32,
     /// Which peaks get their uncertainty (see [`Uncertainty`]); off by default.
     pub uncertainty: Uncertainty,
-    /// The windows with their means removed (for the uncertainty).
-    ca: Vec<f32>,
-    cb: Vec<f32>,
+    /// The windows with their means removed (for the uncertainty); scratch of `w * h` values
+    /// otherwise (the ensemble keeps frame B's window in `cb`).
+    pub(crate) ca: Vec<f32>,
+    pub(crate) cb: Vec<f32>,
 }
 
 impl Correlator {
@@ -285,8 +286,68 @@ impl Correlator {
         self.correlate_impl(sub)
     }
 
+    /// The plane shape `(cw, ch)` (lags `-sx-1 ..= sx+1` by `-sy-1 ..= sy+1`) of a correlator for
+    /// `w` x `h` windows, as [`Self::plane`] returns it.
+    pub fn plane_shape(w: usize, h: usize) -> (usize, usize) {
+        let sx = (w / 2).saturating_sub(1).max(1);
+        let sy = (h / 2).saturating_sub(1).max(1);
+        (2 * sx + 3, 2 * sy + 3)
+    }
+
+    /// The normalised correlation plane of `wa` with `wb` only (no peak search), in
+    /// [`Self::plane`]; `false` (plane untouched) where a window is blank or not finite, as
+    /// [`Self::correlate`] fails. Used by the ensemble correlation.
+    pub fn correlate_plane(&mut self) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: the CPU supports AVX2 (checked just above).
+                return unsafe { self.plane_avx2() }.is_some();
+            }
+        }
+        self.plane_impl().is_some()
+    }
+
+    /// [`Self::plane_impl`] compiled for AVX2.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn plane_avx2(&mut self) -> Option<(f32, f32, f64, f64)> {
+        self.plane_impl()
+    }
+
     #[inline(always)]
     fn correlate_impl(&mut self, sub: SubPixel) -> Peak {
+        let Some((ma, mb, ea, eb)) = self.plane_impl() else {
+            return Peak::FAILED;
+        };
+        let (w, h, cw, ch) = (self.w, self.h, self.cw, self.ch);
+        let (mut peak, lags) = find_peak_with(&self.corr, &mut self.hm, cw, ch, w, h, sub);
+        if self.uncertainty != Uncertainty::Off && peak.ok {
+            let scale = 1.0 / (ea * eb).sqrt();
+            for (o, &a) in self.ca.iter_mut().zip(&self.wa) {
+                *o = a - ma;
+            }
+            for (o, &b) in self.cb.iter_mut().zip(&self.wb) {
+                *o = b - mb;
+            }
+            peak.sigma = self.sigma_at(lags[0], scale);
+            if self.uncertainty == Uncertainty::AllPeaks {
+                for (k, &l) in lags[1..].iter().enumerate() {
+                    if peak.alt[k].exists() {
+                        peak.alt[k].sigma = self.sigma_at(l, scale);
+                    }
+                }
+            }
+        }
+        peak
+    }
+
+    /// The normalised plane into `corr`; the windows' means and energies, `None` when blank.
+    #[inline(always)]
+    fn plane_impl(&mut self) -> Option<(f32, f32, f64, f64)> {
         let (w, h) = (self.w, self.h);
         let n = (w * h) as f32;
         let ma = sum8(&self.wa) / n;
@@ -299,7 +360,7 @@ impl Correlator {
             !(e.is_finite() && m.is_finite()) || e / n as f64 <= 1e-8 * m * m + 1e-12 + floor
         };
         if blank(ea, ma) || blank(eb, mb) {
-            return Peak::FAILED;
+            return None;
         }
         let pl = &*self.plans;
         let (pw, ph) = (pl.pw, pl.ph);
@@ -422,25 +483,7 @@ impl Correlator {
                 }
             }
         }
-        let (mut peak, lags) = find_peak_with(&self.corr, &mut self.hm, cw, ch, w, h, sub);
-        if self.uncertainty != Uncertainty::Off && peak.ok {
-            let scale = 1.0 / (ea * eb).sqrt();
-            for (o, &a) in self.ca.iter_mut().zip(&self.wa) {
-                *o = a - ma;
-            }
-            for (o, &b) in self.cb.iter_mut().zip(&self.wb) {
-                *o = b - mb;
-            }
-            peak.sigma = self.sigma_at(lags[0], scale);
-            if self.uncertainty == Uncertainty::AllPeaks {
-                for (k, &l) in lags[1..].iter().enumerate() {
-                    if peak.alt[k].exists() {
-                        peak.alt[k].sigma = self.sigma_at(l, scale);
-                    }
-                }
-            }
-        }
-        peak
+        Some((ma, mb, ea, eb))
     }
 
     /// The standard uncertainty `(sigma_dx, sigma_dy)` (px) of the sub-pixel peak at the plane

@@ -11,10 +11,13 @@
 //! - [`multipass::piv_at`]: the same at arbitrary image positions with given predictors
 //!   (Method II);
 //! - [`correlate::Correlator`]: one window pair's normalised FFT cross-correlation;
+//! - [`ensemble`]: correlation planes summed over many pairs (mean displacement and Reynolds
+//!   stresses from the summed peak);
 //! - [`synth::render_particles`]: synthetic particle images.
 
 pub mod condition;
 pub mod correlate;
+pub mod ensemble;
 pub mod error;
 pub mod grid;
 pub mod image;

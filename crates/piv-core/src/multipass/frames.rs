@@ -12,6 +12,45 @@ use crate::image::{
 use ndarray::ArrayView2;
 use rayon::prelude::*;
 
+/// Runs `$body` with `$src` bound to the [`Source`] of `$frames` for the interpolation images
+/// `$coeffs` (one arm per kernel: the sweeps are generic over it).
+macro_rules! with_source {
+    ($frames:expr, $coeffs:expr, |$src:ident| $body:expr) => {
+        match $coeffs {
+            Coeffs::Quintic(ca, cb) => {
+                let $src = Source {
+                    a: &$frames.a,
+                    b: &$frames.b,
+                    ia: ca,
+                    ib: cb,
+                    wf: bspline5_weights,
+                };
+                $body
+            }
+            Coeffs::Cubic(ca, cb) => {
+                let $src = Source {
+                    a: &$frames.a,
+                    b: &$frames.b,
+                    ia: ca,
+                    ib: cb,
+                    wf: bspline_weights,
+                };
+                $body
+            }
+            Coeffs::Keys => {
+                let $src = Source {
+                    a: &$frames.a,
+                    b: &$frames.b,
+                    ia: &$frames.a,
+                    ib: &$frames.b,
+                    wf: keys_weights,
+                };
+                $body
+            }
+        }
+    };
+}
+
 /// The interpolation images of a frame pair.
 pub(crate) enum Coeffs {
     /// Quintic B-spline coefficients.
@@ -146,76 +185,57 @@ impl<'a, T: Pixel> Frames<'a, T> {
         } else {
             self.coeffs()
         };
-        match coeffs {
-            Coeffs::Quintic(ca, cb) => {
-                let src = Source {
-                    a: &self.a,
-                    b: &self.b,
-                    ia: ca,
-                    ib: cb,
-                    wf: bspline5_weights,
-                };
-                sweep(
-                    &src,
-                    w,
-                    h,
-                    xs,
-                    ys,
-                    du,
-                    dv,
-                    skip,
-                    base,
-                    sub,
-                    uncertainty,
-                    self.floor,
-                )
-            }
-            Coeffs::Cubic(ca, cb) => {
-                let src = Source {
-                    a: &self.a,
-                    b: &self.b,
-                    ia: ca,
-                    ib: cb,
-                    wf: bspline_weights,
-                };
-                sweep(
-                    &src,
-                    w,
-                    h,
-                    xs,
-                    ys,
-                    du,
-                    dv,
-                    skip,
-                    base,
-                    sub,
-                    uncertainty,
-                    self.floor,
-                )
-            }
-            Coeffs::Keys => {
-                let src = Source {
-                    a: &self.a,
-                    b: &self.b,
-                    ia: &self.a,
-                    ib: &self.b,
-                    wf: keys_weights,
-                };
-                sweep(
-                    &src,
-                    w,
-                    h,
-                    xs,
-                    ys,
-                    du,
-                    dv,
-                    skip,
-                    base,
-                    sub,
-                    uncertainty,
-                    self.floor,
-                )
-            }
-        }
+        with_source!(self, coeffs, |src| sweep(
+            &src,
+            w,
+            h,
+            xs,
+            ys,
+            du,
+            dv,
+            skip,
+            base,
+            sub,
+            uncertainty,
+            self.floor
+        ))
+    }
+
+    /// [`sweep_into`] over the frames: window pairs offset symmetrically by `(du, dv)` per point
+    /// (interpolated unless the offsets keep them on integer positions); returns how many
+    /// windows were used.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn sweep_into<F>(
+        &self,
+        w: usize,
+        h: usize,
+        points: (&[f64], &[f64]),
+        offsets: (&[f64], &[f64]),
+        skip: &[bool],
+        out: &mut [f64],
+        stride: usize,
+        f: F,
+    ) -> usize
+    where
+        F: Fn(&mut crate::correlate::Correlator, &mut [f64]) + Sync,
+    {
+        let int = |p: f64| p == p.round();
+        let (hw, hh) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+        let ((xs, ys), (du, dv)) = (points, offsets);
+        let integer = (0..xs.len()).all(|k| {
+            skip[k]
+                || (int(xs[k] - hw - du[k] / 2.0)
+                    && int(ys[k] - hh - dv[k] / 2.0)
+                    && int(xs[k] - hw + du[k] / 2.0)
+                    && int(ys[k] - hh + dv[k] / 2.0))
+        });
+        let coeffs = if integer {
+            &Coeffs::Keys
+        } else {
+            self.coeffs()
+        };
+        with_source!(self, coeffs, |src| sweep_into(
+            &src, w, h, points, offsets, skip, self.floor, out, stride, &f
+        ))
     }
 }

@@ -61,8 +61,10 @@ mod tests;
 mod window;
 
 pub use field::PivField;
+pub(crate) use frames::Frames;
 pub use frames::BLANK_VARIANCE;
 pub use points::{piv_at, piv_with_final_points, Predictor};
 pub use regular::piv;
 pub use settings::{Interpolation, Mode, Pass, PivSettings};
+pub(crate) use window::excluded as excluded_point;
 pub use window::MIN_SIGNAL_FRACTION;

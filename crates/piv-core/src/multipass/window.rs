@@ -112,6 +112,64 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
         .collect()
 }
 
+/// A sweep over a list of points as [`sweep`] whose work per window is `f(correlator, out_k)`
+/// with the window pair sampled into `correlator.wa`, `correlator.wb` (already checked by
+/// [`signal_fraction`]) and `out_k = out[k * stride..(k + 1) * stride]`, the point's own part
+/// of `out` (no locks, no allocation per window); windows that are skipped, reach outside the
+/// image or are blank are left out (`out_k` untouched). Returns how many were used.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sweep_into<T, U, W, F, const N: usize>(
+    src: &Source<'_, '_, '_, T, U, W>,
+    w: usize,
+    h: usize,
+    (xs, ys): (&[f64], &[f64]),
+    (du, dv): (&[f64], &[f64]),
+    skip: &[bool],
+    floor: f32,
+    out: &mut [f64],
+    stride: usize,
+    f: F,
+) -> usize
+where
+    T: Pixel,
+    U: Pixel,
+    W: Fn(f32) -> [f32; N] + Copy + Sync,
+    F: Fn(&mut Correlator, &mut [f64]) + Sync,
+{
+    let hw = (w as f64 - 1.0) / 2.0;
+    let hh = (h as f64 - 1.0) / 2.0;
+    out[..xs.len() * stride]
+        .par_chunks_mut(stride)
+        .enumerate()
+        .map_init(
+            || {
+                let mut c = Correlator::new(w, h);
+                c.min_var = floor;
+                (c, FillScratch::new(w * h))
+            },
+            |(c, keep), (k, o)| {
+                if skip[k] {
+                    return 0usize;
+                }
+                let spec = WindowSpec {
+                    left: xs[k] - hw,
+                    top: ys[k] - hh,
+                    du: du[k],
+                    dv: dv[k],
+                    field: None,
+                };
+                let (wa, wb) = (&mut c.wa, &mut c.wb);
+                sample_pair(src, w, h, &spec, wa, wb);
+                if signal_fraction(wa, wb, keep, w, h, floor) < MIN_SIGNAL_FRACTION {
+                    return 0;
+                }
+                f(c, o);
+                1
+            },
+        )
+        .sum()
+}
+
 /// Blocks of a window: `(number, size)` along an axis of `n` px: blocks of an eighth of the
 /// window, 2 to 4 px (more for windows above 64 px: at most 16 blocks), the last one taking
 /// the remainder.
