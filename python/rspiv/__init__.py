@@ -13,6 +13,7 @@ from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
+from rspiv.ensemble import EnsembleAccumulator, EnsembleField
 from rspiv.errors import ConvergenceError, InvalidInputError, RspivError
 from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
@@ -34,3 +35,4 @@ __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
+__all__ += ["EnsembleAccumulator", "EnsembleField"]

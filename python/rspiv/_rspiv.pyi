@@ -250,3 +250,21 @@ def conditioned(
 ) -> npt.NDArray[np.float32]:
     """A new conditioned float32 copy of a uint8/uint16/float32/float64 frame
     (piv_core::conditioned: the conversion fused with the first steps)."""
+
+def ensemble_stride(w: int, h: int) -> int: ...
+def ensemble_add(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    du: npt.NDArray[np.float64],
+    dv: npt.NDArray[np.float64],
+    window: tuple[int, int],
+    acc: npt.NDArray[np.float64],
+    auto: bool = True,
+    mask: npt.NDArray[np.bool_] | None = None,
+    interpolation: str = "bspline",
+) -> int: ...
+def ensemble_peaks(
+    acc: npt.NDArray[np.float64], window: tuple[int, int]
+) -> dict[str, npt.NDArray[np.float64]]: ...

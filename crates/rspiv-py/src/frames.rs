@@ -109,6 +109,14 @@ pub(crate) trait Runner: Sync {
         object_shape: Option<(usize, usize)>,
         mask: Option<ArrayView2<'_, bool>>,
     ) -> Result<PivField, CorrectionError>;
+    fn ensemble_add(
+        &self,
+        mask: Option<ArrayView2<'_, bool>>,
+        win: &piv_core::ensemble::Windows<'_>,
+        interp: piv_core::Interpolation,
+        auto: bool,
+        acc: &mut [f64],
+    ) -> Result<usize, PivError>;
 }
 
 impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
@@ -159,5 +167,15 @@ impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
         mask: Option<ArrayView2<'_, bool>>,
     ) -> Result<PivField, CorrectionError> {
         correction_core::method_two(self.0, self.1, mapping, s, mode, object_shape, mask)
+    }
+    fn ensemble_add(
+        &self,
+        mask: Option<ArrayView2<'_, bool>>,
+        win: &piv_core::ensemble::Windows<'_>,
+        interp: piv_core::Interpolation,
+        auto: bool,
+        acc: &mut [f64],
+    ) -> Result<usize, PivError> {
+        piv_core::ensemble::accumulate(self.0, self.1, mask, win, interp, auto, acc)
     }
 }

@@ -7,6 +7,7 @@ use pyo3::prelude::*;
 mod calibration;
 mod condition;
 mod correction;
+mod ensemble;
 mod errors;
 mod frames;
 mod mapping;
@@ -22,5 +23,6 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     remap::register(m)?;
     correction::register(m)?;
     condition::register(m)?;
+    ensemble::register(m)?;
     Ok(())
 }

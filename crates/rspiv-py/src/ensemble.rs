@@ -1,0 +1,107 @@
+//! Ensemble correlation (`piv_core::ensemble`): the accumulator lives in a NumPy array owned by
+//! Python (`rspiv.ensemble.EnsembleAccumulator`), added to in place with the GIL released.
+
+use crate::errors::{invalid, PyRspivErr};
+use crate::frames::{frames, with_frames};
+use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use piv_core::ensemble::{peaks, Layout, Windows};
+use piv_core::Interpolation;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::sync::Mutex;
+
+/// Values per window of the accumulator for `w` x `h` windows.
+#[pyfunction]
+fn ensemble_stride(w: usize, h: usize) -> usize {
+    Layout::new(w, h).stride()
+}
+
+/// Add one frame pair to `acc` (n x stride, float64, C-contiguous) in place; returns the number
+/// of windows added.
+#[pyfunction]
+#[pyo3(signature = (frame_a, frame_b, x, y, du, dv, window, acc, auto=true, mask=None,
+    interpolation="bspline"))]
+#[allow(clippy::too_many_arguments)]
+fn ensemble_add<'py>(
+    py: Python<'py>,
+    frame_a: &Bound<'py, PyAny>,
+    frame_b: &Bound<'py, PyAny>,
+    x: PyReadonlyArray1<'py, f64>,
+    y: PyReadonlyArray1<'py, f64>,
+    du: PyReadonlyArray1<'py, f64>,
+    dv: PyReadonlyArray1<'py, f64>,
+    window: (usize, usize),
+    acc: &Bound<'py, PyArray2<f64>>,
+    auto: bool,
+    mask: Option<PyReadonlyArray2<'py, bool>>,
+    interpolation: &str,
+) -> PyResult<usize> {
+    let interp: Interpolation = interpolation.parse().map_err(PyRspivErr::from)?;
+    let fr = frames(frame_a, frame_b)?;
+    let mut rw = acc
+        .try_readwrite()
+        .map_err(|_| invalid("acc is borrowed elsewhere"))?;
+    let slice = rw
+        .as_slice_mut()
+        .map_err(|_| invalid("acc must be a C-contiguous float64 array"))?;
+    let cell = Mutex::new(slice);
+    let (x, y, du, dv) = (x.as_slice()?, y.as_slice()?, du.as_slice()?, dv.as_slice()?);
+    let win = Windows {
+        w: window.0,
+        h: window.1,
+        x,
+        y,
+        du,
+        dv,
+    };
+    let mask = mask.as_ref().map(|m| m.as_array());
+    with_frames(py, &fr, |r| {
+        let mut acc = cell.lock().unwrap_or_else(|e| e.into_inner());
+        Ok(r.ensemble_add(mask, &win, interp, auto, &mut acc)?)
+    })
+}
+
+/// The fitted peaks of an accumulator: a dict of 1D arrays (see `piv_core::ensemble::peaks`).
+#[pyfunction]
+fn ensemble_peaks<'py>(
+    py: Python<'py>,
+    acc: PyReadonlyArray2<'py, f64>,
+    window: (usize, usize),
+) -> PyResult<Bound<'py, PyDict>> {
+    let a = acc
+        .as_slice()
+        .map_err(|_| invalid("acc must be C-contiguous"))?;
+    let res = py
+        .detach(|| peaks(a, window.0, window.1))
+        .map_err(PyRspivErr::from)?;
+    let col = |f: &dyn Fn(&piv_core::ensemble::EnsemblePeak) -> f64| {
+        res.iter().map(f).collect::<Vec<f64>>()
+    };
+    let d = PyDict::new(py);
+    d.set_item("dx", col(&|p| p.dx).into_pyarray(py))?;
+    d.set_item("dy", col(&|p| p.dy).into_pyarray(py))?;
+    d.set_item("cxx", col(&|p| p.cross.0).into_pyarray(py))?;
+    d.set_item("cyy", col(&|p| p.cross.1).into_pyarray(py))?;
+    d.set_item("cxy", col(&|p| p.cross.2).into_pyarray(py))?;
+    d.set_item("axx", col(&|p| p.auto.0).into_pyarray(py))?;
+    d.set_item("ayy", col(&|p| p.auto.1).into_pyarray(py))?;
+    d.set_item("axy", col(&|p| p.auto.2).into_pyarray(py))?;
+    d.set_item("coef", col(&|p| p.coef).into_pyarray(py))?;
+    d.set_item("count", col(&|p| p.count.0).into_pyarray(py))?;
+    d.set_item("count_auto", col(&|p| p.count.1).into_pyarray(py))?;
+    d.set_item(
+        "ok",
+        res.iter()
+            .map(|p| p.ok)
+            .collect::<Vec<bool>>()
+            .into_pyarray(py),
+    )?;
+    Ok(d)
+}
+
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(ensemble_stride, m)?)?;
+    m.add_function(wrap_pyfunction!(ensemble_add, m)?)?;
+    m.add_function(wrap_pyfunction!(ensemble_peaks, m)?)?;
+    Ok(())
+}

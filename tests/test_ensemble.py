@@ -1,0 +1,95 @@
+"""Ensemble correlation (issue 13, first part) against exact synthetic answers.
+
+- Near a wall (a mean profile ``u(y)`` curved over a few px), thin ensemble windows give the
+  mean profile where the instantaneous 32 x 8 windows average it away.
+- Accumulators of disjoint halves of the pairs merge to the accumulator of all of them.
+- Bad input is a one-line InvalidInputError.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rspiv
+from rspiv.ensemble import EnsembleAccumulator, ensemble_grid
+from rspiv.synth import particle_pair
+
+SHAPE = (96, 256)  # rows, columns; the "wall" is the bottom row
+DELTA = 6.0  # px: the near-wall profile's length scale
+
+
+def profile(y):
+    """u(y): 3 px far from the wall, 0 at the wall (y = 95.5), curved over a few px."""
+    d = np.clip(SHAPE[0] - 0.5 - y, 0, None)
+    return 3.0 * (1.0 - np.exp(-d / DELTA))
+
+
+def field(x, y):
+    return profile(y) + 0 * x, 0.0 * x
+
+
+def box_mean(y, h):
+    """The profile's mean over rows y - h/2 .. y + h/2 (fine quadrature)."""
+    t = np.linspace(-0.5, 0.5, 401)
+    return np.mean(profile(y[..., None] + h * t), axis=-1)
+
+
+@pytest.fixture(scope="module")
+def pairs():
+    return [particle_pair(SHAPE, field, seed=100 + k) for k in range(60)]
+
+
+def test_thin_windows_resolve_the_near_wall_profile(pairs):
+    window = (64, 4)
+    x, y = ensemble_grid(SHAPE, window, (32, 2))
+    acc = EnsembleAccumulator(x, y, window, offset=(profile(y), 0.0))
+    acc.add_all(pairs, auto_pairs=30)
+    res = acc.result()
+    # windows whose offset reaches past the image's sides are left out, the others all count
+    used = res.count > 0
+    assert used[:, 1:-1].all() and res.ok[used].all() and np.all(res.count[used] == len(pairs))
+    near = y[:, 0] > SHAPE[0] - 1 - 20  # the 20 px next to the wall
+    got = np.nanmean(res.u, axis=1)[near]
+    want = box_mean(y[near, 0], window[1])
+    # within 2 % of the velocity away from the wall (0.06 px) at every row
+    assert np.max(np.abs(got - want)) < 0.02 * 3.0, np.c_[y[near, 0], got, want]
+    # the instantaneous 32 x 8 mean over the same pairs cannot get that close to the wall
+    inst = [rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)]) for a, b in pairs[:20]]
+    yi = inst[0].y[:, 0]
+    ui = np.nanmean([np.nanmean(np.where(f.valid, f.u, np.nan), axis=1) for f in inst], axis=0)
+    last = np.argmax(yi)
+    # the row nearest the wall: its centre is 4 px up and its value the 8 px window's mean
+    assert yi[last] <= y[near, 0].max() - 2
+    assert abs(ui[last] - profile(yi[last])) > np.max(np.abs(got - profile(y[near, 0])))
+
+
+def test_halves_merge_to_the_whole(pairs):
+    window = (32, 8)
+    x, y = ensemble_grid(SHAPE, window, (16, 4))
+    whole = EnsembleAccumulator(x, y, window, offset=(2.0, 0.0))
+    a = EnsembleAccumulator(x, y, window, offset=(2.0, 0.0))
+    b = EnsembleAccumulator(x, y, window, offset=(2.0, 0.0))
+    for k, (fa, fb) in enumerate(pairs[:10]):
+        whole.add(fa, fb)
+        (a if k % 2 else b).add(fa, fb)
+    a.merge(b)
+    np.testing.assert_allclose(a.acc, whole.acc, rtol=1e-12, atol=1e-12)
+    assert a.pairs == whole.pairs == 10
+    ra, rw = a.result(), whole.result()
+    np.testing.assert_allclose(ra.u, rw.u, rtol=1e-9)
+
+
+def test_bad_input_is_one_line(pairs):
+    fa, fb = pairs[0]
+    with pytest.raises(rspiv.InvalidInputError, match="thinner than 2 px"):
+        ensemble_grid(SHAPE, (32, 1), (16, 1))
+    x, y = ensemble_grid(SHAPE, (32, 8), (16, 4))
+    acc = EnsembleAccumulator(x, y, (32, 1))
+    with pytest.raises(rspiv.InvalidInputError, match="too small"):
+        acc.add(fa, fb)
+    acc = EnsembleAccumulator(x, y, (32, 8))
+    with pytest.raises(rspiv.InvalidInputError, match="differ in shape"):
+        acc.add(fa, fb[:, :100])
+    other = EnsembleAccumulator(x + 1, y, (32, 8))
+    with pytest.raises(rspiv.InvalidInputError, match="different windows"):
+        acc.merge(other)
