@@ -244,8 +244,12 @@ def test_context_is_picklable_and_process_pair_pure(processed, synth):
     files = sorted((synth / "raw").glob("*.tif"))
     pr = process_pair(ctx, PairSpec(0, str(files[0]), str(files[1])))
     assert pr.ok and set(pr.fields) == {"method_II", "method_I", "uncorrected"}
-    u, v, valid = pr.fields["method_II"]
+    u, v, valid, su, sv = pr.fields["method_II"]
     assert u.shape == res.accumulators["method_II"].shape and valid.mean() > 0.8
+    # every valid vector carries its uncertainty, and the statistics hold its mean square
+    assert su is not None and np.isfinite(su[valid]).mean() > 0.99
+    acc = res.accumulators["method_II"]
+    assert np.all(acc.noise_count[acc.count > 0] > 0)
     pr2 = process_pair(res.context, PairSpec(0, str(files[0]), str(files[1])))
     np.testing.assert_array_equal(pr2.fields["method_II"][0], u)
 

@@ -17,6 +17,21 @@ Lag-1 statistics
     process, ``r = rho_u^2`` (uu), ``rho_v^2`` (vv), ``rho_u rho_v`` (uv). Independent samples
     give n_eff ~ n.
 
+Measurement noise
+    :meth:`FieldAccumulator.add` may be given each vector's standard uncertainty ``sigma_u``,
+    ``sigma_v`` (:attr:`rspiv.PivField.sigma_u`, same units as u, v). Per vector the accumulator
+    keeps the count of valid samples with a finite sigma and the sums of ``sigma^2`` and
+    ``sigma^4`` (plain sums: merging adds them). :meth:`FieldAccumulator.noise_uu` is the mean
+    ``<sigma_u^2>``, the variance the measurement noise adds to ``uu``; the noise-corrected
+    stresses (:meth:`FieldAccumulator.uu_corrected`, ``vv_corrected``) subtract it:
+    ``uu_c = uu - <sigma_u^2>``. ``uv`` is not corrected: the errors of u and v of one vector
+    come from the asymmetry of one peak along two axes and are taken as uncorrelated (Wieneke
+    2015; Sciacchitano & Wieneke 2016). Where the correction would make the stress negative the
+    corrected value is NaN (the noise estimate exceeds the measured variance: the vector holds
+    no resolved fluctuation). Standard uncertainty of ``<sigma^2>``: ``sqrt(var(sigma^2) / n)``
+    from the sums (:meth:`FieldAccumulator.noise_uncertainty`). States written before this
+    (no ``noise_*`` variables) load with no noise information.
+
 Pair ids
     :meth:`FieldAccumulator.add` may be given the id of the image pair the field came from; the
     ids are kept in a set. Adding the same id twice, or merging two accumulators that share an
@@ -56,6 +71,11 @@ _STATE = (
     "lag_mean_b_v",
     "lag_c_v",
 )
+
+
+#: The noise sums (module docstring "Measurement noise"), kept apart from ``_STATE`` so that
+#: states written before them still load.
+_NOISE = ("noise_count", "noise_s_uu", "noise_s_vv", "noise_s2_uu", "noise_s2_vv")
 
 
 def _chan_merge_moments(na, ma, nb, mb, n):
@@ -100,6 +120,9 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         self.pair_ids: set[Hashable] = set()
         self.n_fields = 0
+        for name in _NOISE:
+            dtype = np.int64 if name == "noise_count" else np.float64
+            setattr(self, name, np.zeros(self.shape, dtype=dtype))
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -108,7 +131,15 @@ class FieldAccumulator:
             raise InvalidInputError(f"{name}: expected shape {self.shape}, got {arr.shape}")
         return arr
 
-    def add(self, u, v, valid=None, pair_id: Hashable | None = None) -> None:
+    def add(
+        self,
+        u,
+        v,
+        valid=None,
+        pair_id: Hashable | None = None,
+        sigma_u=None,
+        sigma_v=None,
+    ) -> None:
         """Add one velocity field.
 
         Parameters
@@ -119,11 +150,15 @@ class FieldAccumulator:
             True where the vector is accepted. Default: where u and v are finite.
         pair_id : hashable, optional
             Id of the image pair (int or str); a repeated id is refused.
+        sigma_u, sigma_v : array_like, optional
+            Standard uncertainty of every vector (the units of u, v; NaN where not estimated):
+            accumulated at the valid vectors where both are finite (module docstring).
 
         Raises
         ------
         InvalidInputError
-            Wrong shape, a non-boolean mask, NaN/inf at a valid vector, or a repeated pair id.
+            Wrong shape, a non-boolean mask, NaN/inf at a valid vector, a negative sigma, only
+            one of the sigmas, or a repeated pair id.
         """
         u = self._check("u", u).astype(np.float64, copy=False)
         v = self._check("v", v).astype(np.float64, copy=False)
@@ -150,6 +185,22 @@ class FieldAccumulator:
         if pair_id is not None:
             if pair_id in self.pair_ids:
                 raise InvalidInputError(f"pair_id: {pair_id!r} was already added")
+        if (sigma_u is None) != (sigma_v is None):
+            raise InvalidInputError("sigma_u, sigma_v: give both or neither")
+        if sigma_u is not None:
+            su = self._check("sigma_u", sigma_u).astype(np.float64, copy=False)
+            sv = self._check("sigma_v", sigma_v).astype(np.float64, copy=False)
+            with np.errstate(invalid="ignore"):
+                if np.any(su < 0) or np.any(sv < 0):
+                    raise InvalidInputError("sigma_u, sigma_v: an uncertainty is negative")
+            has = ok & np.isfinite(su) & np.isfinite(sv)
+            su2 = np.where(has, su * su, 0.0)
+            sv2 = np.where(has, sv * sv, 0.0)
+            self.noise_count += has
+            self.noise_s_uu += su2
+            self.noise_s_vv += sv2
+            self.noise_s2_uu += su2 * su2
+            self.noise_s2_vv += sv2 * sv2
         u0 = np.where(ok, u, 0.0)
         v0 = np.where(ok, v, 0.0)
 
@@ -261,6 +312,8 @@ class FieldAccumulator:
             setattr(self, f"lag_mean_b_{comp}", getattr(self, f"lag_mean_b_{comp}") + db * fa)
             setattr(self, f"lag_count_{comp}", ln)
         self._has_last = np.zeros(self.shape, dtype=bool)
+        for name in _NOISE:
+            setattr(self, name, getattr(self, name) + getattr(other, name))
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
         return self
@@ -295,6 +348,44 @@ class FieldAccumulator:
     def uv(self) -> np.ndarray:
         """Sample covariance of u and v per vector (ddof=1; NaN where count < 2)."""
         return self._cov(self.c_uv)
+
+    def _noise_mean(self, s) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.noise_count > 0, s / self.noise_count, np.nan)
+
+    def noise_uu(self) -> np.ndarray:
+        """Mean ``<sigma_u^2>`` per vector (NaN without uncertainties)."""
+        return self._noise_mean(self.noise_s_uu)
+
+    def noise_vv(self) -> np.ndarray:
+        """Mean ``<sigma_v^2>`` per vector (NaN without uncertainties)."""
+        return self._noise_mean(self.noise_s_vv)
+
+    def noise_uncertainty(self, component: str = "u") -> np.ndarray:
+        """Standard uncertainty of ``<sigma^2>`` of ``component`` ("u" or "v"): the sample
+        standard deviation of ``sigma^2`` over ``sqrt(n)`` (NaN where n < 2)."""
+        if component not in ("u", "v"):
+            raise InvalidInputError(f"component: expected 'u' or 'v', got {component!r}")
+        s = getattr(self, f"noise_s_{component * 2}")
+        s2 = getattr(self, f"noise_s2_{component * 2}")
+        n = self.noise_count
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = np.maximum(s2 - s * s / np.maximum(n, 1), 0.0) / np.maximum(n - 1, 1)
+            return np.where(n > 1, np.sqrt(var / np.maximum(n, 1)), np.nan)
+
+    def _corrected(self, raw, noise) -> np.ndarray:
+        c = raw - noise
+        with np.errstate(invalid="ignore"):
+            return np.where(np.isfinite(noise) & (c >= 0), c, np.nan)
+
+    def uu_corrected(self) -> np.ndarray:
+        """``uu - <sigma_u^2>``: the streamwise stress without the measurement noise (NaN
+        where no uncertainties were given or the noise exceeds the measured variance)."""
+        return self._corrected(self.uu, self.noise_uu())
+
+    def vv_corrected(self) -> np.ndarray:
+        """``vv - <sigma_v^2>`` (see :meth:`uu_corrected`)."""
+        return self._corrected(self.vv, self.noise_vv())
 
     def lag1_correlation(self, component: str = "u") -> np.ndarray:
         """Lag-1 autocorrelation ``rho_1`` of successive valid samples (NaN without pairs)."""
@@ -357,6 +448,11 @@ class FieldAccumulator:
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+        # pickles from before the noise sums: no noise information
+        for name in _NOISE:
+            if name not in self.__dict__:
+                dtype = np.int64 if name == "noise_count" else np.float64
+                setattr(self, name, np.zeros(self.shape, dtype=dtype))
 
     def to_xarray(self, x=None, y=None, velocity_units: str = "m s-1", attrs=None):
         """The statistics as an :class:`xarray.Dataset` (pivpy-compatible names).
@@ -400,6 +496,15 @@ class FieldAccumulator:
         else:
             id_arr = np.asarray([str(i) for i in ids], dtype=str)
         ds["pair_id"] = (("pair",), id_arr, {"long_name": "image pair ids accumulated"})
+        for k in _NOISE:
+            ds[k] = (dims, getattr(self, k), {"long_name": "accumulator state (noise)"})
+        for k, arr, long_name in (
+            ("noise_uu", self.noise_uu(), "mean squared uncertainty of u <sigma_u^2>"),
+            ("noise_vv", self.noise_vv(), "mean squared uncertainty of v <sigma_v^2>"),
+            ("uu_corrected", self.uu_corrected(), "uu - <sigma_u^2> (noise-corrected)"),
+            ("vv_corrected", self.vv_corrected(), "vv - <sigma_v^2> (noise-corrected)"),
+        ):
+            ds[k] = (dims, arr, {"long_name": long_name, "units": stress_units})
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:
@@ -438,6 +543,11 @@ class FieldAccumulator:
             else:
                 acc.pair_ids = {str(i) for i in vals}
         acc.n_fields = int(ds.attrs.get("n_fields", 0))
+        # states written before the noise sums existed load without noise information
+        for k in _NOISE:
+            if k in ds:
+                dtype = np.int64 if k == "noise_count" else np.float64
+                setattr(acc, k, np.array(ds[k].values, dtype=dtype))
         return acc
 
     def __repr__(self) -> str:

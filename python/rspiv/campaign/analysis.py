@@ -67,6 +67,11 @@ def scaled_accumulator(
             name = f"lag_mean_{part}_{comp}"
             setattr(out, name, getattr(acc, name) * kk)
         setattr(out, f"lag_c_{comp}", getattr(acc, f"lag_c_{comp}") * kk * kk)
+    # the noise sums: sigma^2 scales by k^2, sigma^4 by k^4 (the signs do not enter)
+    out.noise_s_uu = acc.noise_s_uu * k**2
+    out.noise_s_vv = acc.noise_s_vv * k**2
+    out.noise_s2_uu = acc.noise_s2_uu * k**4
+    out.noise_s2_vv = acc.noise_s2_vv * k**4
     return out
 
 

@@ -67,8 +67,9 @@ def _window_positions(context: PairContext, corrected: bool) -> np.ndarray:
 
 def _field_arrays(
     f, context: PairContext, corrected: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(u, v, valid) of a field. Besides the PIV's own validation, a vector counts only if its
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(u, v, valid, sigma_u, sigma_v) of a field (the sigmas None when the PIV estimated
+    none). Besides the PIV's own validation, a vector counts only if its
     two windows (the final window displaced by -d/2 and +d/2, d bounded by the field's 99th
     percentile displacement) lie inside the recorded image: windows reaching past the sensor or
     into the zero fill of a dewarped frame are no measurement."""
@@ -86,7 +87,10 @@ def _field_arrays(
         my = 0.5 * h + 0.5 * dv
         valid &= (xy[..., 0] - mx >= -0.5) & (xy[..., 0] + mx <= width - 0.5)
         valid &= (xy[..., 1] - my >= -0.5) & (xy[..., 1] + my <= height - 0.5)
-    return u, v, valid
+    su, sv = getattr(f, "sigma_u", None), getattr(f, "sigma_v", None)
+    if su is None or sv is None or not np.isfinite(su).any():
+        return u, v, valid, None, None
+    return u, v, valid, np.asarray(su, np.float64), np.asarray(sv, np.float64)
 
 
 def read_ahead(pair: PairSpec, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | str:

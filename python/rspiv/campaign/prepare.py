@@ -121,7 +121,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
             r = pair_work.process_pair(pilot_ctx, p)
             if not r.ok:
                 continue
-            u, v, valid = r.fields[main.name]
+            u, v, valid, *_ = r.fields[main.name]
             if acc is None:
                 acc = FieldAccumulator(u.shape)
             acc.add(u, v, valid)

@@ -22,8 +22,8 @@ def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
     """Add a processed pair's fields to the accumulators (keyed by its pair id, so a pair is
     never counted twice); returns the seconds it took."""
     t0 = time.perf_counter()
-    for name, (u, v, valid) in result.fields.items():
-        accs[name].add(u, v, valid, pair_id=result.pair_id)
+    for name, (u, v, valid, su, sv) in result.fields.items():
+        accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
     return time.perf_counter() - t0
 
 

@@ -204,7 +204,8 @@ class PairResult:
         False: the pair was skipped (``reason`` says why); ``fields`` is empty.
     reason : str
     fields : dict
-        Run name -> ``(u, v, valid)`` arrays of the grid's shape (px per pair).
+        Run name -> ``(u, v, valid, sigma_u, sigma_v)`` arrays of the grid's shape (px per
+        pair; the sigmas None when the PIV estimated none).
     timings : dict
         Seconds per stage (``read``, ``dewarp``, ``piv``).
     """
@@ -212,9 +213,11 @@ class PairResult:
     pair_id: int
     ok: bool
     reason: str = ""
-    fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = dataclasses.field(
-        default_factory=dict
-    )
+    #: per run: ``(u, v, valid, sigma_u, sigma_v)`` in px per pair (the sigmas None when the
+    #: PIV estimated none)
+    fields: dict[
+        str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]
+    ] = dataclasses.field(default_factory=dict)
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
 
 

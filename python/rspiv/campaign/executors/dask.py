@@ -150,7 +150,7 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
         if first is None:
             first = {
                 n: (u.copy(), v.copy(), np.asarray(ok, bool).copy())
-                for n, (u, v, ok) in r.fields.items()
+                for n, (u, v, ok, *_) in r.fields.items()
             }
         dt = time.perf_counter() - t0 + add_fields(accs, r)
         timings["statistics"] = timings.get("statistics", 0.0) + dt
