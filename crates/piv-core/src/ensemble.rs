@@ -50,7 +50,7 @@
 use crate::correlate::Correlator;
 use crate::error::{PivError, Result};
 use crate::image::Pixel;
-use crate::multipass::{excluded_point, Frames, Interpolation};
+use crate::multipass::{check_mask, check_pair, excluded_point, Frames, Interpolation};
 use ndarray::ArrayView2;
 use rayon::prelude::*;
 
@@ -130,27 +130,9 @@ pub fn accumulate<T: Pixel>(
     acc: &mut [f64],
 ) -> Result<usize> {
     win.check()?;
+    check_pair(&frame_a, &frame_b)?;
     let dim = frame_a.dim();
-    if frame_b.dim() != dim {
-        return Err(PivError::InvalidInput(format!(
-            "frame_a ({} x {}) and frame_b ({} x {}) differ in shape (rows x columns)",
-            dim.0,
-            dim.1,
-            frame_b.nrows(),
-            frame_b.ncols()
-        )));
-    }
-    if let Some(m) = &mask {
-        if m.dim() != dim {
-            return Err(PivError::InvalidInput(format!(
-                "mask ({} x {}) differs in shape from the frames ({} x {})",
-                m.nrows(),
-                m.ncols(),
-                dim.0,
-                dim.1
-            )));
-        }
-    }
+    check_mask(&mask, dim)?;
     if win.w > dim.1 || win.h > dim.0 {
         return Err(PivError::InvalidInput(format!(
             "ensemble window {} x {} px (w x h) is larger than the image ({} x {} px)",

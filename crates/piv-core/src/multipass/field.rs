@@ -175,13 +175,14 @@ pub(crate) fn validate_replace(
 /// The uncertainties of the vectors that took their second or third correlation peak: the
 /// final sweep estimates only the highest peak's ([`crate::correlate::Uncertainty::Peak`]: the
 /// alternatives are rarely used and cost twice as much again), so the windows of those few
-/// vectors are correlated once more with [`crate::correlate::Uncertainty::AllPeaks`] by
-/// `again(points)` (the same windows
-/// give the same peaks) and their alternatives' sigmas copied into `peaks`.
+/// vectors (centres `xs`, `ys`, offsets `du`, `dv` of the sweep) are correlated once more
+/// with [`crate::correlate::Uncertainty::AllPeaks`] by `again(x, y, du, dv, skip)` (the same
+/// windows give the same peaks) and their alternatives' sigmas copied into `peaks`.
 pub(crate) fn fill_alt_sigmas(
     peaks: &mut [Peak],
     checked: &Validation,
-    again: impl FnOnce(&[usize]) -> Vec<Peak>,
+    (xs, ys, du, dv): (&[f64], &[f64], &[f64], &[f64]),
+    again: impl FnOnce(&[f64], &[f64], &[f64], &[f64], &[bool]) -> Vec<Peak>,
 ) {
     let need: Vec<usize> = checked
         .peak_choice
@@ -194,7 +195,12 @@ pub(crate) fn fill_alt_sigmas(
     if need.is_empty() {
         return;
     }
-    for (k, p) in need.iter().zip(again(&need)) {
+    let pick = |a: &[f64]| need.iter().map(|&k| a[k]).collect::<Vec<f64>>();
+    let (x, y, u, v) = (pick(xs), pick(ys), pick(du), pick(dv));
+    for (k, p) in need
+        .iter()
+        .zip(again(&x, &y, &u, &v, &vec![false; need.len()]))
+    {
         for (mine, theirs) in peaks[*k].alt.iter_mut().zip(p.alt) {
             if mine.dx == theirs.dx && mine.dy == theirs.dy {
                 mine.sigma = theirs.sigma;

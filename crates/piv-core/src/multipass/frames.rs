@@ -51,6 +51,26 @@ macro_rules! with_source {
     };
 }
 
+/// Do both windows of every point not skipped (centres `xs`, `ys`, symmetric offsets `du`,
+/// `dv`) start on integer pixel positions (plain copies, no interpolation)?
+fn on_integers(
+    w: usize,
+    h: usize,
+    (xs, ys): (&[f64], &[f64]),
+    (du, dv): (&[f64], &[f64]),
+    skip: &[bool],
+) -> bool {
+    let int = |p: f64| p == p.round();
+    let (hw, hh) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
+    (0..xs.len()).all(|k| {
+        skip[k]
+            || (int(xs[k] - hw - du[k] / 2.0)
+                && int(ys[k] - hh - dv[k] / 2.0)
+                && int(xs[k] - hw + du[k] / 2.0)
+                && int(ys[k] - hh + dv[k] / 2.0))
+    })
+}
+
 /// The interpolation images of a frame pair.
 pub(crate) enum Coeffs {
     /// Quintic B-spline coefficients.
@@ -170,16 +190,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
         uncertainty: Uncertainty,
     ) -> Vec<Peak> {
         // windows on integer positions are plain copies: no interpolation images needed
-        let int = |p: f64| p == p.round();
-        let (hw, hh) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
-        let integer = base.is_none()
-            && (0..xs.len()).all(|k| {
-                skip[k]
-                    || (int(xs[k] - hw - du[k] / 2.0)
-                        && int(ys[k] - hh - dv[k] / 2.0)
-                        && int(xs[k] - hw + du[k] / 2.0)
-                        && int(ys[k] - hh + dv[k] / 2.0))
-            });
+        let integer = base.is_none() && on_integers(w, h, (xs, ys), (du, dv), skip);
         let coeffs = if integer {
             &Coeffs::Keys
         } else {
@@ -219,16 +230,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
     where
         F: Fn(&mut crate::correlate::Correlator, &mut [f64]) + Sync,
     {
-        let int = |p: f64| p == p.round();
-        let (hw, hh) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0);
-        let ((xs, ys), (du, dv)) = (points, offsets);
-        let integer = (0..xs.len()).all(|k| {
-            skip[k]
-                || (int(xs[k] - hw - du[k] / 2.0)
-                    && int(ys[k] - hh - dv[k] / 2.0)
-                    && int(xs[k] - hw + du[k] / 2.0)
-                    && int(ys[k] - hh + dv[k] / 2.0))
-        });
+        let integer = on_integers(w, h, points, offsets, skip);
         let coeffs = if integer {
             &Coeffs::Keys
         } else {

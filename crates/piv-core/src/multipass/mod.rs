@@ -66,5 +66,5 @@ pub use frames::BLANK_VARIANCE;
 pub use points::{piv_at, piv_with_final_points, Predictor};
 pub use regular::piv;
 pub use settings::{Interpolation, Mode, Pass, PivSettings};
-pub(crate) use window::excluded as excluded_point;
 pub use window::MIN_SIGNAL_FRACTION;
+pub(crate) use window::{check_mask, check_pair, excluded as excluded_point};

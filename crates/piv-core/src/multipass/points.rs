@@ -195,18 +195,12 @@ pub(crate) fn at_points<T: Pixel>(
             });
             let checked = validate_replace(&mut u, &mut v, &peaks, &skip, settings);
             if unc != Uncertainty::Off {
-                fill_alt_sigmas(&mut peaks, &checked, |need| {
-                    let pick = |a: &[f64]| need.iter().map(|&k| a[k]).collect::<Vec<f64>>();
-                    let (x, y, u, v) = (pick(&xs), pick(&ys), pick(&du), pick(&dv));
-                    sweep(
-                        &x,
-                        &y,
-                        &u,
-                        &v,
-                        &vec![false; need.len()],
-                        Uncertainty::AllPeaks,
-                    )
-                });
+                fill_alt_sigmas(
+                    &mut peaks,
+                    &checked,
+                    (&xs, &ys, &du, &dv),
+                    |x, y, u, v, skip| sweep(x, y, u, v, skip, Uncertainty::AllPeaks),
+                );
             }
             for k in 0..n {
                 let (j, i) = (k / shape.1, k % shape.1);

@@ -117,18 +117,12 @@ pub(crate) fn grid_passes<T: Pixel>(
             });
             let checked = validate_replace(&mut u, &mut v, &peaks, &skip, s);
             if unc != Uncertainty::Off {
-                fill_alt_sigmas(&mut peaks, &checked, |need| {
-                    let pick = |a: &[f64]| need.iter().map(|&k| a[k]).collect::<Vec<f64>>();
-                    let (x, y, u, v) = (pick(&xs), pick(&ys), pick(du), pick(dv));
-                    sweep(
-                        &x,
-                        &y,
-                        &u,
-                        &v,
-                        &vec![false; need.len()],
-                        Uncertainty::AllPeaks,
-                    )
-                });
+                fill_alt_sigmas(
+                    &mut peaks,
+                    &checked,
+                    (&xs, &ys, du, dv),
+                    |x, y, u, v, skip| sweep(x, y, u, v, skip, Uncertainty::AllPeaks),
+                );
             }
             if let Some(d) = deformed {
                 spare = d.into_buffers();
