@@ -503,3 +503,38 @@ def test_the_region_behind_the_wall_is_masked_in_the_outputs(processed):
         u, count = ds["u"].values, ds["count"].values
         assert np.all(np.isnan(u[behind]))
         assert np.isfinite(u[~behind & (count > 0)]).all()
+
+
+def test_noise_correction_subtracts_the_profile_noise(processed):
+    """``[statistics] noise_correction = true``: the analysed normal stresses are the measured
+    ones less the mean squared per-vector uncertainty of the profile (SI units), where that is
+    positive; the statistics file carries the noise and the corrected stresses either way."""
+    import dataclasses
+
+    from rspiv.campaign.analysis import analyse_run
+
+    camp, res = processed
+    cfg = camp.config
+    ctx = res.context
+    gx, gy = ctx.grid()
+    mag = camp.calibration.magnification
+    run = ctx.runs[0]
+    acc = res.accumulators[run.name]
+    args = (run, acc, gx, gy)
+    tail = (mag, cfg.flow.dt, ctx.piv.final_window)
+    raw = analyse_run(*args, cfg, *tail)
+    on = dataclasses.replace(
+        cfg, statistics=dataclasses.replace(cfg.statistics, noise_correction=True)
+    )
+    cor = analyse_run(*args, on, *tail)
+    p = raw.profile
+    assert np.isfinite(p["noise_uu"]).sum() > 0.9 * np.isfinite(p["uu"]).sum()
+    assert not p["noise_corrected"] and cor.profile["noise_corrected"]
+    # the same points, the stresses lower by the noise (wall units: divided by u_tau^2 of each)
+    ok = np.isfinite(cor.result.uu_plus) & np.isfinite(raw.result.uu_plus)
+    assert ok.sum() > 8
+    uu_cor = cor.result.uu_plus[ok] * cor.result.u_tau**2
+    uu_raw = raw.result.uu_plus[ok] * raw.result.u_tau**2
+    assert np.all(uu_cor <= uu_raw) and np.any(uu_cor < uu_raw)
+    ds = acc.to_xarray()
+    assert {"noise_uu", "noise_vv", "uu_corrected", "vv_corrected"} <= set(ds.data_vars)

@@ -684,10 +684,14 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
     per-quantity n_eff (:meth:`~rspiv.stats.FieldAccumulator.n_eff_all`).
 
     The result's ``U, uu, vv, uv`` and ``n_eff`` go straight into :func:`analyse_profile`.
+    It also holds ``noise_uu``, ``noise_vv``: the count-weighted averages along x of the
+    per-vector mean squared uncertainties (:meth:`~rspiv.stats.FieldAccumulator.noise_uu`; NaN
+    where no uncertainties were accumulated), the variance the measurement noise adds to
+    ``uu`` and ``vv``.
     """
     if len(acc.shape) != 2:
         raise InvalidInputError(f"acc: expected a 2D accumulator, got shape {acc.shape}")
-    return average_along_x(
+    out = average_along_x(
         acc.mean_u,
         acc.mean_v,
         acc.uu,
@@ -698,6 +702,13 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
         axis=axis,
         min_count=min_count,
     )
+    cnt = np.asarray(acc.count, dtype=np.float64)
+    for key, noise in (("noise_uu", acc.noise_uu()), ("noise_vv", acc.noise_vv())):
+        w = np.where((cnt >= max(int(min_count), 2)) & np.isfinite(noise), cnt, 0.0)
+        wsum = w.sum(axis=axis)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[key] = np.where(wsum > 0, (w * np.nan_to_num(noise)).sum(axis=axis) / wsum, np.nan)
+    return out
 
 
 __all__ = [

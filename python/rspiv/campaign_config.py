@@ -73,6 +73,8 @@ A complete file (every key optional except where noted; defaults shown)::
     use_n_eff = true             # uncertainties from the lag-1 effective sample count
     fit_offset = true            # fit the wall offset in the composite fit
     reference_re_theta = 0.0     # DNS station for plots (0: the closest in Re_tau)
+    noise_correction = false     # subtract each vector's mean sigma^2 from uu and vv
+                                 # (rspiv.stats "Measurement noise"; needs [piv] uncertainty)
 
     [output]
     dir = "rspiv-out"
@@ -257,6 +259,7 @@ class StatisticsConfig:
     use_n_eff: bool = True
     fit_offset: bool = True
     reference_re_theta: float = 0.0
+    noise_correction: bool = False
 
 
 @dataclasses.dataclass
@@ -563,6 +566,7 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "use_n_eff": _boolean,
         "fit_offset": _boolean,
         "reference_re_theta": lambda c, w, v: _number(c, w, v, minimum=0),
+        "noise_correction": _boolean,
     },
     "output": {
         "dir": lambda c, w, v: c.path(w, v, allow_empty=False),

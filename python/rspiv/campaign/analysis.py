@@ -129,6 +129,9 @@ def analyse_run(
         "uu": prof["uu"],
         "vv": prof["vv"],
         "uv": prof["uv"],
+        "noise_uu": prof["noise_uu"],
+        "noise_vv": prof["noise_vv"],
+        "noise_corrected": bool(st.noise_correction),
         "count": prof["count"],
         "x_coord": (xs - xs[0]) * m_per_px if m_per_px else xs,
         "y_coord": dist_px * m_per_px if m_per_px else dist_px,
@@ -153,11 +156,18 @@ def analyse_run(
     ne = {kk: vv[ok] for kk, vv in n_eff.items()} if isinstance(n_eff, dict) else sel(n_eff)
     # Leave out of the composite fit the windows that reach the wall and its reflection.
     y_min_fit = (0.5 * window[1] + 1.0) * m_per_px
+    uu, vv = prof["uu"], prof["vv"]
+    if st.noise_correction:
+        # the measurement noise's variance out of the normal stresses (rspiv.stats); NaN where
+        # it exceeds them, and where no uncertainties were accumulated
+        with np.errstate(invalid="ignore"):
+            uu = np.where(uu - prof["noise_uu"] >= 0, uu - prof["noise_uu"], np.nan)
+            vv = np.where(vv - prof["noise_vv"] >= 0, vv - prof["noise_vv"], np.nan)
     result = analyse_profile(
         y_m,
         prof["U"][ok],
-        prof["uu"][ok],
-        prof["vv"][ok],
+        uu[ok],
+        vv[ok],
         prof["uv"][ok],
         cfg.flow.nu,
         ne,
