@@ -76,6 +76,7 @@ def test_outputs_are_written(processed):
         "uncorrected",
         "Method I",
         "Method II",
+        "measurement noise in uu, vv (%)",
     ):
         assert needle in html
     figs = sorted(p.name for p in (out / "report" / "figures").glob("*.png"))

@@ -420,6 +420,14 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         lv_px = r0.result.nu / r0.result.u_tau * 1e3 * camp.calibration.magnification
         piv["final window x+"] = w / lv_px
         piv["final window y+"] = h / lv_px
+    if r0 is not None:
+        # the measurement noise's share of the normal stresses (median over the profile)
+        pr = r0.profile
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = [np.nanmedian(pr[f"noise_{c}"] / pr[c]) for c in ("uu", "vv")]
+        if np.all(np.isfinite(share)):
+            piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
+            piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     extra = list(extra_sections)
     if res.skipped:
         extra.append(
