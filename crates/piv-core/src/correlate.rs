@@ -491,9 +491,9 @@ impl Correlator {
     /// window pair (Wieneke 2015, Meas. Sci. Technol. 26 074002).
     ///
     /// Each pixel of the overlap of A (its mean removed, as B's: `ca`, `cb`) with B shifted by
-    /// the integer lag
-    /// `(tx, ty)` contributes `a(x, y) b(x + tx + 1, y + ty)` to the correlation at `tx + 1`
-    /// and `a(x + 1, y) b(x + tx, y + ty)` to the one at `tx - 1`; their difference
+    /// the integer lag `(tx, ty)` contributes `a(x, y) b(x + tx + 1, y + ty)` to the
+    /// correlation at `tx + 1` and `a(x + 1, y) b(x + tx, y + ty)` to the one at `tx - 1`; their
+    /// difference
     /// `dC_i` is zero for every pixel when B is A shifted by exactly the lag, and noise, loss of
     /// pairs, in-window gradients or interpolation errors make it scatter. The variance of
     /// the peak's asymmetry `C(+1) - C(-1)` is `sigma_C^2 = sum_i (dC_i - mean dC)^2`
@@ -504,9 +504,10 @@ impl Correlator {
     /// deformation, when the residual lag is small (the windows then match but for the
     /// errors); with residuals towards half a pixel (one pass, no deformation) the mismatch
     /// of the sub-pixel shift itself adds to the scatter and the estimate is conservative. For
-    /// the 2D Gaussian estimator it is the 3-point one's. NaN where a value
-    /// of the 3 x 3 neighbourhood is not positive on both sides of the fit (a parabolic fit:
-    /// its own derivative) and where the overlap is empty.
+    /// the 2D Gaussian estimator it is the 3-point one's. NaN where the 3-point fit has no
+    /// maximum (a value not positive uses the parabolic fit's own derivative) and where the
+    /// overlap is empty. It covers random errors only: a bias (the interpolation's on
+    /// under-sampled particles, peak locking) is not in the correlation statistics.
     #[inline(always)]
     fn sigma_at(&self, (c, r): (usize, usize), scale: f64) -> (f64, f64) {
         let (w, h) = (self.w, self.h);

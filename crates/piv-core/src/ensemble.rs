@@ -558,13 +558,7 @@ mod tests {
             .unzip();
         let n = xs.len();
         let (du, dv) = (vec![mu; n], vec![mv; n]);
-        let (ww, wh): (usize, usize) = std::env::var("ENS_WIN")
-            .ok()
-            .map(|s| {
-                let v: Vec<usize> = s.split('x').map(|t| t.parse().unwrap()).collect();
-                (v[0], v[1])
-            })
-            .unwrap_or((16, 4));
+        let (ww, wh) = (16, 4);
         let win = Windows {
             w: ww,
             h: wh,
