@@ -63,6 +63,24 @@ def test_thin_windows_resolve_the_near_wall_profile(pairs):
     assert abs(ui[last] - profile(yi[last])) > np.max(np.abs(got - profile(y[near, 0])))
 
 
+def test_windows_deformed_by_the_mean_field(pairs):
+    """Deformed by the profile itself (a grid field, a row per px), the windows still give the
+    profile's 4 px means: the deformation's window mean plus the residual."""
+    window = (64, 4)
+    x, y = ensemble_grid(SHAPE, window, (32, 2))
+    gy = np.arange(0.0, SHAPE[0])
+    gx = np.arange(0.0, SHAPE[1], 32.0)
+    u = np.repeat(profile(gy)[:, None], gx.size, axis=1)
+    acc = EnsembleAccumulator(x, y, window, deform=((0.0, 0.0, 32.0, 1.0), u, 0 * u))
+    acc.add_all(pairs, auto_pairs=30)
+    res = acc.result()
+    near = y[:, 0] > SHAPE[0] - 1 - 20
+    got = np.nanmean(res.u, axis=1)[near]
+    assert np.max(np.abs(got - box_mean(y[near, 0], window[1]))) < 0.02 * 3.0
+    with pytest.raises(rspiv.InvalidInputError, match="deform"):
+        EnsembleAccumulator(x, y, window, deform=np.zeros((3, 3)))
+
+
 def test_halves_merge_to_the_whole(pairs):
     window = (32, 8)
     x, y = ensemble_grid(SHAPE, window, (16, 4))

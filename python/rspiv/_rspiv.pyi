@@ -264,7 +264,18 @@ def ensemble_add(
     auto: bool = True,
     mask: npt.NDArray[np.bool_] | None = None,
     interpolation: str = "bspline",
+    field_grid: tuple[float, float, float, float] | None = None,
+    field_u: npt.NDArray[np.float64] | None = None,
+    field_v: npt.NDArray[np.float64] | None = None,
 ) -> int: ...
 def ensemble_peaks(
     acc: npt.NDArray[np.float64], window: tuple[int, int]
 ) -> dict[str, npt.NDArray[np.float64]]: ...
+def grid_field_window_mean(
+    field_grid: tuple[float, float, float, float],
+    field_u: npt.NDArray[np.float64],
+    field_v: npt.NDArray[np.float64],
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    window: tuple[int, int],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...

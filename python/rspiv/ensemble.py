@@ -22,9 +22,10 @@ predictor, e.g. a coarser ensemble or the instantaneous mean field);
 Accuracy: on pairs moved by Gaussian random displacements (Rust tests) the mean within
 0.012 px and the covariances within 13 % at 16 x 4 px windows (9 % at 32 x 16); a near-wall
 profile curved over 6 px is resolved by 64 x 4 windows to within 0.024 px of its 4 px mean
-(``tests/test_ensemble.py``). Not yet validated: the covariances in a mean gradient (on that
-fluctuation-free profile ``uu`` reads -0.17 .. +0.04 px^2 instead of 0: the gradient term and the
-Gaussian fit of a peak broadened by a curved profile do not cancel). Still to come (issue 13):
+(``tests/test_ensemble.py``). Not yet good enough: the covariances near the wall. With 120
+pairs of that profile the rows read -0.04 .. +0.01 px^2 without fluctuations (offset or
+deformed windows alike) and, with 0.3 px random displacements (variances 0.096 / 0.081 px^2),
+uu 0.043 .. 0.109 (27 % low on average) and vv 0.049 .. 0.11 px^2. Still to come (issue 13):
 the campaign's ``[ensemble]`` section and outputs, single-pixel ensemble, the band that follows
 the wall, Methods I/II, and the 10 % the near-wall stresses need.
 """
@@ -62,6 +63,31 @@ def ensemble_grid(
     xs = np.arange((w - 1) / 2, cols - (w - 1) / 2 - 0.5 + 1e-9, sx)
     ys = np.arange((h - 1) / 2, rows - (h - 1) / 2 - 0.5 + 1e-9, sy)
     return np.meshgrid(xs, ys)
+
+
+def _grid_field(deform: Any) -> tuple[tuple[float, ...], np.ndarray, np.ndarray] | None:
+    """``deform`` (None, a grid PivField, or ``((x0, y0, dx, dy), u, v)``) as the grid and
+    float64 arrays; InvalidInputError for anything else."""
+    if deform is None:
+        return None
+    grid = getattr(deform, "grid", None)
+    if grid is not None and hasattr(deform, "u"):
+        parts = (grid, deform.u, deform.v)
+    elif isinstance(deform, tuple) and len(deform) == 3:
+        parts = deform
+    else:
+        raise InvalidInputError(
+            "deform: expected a grid PivField or ((x0, y0, dx, dy), u, v), "
+            f"got {type(deform).__name__}"
+        )
+    g = tuple(float(t) for t in parts[0])
+    u = np.ascontiguousarray(parts[1], dtype=np.float64)
+    v = np.ascontiguousarray(parts[2], dtype=np.float64)
+    if len(g) != 4 or u.ndim != 2 or u.shape != v.shape or not np.all(np.isfinite(u + v)):
+        raise InvalidInputError(
+            "deform: the grid must be (x0, y0, dx, dy) and u, v finite 2D arrays of one shape"
+        )
+    return g, u, v
 
 
 @dataclass(frozen=True)
@@ -112,6 +138,11 @@ class EnsembleAccumulator:
     offset : (array_like, array_like), optional
         ``(du, dv)`` per window (the shape of ``x``), px: the windows of frame A and B are
         shifted by ``-d/2`` and ``+d/2``. Default 0.
+    deform : PivField or ((x0, y0, dx, dy), u, v), optional
+        A regular-grid displacement field (e.g. the instantaneous mean field) by which every
+        window is also deformed, pixel by pixel, so that the mean field's variation inside a
+        window does not widen the summed peak (the stresses in a mean gradient); the reported
+        ``u, v`` add its mean over each window.
     interpolation : {"bspline", "bspline3", "keys"}
         Interpolation of the frames at fractional offsets.
     """
@@ -123,6 +154,7 @@ class EnsembleAccumulator:
         window: tuple[int, int],
         offset: tuple[Any, Any] | None = None,
         interpolation: str = "bspline",
+        deform: Any = None,
     ) -> None:
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
@@ -137,9 +169,16 @@ class EnsembleAccumulator:
             du, dv = (np.broadcast_to(np.asarray(o, dtype=np.float64), x.shape) for o in offset)
         self.du, self.dv = np.array(du), np.array(dv)
         self.interpolation = parse_choice(interpolation, INTERPOLATIONS, "interpolation")
+        self.deform = _grid_field(deform)
         stride = _rspiv.ensemble_stride(*self.window)
         self.acc = np.zeros((x.size, stride), dtype=np.float64)
         self.pairs = 0
+
+    def _field_kwargs(self) -> dict[str, Any]:
+        if self.deform is None:
+            return {}
+        g, u, v = self.deform
+        return {"field_grid": g, "field_u": u, "field_v": v}
 
     def add(self, frame_a: Any, frame_b: Any, mask: Any = None, auto: bool = True) -> int:
         """Add one pair (2D arrays of one dtype: uint8, uint16, float32, float64); the auto
@@ -158,6 +197,7 @@ class EnsembleAccumulator:
             auto=auto,
             mask=m,
             interpolation=self.interpolation,
+            **self._field_kwargs(),
         )
         self.pairs += 1
         return int(n)
@@ -177,6 +217,13 @@ class EnsembleAccumulator:
             and np.array_equal(self.y, other.y)
             and np.array_equal(self.du, other.du)
             and np.array_equal(self.dv, other.dv)
+            and self._field_kwargs().keys() == other._field_kwargs().keys()
+            and all(
+                np.array_equal(a, b)
+                for a, b in zip(
+                    self._field_kwargs().values(), other._field_kwargs().values(), strict=True
+                )
+            )
         )
         if not same:
             raise InvalidInputError("ensemble accumulators of different windows cannot merge")
@@ -192,16 +239,23 @@ class EnsembleAccumulator:
             return np.asarray(d[k]).reshape(self.shape)
 
         ok = shaped("ok")
-        u = np.where(ok, self.du + shaped("dx"), np.nan)
-        v = np.where(ok, self.dv + shaped("dy"), np.nan)
+        mu, mv = np.zeros(self.shape), np.zeros(self.shape)
+        if self.deform is not None:
+            fu, fv = _rspiv.grid_field_window_mean(
+                *self.deform, self.x.ravel(), self.y.ravel(), self.window
+            )
+            mu, mv = np.reshape(fu, self.shape), np.reshape(fv, self.shape)
+        u = np.where(ok, self.du + mu + shaped("dx"), np.nan)
+        v = np.where(ok, self.dv + mv + shaped("dy"), np.nan)
         cross = np.stack([shaped("cxx"), shaped("cyy"), shaped("cxy")], axis=-1)
         auto = np.stack([shaped("axx"), shaped("ayy"), shaped("axy")], axis=-1)
         cov = cross - auto
         if len(self.shape) == 2 and min(self.shape) >= 2:
             # the spread of the mean displacement over the window: J diag(w^2, h^2) J^T / 12
+            # (of the mean less the deformation's part: what the windows still hold)
             gx, gy = self.x[0, :], self.y[:, 0]
-            dudy, dudx = np.gradient(u, gy, gx)
-            dvdy, dvdx = np.gradient(v, gy, gx)
+            dudy, dudx = np.gradient(u - mu, gy, gx)
+            dvdy, dvdx = np.gradient(v - mv, gy, gx)
             w2, h2 = self.window[0] ** 2 / 12.0, self.window[1] ** 2 / 12.0
             cov = cov - np.stack(
                 [

@@ -49,7 +49,7 @@
 
 use crate::correlate::Correlator;
 use crate::error::{PivError, Result};
-use crate::image::Pixel;
+use crate::image::{GridField, Pixel};
 use crate::multipass::{check_mask, check_pair, excluded_point, Frames, Interpolation};
 use ndarray::ArrayView2;
 use rayon::prelude::*;
@@ -116,8 +116,10 @@ impl Windows<'_> {
     }
 }
 
-/// Add one frame pair to the accumulator `acc` (`n` rows of [`Layout::stride`]); the auto
-/// plane of frame A too when `auto`. Returns the number of windows added. Errors: frames of
+/// Add one frame pair to the accumulator `acc` (`n` rows of [`Layout::stride`]), every window
+/// offset by its `(du, dv)` and, with `field`, deformed by that field (frame A sampled at
+/// `p - (d + f(p))/2`, B at `p + (d + f(p))/2`: the mean field's variation inside the window
+/// then does not widen the peak); the auto planes too when `auto`. Returns the number of windows added. Errors: frames of
 /// different shapes or with NaN/inf, a mask of another shape, windows larger than the image,
 /// bad windows ([`Windows::check`]), an accumulator of the wrong length.
 pub fn accumulate<T: Pixel>(
@@ -125,6 +127,7 @@ pub fn accumulate<T: Pixel>(
     frame_b: ArrayView2<'_, T>,
     mask: Option<ArrayView2<'_, bool>>,
     win: &Windows<'_>,
+    field: Option<&GridField>,
     interpolation: Interpolation,
     auto: bool,
     acc: &mut [f64],
@@ -162,6 +165,7 @@ pub fn accumulate<T: Pixel>(
         win.h,
         (win.x, win.y),
         (win.du, win.dv),
+        field,
         &skip,
         acc,
         stride,
@@ -597,6 +601,7 @@ mod tests {
                 b.view(),
                 None,
                 &win,
+                None,
                 Interpolation::BSpline,
                 k < 100,
                 &mut acc,
@@ -644,37 +649,23 @@ mod tests {
             dv: &d,
         };
         let mut acc = vec![0.0; Layout::new(16, 4).stride()];
-        let e = accumulate(
-            a.view(),
-            a.view(),
-            None,
-            &win,
-            Interpolation::BSpline,
-            false,
-            &mut acc,
-        );
-        assert!(e.unwrap_err().to_string().contains("too small"));
+        let run = |win: &Windows<'_>, acc: &mut [f64]| {
+            let e = accumulate(
+                a.view(),
+                a.view(),
+                None,
+                win,
+                None,
+                Interpolation::BSpline,
+                false,
+                acc,
+            );
+            e.unwrap_err().to_string()
+        };
+        assert!(run(&win, &mut acc).contains("too small"));
         win.h = 4;
-        let e = accumulate(
-            a.view(),
-            a.view(),
-            None,
-            &win,
-            Interpolation::BSpline,
-            false,
-            &mut acc[1..],
-        );
-        assert!(e.unwrap_err().to_string().contains("accumulator holds"));
+        assert!(run(&win, &mut acc[1..]).contains("accumulator holds"));
         win.w = 64;
-        let e = accumulate(
-            a.view(),
-            a.view(),
-            None,
-            &win,
-            Interpolation::BSpline,
-            false,
-            &mut acc,
-        );
-        assert!(e.unwrap_err().to_string().contains("larger than the image"));
+        assert!(run(&win, &mut acc).contains("larger than the image"));
     }
 }

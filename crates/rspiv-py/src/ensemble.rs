@@ -3,6 +3,7 @@
 
 use crate::errors::{invalid, PyRspivErr};
 use crate::frames::{frames, with_frames};
+use crate::piv::grid_field;
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use piv_core::ensemble::{peaks, Layout, Windows};
 use piv_core::Interpolation;
@@ -16,11 +17,12 @@ fn ensemble_stride(w: usize, h: usize) -> usize {
     Layout::new(w, h).stride()
 }
 
-/// Add one frame pair to `acc` (n x stride, float64, C-contiguous) in place; returns the number
-/// of windows added.
+/// Add one frame pair to `acc` (n x stride, float64, C-contiguous) in place, the windows offset
+/// by (du, dv) and deformed by the grid field (field_grid, field_u, field_v) when given; returns
+/// the number of windows added.
 #[pyfunction]
 #[pyo3(signature = (frame_a, frame_b, x, y, du, dv, window, acc, auto=true, mask=None,
-    interpolation="bspline"))]
+    interpolation="bspline", field_grid=None, field_u=None, field_v=None))]
 #[allow(clippy::too_many_arguments)]
 fn ensemble_add<'py>(
     py: Python<'py>,
@@ -35,8 +37,12 @@ fn ensemble_add<'py>(
     auto: bool,
     mask: Option<PyReadonlyArray2<'py, bool>>,
     interpolation: &str,
+    field_grid: Option<(f64, f64, f64, f64)>,
+    field_u: Option<PyReadonlyArray2<'py, f64>>,
+    field_v: Option<PyReadonlyArray2<'py, f64>>,
 ) -> PyResult<usize> {
     let interp: Interpolation = interpolation.parse().map_err(PyRspivErr::from)?;
+    let field = grid_field(field_grid, field_u.as_ref(), field_v.as_ref())?;
     let fr = frames(frame_a, frame_b)?;
     let mut rw = acc
         .try_readwrite()
@@ -57,7 +63,7 @@ fn ensemble_add<'py>(
     let mask = mask.as_ref().map(|m| m.as_array());
     with_frames(py, &fr, |r| {
         let mut acc = cell.lock().unwrap_or_else(|e| e.into_inner());
-        Ok(r.ensemble_add(mask, &win, interp, auto, &mut acc)?)
+        Ok(r.ensemble_add(mask, &win, field.as_ref(), interp, auto, &mut acc)?)
     })
 }
 
@@ -99,7 +105,38 @@ fn ensemble_peaks<'py>(
     Ok(d)
 }
 
+/// The mean of a grid field's bilinear interpolant over each `w` x `h` window centred at
+/// `(x, y)` (`piv_core::GridField::window_mean_at`): the part of a window's displacement that
+/// deforming it by the field accounts for. Returns `(u, v)`.
+#[pyfunction]
+fn grid_field_window_mean<'py>(
+    py: Python<'py>,
+    field_grid: (f64, f64, f64, f64),
+    field_u: PyReadonlyArray2<'py, f64>,
+    field_v: PyReadonlyArray2<'py, f64>,
+    x: PyReadonlyArray1<'py, f64>,
+    y: PyReadonlyArray1<'py, f64>,
+    window: (usize, usize),
+) -> PyResult<(
+    Bound<'py, numpy::PyArray1<f64>>,
+    Bound<'py, numpy::PyArray1<f64>>,
+)> {
+    let f = grid_field(Some(field_grid), Some(&field_u), Some(&field_v))?.expect("all three given");
+    let (x, y) = (x.as_slice()?, y.as_slice()?);
+    if x.len() != y.len() {
+        return Err(invalid("x and y differ in length"));
+    }
+    let (u, v): (Vec<f64>, Vec<f64>) = py.detach(|| {
+        x.iter()
+            .zip(y)
+            .map(|(&x, &y)| f.window_mean_at(x, y, window.0, window.1))
+            .unzip()
+    });
+    Ok((u.into_pyarray(py), v.into_pyarray(py)))
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(grid_field_window_mean, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_stride, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_add, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_peaks, m)?)?;

@@ -113,6 +113,7 @@ pub(crate) trait Runner: Sync {
         &self,
         mask: Option<ArrayView2<'_, bool>>,
         win: &piv_core::ensemble::Windows<'_>,
+        field: Option<&piv_core::GridField>,
         interp: piv_core::Interpolation,
         auto: bool,
         acc: &mut [f64],
@@ -172,10 +173,11 @@ impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
         &self,
         mask: Option<ArrayView2<'_, bool>>,
         win: &piv_core::ensemble::Windows<'_>,
+        field: Option<&piv_core::GridField>,
         interp: piv_core::Interpolation,
         auto: bool,
         acc: &mut [f64],
     ) -> Result<usize, PivError> {
-        piv_core::ensemble::accumulate(self.0, self.1, mask, win, interp, auto, acc)
+        piv_core::ensemble::accumulate(self.0, self.1, mask, win, field, interp, auto, acc)
     }
 }

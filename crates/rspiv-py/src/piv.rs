@@ -106,40 +106,7 @@ fn piv_at<'py>(
     mask: Option<PyReadonlyArray2<'py, bool>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let s = self::settings(settings)?;
-    let gf: Option<GridField> = match (field_grid, &field_u, &field_v) {
-        (Some((x0, y0, dx, dy)), Some(fu), Some(fv)) => {
-            let (u, v) = (
-                fu.as_array().as_standard_layout().into_owned(),
-                fv.as_array().as_standard_layout().into_owned(),
-            );
-            if u.dim() != v.dim() || u.is_empty() || !(dx > 0.0 && dy > 0.0) {
-                return Err(invalid("predictor field: u and v must share a non-empty shape and the grid steps be > 0",
-                ));
-            }
-            if u.iter().chain(v.iter()).any(|p| !p.is_finite()) {
-                return Err(invalid("predictor field contains NaN or inf"));
-            }
-            let (ny, nx) = u.dim();
-            Some(GridField {
-                grid: Grid {
-                    x0,
-                    y0,
-                    dx,
-                    dy,
-                    nx,
-                    ny,
-                },
-                u,
-                v,
-            })
-        }
-        (None, None, None) => None,
-        _ => {
-            return Err(invalid(
-                "predictor field needs field_grid, field_u and field_v together",
-            ))
-        }
-    };
+    let gf = grid_field(field_grid, field_u.as_ref(), field_v.as_ref())?;
     let pu = predictor_u.as_ref().map(|a| a.as_array());
     let pv = predictor_v.as_ref().map(|a| a.as_array());
     let pred = match (&gf, pu, pv) {
@@ -205,6 +172,50 @@ fn render_particles<'py>(
         )
     });
     Ok(res.map_err(PyRspivErr::from)?.into_pyarray(py))
+}
+
+/// The regular-grid field `(x0, y0, dx, dy)` with `u`, `v` of one shape (all three or none),
+/// checked: a non-empty shape, positive steps, finite values.
+pub(crate) fn grid_field(
+    field_grid: Option<(f64, f64, f64, f64)>,
+    field_u: Option<&PyReadonlyArray2<'_, f64>>,
+    field_v: Option<&PyReadonlyArray2<'_, f64>>,
+) -> PyResult<Option<GridField>> {
+    Ok(match (field_grid, field_u, field_v) {
+        (Some((x0, y0, dx, dy)), Some(fu), Some(fv)) => {
+            let (u, v) = (
+                fu.as_array().as_standard_layout().into_owned(),
+                fv.as_array().as_standard_layout().into_owned(),
+            );
+            if u.dim() != v.dim() || u.is_empty() || !(dx > 0.0 && dy > 0.0) {
+                return Err(invalid(
+                    "predictor field: u and v must share a non-empty shape and the grid steps be > 0",
+                ));
+            }
+            if u.iter().chain(v.iter()).any(|p| !p.is_finite()) {
+                return Err(invalid("predictor field contains NaN or inf"));
+            }
+            let (ny, nx) = u.dim();
+            Some(GridField {
+                grid: Grid {
+                    x0,
+                    y0,
+                    dx,
+                    dy,
+                    nx,
+                    ny,
+                },
+                u,
+                v,
+            })
+        }
+        (None, None, None) => None,
+        _ => {
+            return Err(invalid(
+                "predictor field needs field_grid, field_u and field_v together",
+            ))
+        }
+    })
 }
 
 /// Register the PIV functions in the module.

@@ -213,8 +213,8 @@ impl<'a, T: Pixel> Frames<'a, T> {
     }
 
     /// [`sweep_into`] over the frames: window pairs offset symmetrically by `(du, dv)` per point
-    /// (interpolated unless the offsets keep them on integer positions); returns how many
-    /// windows were used.
+    /// and deformed by `base` (interpolated unless the windows stay on integer positions);
+    /// returns how many windows were used.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn sweep_into<F>(
         &self,
@@ -222,6 +222,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
         h: usize,
         points: (&[f64], &[f64]),
         offsets: (&[f64], &[f64]),
+        base: Option<&GridField>,
         skip: &[bool],
         out: &mut [f64],
         stride: usize,
@@ -230,14 +231,14 @@ impl<'a, T: Pixel> Frames<'a, T> {
     where
         F: Fn(&mut crate::correlate::Correlator, &mut [f64]) + Sync,
     {
-        let integer = on_integers(w, h, points, offsets, skip);
+        let integer = base.is_none() && on_integers(w, h, points, offsets, skip);
         let coeffs = if integer {
             &Coeffs::Keys
         } else {
             self.coeffs()
         };
         with_source!(self, coeffs, |src| sweep_into(
-            &src, w, h, points, offsets, skip, self.floor, out, stride, &f
+            &src, w, h, points, offsets, base, skip, self.floor, out, stride, &f
         ))
     }
 }

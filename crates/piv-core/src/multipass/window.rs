@@ -112,7 +112,8 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
         .collect()
 }
 
-/// A sweep over a list of points as [`sweep`] whose work per window is `f(correlator, out_k)`
+/// A sweep over a list of points as [`sweep`] (windows offset by `du`, `dv` and deformed by
+/// `base`) whose work per window is `f(correlator, out_k)`
 /// with the window pair sampled into `correlator.wa`, `correlator.wb` (already checked by
 /// [`signal_fraction`]) and `out_k = out[k * stride..(k + 1) * stride]`, the point's own part
 /// of `out` (no locks, no allocation per window); windows that are skipped, reach outside the
@@ -124,6 +125,7 @@ pub(crate) fn sweep_into<T, U, W, F, const N: usize>(
     h: usize,
     (xs, ys): (&[f64], &[f64]),
     (du, dv): (&[f64], &[f64]),
+    base: Option<&GridField>,
     skip: &[bool],
     floor: f32,
     out: &mut [f64],
@@ -156,7 +158,7 @@ where
                     top: ys[k] - hh,
                     du: du[k],
                     dv: dv[k],
-                    field: None,
+                    field: base,
                 };
                 let (wa, wb) = (&mut c.wa, &mut c.wb);
                 sample_pair(src, w, h, &spec, wa, wb);
