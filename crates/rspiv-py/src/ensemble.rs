@@ -105,6 +105,12 @@ fn ensemble_peaks<'py>(
     Ok(d)
 }
 
+/// Two 1D float64 arrays.
+type Pair<'py> = (
+    Bound<'py, numpy::PyArray1<f64>>,
+    Bound<'py, numpy::PyArray1<f64>>,
+);
+
 /// The mean of a grid field's bilinear interpolant over each `w` x `h` window centred at
 /// `(x, y)` (`piv_core::GridField::window_mean_at`): the part of a window's displacement that
 /// deforming it by the field accounts for. Returns `(u, v)`.
@@ -117,10 +123,7 @@ fn grid_field_window_mean<'py>(
     x: PyReadonlyArray1<'py, f64>,
     y: PyReadonlyArray1<'py, f64>,
     window: (usize, usize),
-) -> PyResult<(
-    Bound<'py, numpy::PyArray1<f64>>,
-    Bound<'py, numpy::PyArray1<f64>>,
-)> {
+) -> PyResult<Pair<'py>> {
     let f = grid_field(Some(field_grid), Some(&field_u), Some(&field_v))?.expect("all three given");
     let (x, y) = (x.as_slice()?, y.as_slice()?);
     if x.len() != y.len() {
