@@ -61,6 +61,31 @@ pub(crate) fn excluded(
     }
 }
 
+/// Sample the window pair at top-left `(left, top)` offset by `(du, dv)` and deformed by `base`
+/// into `c.wa`, `c.wb`; `false` when it is not to be correlated (a sample outside the image
+/// comes back NaN, or too little signal: [`signal_fraction`]).
+#[inline]
+fn sample_usable<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
+    src: &Source<'_, '_, '_, T, U, W>,
+    c: &mut Correlator,
+    keep: &mut FillScratch,
+    (left, top, du, dv): (f64, f64, f64, f64),
+    base: Option<&GridField>,
+    floor: f32,
+) -> bool {
+    let (w, h) = (c.w, c.h);
+    let spec = WindowSpec {
+        left,
+        top,
+        du,
+        dv,
+        field: base,
+    };
+    let (wa, wb) = (&mut c.wa, &mut c.wb);
+    sample_pair(src, w, h, &spec, wa, wb);
+    signal_fraction(wa, wb, keep, w, h, floor) >= MIN_SIGNAL_FRACTION
+}
+
 /// One correlation sweep over a list of points: `base` (deformation field) and per-point extra
 /// displacement `du`, `dv`. Returns the peaks (FAILED where `skip`), with the uncertainties
 /// that `uncertainty` asks for ([`Uncertainty`]).
@@ -90,20 +115,8 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
                 (c, FillScratch::new(w * h))
             },
             |(c, keep), k| {
-                if skip[k] {
-                    return Peak::FAILED;
-                }
-                let spec = WindowSpec {
-                    left: xs[k] - hw,
-                    top: ys[k] - hh,
-                    du: du[k],
-                    dv: dv[k],
-                    field: base,
-                };
-                let (wa, wb) = (&mut c.wa, &mut c.wb);
-                // samples outside the image come back NaN: not correlated
-                sample_pair(src, w, h, &spec, wa, wb);
-                if signal_fraction(wa, wb, keep, w, h, floor) < MIN_SIGNAL_FRACTION {
+                let spec = (xs[k] - hw, ys[k] - hh, du[k], dv[k]);
+                if skip[k] || !sample_usable(src, c, keep, spec, base, floor) {
                     return Peak::FAILED;
                 }
                 c.correlate(sub)
@@ -150,20 +163,9 @@ where
                 (c, FillScratch::new(w * h))
             },
             |(c, keep), (k, o)| {
-                if skip[k] {
+                let spec = (xs[k] - hw, ys[k] - hh, du[k], dv[k]);
+                if skip[k] || !sample_usable(src, c, keep, spec, base, floor) {
                     return 0usize;
-                }
-                let spec = WindowSpec {
-                    left: xs[k] - hw,
-                    top: ys[k] - hh,
-                    du: du[k],
-                    dv: dv[k],
-                    field: base,
-                };
-                let (wa, wb) = (&mut c.wa, &mut c.wb);
-                sample_pair(src, w, h, &spec, wa, wb);
-                if signal_fraction(wa, wb, keep, w, h, floor) < MIN_SIGNAL_FRACTION {
-                    return 0;
                 }
                 f(c, o);
                 1
