@@ -216,3 +216,20 @@ def test_the_one_vocabulary_and_the_old_keys(tmp_path):
     bad = FULL.replace("overlap = 0.75", 'overlap = 0.75\ninterpolation = "cubic"')
     with pytest.raises(InvalidInputError, match=r"\[piv\]\.interpolation"):
         load_campaign_config(_write(tmp_path, bad))
+
+
+def test_noise_correction_and_uncertainty_keys(tmp_path):
+    """``[piv] uncertainty`` and ``[statistics] noise_correction`` read as booleans; the noise
+    correction without the uncertainty it needs is a one-line error naming the key."""
+    text = FULL.replace("overlap = 0.75", "overlap = 0.75\nuncertainty = false")
+    cfg = load_campaign_config(_write(tmp_path, text))
+    assert cfg.piv.uncertainty is False and cfg.piv.settings().uncertainty is False
+    assert cfg.statistics.noise_correction is False
+    on = FULL.replace("[statistics]\n", "[statistics]\nnoise_correction = true\n")
+    assert load_campaign_config(_write(tmp_path, on)).statistics.noise_correction is True
+    both = text.replace("[statistics]\n", "[statistics]\nnoise_correction = true\n")
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.noise_correction: needs"):
+        load_campaign_config(_write(tmp_path, both))
+    bad = FULL.replace("[statistics]\n", '[statistics]\nnoise_correction = "yes"\n')
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.noise_correction"):
+        load_campaign_config(_write(tmp_path, bad))

@@ -643,6 +643,11 @@ def parse_campaign_config(
             "[calibration].target",
             f"method {cfg.correction.method!r} needs a calibration target (or method = 'none')",
         )
+    if cfg.statistics.noise_correction and not cfg.piv.uncertainty:
+        raise ctx.err(
+            "[statistics].noise_correction",
+            "needs the per-vector uncertainty ([piv] uncertainty = true)",
+        )
     if "dir" not in data.get("output", {}):
         cfg.output.dir = ctx.base / cfg.output.dir
     return cfg
