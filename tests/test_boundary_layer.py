@@ -197,3 +197,31 @@ def test_clauser_fit_without_log_region_is_a_convergence_error():
     y = yp * NU / u_tau
     with pytest.raises(ConvergenceError, match="no usable log region"):
         clauser_fit(y, u_tau * chauhan_inner(yp), NU, delta99=y[-1])
+
+
+def test_noise_corrected_stresses_and_their_uncertainty():
+    """``analyse_profile(noise=...)``: uu and vv less the mean squared uncertainty (NaN where
+    negative), their uncertainty the measured stresses' and the noise estimate's in
+    quadrature; U, uv and the fits unchanged."""
+    from rspiv.boundary_layer import analyse_profile, composite_u_plus
+
+    nu, ut = 1.5e-5, 0.4
+    y = np.geomspace(2e-4, 0.08, 60)
+    U = ut * composite_u_plus(y * ut / nu, 2000.0, 0.5)
+    uu = np.full(60, 4.0 * ut**2)
+    vv = np.full(60, 1.0 * ut**2)
+    uv = np.full(60, -0.9 * ut**2)
+    nuu, nvv = 0.25 * uu, 0.5 * vv
+    nuu[0] = 2 * uu[0]  # noise above the measured variance: no corrected value there
+    enuu, envv = 0.01 * uu, 0.02 * vv
+    raw = analyse_profile(y, U, uu, vv, uv, nu, 1000.0)
+    cor = analyse_profile(y, U, uu, vv, uv, nu, 1000.0, noise=(nuu, nvv, enuu, envv))
+    assert cor.u_tau == raw.u_tau and np.array_equal(cor.uv_plus, raw.uv_plus)
+    np.testing.assert_allclose(cor.uu_plus[1:] * cor.u_tau**2, (uu - nuu)[1:], rtol=1e-12)
+    np.testing.assert_allclose(cor.vv_plus * cor.u_tau**2, vv - nvv, rtol=1e-12)
+    assert np.isnan(cor.uu_plus[0])
+    np.testing.assert_allclose(
+        cor.eps_uu_plus, np.hypot(raw.eps_uu_plus, enuu / raw.u_tau**2), rtol=1e-12
+    )
+    with pytest.raises(InvalidInputError, match="noise: expected"):
+        analyse_profile(y, U, uu, vv, uv, nu, 1000.0, noise=(nuu, nvv))

@@ -30,6 +30,13 @@ Uncertainties (standard uncertainties, one sigma) from the effective sample coun
 one number or array for all four, or a mapping ``{"U": ..., "uu": ..., "vv": ..., "uv": ...}``
 (:meth:`~rspiv.stats.FieldAccumulator.n_eff_all`); a missing stress key takes the "U" value,
 which is conservative. Without n_eff they are NaN.
+
+Noise-corrected normal stresses (``analyse_profile(noise=...)``): ``uu_c = uu - <sigma_u^2>``
+(and vv alike; NaN where negative), with ``eps_uu_c = sqrt(eps_uu^2 + eps_N^2)``: the sampling
+uncertainty of the measured ``uu`` (from the measured value, which holds the noise) and the
+standard error ``eps_N`` of the mean squared uncertainty (:meth:`rspiv.stats.FieldAccumulator.
+noise_uncertainty`). ``eps_U`` stays ``sqrt(uu / n_U)`` of the measured ``uu``; ``uv`` is not
+corrected.
 """
 
 from __future__ import annotations
@@ -543,6 +550,7 @@ def analyse_profile(
     fit_offset: bool = True,
     y_max_fit: float | None = None,
     y_min_fit: float = 0.0,
+    noise=None,
 ) -> BoundaryLayerResult:
     """Analyse one mean profile: u_tau (composite and Clauser), wall offset, thicknesses,
     Reynolds numbers, and the profiles in wall units with their uncertainties.
@@ -564,6 +572,10 @@ def analyse_profile(
         Fit the wall offset in the composite fit.
     y_max_fit, y_min_fit : float, optional
         Range of y_m for the composite fit (see :func:`composite_fit`).
+    noise : (noise_uu, noise_vv, eps_noise_uu, eps_noise_vv), optional
+        Mean squared per-vector uncertainties of u and v and their standard errors (m^2/s^2,
+        same length as y_m): the normal stresses are reported noise-corrected (module
+        docstring).
     """
     nu = _check_nu(nu)
     y_in = _as_profile("y_m", y_m)
@@ -593,6 +605,20 @@ def analyse_profile(
     except (ConvergenceError, InvalidInputError):
         ucl = float("nan")
     eU, euu, evv, euv = stress_uncertainties(uu_in, vv_in, uv_in, ne_map)
+    if noise is not None:
+        if len(noise) != 4:
+            raise InvalidInputError(
+                "noise: expected (noise_uu, noise_vv, eps_noise_uu, eps_noise_vv), "
+                f"got {len(noise)} arrays"
+            )
+        nuu, nvv, enuu, envv = (
+            _as_profile(f"noise[{i}]", a, n)[order] for i, a in enumerate(noise)
+        )
+        with np.errstate(invalid="ignore"):
+            uu_in = np.where(uu_in - nuu >= 0, uu_in - nuu, np.nan)
+            vv_in = np.where(vv_in - nvv >= 0, vv_in - nvv, np.nan)
+        euu = np.hypot(euu, enuu)
+        evv = np.hypot(evv, envv)
     return BoundaryLayerResult(
         nu=nu,
         u_tau=ut,
@@ -687,7 +713,8 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
     It also holds ``noise_uu``, ``noise_vv``: the count-weighted averages along x of the
     per-vector mean squared uncertainties (:meth:`~rspiv.stats.FieldAccumulator.noise_uu`; NaN
     where no uncertainties were accumulated), the variance the measurement noise adds to
-    ``uu`` and ``vv``.
+    ``uu`` and ``vv``, and ``eps_noise_uu``, ``eps_noise_vv``, their standard errors (the
+    ``noise`` of :func:`analyse_profile`).
     """
     if len(acc.shape) != 2:
         raise InvalidInputError(f"acc: expected a 2D accumulator, got shape {acc.shape}")
@@ -703,7 +730,13 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
         min_count=min_count,
     )
     cnt = np.asarray(acc.count, dtype=np.float64)
-    for key, noise in (("noise_uu", acc.noise_uu()), ("noise_vv", acc.noise_vv())):
+    for key, noise in (
+        ("noise_uu", acc.noise_uu()),
+        ("noise_vv", acc.noise_vv()),
+        # per-vector standard errors averaged alike (taken as fully correlated: conservative)
+        ("eps_noise_uu", acc.noise_uncertainty("u")),
+        ("eps_noise_vv", acc.noise_uncertainty("v")),
+    ):
         w = np.where((cnt >= max(int(min_count), 2)) & np.isfinite(noise), cnt, 0.0)
         wsum = w.sum(axis=axis)
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -156,24 +156,21 @@ def analyse_run(
     ne = {kk: vv[ok] for kk, vv in n_eff.items()} if isinstance(n_eff, dict) else sel(n_eff)
     # Leave out of the composite fit the windows that reach the wall and its reflection.
     y_min_fit = (0.5 * window[1] + 1.0) * m_per_px
-    uu, vv = prof["uu"], prof["vv"]
-    if st.noise_correction:
-        # the measurement noise's variance out of the normal stresses (rspiv.stats); NaN where
-        # it exceeds them, and where no uncertainties were accumulated
-        with np.errstate(invalid="ignore"):
-            uu = np.where(uu - prof["noise_uu"] >= 0, uu - prof["noise_uu"], np.nan)
-            vv = np.where(vv - prof["noise_vv"] >= 0, vv - prof["noise_vv"], np.nan)
+    # the measurement noise's variance out of the normal stresses (rspiv.boundary_layer)
+    keys = ("noise_uu", "noise_vv", "eps_noise_uu", "eps_noise_vv")
+    noise = tuple(prof[k][ok] for k in keys) if st.noise_correction else None
     result = analyse_profile(
         y_m,
         prof["U"][ok],
-        uu[ok],
-        vv[ok],
+        prof["uu"][ok],
+        prof["vv"][ok],
         prof["uv"][ok],
         cfg.flow.nu,
         ne,
         u_e=cfg.flow.u_inf if cfg.flow.u_inf > 0 else None,
         fit_offset=st.fit_offset,
         y_min_fit=y_min_fit,
+        noise=noise,
     )
     return RunAnalysis(run, wall, side, profile, result)
 
