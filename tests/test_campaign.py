@@ -169,13 +169,13 @@ def test_interrupted_run_resumes_to_the_same_statistics(processed, synth, tmp_pa
     calls = {"n": 0}
     real = campaign_mod.process_pair
 
-    def flaky(ctx, pair, frames=None):
+    def flaky(ctx, pair, frames=None, ensembles=None):
         if not ctx.runs[0].name == "method_II" or len(ctx.runs) == 1:
-            return real(ctx, pair, frames)  # the pilot
+            return real(ctx, pair, frames, ensembles)  # the pilot
         calls["n"] += 1
         if calls["n"] == 3:
             raise KeyboardInterrupt
-        return real(ctx, pair, frames)
+        return real(ctx, pair, frames, ensembles)
 
     monkeypatch.setattr(campaign_mod, "process_pair", flaky)
     out = tmp_path / "out"

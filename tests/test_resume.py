@@ -141,11 +141,11 @@ def test_resumed_run_counts_the_checkpoint(case, tmp_path):
     real = campaign_mod.process_pair
     seen: list[int] = []
 
-    def interrupting(ctx, pair, frames=None):
+    def interrupting(ctx, pair, frames=None, ensembles=None):
         if len(seen) == 3:
             raise KeyboardInterrupt
         seen.append(pair.pair_id)
-        return real(ctx, pair, frames)
+        return real(ctx, pair, frames, ensembles)
 
     campaign_mod.process_pair = interrupting
     try:

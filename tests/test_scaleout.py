@@ -207,11 +207,11 @@ def test_dask_resumes_an_interrupted_local_run(synth, local, client, tmp_path, m
     real = campaign_mod.process_pair
     calls = []
 
-    def interrupting(ctx, pair, frames=None):
+    def interrupting(ctx, pair, frames=None, ensembles=None):
         if len(calls) == 3:
             raise KeyboardInterrupt
         calls.append(pair.pair_id)
-        return real(ctx, pair, frames)
+        return real(ctx, pair, frames, ensembles)
 
     monkeypatch.setattr(campaign_mod, "process_pair", interrupting)
     with pytest.raises(KeyboardInterrupt):

@@ -76,6 +76,17 @@ A complete file (every key optional except where noted; defaults shown)::
     noise_correction = false     # subtract each vector's mean sigma^2 from uu and vv
                                  # (rspiv.stats "Measurement noise"; needs [piv] uncertainty)
 
+    [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
+                                 # correlation planes summed over every pair, then the peak
+    enabled = false
+    window = [64, 4]             # [w, h] px of the ensemble windows (h along the wall normal)
+    step = [64, 2]               # [sx, sy] px between window centres (along, away from the wall);
+                                 # the profile sums each row's windows, so overlap along the wall
+                                 # adds memory (the planes of every window), not accuracy
+    band = 60.0                  # height of the band from the wall (see band_units)
+    band_units = "px"            # "px" | "plus" (wall units of the pilot's profile fit)
+    auto_pairs = 200             # pairs whose auto planes (the particle images) are summed
+
     [output]
     dir = "rspiv-out"
     netcdf = true
@@ -263,6 +274,16 @@ class StatisticsConfig:
 
 
 @dataclasses.dataclass
+class EnsembleConfig:
+    enabled: bool = False
+    window: tuple[int, int] = (64, 4)
+    step: tuple[float, float] = (64.0, 2.0)
+    band: float = 60.0
+    band_units: str = "px"
+    auto_pairs: int = 200
+
+
+@dataclasses.dataclass
 class OutputConfig:
     dir: pathlib.Path = dataclasses.field(default_factory=lambda: pathlib.Path("rspiv-out"))
     netcdf: bool = True
@@ -279,6 +300,7 @@ _SECTIONS: dict[str, type] = {
     "wall": WallConfig,
     "flow": FlowConfig,
     "statistics": StatisticsConfig,
+    "ensemble": EnsembleConfig,
     "output": OutputConfig,
 }
 
@@ -301,6 +323,7 @@ class CampaignConfig:
     wall: WallConfig = dataclasses.field(default_factory=WallConfig)
     flow: FlowConfig = dataclasses.field(default_factory=FlowConfig)
     statistics: StatisticsConfig = dataclasses.field(default_factory=StatisticsConfig)
+    ensemble: EnsembleConfig = dataclasses.field(default_factory=EnsembleConfig)
     output: OutputConfig = dataclasses.field(default_factory=OutputConfig)
     source: pathlib.Path | None = None
 
@@ -350,8 +373,10 @@ class CampaignConfig:
         pv["passes"] = [[int(w), int(h)] for w, h in self.piv.passes]
         pv["mask"] = p(self.piv.mask)
         out["piv"] = pv
-        for name in ("preprocess", "wall", "flow", "statistics"):
+        for name in ("preprocess", "wall", "flow", "statistics", "ensemble"):
             out[name] = dataclasses.asdict(getattr(self, name))
+        out["ensemble"]["window"] = [int(v) for v in self.ensemble.window]
+        out["ensemble"]["step"] = [float(v) for v in self.ensemble.step]
         o = dataclasses.asdict(self.output)
         o["dir"] = p(self.output.dir)
         out["output"] = o
@@ -486,6 +511,24 @@ def _passes(ctx, where, v):
     return out
 
 
+def _pair(ctx, where, v, *, integer, minimum):
+    """``[a, b]``: two numbers (integers when ``integer``), each >= ``minimum`` (integers) or
+    > ``minimum`` (floats)."""
+    kind = "integers" if integer else "numbers"
+    if not isinstance(v, list) or len(v) != 2:
+        raise ctx.err(where, f"expected a list of two {kind}, got {v!r}")
+    out = []
+    for item in v:
+        bad = isinstance(item, bool) or not isinstance(item, (int, float))
+        if integer:
+            bad = bad or isinstance(item, float)
+        if bad or not (item >= minimum if integer else item > minimum):
+            rel = ">=" if integer else ">"
+            raise ctx.err(where, f"expected two {kind} {rel} {minimum}, got {v!r}")
+        out.append(int(item) if integer else float(item))
+    return tuple(out)
+
+
 def _method(ctx, where, v):
     try:
         return parse_method(v)
@@ -567,6 +610,14 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "fit_offset": _boolean,
         "reference_re_theta": lambda c, w, v: _number(c, w, v, minimum=0),
         "noise_correction": _boolean,
+    },
+    "ensemble": {
+        "enabled": _boolean,
+        "window": lambda c, w, v: _pair(c, w, v, integer=True, minimum=2),
+        "step": lambda c, w, v: _pair(c, w, v, integer=False, minimum=0),
+        "band": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "band_units": lambda c, w, v: _choice(c, w, v, ("px", "plus"), fold=str.lower),
+        "auto_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
     },
     "output": {
         "dir": lambda c, w, v: c.path(w, v, allow_empty=False),

@@ -49,7 +49,9 @@ Units are those of the inputs; :meth:`FieldAccumulator.to_xarray` records them.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Hashable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -123,6 +125,9 @@ class FieldAccumulator:
         for name in _NOISE:
             dtype = np.int64 if name == "noise_count" else np.float64
             setattr(self, name, np.zeros(self.shape, dtype=dtype))
+        #: optional :class:`rspiv.EnsembleAccumulator` of the same pairs (a campaign's ensemble
+        #: band): carried through :meth:`merge`, pickles and :meth:`to_xarray`
+        self.ensemble: Any = None
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -314,6 +319,11 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
+        if other.ensemble is not None:
+            if self.ensemble is None:
+                self.ensemble = copy.deepcopy(other.ensemble)
+            else:
+                self.ensemble.merge(other.ensemble)
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
         return self
@@ -448,6 +458,7 @@ class FieldAccumulator:
 
     def __setstate__(self, state):
         self.__dict__.update(state)
+        self.__dict__.setdefault("ensemble", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
             if name not in self.__dict__:
@@ -505,6 +516,8 @@ class FieldAccumulator:
             ("vv_corrected", self.vv_corrected(), "vv - <sigma_v^2> (noise-corrected)"),
         ):
             ds[k] = (dims, arr, {"long_name": long_name, "units": stress_units})
+        if self.ensemble is not None:
+            _ensemble_to_dataset(ds, self.ensemble)
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:
@@ -548,6 +561,8 @@ class FieldAccumulator:
             if k in ds:
                 dtype = np.int64 if k == "noise_count" else np.float64
                 setattr(acc, k, np.array(ds[k].values, dtype=dtype))
+        if "ensemble_sum" in ds:
+            acc.ensemble = _ensemble_from_dataset(ds)
         return acc
 
     def __repr__(self) -> str:
@@ -555,6 +570,42 @@ class FieldAccumulator:
             f"FieldAccumulator(shape={self.shape}, fields={self.n_fields}, "
             f"pairs={len(self.pair_ids)}, max count={int(self.count.max())})"
         )
+
+
+def _ensemble_to_dataset(ds, ens) -> None:
+    """Write an EnsembleAccumulator's state into ``ds`` (variables and attributes
+    ``ensemble_*``; :func:`_ensemble_from_dataset` reads them back exactly)."""
+    d = ens.to_arrays()
+    ds["ensemble_sum"] = (("ensemble_window", "ensemble_value"), d["sum"])
+    for k in ("x", "y", "du", "dv"):
+        ds[f"ensemble_{k}"] = (("ensemble_window",), np.ravel(d[k]))
+    if "field_grid" in d:
+        ds["ensemble_field_u"] = (("ensemble_field_y", "ensemble_field_x"), d["field_u"])
+        ds["ensemble_field_v"] = (("ensemble_field_y", "ensemble_field_x"), d["field_v"])
+        ds.attrs["ensemble_field_grid"] = [float(t) for t in d["field_grid"]]
+    ds.attrs["ensemble_shape"] = [int(t) for t in np.shape(d["x"])]
+    ds.attrs["ensemble_window_px"] = [int(t) for t in d["window"]]
+    ds.attrs["ensemble_pairs"] = int(d["pairs"])
+    ds.attrs["ensemble_interpolation"] = str(d["interpolation"])
+
+
+def _ensemble_from_dataset(ds):
+    from rspiv.ensemble import EnsembleAccumulator  # deferred: ensemble imports the extension
+
+    shape = tuple(int(t) for t in np.ravel(ds.attrs["ensemble_shape"]))
+    d: dict[str, Any] = {
+        "sum": ds["ensemble_sum"].values,
+        "window": np.ravel(ds.attrs["ensemble_window_px"]),
+        "pairs": int(ds.attrs["ensemble_pairs"]),
+        "interpolation": str(ds.attrs["ensemble_interpolation"]),
+    }
+    for k in ("x", "y", "du", "dv"):
+        d[k] = np.asarray(ds[f"ensemble_{k}"].values, dtype=np.float64).reshape(shape)
+    if "ensemble_field_u" in ds:
+        d["field_grid"] = np.ravel(ds.attrs["ensemble_field_grid"])
+        d["field_u"] = np.ascontiguousarray(ds["ensemble_field_u"].values, dtype=np.float64)
+        d["field_v"] = np.ascontiguousarray(ds["ensemble_field_v"].values, dtype=np.float64)
+    return EnsembleAccumulator.from_arrays(d)
 
 
 __all__ = ["FieldAccumulator"]

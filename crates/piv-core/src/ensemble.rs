@@ -43,9 +43,10 @@
 //! with the mean field's gradient.
 //!
 //! Accuracy on pairs moved as a whole by Gaussian random displacements (the unit test): the
-//! mean within 0.012 px, the covariances within 13 % (16 x 4 px windows; 9 % at 32 x 16): not
-//! yet the 10 % that the near-wall stresses need; the campaign section, single-pixel ensemble,
-//! the wall band and the Python face are still to come (issue 13).
+//! mean within 0.012 px, the covariances within 13 % (16 x 4 px windows; 9 % at 32 x 16). Summed
+//! over whole rows of windows (the Python face's `result(rows=True)`, a boundary layer's
+//! streamwise homogeneity) the near-wall mean and stresses meet the synthetic boundary layer's
+//! exact statistics (`rspiv.ensemble`); single-pixel ensemble correlation is not here.
 
 use crate::correlate::Correlator;
 use crate::error::{PivError, Result};

@@ -21,6 +21,7 @@ import numpy as np
 
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile, profile_from_accumulator
+from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
 from rspiv.campaign_config import CampaignConfig
@@ -55,7 +56,7 @@ def scaled_accumulator(
 ) -> FieldAccumulator:
     """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
     and axis flips; every moment of the state transforms exactly)."""
-    out = copy.deepcopy(acc)
+    out = copy.deepcopy(acc, memo={id(acc.ensemble): None})  # not the ensemble's sums
     ku, kv = k * sign_u, k * sign_v
     out.mean_u = acc.mean_u * ku
     out.mean_v = acc.mean_v * kv
@@ -133,6 +134,7 @@ def analyse_run(
         "noise_vv": prof["noise_vv"],
         "noise_corrected": bool(st.noise_correction),
         "count": prof["count"],
+        "m_per_px": m_per_px,
         "x_coord": (xs - xs[0]) * m_per_px if m_per_px else xs,
         "y_coord": dist_px * m_per_px if m_per_px else dist_px,
     }
@@ -383,6 +385,15 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 )
         elif an.error:
             rs["error"] = an.error
+        try:
+            prof = ensemble_work.write_outputs(camp, res, run, an)
+        except (RspivError, ValueError) as exc:
+            camp.say(f"{run.label}: ensemble profile failed: {exc}")
+            rs["ensemble_error"] = str(exc)
+            prof = None
+        if prof is not None:
+            res.ensembles[run.name] = prof
+            rs["ensemble"] = {"pairs": prof["pairs"], "rows": int(prof["dist_px"].size)}
         summary["runs"][run.name] = rs
     summary["wall_deviation_px"] = res.wall_deviation
     summary["timings_s"] = res.timings
@@ -426,6 +437,10 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     extra = list(extra_sections)
+    if res.ensembles:
+        sec = ensemble_work.report_section(camp, res)
+        if sec is not None:
+            extra.insert(0, sec)
     if res.skipped:
         extra.append(
             ReportSection(

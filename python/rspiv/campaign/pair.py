@@ -12,14 +12,17 @@ Units: fields in px per pair; corrected runs in object px, the uncorrected run i
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
+from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign.spec import STAGES, PairContext, PairResult, PairSpec
 from rspiv.correction import dewarp_pair, method_two
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image
 from rspiv.multipass import run_grid
+from rspiv.preprocess import condition_pair
 
 __all__ = ["process_pair", "read_ahead", "read_checked_pair", "read_frame"]
 
@@ -107,9 +110,14 @@ def process_pair(
     context: PairContext,
     pair: PairSpec,
     frames: tuple[np.ndarray, np.ndarray] | str | None = None,
+    ensembles: dict[str, Any] | None = None,
 ) -> PairResult:
     """Process one pair for every run of ``context`` (pure: no files written, no state kept
     beyond the context's cache of the parsed mapping).
+
+    ``ensembles``: run name -> :class:`rspiv.EnsembleAccumulator` of the run's ensemble band
+    (:mod:`rspiv.campaign.ensemble`), added to in place once every run's PIV succeeded (the
+    only state this function touches; ``timings["ensemble"]``).
 
     ``frames``: the pair's frames already read (:func:`read_ahead`: the arrays or the reason
     they cannot be used); None reads them here (``timings["read"]`` is then the read itself,
@@ -118,7 +126,7 @@ def process_pair(
     Bad data (missing or unreadable frame, frames of different sizes or not of the campaign's
     size) gives ``PairResult(ok=False, reason=...)``; programming errors propagate.
     """
-    t = {k: 0.0 for k in STAGES[:3]}
+    t = {k: 0.0 for k in (*STAGES[:3], "ensemble")}
     t0 = time.perf_counter()
     if frames is None:
         frames = read_ahead(pair, context.image_shape)
@@ -126,13 +134,21 @@ def process_pair(
     if isinstance(frames, str):
         return PairResult(pair.pair_id, False, frames, timings=t)
     a, b = frames
+    ens_pre = context.ensemble_preprocess() if ensembles else None
     try:
+        raw_a, raw_b = a, b
         a, b = context.condition(a, b)
+        if ens_pre is not None:
+            raw_a, raw_b = condition_pair(raw_a, raw_b, ens_pre, context.backgrounds())
+        else:
+            raw_a, raw_b = a, b
     except (RspivError, ValueError) as exc:
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
     mask = context.mask()
     settings = context.piv
     fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    ens_frames: dict[str, tuple[Any, Any, Any]] = {}
+    ensembles = ensembles or {}
     raw = None
     try:
         # The uncorrected field first: it also serves as Method II's predictor.
@@ -142,6 +158,7 @@ def process_pair(
                 raw = run_grid(a, b, settings, mask)
                 t["piv"] += time.perf_counter() - t0
                 fields[run.name] = _field_arrays(raw, context, False)
+                ens_frames[run.name] = (raw_a, raw_b, mask)
             elif run.method == "I":
                 # Method I; the zero fill stays unmasked: _field_arrays keeps only the vectors
                 # whose windows lie inside the recorded image
@@ -154,6 +171,14 @@ def process_pair(
                 f = run_grid(da, db, settings, dmask)
                 t["piv"] += time.perf_counter() - t0
                 fields[run.name] = _field_arrays(f, context, True)
+                if ensembles.get(run.name) is not None and ens_pre is not None:
+                    t0 = time.perf_counter()
+                    da, db, dmask = dewarp_pair(
+                        raw_a, raw_b, context.mapping, object_shape=context.object_shape,
+                        mask=mask, zero_fill="keep",
+                    )  # fmt: skip
+                    t["dewarp"] += time.perf_counter() - t0
+                ens_frames[run.name] = (da, db, dmask)
             elif run.method == "II":
                 f = method_two(
                     a, b, context.mapping, settings, mapping=run.mapping,
@@ -161,8 +186,17 @@ def process_pair(
                 )  # fmt: skip
                 t["piv"] += time.perf_counter() - t0
                 fields[run.name] = _field_arrays(f, context, True)
+                ens_frames[run.name] = (raw_a, raw_b, mask)
             else:
                 raise InvalidInputError(f"run {run.name}: unknown method {run.method!r}")
     except InvalidInputError as exc:  # e.g. frames with NaN: bad data, not a bug
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
+    # the ensemble bands last: a pair is either in every statistic or in none
+    t0 = time.perf_counter()
+    for run in context.runs:
+        acc = ensembles.get(run.name)
+        if acc is not None:
+            fa, fb, fm = ens_frames[run.name]
+            ensemble_work.accumulate(context, run, acc, fa, fb, fm)
+    t["ensemble"] = time.perf_counter() - t0
     return PairResult(pair.pair_id, True, "", fields, t)

@@ -18,7 +18,8 @@ import numpy as np
 
 from rspiv.calibration import Calibration, calibrate
 from rspiv.campaign import pair as pair_work
-from rspiv.campaign.analysis import calibration_table, find_run_wall, wall_dict
+from rspiv.campaign.analysis import analyse_run, calibration_table, find_run_wall, wall_dict
+from rspiv.campaign.ensemble import plan_bands
 from rspiv.campaign.spec import PairContext, PairSpec
 from rspiv.campaign.state import check_writable, json_default
 from rspiv.errors import InvalidInputError, RspivError
@@ -153,6 +154,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     elif cal is not None:
         mapping_json = cal.mapping.to_json()
     ctx = dataclasses.replace(base, mapping_json=mapping_json, _cache={})
+    if cfg.ensemble.enabled:
+        ctx = _plan_ensemble(camp, ctx, pairs, cal, info)
     camp.calibration = cal
     if cal is not None:
         cal.save(out / "calibration.json")
@@ -166,6 +169,85 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         ),
     )
     return ctx
+
+def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
+    """The ensemble bands (:func:`rspiv.campaign.ensemble.plan_bands`) from a pilot over the
+    first ``camp.pilot_pairs`` usable pairs, every run; ``ctx`` with them."""
+    t0 = time.perf_counter()
+    cfg = camp.config
+    accs: dict[str, FieldAccumulator] = {}
+    used = []
+    for p in pairs:
+        if len(used) >= camp.pilot_pairs:
+            break
+        r = pair_work.process_pair(ctx, p)
+        if not r.ok:
+            continue
+        for name, (u, v, valid, *_) in r.fields.items():
+            accs.setdefault(name, FieldAccumulator(u.shape)).add(u, v, valid)
+        used.append(p.pair_id)
+    if not used:
+        raise InvalidInputError("[ensemble]: no readable image pair for the band's pilot")
+    gx, gy = ctx.grid()
+    walls = {}
+    for run in ctx.runs:
+        if cfg.wall.enabled:
+            walls[run.name] = find_run_wall(
+                accs[run.name], gx, gy, cfg.wall.stations, cfg.wall.side, 1
+            )
+        else:  # the convention of analyse_run: the wall at the grid's edge
+            ys = gy[:, 0]
+            side = "above" if cfg.wall.side != "top" else "below"
+            y = ys[-1] + 0.5 * (ys[1] - ys[0]) if side == "above" else ys[0]
+            walls[run.name] = (_LevelWall(float(y)), side)
+    ec = cfg.ensemble
+    band_px = float(ec.band)
+    lv_px = None
+    main = ctx.runs[0]
+    if ec.band_units == "plus" or cal is not None:
+        try:
+            an = analyse_run(
+                main, accs[main.name], gx, gy, cfg,
+                None if cal is None else cal.magnification, cfg.flow.dt, ctx.piv.final_window,
+            )  # fmt: skip
+            if an.result is not None:
+                lv_px = an.result.nu / an.result.u_tau / an.profile["m_per_px"]
+        except (RspivError, ValueError) as exc:
+            if ec.band_units == "plus":
+                raise InvalidInputError(
+                    f"[ensemble].band_units = 'plus': the pilot's profile fit failed ({exc})"
+                ) from None
+        if ec.band_units == "plus":
+            if lv_px is None:
+                raise InvalidInputError(
+                    "[ensemble].band_units = 'plus' needs wall units: a calibration and "
+                    "[flow].dt > 0"
+                )
+            band_px = float(ec.band) * lv_px
+    bands = plan_bands(ctx, accs, walls, cfg, band_px)
+    info["ensemble"] = {
+        "pilot_pairs": used,
+        "band_px": band_px,
+        "viscous_length_px": lv_px,
+        "window": list(ec.window),
+        "step": list(ec.step),
+    }
+    camp.say(
+        f"ensemble band: {band_px:.1f} px from the wall, {ec.window[0]} x {ec.window[1]} px "
+        f"windows, predicted from {len(used)} pilot pair(s) ({time.perf_counter() - t0:.1f} s)"
+    )
+    return dataclasses.replace(ctx, ensemble=bands, _cache={})
+
+
+class _LevelWall:
+    """A level wall line ``y = intercept_px`` (``[wall] enabled = false``)."""
+
+    def __init__(self, y: float) -> None:
+        self.intercept_px, self.slope = y, 0.0
+
+    def line(self, x):
+        return self.intercept_px + 0.0 * np.asarray(x, dtype=np.float64)
+
 
 def _backgrounds(camp, pairs: list[PairSpec], pre, shape: tuple[int, int]) -> tuple[Any, Any]:
     """The run's backgrounds of frames A and B (``pre.background``: min or mean over every

@@ -15,6 +15,7 @@ from typing import Any
 import tifffile
 
 from rspiv.campaign import checkpoint
+from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
 from rspiv.campaign.prepare import prepare_context
@@ -233,7 +234,9 @@ class Campaign:
             state.finished = set(ckpt["finished"])
             state.timings = dict(ckpt.get("timings", {}))
         else:
-            state.accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
+            state.accs = ensemble_work.attach(
+                ctx, {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
+            )
             state.finished = set()
             state.timings = {k: 0.0 for k in STAGES}
         state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)

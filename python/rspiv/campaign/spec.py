@@ -38,7 +38,7 @@ CHECKPOINT_FORMAT = "rspiv-checkpoint"
 #: 2: the context holds one PivSettings (was loose passes/overlap/... fields)
 CHECKPOINT_VERSION = 2
 #: Stages timed per pair (s), in the run log and the report.
-STAGES = ("read", "dewarp", "piv", "statistics")
+STAGES = ("read", "dewarp", "piv", "statistics", "ensemble")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,6 +105,8 @@ class PairContext:
     mask_path: str | None = None
     preprocess: Preprocess = dataclasses.field(default_factory=Preprocess)
     background_paths: tuple[str, str] | None = None
+    #: run name -> the ensemble band of that run (:mod:`rspiv.campaign.ensemble`), or None
+    ensemble: dict[str, Any] | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -156,6 +158,17 @@ class PairContext:
             return a, b
         return condition_pair(a, b, self.preprocess, self.backgrounds())
 
+    def ensemble_preprocess(self) -> Preprocess | None:
+        """The conditioning of the frames the ensemble bands correlate, when it differs from
+        ``preprocess``: the same without the high-pass filter. A high-passed particle image's
+        correlation has negative side lobes (the filter removes its mean), so the summed cross
+        peak is no longer the auto peak widened by the displacement PDF that the Reynolds
+        stresses are read from; each window's mean removal already takes out the background.
+        None: the PIV's own conditioned frames serve."""
+        if not self.preprocess.enabled or self.preprocess.high_pass <= 0:
+            return None
+        return dataclasses.replace(self.preprocess, high_pass=0.0)
+
     def grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Window centres (px) of the final pass, shape (ny, nx) each (same for every run)."""
         return grid_for_windows(self.object_shape, self.piv.final_window, self.piv.overlaps[-1])
@@ -170,6 +183,7 @@ class PairContext:
             "preprocess": self.preprocess.to_dict(),
             "background_paths": self.background_paths,
             "runs": [dataclasses.asdict(r) for r in self.runs],
+            **({} if self.ensemble is None else {"ensemble": self.ensemble}),
         }
 
     @classmethod
@@ -185,6 +199,7 @@ class PairContext:
             background_paths=(
                 None if d.get("background_paths") is None else tuple(d["background_paths"])
             ),
+            ensemble=d.get("ensemble"),
         )
 
     def fingerprint(self) -> str:

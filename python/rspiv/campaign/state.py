@@ -105,6 +105,8 @@ class CampaignResult:
         Output name -> path.
     wall_deviation : dict
         Condition -> the wall's maximum deviation (px), as in the paper's table.
+    ensembles : dict
+        Run name -> its ensemble profile near the wall (``[ensemble]``; empty without).
     """
 
     out_dir: pathlib.Path
@@ -119,6 +121,8 @@ class CampaignResult:
     files: dict[str, pathlib.Path]
     wall_deviation: dict[str, float]
     info: dict[str, Any] = dataclasses.field(default_factory=dict)
+    #: run name -> the ensemble profile (:func:`rspiv.campaign.ensemble.ensemble_profile`)
+    ensembles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
     @property
     def report(self) -> pathlib.Path | None:

@@ -58,6 +58,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair as pair_work
 from rspiv.campaign.reduce import RunReducer, add_fields
 from rspiv.campaign.runner import Campaign
@@ -125,7 +126,8 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
     # one parsed context (mapping, mask) per worker process and campaign
     context = _CONTEXTS.setdefault(context.fingerprint(), context)
     gx, _ = context.grid()
-    accs = {r.name: FieldAccumulator(gx.shape) for r in context.runs}
+    accs = ensemble_work.attach(context, {r.name: FieldAccumulator(gx.shape) for r in context.runs})
+    ens = {n: a.ensemble for n, a in accs.items() if a.ensemble is not None}
     first = None
     done: list[int] = []
     skipped: dict[int, tuple[str, str]] = {}
@@ -134,7 +136,7 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
     timings = {k: 0.0 for k in STAGES}
     for p in pairs:
         try:
-            r = pair_work.process_pair(context, p)
+            r = pair_work.process_pair(context, p, ensembles=ens)
         except Exception as exc:  # noqa: BLE001 - one bad pair must not lose the chunk
             tb = traceback.extract_tb(exc.__traceback__)
             where = f" at {tb[-1].filename}:{tb[-1].lineno}" if tb else ""

@@ -50,11 +50,14 @@ class LocalExecutor:
                 waited = time.perf_counter() - t0
                 nxt = todo[i + 1] if i + 1 < len(todo) else None
                 ahead = reader.submit(pair_work.read_ahead, nxt, shape) if nxt else None
-                r = pair_work.process_pair(state.ctx, p, frames=frames)
+                ens = {n: a.ensemble for n, a in state.accs.items() if a.ensemble is not None}
+                consistent = not ens  # the ensembles are added to inside process_pair
+                r = pair_work.process_pair(state.ctx, p, frames=frames, ensembles=ens)
                 del frames
                 r.timings["read"] = waited
                 red.add_timings(r.timings)
                 if not r.ok:
+                    consistent = True
                     red.skip(p.pair_id, p.describe(), r.reason)
                     progress.advance(skipped=True)
                     continue

@@ -1,0 +1,248 @@
+"""The campaign's ensemble band at the wall (issue 13) against the exact synthetic boundary layer.
+
+rspiv.demo's scene at scale 0.1: an 886 x 529 px sensor at the paper's magnification, so the
+viscous length is the paper's 1.49 px (Re_tau = 239); 80 pairs, processed once per module with
+Method II, Method I and without correction, ``[ensemble]`` 64 x 4 px windows every 2 px in a
+40 px band (y+ up to 27).
+
+The truth of an ensemble over 80 pairs is the statistics of those 80 realisations (their sample
+mean lies 3-4 % below the flow's mean near the wall): the scene of every pair is rebuilt
+(:func:`rspiv.synth.tbl.tbl_scene`, the same seed renders the same flow) and its exact
+displacement sampled over the part of each row's windows that lies in the flow, at its true wall
+distance (the windows mapped through the run's frame to the image and through the true lens
+back to the true object plane).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import numpy as np
+import pytest
+import rspiv
+from rspiv.campaign import Campaign
+from rspiv.campaign.ensemble import band_layout
+from rspiv.demo import DEFAULT_SCENE, PAPER_M, synth_campaign
+from rspiv.synth.tbl import tbl_scene
+
+SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.1, pairs=80, monte_carlo_samples=200)
+ENSEMBLE = '[ensemble]\nenabled = true\nwindow = [64, 4]\nstep = [32, 2]\nband = 40.0\n'
+
+
+def _with_ensemble(toml: pathlib.Path, block: str = ENSEMBLE) -> None:
+    text = toml.read_text()
+    head, _, tail = text.partition("[ensemble]")
+    rest = tail[tail.index("\n[", 1) :] if "\n[" in tail[1:] else ""
+    toml.write_text(head + block + rest)
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory) -> pathlib.Path:
+    d = tmp_path_factory.mktemp("ens")
+    synth_campaign(d, scene=SCENE)
+    _with_ensemble(d / "campaign.toml")
+    return d
+
+
+@pytest.fixture(scope="module")
+def processed(synth):
+    camp = Campaign.load(synth / "campaign.toml", extra_methods=("I",), progress=False)
+    return camp, camp.run()
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    lens = SCENE.lens()
+    return [
+        tbl_scene(
+            scale=SCENE.scale,
+            seed=SCENE.seed + 1 + k,
+            flow=SCENE.flow(),
+            u_inf_px=SCENE.u_inf_px,
+            wall_angle_deg=SCENE.wall_angle_deg,
+            lens=lens,
+            correlation_px=SCENE.correlation_px,
+            magnification=PAPER_M / SCENE.scale,
+            reflection=SCENE.reflection,
+        )
+        for k in range(SCENE.pairs)
+    ]
+
+
+def _undistort(lens, p: np.ndarray) -> np.ndarray:
+    """Image px -> true object px (the synthetic lens inverted by fixed-point iteration)."""
+    o = p.copy()
+    for _ in range(40):
+        o = o - (lens.distort(o) - p)
+    return o
+
+
+def _sample_truth(res, run, scenes):
+    """Per row of the run's band: the true wall distance (px), and the sample mean and
+    covariance of the exact displacement (along the wall, normal to it into the flow, px) over
+    the 40 scenes and the row's windows (8 x 3 points per window)."""
+    ctx = res.context
+    lay = band_layout(ctx, run)
+    X, Y = lay["X"], lay["Y"]
+    w, h = lay["window"]
+    ox = ((np.arange(8) + 0.5) / 8 - 0.5) * w
+    oy = ((np.arange(8) + 0.5) / 8 - 0.5) * h
+    PX = X[:, :, None, None] + ox[None, None, :, None] + 0 * oy[None, None, None, :]
+    PY = Y[:, :, None, None] + oy[None, None, None, :] + 0 * ox[None, None, :, None]
+    pts = np.column_stack([PX.ravel(), PY.ravel()])
+    img = pts if run.method == "none" else ctx.mapping.forward(pts)
+    lens = SCENE.lens()
+    obj = _undistort(lens, img)
+    s0 = scenes[0]
+    dist = s0.wall_distance(obj[:, 0], obj[:, 1]).reshape(PX.shape)
+    t, n = s0._frame()
+    us, vn = [], []
+    for sc in scenes:
+        u, v = sc.displacement(obj[:, 0], obj[:, 1])
+        us.append((u * t[0] + v * t[1]).reshape(PX.shape))
+        vn.append((u * n[0] + v * n[1]).reshape(PX.shape))
+    us, vn = np.array(us), np.array(vn)  # (pairs, rows, cols, 8, 8)
+    fu = us - s0.mean_displacement_px(dist)[None]
+    flow = np.broadcast_to(dist > 0, us.shape)  # the part of the windows in the flow
+
+    def mean(a, axes=(0, 2, 3, 4)):
+        return np.sum(np.where(flow, a, 0.0), axis=axes) / np.sum(flow, axis=axes)
+
+    mu, mv = mean(fu), mean(vn)
+    return {
+        "dist": mean(dist[None] + 0 * us),
+        "U": mean(us),
+        "uu": mean(fu * fu) - mu * mu,
+        "vv": mean(vn * vn) - mv * mv,
+        "uv": mean(fu * vn) - mu * mv,
+    }
+
+
+def test_ensemble_outputs(processed):
+    camp, res = processed
+    out = res.out_dir
+    for run in ("method_II", "method_I", "uncorrected"):
+        cols, meta = rspiv.outputs.read_profile_csv(out / f"profile_ensemble_{run}.csv")
+        assert {"dist_px", "U", "uu", "y_plus", "U_plus", "uu_plus", "uv_plus"} <= set(cols)
+        assert meta["pairs"] == "80" and meta["window_px"] == "64x4"
+        assert (out / f"profile_ensemble_{run}.nc").is_file()
+    figs = {p.name for p in (out / "report" / "figures").glob("ensemble_*.png")}
+    assert figs == {"ensemble_mean_velocity.png", "ensemble_reynolds_stresses.png"}
+    assert "Ensemble correlation near the wall" in (out / "report" / "report.html").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"]["method_II"]["ensemble"]["pairs"] == 80
+    # the band cost: timed per pair beside the PIV
+    assert res.timings["ensemble"] > 0
+
+
+@pytest.mark.parametrize("run", ["method_II", "method_I"])
+def test_ensemble_mean_down_to_the_wall(processed, scenes, run):
+    """U within 2 % of the sample truth for 1 <= y+ <= 10 and within 1 % above, where the
+    instantaneous 32 x 8 profile starts at y+ ~ 2.7."""
+    _, res = processed
+    spec = {r.name: r for r in res.context.runs}[run]
+    truth = _sample_truth(res, spec, scenes)
+    prof = res.ensembles[run]
+    yp = truth["dist"] / scenes[0].viscous_length_px
+    err = prof["U"] / truth["U"] - 1
+    print(run, np.round(np.c_[yp, 100 * err], 2).tolist())
+    near = (yp >= 1) & (yp <= 10)
+    far = yp > 10
+    assert near.sum() >= 6 and far.sum() >= 8
+    assert np.max(np.abs(err[near])) < 0.02, np.c_[yp, prof["U"], truth["U"]][near]
+    assert np.max(np.abs(err[far])) < 0.01, np.c_[yp, prof["U"], truth["U"]][far]
+    # the instantaneous profile's first point lies farther out
+    an = res.analyses[run]
+    first = np.min(an.profile["dist_px"][an.profile["dist_px"] > 0.5 * 8])
+    assert first > truth["dist"][0] + 1.5
+
+
+def test_ensemble_stresses_at_the_peak(processed, scenes):
+    """uu+ and vv+ within 10 % at the uu+ peak (y+ 12-18), -uv+ sign and size within 15 %."""
+    _, res = processed
+    run = res.context.runs[0]
+    truth = _sample_truth(res, run, scenes)
+    prof = res.ensembles[run.name]
+    yp = truth["dist"] / scenes[0].viscous_length_px
+    peak = (yp >= 12) & (yp <= 18)
+    assert peak.sum() >= 3
+    uu, vv = prof["uu"][peak].mean(), prof["vv"][peak].mean()
+    # pixel axes: v points away from the flow for a flow above the wall (y down)
+    uv = -prof["uv"][peak].mean()
+    tuu, tvv, tuv = (truth[k][peak].mean() for k in ("uu", "vv", "uv"))
+    assert abs(uu / tuu - 1) < 0.10, (uu, tuu)
+    assert abs(vv / tvv - 1) < 0.10, (vv, tvv)
+    assert tuv < 0 and uv < 0 and abs(uv / tuv - 1) < 0.15, (uv, tuv)
+
+
+def test_methods_agree_and_distortion_shows(processed, scenes):
+    """At the same true wall distances, Methods I and II agree within 0.5 % for y+ >= 2.
+    Without correction the band reads the image-plane displacements at image-plane distances
+    from the wall found in the distorted field: its error against the truth is reported."""
+    _, res = processed
+    runs = {r.name: r for r in res.context.runs}
+    lv = scenes[0].viscous_length_px
+    err = {}
+    for name in ("method_I", "method_II", "uncorrected"):
+        truth = _sample_truth(res, runs[name], scenes)
+        err[name] = (truth["dist"] / lv, res.ensembles[name]["U"] / truth["U"] - 1)
+    yp, e2 = err["method_II"]
+    e1 = np.interp(yp, *err["method_I"])
+    sel = yp >= 2
+    assert np.max(np.abs(e1[sel] - e2[sel])) < 0.005, np.c_[yp, e1, e2][sel]
+    yr, er = err["uncorrected"]
+    print("uncorrected ensemble U error (%) at y+", np.round(np.c_[yr, 100 * er], 2).tolist())
+    assert np.all(np.isfinite(er))
+
+
+def test_local_and_merged_shards_agree(processed, synth):
+    """The ensemble sums of two shards merge to the one-shard sums to 1e-12 relative."""
+    from rspiv.stats import FieldAccumulator
+
+    camp, res = processed
+    parts = []
+    for i in (1, 2):
+        c = Campaign.load(
+            synth / "campaign.toml",
+            extra_methods=("I",),
+            progress=False,
+            shard=f"{i}/2",
+            out_dir=synth / "shards",
+        )
+        parts.append(c.run().accumulators["method_II"])
+    merged = FieldAccumulator.merged(parts)
+    whole = res.accumulators["method_II"].ensemble
+    np.testing.assert_allclose(merged.ensemble.acc, whole.acc, rtol=1e-12, atol=1e-300)
+    assert merged.ensemble.pairs == whole.pairs == 80
+
+
+def test_bad_ensemble_settings(synth, tmp_path):
+    from rspiv.campaign_config import load_campaign_config
+
+    toml = synth / "bad.toml"
+    text = (synth / "campaign.toml").read_text()
+    toml.write_text(text)
+    _with_ensemble(toml, ENSEMBLE.replace("[64, 4]", "[64, 1]"))
+    with pytest.raises(rspiv.InvalidInputError, match=r"\[ensemble\]\.window"):
+        load_campaign_config(toml)
+    toml.write_text(text)
+    _with_ensemble(toml, ENSEMBLE.replace("band = 40.0", "band = 900.0"))
+    camp = Campaign.load(toml, progress=False, out_dir=tmp_path / "out")
+    with pytest.raises(rspiv.InvalidInputError, match="leaves the"):
+        camp.run()
+    assert not (tmp_path / "out" / "statistics_method_II.nc").exists()
+
+
+def test_band_in_wall_units(synth, tmp_path):
+    """``band_units = "plus"``: the band's height from the pilot's viscous length."""
+    toml = synth / "plus.toml"
+    toml.write_text((synth / "campaign.toml").read_text())
+    _with_ensemble(toml, ENSEMBLE.replace("band = 40.0", 'band = 20.0\nband_units = "plus"'))
+    camp = Campaign.load(toml, progress=False, out_dir=tmp_path / "out")
+    ctx = camp.prepare()
+    lv = camp.info["ensemble"]["viscous_length_px"]
+    assert lv == pytest.approx(1.49, rel=0.1)
+    for spec in ctx.ensemble.values():
+        assert spec["band_px"] == pytest.approx(20.0 * lv)
