@@ -235,6 +235,21 @@ def test_bad_ensemble_settings(synth, tmp_path):
     assert not (tmp_path / "out" / "statistics_method_II.nc").exists()
 
 
+def test_too_few_pairs_is_said_not_written(synth, tmp_path):
+    toml = synth / "few.toml"
+    toml.write_text((synth / "campaign.toml").read_text().replace("max_pairs = 0", "max_pairs = 6"))
+    _with_ensemble(toml)
+    lines = []
+    camp = Campaign.load(toml, progress=False, out_dir=tmp_path / "out", log=lines.append)
+    res = camp.run()
+    assert res.n_done == 6 and not res.ensembles
+    assert not list((tmp_path / "out").glob("profile_ensemble_*"))
+    said = [m for m in lines if "ensemble profile failed" in m]
+    assert said and "summed 6 pair(s); its peaks need at least 20" in said[0]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "at least 20" in summary["runs"]["method_II"]["ensemble_error"]
+
+
 def test_band_in_wall_units(synth, tmp_path):
     """``band_units = "plus"``: the band's height from the pilot's viscous length."""
     toml = synth / "plus.toml"

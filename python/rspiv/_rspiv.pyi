@@ -271,6 +271,25 @@ def ensemble_add(
 def ensemble_peaks(
     acc: npt.NDArray[np.float64], window: tuple[int, int]
 ) -> dict[str, npt.NDArray[np.float64]]: ...
+def pixel_stride(rx: int, ry: int) -> int: ...
+def pixel_add(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    seg: int,
+    nseg: int,
+    x0: float,
+    lags: tuple[int, int],
+    y: npt.NDArray[np.float64],
+    du: npt.NDArray[np.float64],
+    dv: npt.NDArray[np.float64],
+    acc: npt.NDArray[np.float64],
+    auto: bool = True,
+    mask: npt.NDArray[np.bool_] | None = None,
+    interpolation: str = "bspline",
+) -> int: ...
+def pixel_peaks(
+    acc: npt.NDArray[np.float64], lags: tuple[int, int]
+) -> dict[str, npt.NDArray[np.float64]]: ...
 def grid_field_window_mean(
     field_grid: tuple[float, float, float, float],
     field_u: npt.NDArray[np.float64],

@@ -46,7 +46,8 @@
 //! mean within 0.012 px, the covariances within 13 % (16 x 4 px windows; 9 % at 32 x 16). Summed
 //! over whole rows of windows (the Python face's `result(rows=True)`, a boundary layer's
 //! streamwise homogeneity) the near-wall mean and stresses meet the synthetic boundary layer's
-//! exact statistics (`rspiv.ensemble`); single-pixel ensemble correlation is not here.
+//! exact statistics (`rspiv.ensemble`); single-pixel ensemble correlation is
+//! [`crate::ensemble_pixel`].
 
 use crate::correlate::Correlator;
 use crate::error::{PivError, Result};
@@ -391,7 +392,7 @@ fn gauss_fit(
 /// constant dip of about `peak volume / window area` that a log fit without it reads as a
 /// narrower peak (-20 % of the variance in 16 x 4 px windows). Returns the centre relative to
 /// `(pc, pr)` and the covariance `P^-1`; the log fit's result if the refinement fails.
-fn baseline_fit(
+pub(crate) fn baseline_fit(
     at: impl Fn(usize, usize) -> f64,
     cw: usize,
     ch: usize,

@@ -18,6 +18,7 @@
 pub mod condition;
 pub mod correlate;
 pub mod ensemble;
+pub mod ensemble_pixel;
 pub mod error;
 pub mod grid;
 pub mod image;

@@ -5,7 +5,8 @@ use crate::errors::{invalid, PyRspivErr};
 use crate::frames::{frames, with_frames};
 use crate::piv::grid_field;
 use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
-use piv_core::ensemble::{peaks, Layout, Windows};
+use piv_core::ensemble::{peaks, EnsemblePeak, Layout, Windows};
+use piv_core::ensemble_pixel::PixelBand;
 use piv_core::Interpolation;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -80,9 +81,13 @@ fn ensemble_peaks<'py>(
     let res = py
         .detach(|| peaks(a, window.0, window.1))
         .map_err(PyRspivErr::from)?;
-    let col = |f: &dyn Fn(&piv_core::ensemble::EnsemblePeak) -> f64| {
-        res.iter().map(f).collect::<Vec<f64>>()
-    };
+    peaks_dict(py, &res)
+}
+
+/// Fitted peaks as a dict of 1D arrays: `dx, dy, cxx, cyy, cxy, axx, ayy, axy, coef, count,
+/// count_auto, ok`.
+fn peaks_dict<'py>(py: Python<'py>, res: &[EnsemblePeak]) -> PyResult<Bound<'py, PyDict>> {
+    let col = |f: &dyn Fn(&EnsemblePeak) -> f64| res.iter().map(f).collect::<Vec<f64>>();
     let d = PyDict::new(py);
     d.set_item("dx", col(&|p| p.dx).into_pyarray(py))?;
     d.set_item("dy", col(&|p| p.dy).into_pyarray(py))?;
@@ -103,6 +108,76 @@ fn ensemble_peaks<'py>(
             .into_pyarray(py),
     )?;
     Ok(d)
+}
+
+/// Values per row of a single-pixel accumulator with lags +-rx x +-ry.
+#[pyfunction]
+fn pixel_stride(rx: usize, ry: usize) -> usize {
+    piv_core::ensemble_pixel::stride(rx, ry)
+}
+
+/// Add one frame pair to the single-pixel accumulator `acc` (rows x stride, float64,
+/// C-contiguous) in place (`piv_core::ensemble_pixel::accumulate`); returns the segments added.
+#[pyfunction]
+#[pyo3(signature = (frame_a, frame_b, seg, nseg, x0, lags, y, du, dv, acc, auto=true,
+    mask=None, interpolation="bspline"))]
+#[allow(clippy::too_many_arguments)]
+fn pixel_add<'py>(
+    py: Python<'py>,
+    frame_a: &Bound<'py, PyAny>,
+    frame_b: &Bound<'py, PyAny>,
+    seg: usize,
+    nseg: usize,
+    x0: f64,
+    lags: (usize, usize),
+    y: PyReadonlyArray1<'py, f64>,
+    du: PyReadonlyArray1<'py, f64>,
+    dv: PyReadonlyArray1<'py, f64>,
+    acc: &Bound<'py, PyArray2<f64>>,
+    auto: bool,
+    mask: Option<PyReadonlyArray2<'py, bool>>,
+    interpolation: &str,
+) -> PyResult<usize> {
+    let interp: Interpolation = interpolation.parse().map_err(PyRspivErr::from)?;
+    let fr = frames(frame_a, frame_b)?;
+    let mut rw = acc
+        .try_readwrite()
+        .map_err(|_| invalid("acc is borrowed elsewhere"))?;
+    let slice = rw
+        .as_slice_mut()
+        .map_err(|_| invalid("acc must be a C-contiguous float64 array"))?;
+    let cell = Mutex::new(slice);
+    let band = PixelBand {
+        seg,
+        nseg,
+        x0,
+        rx: lags.0,
+        ry: lags.1,
+        y: y.as_slice()?,
+        du: du.as_slice()?,
+        dv: dv.as_slice()?,
+    };
+    let mask = mask.as_ref().map(|m| m.as_array());
+    with_frames(py, &fr, |r| {
+        let mut acc = cell.lock().unwrap_or_else(|e| e.into_inner());
+        Ok(r.pixel_add(mask, &band, interp, auto, &mut acc)?)
+    })
+}
+
+/// The fitted row peaks of a single-pixel accumulator (dict as `ensemble_peaks`).
+#[pyfunction]
+fn pixel_peaks<'py>(
+    py: Python<'py>,
+    acc: PyReadonlyArray2<'py, f64>,
+    lags: (usize, usize),
+) -> PyResult<Bound<'py, PyDict>> {
+    let a = acc
+        .as_slice()
+        .map_err(|_| invalid("acc must be C-contiguous"))?;
+    let res = py
+        .detach(|| piv_core::ensemble_pixel::peaks(a, lags.0, lags.1))
+        .map_err(PyRspivErr::from)?;
+    peaks_dict(py, &res)
 }
 
 /// Two 1D float64 arrays.
@@ -143,5 +218,8 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(ensemble_stride, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_add, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_peaks, m)?)?;
+    m.add_function(wrap_pyfunction!(pixel_stride, m)?)?;
+    m.add_function(wrap_pyfunction!(pixel_add, m)?)?;
+    m.add_function(wrap_pyfunction!(pixel_peaks, m)?)?;
     Ok(())
 }

@@ -118,6 +118,14 @@ pub(crate) trait Runner: Sync {
         auto: bool,
         acc: &mut [f64],
     ) -> Result<usize, PivError>;
+    fn pixel_add(
+        &self,
+        mask: Option<ArrayView2<'_, bool>>,
+        band: &piv_core::ensemble_pixel::PixelBand<'_>,
+        interp: piv_core::Interpolation,
+        auto: bool,
+        acc: &mut [f64],
+    ) -> Result<usize, PivError>;
 }
 
 impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
@@ -179,5 +187,15 @@ impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
         acc: &mut [f64],
     ) -> Result<usize, PivError> {
         piv_core::ensemble::accumulate(self.0, self.1, mask, win, field, interp, auto, acc)
+    }
+    fn pixel_add(
+        &self,
+        mask: Option<ArrayView2<'_, bool>>,
+        band: &piv_core::ensemble_pixel::PixelBand<'_>,
+        interp: piv_core::Interpolation,
+        auto: bool,
+        acc: &mut [f64],
+    ) -> Result<usize, PivError> {
+        piv_core::ensemble_pixel::accumulate(self.0, self.1, mask, band, interp, auto, acc)
     }
 }

@@ -193,4 +193,5 @@ mod tests;
 
 pub use deform::{deform_pair, into_buffers};
 pub use field::GridField;
+pub(crate) use sample::sample_shift;
 pub use sample::{inside, sample_pair, Source, WindowSpec};

@@ -7,7 +7,7 @@ use crate::correlate::{Peak, SubPixel, Uncertainty};
 use crate::error::Result;
 use crate::image::{
     bspline5_coeffs, bspline5_weights, bspline_coeffs, bspline_weights, deform_pair, into_buffers,
-    keys_weights, GridField, Img, Pixel, Source,
+    keys_weights, sample_shift, GridField, Img, Pixel, Source,
 };
 use ndarray::ArrayView2;
 use rayon::prelude::*;
@@ -157,6 +157,24 @@ impl<'a, T: Pixel> Frames<'a, T> {
 
     /// The frames deformed symmetrically by `f` (see [`deform_pair`]), written into `reuse`
     /// (the buffers of an earlier deformed pair, [`Frames::into_buffers`]) when given.
+    /// Sample a `w` x `h` strip of frame A with its top-left at `a` and one of frame B at `b`
+    /// (constant sub-pixel shifts, the frames' interpolation) into `wa`, `wb`; the caller
+    /// keeps both inside the image.
+    pub(crate) fn shift_pair(
+        &self,
+        (w, h): (usize, usize),
+        a: (f64, f64),
+        b: (f64, f64),
+        wa: &mut [f32],
+        wb: &mut [f32],
+    ) {
+        let coeffs = self.coeffs();
+        with_source!(self, coeffs, |src| {
+            sample_shift(src.a, src.ia, src.wf, w, h, a.0, a.1, wa);
+            sample_shift(src.b, src.ib, src.wf, w, h, b.0, b.1, wb);
+        })
+    }
+
     pub(crate) fn deformed(
         &self,
         f: &GridField,
