@@ -114,19 +114,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     if cal is not None and main.method != "none" and cfg.wall.enabled and cfg.wall.rotate:
         t0 = time.perf_counter()
         pilot_ctx = dataclasses.replace(base, runs=(main,), _cache={})
-        acc = None
-        used = []
-        for p in pairs:
-            if len(used) >= camp.pilot_pairs:
-                break
-            r = pair_work.process_pair(pilot_ctx, p)
-            if not r.ok:
-                continue
-            u, v, valid, *_ = r.fields[main.name]
-            if acc is None:
-                acc = FieldAccumulator(u.shape)
-            acc.add(u, v, valid)
-            used.append(p.pair_id)
+        accs, used = _pilot(camp, pilot_ctx, pairs)
+        acc = accs.get(main.name)
         if acc is None:
             raise InvalidInputError("no readable image pair for the wall alignment pilot")
         gx, gy = base.grid()
@@ -170,13 +159,13 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     )
     return ctx
 
-def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
-    """The ensemble bands (:func:`rspiv.campaign.ensemble.plan_bands`) from a pilot over the
-    first ``camp.pilot_pairs`` usable pairs, every run; ``ctx`` with them."""
-    t0 = time.perf_counter()
-    cfg = camp.config
+def _pilot(
+    camp, ctx: PairContext, pairs: list[PairSpec]
+) -> tuple[dict[str, FieldAccumulator], list[int]]:
+    """The instantaneous statistics of every run of ``ctx`` over the first ``camp.pilot_pairs``
+    usable pairs, and the ids of those pairs (unreadable ones are passed over)."""
     accs: dict[str, FieldAccumulator] = {}
-    used = []
+    used: list[int] = []
     for p in pairs:
         if len(used) >= camp.pilot_pairs:
             break
@@ -186,6 +175,15 @@ def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dic
         for name, (u, v, valid, *_) in r.fields.items():
             accs.setdefault(name, FieldAccumulator(u.shape)).add(u, v, valid)
         used.append(p.pair_id)
+    return accs, used
+
+
+def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
+    """The ensemble bands (:func:`rspiv.campaign.ensemble.plan_bands`) from a pilot over the
+    first ``camp.pilot_pairs`` usable pairs, every run; ``ctx`` with them."""
+    t0 = time.perf_counter()
+    cfg = camp.config
+    accs, used = _pilot(camp, ctx, pairs)
     if not used:
         raise InvalidInputError("[ensemble]: no readable image pair for the band's pilot")
     gx, gy = ctx.grid()
