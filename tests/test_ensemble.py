@@ -173,3 +173,29 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
         pixel_band(a0.shape, 64, np.array([0.5, 600.0]), wall, "above")
     with pytest.raises(rspiv.InvalidInputError, match="segments of 4 px"):
         PixelAccumulator(y, 4, x0, (du, 0.0)).add(a0, a0)
+
+
+def test_band_helpers_refuse_bad_input_in_one_line(pairs):
+    """band_grid, profile_field, result(rows=True) and from_arrays: one-line errors."""
+    from rspiv.ensemble import band_grid, profile_field
+
+    wall = SHAPE[0] - 0.5
+    with pytest.raises(rspiv.InvalidInputError, match="thinner than its 64 x 4 px windows"):
+        band_grid(SHAPE, (64, 4), (64, 2), 3.0, wall)
+    with pytest.raises(rspiv.InvalidInputError, match="flow_side"):
+        band_grid(SHAPE, (64, 4), (64, 2), 20.0, wall, "left")
+    with pytest.raises(rspiv.InvalidInputError, match="leaves the 256 x 96 px image"):
+        band_grid(SHAPE, (64, 4), (64, 2), 200.0, wall)
+    with pytest.raises(rspiv.InvalidInputError, match="no finite profile point"):
+        profile_field(SHAPE, wall, "above", [np.nan, -1.0], [1.0, 1.0], [0.0, 0.0])
+    x, y, d = band_grid(SHAPE, (64, 4), (64, 2), 20.0, wall)
+    assert np.allclose(wall - y[:, 0], d) and d[0] == 2.0
+    acc = EnsembleAccumulator(x.ravel(), y.ravel(), (64, 4))
+    acc.add(*pairs[0])
+    with pytest.raises(rspiv.InvalidInputError, match="needs a 2D grid"):
+        acc.result(rows=True)
+    state = acc.to_arrays()
+    assert EnsembleAccumulator.from_arrays(state).pairs == 1
+    state["sum"] = state["sum"][:, :-1]
+    with pytest.raises(rspiv.InvalidInputError, match="do not fit"):
+        EnsembleAccumulator.from_arrays(state)

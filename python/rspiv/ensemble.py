@@ -360,6 +360,12 @@ class EnsembleAccumulator:
         for a, b in pairs:
             self.add(a, b, auto=self.pairs < auto_pairs)
 
+    @property
+    def window_counts(self) -> np.ndarray:
+        """Cross planes summed per window (the accumulator's ``n_cross`` column), the shape of
+        the points."""
+        return self.acc[:, -2].reshape(self.shape)
+
     def to_arrays(self) -> dict[str, Any]:
         """The whole state as named arrays and scalars (:meth:`from_arrays` restores it
         exactly; e.g. into a shard's NetCDF file)."""
@@ -459,9 +465,8 @@ class EnsembleAccumulator:
             if len(self.shape) != 2:
                 raise InvalidInputError("result(rows=True) needs a 2D grid of windows")
             ny, nx = self.shape
-            cube = acc.reshape(ny, nx, -1)
-            acc = cube.sum(axis=1)
-            w = cube[:, :, -2]  # planes summed per window
+            acc = acc.reshape(ny, nx, -1).sum(axis=1)
+            w = self.window_counts
             n = np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
 
             def avg(a):

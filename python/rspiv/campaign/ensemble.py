@@ -315,7 +315,7 @@ def ensemble_profile(ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, a
     u, v, uu, vv, uv = (a[:, 0] for a in (res.u, res.v, res.uu, res.vv, res.uv))
     if run.method == "II":
         u, v, uu, vv, uv = _to_object(ctx, lay, u, v, uu, vv, uv)
-    counts = acc.acc.reshape(lay["X"].shape + (-1,))[:, :, -2]
+    counts = acc.window_counts
     X, Y = lay["X"], lay["Y"]
     if an is not None and an.wall is not None:
         sign = 1.0 if an.flow_side == "above" else -1.0

@@ -133,15 +133,15 @@ def process_pair(
         t["read"] = time.perf_counter() - t0
     if isinstance(frames, str):
         return PairResult(pair.pair_id, False, frames, timings=t)
-    a, b = frames
     ens_pre = context.ensemble_preprocess() if ensembles else None
     try:
-        raw_a, raw_b = a, b
-        a, b = context.condition(a, b)
-        if ens_pre is not None:
-            raw_a, raw_b = condition_pair(raw_a, raw_b, ens_pre, context.backgrounds())
-        else:
-            raw_a, raw_b = a, b
+        a, b = context.condition(*frames)
+        # the frames the ensemble bands correlate (without the high-pass when it is on)
+        ens_a, ens_b = (
+            (a, b)
+            if ens_pre is None
+            else condition_pair(*frames, ens_pre, context.backgrounds())
+        )
     except (RspivError, ValueError) as exc:
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
     mask = context.mask()
@@ -158,7 +158,7 @@ def process_pair(
                 raw = run_grid(a, b, settings, mask)
                 t["piv"] += time.perf_counter() - t0
                 fields[run.name] = _field_arrays(raw, context, False)
-                ens_frames[run.name] = (raw_a, raw_b, mask)
+                ens_frames[run.name] = (ens_a, ens_b, mask)
             elif run.method == "I":
                 # Method I; the zero fill stays unmasked: _field_arrays keeps only the vectors
                 # whose windows lie inside the recorded image
@@ -174,7 +174,7 @@ def process_pair(
                 if ensembles.get(run.name) is not None and ens_pre is not None:
                     t0 = time.perf_counter()
                     da, db, dmask = dewarp_pair(
-                        raw_a, raw_b, context.mapping, object_shape=context.object_shape,
+                        ens_a, ens_b, context.mapping, object_shape=context.object_shape,
                         mask=mask, zero_fill="keep",
                     )  # fmt: skip
                     t["dewarp"] += time.perf_counter() - t0
@@ -186,7 +186,7 @@ def process_pair(
                 )  # fmt: skip
                 t["piv"] += time.perf_counter() - t0
                 fields[run.name] = _field_arrays(f, context, True)
-                ens_frames[run.name] = (raw_a, raw_b, mask)
+                ens_frames[run.name] = (ens_a, ens_b, mask)
             else:
                 raise InvalidInputError(f"run {run.name}: unknown method {run.method!r}")
     except InvalidInputError as exc:  # e.g. frames with NaN: bad data, not a bug
