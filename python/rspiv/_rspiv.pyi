@@ -75,10 +75,14 @@ def render_target(
     seed: int = 0,
     radius_px: npt.NDArray[np.float64] | None = None,
     plate: float = 0.0,
+    sides: npt.NDArray[np.uint32] | None = None,
+    orientation_rad: npt.NDArray[np.float64] | None = None,
 ) -> npt.NDArray[np.uint16]:
     """Render Gaussian dots (or, where ``radius_px > 0``, discs of that radius blurred by
-    ``sigma_px``) centred at ``centres`` (N, 2) image px on a plate of level ``plate`` under the
-    illumination, with camera noise; negative amplitudes give dark dots."""
+    ``sigma_px``; where ``sides >= 3``, regular polygons of that circumradius with their first
+    vertex at ``orientation_rad`` from +x) centred at ``centres`` (N, 2) image px on a plate of
+    level ``plate`` under the illumination, with camera noise; negative amplitudes give dark
+    dots."""
 
 def detect_markers(
     image: npt.NDArray[np.generic],

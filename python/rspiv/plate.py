@@ -30,13 +30,11 @@ larger magnification) when the scale difference is significant, else the one of 
 
 Fiducials
 ---------
-On each level, a marker whose size or amplitude departs from the median of its (at least three)
-level neighbours' by more than
-``FIDUCIAL_SIZE`` / ``FIDUCIAL_AMPLITUDE`` (log ratio: a larger dot, a hollow ring fitted as a
-dot), or an interior site whose four neighbours are all present while it is empty (a missing
-dot), is a fiducial candidate. A level with exactly one candidate holds the fiducial; the origin
-``(0, 0)`` is then its site and the marker there (if any) is left out of the fit. Otherwise the
-origin is the level's marker nearest the image centre (the paper's central marker).
+Each level's fiducials (a larger, smaller, brighter or dimmer dot, a missing dot, a hollow
+ring, a printed square or triangle) are found and read by :mod:`rspiv.fiducial`, which chooses
+the origin ``(0, 0)`` and, from a second shape fiducial on a lattice line through it, the +u
+axis; the marker at the origin (if any) is left out of the fit. Without a fiducial the origin is
+the level's marker nearest the image centre (the paper's central marker).
 
 Indices
 -------
@@ -51,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv import fiducial as fid
 from rspiv.errors import InvalidInputError
 
 __all__ = [
@@ -74,10 +73,6 @@ Z_LEVELS = 8.0
 #: each axis (a mapping of degree 2-3 in x and y needs them).
 MAX_SKEW_DEG = 15.0
 MIN_SPAN = 4
-#: Fiducial candidates: |log(size / neighbours' size)| and |log(amplitude / neighbours')| above.
-FIDUCIAL_SIZE = 0.15
-FIDUCIAL_AMPLITUDE = 0.3
-
 _NB4 = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
 
@@ -117,23 +112,6 @@ class PlateLayout:
     fiducial: dict[str, Any] | None
     summary: dict[str, Any] = field(default_factory=dict)
     other_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-
-
-def _local_contrast(
-    ij: np.ndarray, values: np.ndarray, steps: tuple, min_neighbours: int = 1
-) -> np.ndarray:
-    """log(value) minus the median log of the neighbours at ``steps`` (NaN with fewer than
-    ``min_neighbours``; the median keeps one odd neighbour, a fiducial, from marking the
-    others)."""
-    at = {(int(a), int(b)): k for k, (a, b) in enumerate(ij)}
-    lv = np.log(np.maximum(np.abs(values), 1e-300))
-    out = np.full(len(ij), np.nan)
-    for k, (a, b) in enumerate(ij):
-        nb = [at.get((int(a) + da, int(b) + db)) for da, db in steps]
-        nb = [q for q in nb if q is not None]
-        if nb and len(nb) >= min_neighbours:
-            out[k] = lv[k] - float(np.median(lv[nb]))
-    return out
 
 
 def _class_z(contrast: np.ndarray, parity: np.ndarray) -> float:
@@ -205,32 +183,6 @@ def _orient(uv: np.ndarray, px: np.ndarray) -> np.ndarray:
     return out
 
 
-def _fiducial(uv: np.ndarray, size: np.ndarray, amp: np.ndarray) -> list[dict[str, Any]]:
-    """Fiducial candidates on one level's lattice (see the module documentation)."""
-    cands: list[dict[str, Any]] = []
-    cs = _local_contrast(uv, size, _NB4, min_neighbours=3)
-    ca = _local_contrast(uv, amp, _NB4, min_neighbours=3)
-    for k in range(len(uv)):
-        kind = None
-        if np.isfinite(cs[k]) and abs(cs[k]) > FIDUCIAL_SIZE:
-            kind = "larger" if cs[k] > 0 else "smaller"
-        elif np.isfinite(ca[k]) and abs(ca[k]) > FIDUCIAL_AMPLITUDE:
-            kind = "brighter" if ca[k] > 0 else "dimmer"
-        if kind:
-            cands.append({"kind": kind, "row": k, "site": (int(uv[k, 0]), int(uv[k, 1]))})
-    at = {(int(a), int(b)) for a, b in uv}
-    for a, b in at:
-        for da, db in _NB4:
-            s = (a + da, b + db)
-            if s in at:
-                continue
-            if all((s[0] + ea, s[1] + eb) in at for ea, eb in _NB4):
-                cand = {"kind": "missing", "row": None, "site": s}
-                if cand not in cands:
-                    cands.append(cand)
-    return cands
-
-
 def analyse_plate(
     image_px: np.ndarray,
     union_index: np.ndarray,
@@ -243,6 +195,8 @@ def analyse_plate(
     *,
     levels: int | None = None,
     level: int | None = None,
+    image: np.ndarray | None = None,
+    dark: bool = False,
 ) -> PlateLayout:
     """Levels, indices and fiducial of a target plate from its union lattice.
 
@@ -262,6 +216,11 @@ def analyse_plate(
         Force one or two levels; None decides from the image.
     level : {None, 1, 2}
         The level to calibrate on; default the one holding the fiducial, else level 1.
+    image : ndarray, optional
+        The target image: the fiducials' shapes are read from it (:mod:`rspiv.fiducial`);
+        without it they are told by size, contrast or absence only.
+    dark : bool
+        The markers are darker than the plate.
 
     Returns
     -------
@@ -289,8 +248,8 @@ def analyse_plate(
     parity = (ij.sum(axis=1) % 2).astype(np.int64)
     n0, n1 = int(np.sum(parity == 0)), int(np.sum(parity == 1))
     f_geo, eps, eps_se = _geometry_test(ij, px, parity, centre) if min(n0, n1) >= 12 else (0, 0, 0)
-    z_size = _class_z(_local_contrast(ij, sz, _NB4), parity)
-    z_amp = _class_z(_local_contrast(ij, am, _NB4), parity)
+    z_size = _class_z(fid.local_contrast(ij, sz), parity)
+    z_amp = _class_z(fid.local_contrast(ij, am), parity)
     summary: dict[str, Any] = {
         "union_pitch_px": float(0.5 * (np.hypot(*s1) + np.hypot(*s2))),
         "union_angle_deg": angle,
@@ -352,14 +311,17 @@ def analyse_plate(
                 members[c] = np.append(members[c], len(rows) - 1)
                 uv_all[c] = np.vstack([uv_all[c], site])
         summary["level_counts"] = {names[c]: len(members[c]) for c in (0, 1)}
-    # Orient each level, find fiducial candidates.
+    # Orient each level, find and read its fiducials.
     fid_of: dict[int, list[dict[str, Any]]] = {}
+    chosen_fid: dict[int, tuple[dict[str, Any] | None, dict[str, Any] | None]] = {}
     for c in uv_all:
         m = members[c]
         if len(m) >= 3:
             uv_all[c] = _orient(uv_all[c], px[m])
-        fid_of[c] = _fiducial(uv_all[c], sz[m], am[m]) if len(m) >= 5 else []
-    with_fid = [c for c in uv_all if len(fid_of[c]) == 1]
+        fid_of[c] = fid.candidates(uv_all[c], sz[m], am[m]) if len(m) >= 5 else []
+        _read_shapes(fid_of[c], uv_all[c], px[m], image, image_px, dark)
+        chosen_fid[c] = fid.choose(fid_of[c])
+    with_fid = [c for c in uv_all if chosen_fid[c][0] is not None]
     if level is None:
         chosen = with_fid[0] if len(with_fid) == 1 else next(c for c in uv_all if names[c] == 1)
     else:
@@ -368,22 +330,28 @@ def analyse_plate(
     uv = uv_all[chosen]
     fiducial = None
     keep = np.ones(len(m), dtype=bool)
-    if len(fid_of[chosen]) == 1:
-        f = fid_of[chosen][0]
+    f, axis = chosen_fid[chosen]
+    if f is not None:
         origin = np.array(f["site"])
-        fid_px = (
-            px[m[f["row"]]]
-            if f["row"] is not None
-            else _predict(uv, px[m], np.array(f["site"]))
-        )
+        if axis is not None:  # the plate's +u: towards the axis fiducial
+            turned = fid.turn_to_axis(np.vstack([uv, origin]), f["site"], axis["site"])
+            uv, origin = turned[:-1], turned[-1]
         fiducial = {"kind": f["kind"], "level": names[chosen], "site": f["site"],
-                    "image_px": [float(v) for v in fid_px]}  # fmt: skip
+                    "image_px": [float(v) for v in f["image_px"]],
+                    "axis": None if axis is None else {
+                        "kind": axis["kind"], "image_px": [float(v) for v in axis["image_px"]]
+                    }}  # fmt: skip
         if f["row"] is not None:
             keep[f["row"]] = False
-    else:
+    # Printed shapes are no dots: their fitted centres stay out of the fit.
+    for g in fid_of[chosen]:
+        if g["kind"] in fid.SHAPES and g["row"] is not None:
+            keep[g["row"]] = False
+    if f is None:
         k0 = int(np.argmin(np.hypot(*(px[m] - centre).T)))
         origin = uv[k0]
     summary["fiducial_candidates"] = {names[c]: len(fid_of[c]) for c in uv_all}
+    summary["fiducial_kinds"] = {names[c]: sorted({f["kind"] for f in fid_of[c]}) for c in uv_all}
     used = m[keep]
     if len(used) < 5:
         raise InvalidInputError(
@@ -416,6 +384,33 @@ def analyse_plate(
         summary=summary,
         other_px=np.ascontiguousarray(other),
     )
+
+
+def _read_shapes(
+    cands: list[dict[str, Any]],
+    uv: np.ndarray,
+    px: np.ndarray,
+    image: np.ndarray | None,
+    all_px: np.ndarray,
+    dark: bool,
+) -> None:
+    """Give each candidate its ``image_px`` and, with the image, its shape's kind and centroid
+    (read within half the distance to the nearest other detection)."""
+    edge = [] if image is None else fid.edge_sites(uv)
+    probes = cands + [{"kind": None, "row": None, "site": s} for s in edge]
+    for f in probes:
+        at = px[f["row"]] if f["row"] is not None else _predict(uv, px, np.array(f["site"]))
+        f["image_px"] = at
+        if image is None:
+            continue
+        d = np.hypot(*(np.asarray(all_px, dtype=np.float64) - at).T)
+        d = d[d > 1e-6]
+        if len(d) == 0:
+            continue
+        kind, centroid, _ = fid.classify_shape(image, at, 0.5 * float(np.min(d)), dark)
+        if kind is not None:
+            f["kind"], f["image_px"] = kind, centroid
+    cands.extend(f for f in probes[len(cands):] if f["kind"] is not None)
 
 
 def _extend(
@@ -459,10 +454,17 @@ def _level_steps(uv: np.ndarray, px: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def _predict(uv: np.ndarray, px: np.ndarray, site: np.ndarray) -> np.ndarray:
-    """Image position of an empty site from its four neighbours (mean)."""
+    """Image position of an empty site: the mean of the midpoints of its neighbours on either
+    side, along each axis where both are present (both axes inside the lattice, one at its
+    edge)."""
     at = {(int(a), int(b)): k for k, (a, b) in enumerate(uv)}
-    nb = [at[(int(site[0]) + da, int(site[1]) + db)] for da, db in _NB4]
-    return np.mean(px[nb], axis=0)
+    a, b = int(site[0]), int(site[1])
+    mids = []
+    for da, db in ((1, 0), (0, 1)):
+        p, q = at.get((a + da, b + db)), at.get((a - da, b - db))
+        if p is not None and q is not None:
+            mids.append(0.5 * (px[p] + px[q]))
+    return np.mean(mids, axis=0)
 
 
 def lattice_record(
@@ -558,6 +560,14 @@ def lattice_line(la: dict[str, Any]) -> str:
     if fid:
         line += "; origin on the {} fiducial at ({:.1f}, {:.1f}) px".format(
             fid["kind"], *fid["image_px"]
+        )
+        axis = fid.get("axis")
+        line += (
+            ", +u towards the {} fiducial at ({:.1f}, {:.1f}) px".format(
+                axis["kind"], *axis["image_px"]
+            )
+            if axis
+            else ", +u the lattice axis nearest +x"
         )
     else:
         line += "; origin on the central marker (no fiducial found)"

@@ -4,7 +4,11 @@
 //! `A_k exp(-|p - c_k|^2 / (2 s_k^2))`, or, when it has a radius `R_k > 0`, as a printed disc
 //! seen through the lens: a uniform disc of radius `R_k` blurred by a Gaussian of standard
 //! deviation `s_k`, `A_k P(|p - c_k|; R_k, s_k)` (the profile of [`crate::markers`]' disc
-//! model, tabulated to 1e-7 and checked there against a brute-force convolution), centred
+//! model, tabulated to 1e-7 and checked there against a brute-force convolution), or, with
+//! [`render_target_shapes`], as a printed regular polygon (a fiducial: triangle, square, ...) of
+//! circumradius `R_k` blurred by `s_k`, `A_k prod_e Phi(d_e / s_k)` over its edges `e` (`d_e`
+//! the signed distance inside edge `e`: exact along the edges, the corners rounded slightly
+//! more than a true convolution would), centred
 //! *exactly* at its image position `c_k` (the image
 //! of the dot's centre under the lens distortion, computed by the caller), so the true marker
 //! position is known exactly. The local change of magnification across one dot (< 0.5 % for the
@@ -23,6 +27,7 @@
 
 use crate::error::{DewarpError, Result};
 use crate::markers::disc::DiscTable;
+use image_core::normal_cdf;
 use ndarray::{Array2, ArrayView1, ArrayView2, Axis};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -79,6 +84,33 @@ pub fn render_target(
     radius_px: Option<ArrayView1<f64>>,
     scene: &TargetScene,
 ) -> Result<Array2<u16>> {
+    render_target_shapes(
+        height, width, centres, sigma_px, amplitude, radius_px, None, scene,
+    )
+}
+
+/// A marker's printed shape: a regular polygon of `sides` (3 or more) whose first vertex lies
+/// at `angle` (radians, from +x towards +y) from its centre, its circumradius the marker's
+/// radius. Round markers (discs, Gaussian blobs) have no shape.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Polygon {
+    pub sides: u32,
+    pub angle: f64,
+}
+
+/// [`render_target`] with printed polygons: `shapes[k]` (if given and `Some`) draws marker `k`
+/// as that polygon, its radius the circumradius (> 0) and its sigma the blur.
+#[allow(clippy::too_many_arguments)]
+pub fn render_target_shapes(
+    height: usize,
+    width: usize,
+    centres: ArrayView2<f64>,
+    sigma_px: ArrayView1<f64>,
+    amplitude: ArrayView1<f64>,
+    radius_px: Option<ArrayView1<f64>>,
+    shapes: Option<&[Option<Polygon>]>,
+    scene: &TargetScene,
+) -> Result<Array2<u16>> {
     if height == 0 || width == 0 || height.saturating_mul(width) > 400_000_000 {
         return Err(DewarpError::InvalidInput(format!(
             "render_target: image size {height} x {width} is empty or too large"
@@ -99,7 +131,27 @@ pub fn render_target(
             radius_px.map_or(0, |r| r.len())
         )));
     }
+    if shapes.is_some_and(|p| p.len() != n) {
+        return Err(DewarpError::InvalidInput(format!(
+            "render_target: {n} markers but {} shapes",
+            shapes.map_or(0, |p| p.len())
+        )));
+    }
     let radius = |k: usize| radius_px.map_or(0.0, |r| r[k]);
+    let shape = |k: usize| shapes.and_then(|p| p[k]);
+    for k in 0..n {
+        if let Some(p) = shape(k) {
+            if p.sides < 3 || p.sides > 64 || !p.angle.is_finite() || radius(k) <= 0.0 {
+                return Err(DewarpError::InvalidInput(format!(
+                    "render_target: marker {k} is a polygon of {} sides at angle {} with radius \
+                     {}: it needs 3-64 sides, a finite angle and a radius > 0",
+                    p.sides,
+                    p.angle,
+                    radius(k)
+                )));
+            }
+        }
+    }
     for k in 0..n {
         let (cx, cy, s, a) = (centres[[k, 0]], centres[[k, 1]], sigma_px[k], amplitude[k]);
         let r = radius(k);
@@ -153,7 +205,7 @@ pub fn render_target(
     // Discs: their tabulated profile (None for Gaussian blobs).
     let discs: Vec<Option<DiscTable>> = (0..n)
         .map(|k| {
-            (radius(k) > 0.0).then(|| {
+            (radius(k) > 0.0 && shape(k).is_none()).then(|| {
                 let mut t = DiscTable::default();
                 t.ensure(
                     radius(k),
@@ -161,6 +213,23 @@ pub fn render_target(
                     blobs[k][4] * std::f64::consts::SQRT_2 + 2.0,
                 );
                 t
+            })
+        })
+        .collect();
+    // Polygons: each edge's outward normal and the inradius, with the blur's 1 / sigma.
+    type Edges = (Vec<[f64; 2]>, f64, f64);
+    let polygons: Vec<Option<Edges>> = (0..n)
+        .map(|k| {
+            shape(k).map(|p| {
+                let m = p.sides as f64;
+                let normals = (0..p.sides)
+                    .map(|e| {
+                        let t = p.angle + std::f64::consts::TAU * (e as f64 + 0.5) / m;
+                        [t.cos(), t.sin()]
+                    })
+                    .collect();
+                let inradius = radius(k) * (std::f64::consts::PI / m).cos();
+                (normals, inradius, 1.0 / sigma_px[k])
             })
         })
         .collect();
@@ -176,7 +245,7 @@ pub fn render_target(
             |row_buf, (y, mut row)| {
                 let yf = y as f64;
                 row_buf.iter_mut().for_each(|v| *v = scene.plate);
-                for (b, disc) in blobs.iter().zip(&discs) {
+                for ((b, disc), polygon) in blobs.iter().zip(&discs).zip(&polygons) {
                     let dy = yf - b[1];
                     if dy.abs() > b[4] {
                         continue;
@@ -184,6 +253,17 @@ pub fn render_target(
                     let x0 = ((b[0] - b[4]).floor().max(0.0)) as usize;
                     let x1 = ((b[0] + b[4]).ceil().min(width as f64 - 1.0)).max(-1.0);
                     if x1 < 0.0 {
+                        continue;
+                    }
+                    if let Some((normals, inradius, inv_s)) = polygon {
+                        for x in x0..=(x1 as usize) {
+                            let dx = x as f64 - b[0];
+                            let v: f64 = normals
+                                .iter()
+                                .map(|u| normal_cdf((inradius - dx * u[0] - dy * u[1]) * inv_s))
+                                .product();
+                            row_buf[x] += b[3] * v;
+                        }
                         continue;
                     }
                     if let Some(t) = disc {
@@ -227,6 +307,64 @@ pub fn render_target(
 mod tests {
     use super::*;
     use ndarray::{array, Array1};
+
+    #[test]
+    fn polygons_have_their_area_and_centroid() {
+        // A square and a triangle of circumradius 12 px, blur 1 px: the integral is the
+        // polygon's area (the blur conserves it; the rounded corners lose < 1 %), the centroid
+        // its centre, and bad polygons are refused.
+        let scene = TargetScene {
+            background: 0.0,
+            gradient: (0.0, 0.0),
+            vignetting: 0.0,
+            gain: 0.0,
+            read_noise: 0.0,
+            plate: 0.0,
+            full_scale: 65535.0,
+            seed: 1,
+        };
+        for (sides, area) in [(4u32, 2.0 * 144.0), (3, 0.75 * 3f64.sqrt() * 144.0)] {
+            let c = array![[30.4, 29.7]];
+            let shapes = [Some(Polygon { sides, angle: 0.3 })];
+            let img = render_target_shapes(
+                60,
+                62,
+                c.view(),
+                Array1::from(vec![1.0]).view(),
+                Array1::from(vec![1000.0]).view(),
+                Some(Array1::from(vec![12.0]).view()),
+                Some(&shapes),
+                &scene,
+            )
+            .unwrap();
+            let (mut sx, mut sy, mut s) = (0.0, 0.0, 0.0);
+            for ((y, x), v) in img.indexed_iter() {
+                let w = *v as f64;
+                sx += w * x as f64;
+                sy += w * y as f64;
+                s += w;
+            }
+            let rel = s / 1000.0 / area - 1.0;
+            assert!(rel.abs() < 0.01, "{sides} sides: area off by {rel}");
+            assert!((sx / s - 30.4).abs() < 0.02 && (sy / s - 29.7).abs() < 0.02);
+            assert_eq!(img[[30, 30]], 1000);
+        }
+        let c = array![[30.0, 30.0]];
+        let one = |sides: u32, r: f64| {
+            render_target_shapes(
+                60,
+                60,
+                c.view(),
+                Array1::from(vec![1.0]).view(),
+                Array1::from(vec![1000.0]).view(),
+                Some(Array1::from(vec![r]).view()),
+                Some(&[Some(Polygon { sides, angle: 0.0 })]),
+                &scene,
+            )
+        };
+        assert!(one(2, 10.0).is_err());
+        assert!(one(4, 0.0).is_err());
+    }
 
     #[test]
     fn blob_peak_and_centroid_at_centre() {

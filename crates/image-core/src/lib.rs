@@ -7,7 +7,8 @@
 //! - [`spline`]: Unser's recursive B-spline prefilter (mirror boundaries), whose coefficients the
 //!   B-spline kernels interpolate;
 //! - [`fft`]: FFT sizing (the next 5-smooth length);
-//! - [`buffer`]: whole-frame scratch buffers that are cheap to first touch.
+//! - [`buffer`]: whole-frame scratch buffers that are cheap to first touch;
+//! - [`special`]: the error function and the normal distribution function (renderers).
 //!
 //! Pixel frame (every crate of rspiv): x = column, y = row, origin at the centre of the top-left
 //! pixel, y down; positions in px.
@@ -19,9 +20,11 @@ pub mod buffer;
 pub mod fft;
 pub mod kernels;
 pub mod pixel;
+pub mod special;
 pub mod spline;
 
 pub use buffer::zeroed_frame;
 pub use fft::fast_len;
 pub use kernels::{bspline5_weights, bspline_weights, keys_kernel, keys_weights, Weights};
 pub use pixel::{Pixel, PixelKind};
+pub use special::{erf, normal_cdf};

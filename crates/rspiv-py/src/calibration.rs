@@ -5,7 +5,7 @@
 use crate::errors::{invalid, PyRspivErr};
 use dewarp_core::markers::{DetectOptions, Detection, DotProfile, MarkerKind, Pixel};
 use dewarp_core::montecarlo::{MonteCarloConfig, MonteCarloResult};
-use dewarp_core::target::TargetScene;
+use dewarp_core::target::{Polygon, TargetScene};
 use dewarp_core::Model;
 use ndarray::{Array1, Array2, Array3, ArrayView2};
 use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
@@ -16,7 +16,8 @@ use pyo3::types::PyDict;
 #[pyfunction]
 #[pyo3(signature = (height, width, centres, sigma_px, amplitude, background = 200.0,
     gradient = (0.08, -0.05), vignetting = 0.15, gain = 0.5, read_noise = 4.0,
-    full_scale = 4095.0, seed = 0, radius_px = None, plate = 0.0))]
+    full_scale = 4095.0, seed = 0, radius_px = None, plate = 0.0, sides = None,
+    orientation_rad = None))]
 fn render_target<'py>(
     py: Python<'py>,
     height: usize,
@@ -33,6 +34,8 @@ fn render_target<'py>(
     seed: u64,
     radius_px: Option<PyReadonlyArray1<'py, f64>>,
     plate: f64,
+    sides: Option<PyReadonlyArray1<'py, u32>>,
+    orientation_rad: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Bound<'py, PyArray2<u16>>> {
     let scene = TargetScene {
         plate,
@@ -50,8 +53,46 @@ fn render_target<'py>(
         amplitude.as_array(),
     );
     let r = radius_px.as_ref().map(|r| r.as_array());
+    // Printed polygons (fiducials): `sides` 0 is a round marker.
+    let shapes: Option<Vec<Option<Polygon>>> = match (&sides, &orientation_rad) {
+        (None, None) => None,
+        (Some(n), o) => {
+            let n = n.as_array();
+            let o = o.as_ref().map(|o| o.as_array());
+            if o.is_some_and(|o| o.len() != n.len()) {
+                return Err(invalid(format!(
+                    "render_target: {} sides but {} orientations",
+                    n.len(),
+                    o.map_or(0, |o| o.len())
+                )));
+            }
+            Some(
+                n.iter()
+                    .enumerate()
+                    .map(|(k, &m)| {
+                        (m != 0).then(|| Polygon {
+                            sides: m,
+                            angle: o.map_or(0.0, |o| o[k]),
+                        })
+                    })
+                    .collect(),
+            )
+        }
+        (None, Some(_)) => return Err(invalid("render_target: orientation_rad without sides")),
+    };
     let img = py
-        .detach(|| dewarp_core::target::render_target(height, width, c, s, a, r, &scene))
+        .detach(|| {
+            dewarp_core::target::render_target_shapes(
+                height,
+                width,
+                c,
+                s,
+                a,
+                r,
+                shapes.as_deref(),
+                &scene,
+            )
+        })
         .map_err(PyRspivErr::from)?;
     Ok(img.into_pyarray(py))
 }

@@ -37,9 +37,10 @@ def detection_overlay(
     stretched (1st to 99.5th percentile of the strided pixels); on it each indexed marker (a
     circle of 3 marker sigmas, with its (i, j) on the plate: relative to the fiducial when the
     plate has one, else to the central marker), the central marker, the fiducial (a magenta
-    star), the other level's markers of a two-level plate (cyan dots, not used) and the blobs
-    that were detected but not indexed (:attr:`Calibration.lattice` ``rejected_px``) as red
-    crosses, with a legend; the title summarises the lattice, level, polarity and origin
+    star; a second one that fixes +u, a magenta diamond with an arrow from the origin), the
+    other level's markers of a two-level plate (cyan dots, not used) and the blobs that were
+    detected but not indexed (:attr:`Calibration.lattice` ``rejected_px``) as red crosses, with
+    a legend; the title summarises the lattice, level, polarity and origin
     (:meth:`Calibration.lattice_summary`).
     """
     plt = _plt()
@@ -76,6 +77,12 @@ def detection_overlay(
     if fid:
         ax.plot(*fid["image_px"], "*", color="magenta", ms=16, mfc="none", mew=1.5, ls="none",
                 label=f"fiducial ({fid['kind']}): origin (0, 0)")  # fmt: skip
+        axis = fid.get("axis")
+        if axis:
+            ax.annotate("", xy=axis["image_px"], xytext=fid["image_px"],
+                        arrowprops={"arrowstyle": "->", "color": "magenta", "lw": 1.5})
+            ax.plot(*axis["image_px"], "D", color="magenta", ms=10, mfc="none", mew=1.5,
+                    ls="none", label=f"fiducial ({axis['kind']}): +u axis")  # fmt: skip
     if lattice is not None and len(lattice["rejected_px"]):
         rej = np.asarray(lattice["rejected_px"])
         ax.plot(rej[:, 0], rej[:, 1], "x", color="red", ms=9, mew=1.5, ls="none",

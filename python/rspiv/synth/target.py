@@ -23,6 +23,7 @@ spots: what a real photograph holds besides the target.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -255,8 +256,8 @@ def calibration_target(
     levels: int = 1,
     level_scale: float = 0.995,
     level_contrast: float = 0.8,
-    fiducial: str | None = None,
-    fiducial_site: tuple[int, int] = (1, 0),
+    fiducial: str | Sequence[str] | None = None,
+    fiducial_site: tuple[int, int] | Sequence[tuple[int, int]] = (1, 0),
 ) -> CalibrationTarget:
     """Render a synthetic calibration target (uint16, 12-bit range) with its true markers.
 
@@ -310,10 +311,15 @@ def calibration_target(
         is scaled by ``level_scale`` about the sensor centre (the principal point) before the
         lens, and its dots have ``level_contrast`` times the amplitude. Its true positions and
         indices are ``extra["level2_px"]``, ``extra["level2_index"]`` (half-integer sites).
-    fiducial : {"large", "ring", "missing"}, optional
-        A fiducial at ``fiducial_site`` of the first level: a dot 1.6 times larger, a hollow
-        ring (outer radius 1.6, inner 1.0 times the dot's), or a missing dot. It is left out of
-        ``markers_px``/``index``; its true position is ``extra["fiducial_px"]``.
+    fiducial : str or sequence of str, optional
+        Fiducials on the first level, one per site of ``fiducial_site`` (a site, or one site per
+        fiducial): ``"large"`` (a dot 1.6 times larger), ``"ring"`` (a hollow ring, outer radius
+        1.6, inner 1.0 times the dot's), ``"missing"`` (no dot), ``"square"`` (a printed square
+        of half side 1.3 dot radii, its edges along the lattice) or ``"triangle"`` (an
+        equilateral triangle of circumradius 2 dot radii, a vertex towards the lattice's +i);
+        a dot's radius is the disc's, or 2 sigma. They are left out of ``markers_px``/``index``;
+        their true positions are ``extra["fiducial_px"]`` (k, 2), their sites
+        ``extra["fiducial_sites"]`` (k, 2), the first's ``extra["fiducial_index"]``.
 
     Returns
     -------
@@ -334,18 +340,14 @@ def calibration_target(
         raise InvalidInputError(f"vignetting must lie in [0, 1), got {vignetting!r}")
     if levels not in (1, 2):
         raise InvalidInputError(f"levels must be 1 or 2, got {levels!r}")
-    if fiducial not in (None, "large", "ring", "missing"):
-        raise InvalidInputError(
-            f"fiducial must be None, 'large', 'ring' or 'missing', got {fiducial!r}"
-        )
+    fid_kinds, fid_sites = _fiducials(fiducial, fiducial_site)
     o = optics.scaled(scale) if scale != 1.0 else optics
     if isinstance(lens, str):
         if lens != "paper":
             raise InvalidInputError(f"lens must be a LensDistortion, 'paper' or None, got {lens!r}")
         lens = paper_lens(o)
     nx, ny = o.n_markers
-    fid = (int(fiducial_site[0]), int(fiducial_site[1]))
-    miss = {(int(a), int(b)) for a, b in missing} | ({fid} if fiducial else set())
+    miss = {(int(a), int(b)) for a, b in missing} | set(fid_sites)
     ij = np.array(
         [
             (i, j)
@@ -382,7 +384,7 @@ def calibration_target(
             pts2 = ideal2
     else:
         ij2, pts2 = np.zeros((0, 2)), np.zeros((0, 2))
-    fid_px = tgt.true_image_px([fid]) if fiducial else np.zeros((0, 2))
+    fid_px = tgt.true_image_px(fid_sites) if fid_sites else np.zeros((0, 2))
     # Spurious blobs keep away from every grid site, missing ones and a ring beyond the edge
     # included (a blob there would be indistinguishable from a marker).
     sites = tgt.true_image_px(
@@ -434,17 +436,24 @@ def calibration_target(
             clut.append(p)
     clut_arr = np.array(clut, dtype=np.float64).reshape(-1, 2)
     contrast = o.amplitude * counts * (-1.0 if dark else 1.0)
-    # Level 2 and the fiducial ride with the markers: (centre, sigma, amplitude, radius).
-    extra_rows = [(p, size, contrast * level_contrast, radius) for p in pts2]
+    # Level 2 and the fiducials ride with the markers: (centre, sigma, amplitude, radius,
+    # polygon sides, first vertex's angle).
+    extra_rows = [(p, size, contrast * level_contrast, radius, 0, 0.0) for p in pts2]
     big = 1.6 * (radius if radius > 0 else size)
-    if fiducial == "large":
-        fid_sigma, fid_radius = (size, big) if radius > 0 else (big, 0.0)
-        extra_rows.append((fid_px[0], fid_sigma, contrast, fid_radius))
-    elif fiducial == "ring":
-        inner = radius if radius > 0 else 2.0 * size
-        blur = size if radius > 0 else 0.5 * size
-        extra_rows += [(fid_px[0], blur, contrast, 1.6 * inner)]
-        extra_rows += [(fid_px[0], blur, -contrast, inner)]
+    r_dot = radius if radius > 0 else 2.0 * size
+    blur = size if radius > 0 else 0.5 * size
+    axis = np.radians(rotation_deg)  # the lattice's +i in the image (before the lens)
+    for kind, p in zip(fid_kinds, fid_px, strict=True):
+        if kind == "large":
+            fid_sigma, fid_radius = (size, big) if radius > 0 else (big, 0.0)
+            extra_rows.append((p, fid_sigma, contrast, fid_radius, 0, 0.0))
+        elif kind == "ring":
+            extra_rows += [(p, blur, contrast, 1.6 * r_dot, 0, 0.0)]
+            extra_rows += [(p, blur, -contrast, r_dot, 0, 0.0)]
+        elif kind == "square":
+            extra_rows.append((p, blur, contrast, 1.3 * np.sqrt(2.0) * r_dot, 4, axis + np.pi / 4))
+        elif kind == "triangle":
+            extra_rows.append((p, blur, contrast, 2.0 * r_dot, 3, axis))
     pts_all = np.vstack([pts, np.array([r[0] for r in extra_rows]).reshape(-1, 2)])
     n_s, n_c = len(spur_arr), len(clut_arr)
     centres = np.vstack([pts_all, spur_arr, clut_arr])
@@ -474,6 +483,10 @@ def calibration_target(
             np.where(glare | (radius == 0.0), 0.0, radius * c_scale),
         ]
     )
+    n_rest = n_s + n_c
+    sides = np.concatenate([np.zeros(len(pts)), [r[4] for r in extra_rows], np.zeros(n_rest)])
+    angles = np.concatenate([np.zeros(len(pts)), [r[5] for r in extra_rows], np.zeros(n_rest)])
+    polygons = bool(np.any(sides > 0))
     background = 200.0 * counts
     plate = 0.7 * full - background if dark else 0.0
     tgt.image = _rspiv.render_target(
@@ -490,6 +503,8 @@ def calibration_target(
         seed=int(seed),
         radius_px=np.ascontiguousarray(rad),
         plate=plate,
+        sides=sides.astype(np.uint32) if polygons else None,
+        orientation_rad=np.ascontiguousarray(angles) if polygons else None,
     )
     if bits == 8:
         tgt.image = tgt.image.astype(np.uint8)
@@ -499,6 +514,36 @@ def calibration_target(
         dot_sigma_px=dot_sigma, dot=dot, disc_radius_px=radius, blur_px=float(blur_px),
         dark=bool(dark), bit_depth=bits, clutter_px=clut_arr, level2_px=pts2,
         level2_index=ij2, fiducial=fiducial, fiducial_px=fid_px,
-        fiducial_index=np.array(fid) if fiducial else None,
+        fiducial_index=np.array(fid_sites[0]) if fid_sites else None,
+        fiducial_sites=np.array(fid_sites, dtype=np.int64).reshape(-1, 2),
     )
     return tgt
+
+
+FIDUCIAL_KINDS = ("large", "ring", "missing", "square", "triangle")
+
+
+def _fiducials(
+    fiducial: str | Sequence[str] | None, site: Any
+) -> tuple[list[str], list[tuple[int, int]]]:
+    """The renderer's fiducials as (kinds, sites), checked."""
+    if fiducial is None:
+        return [], []
+    kinds = [fiducial] if isinstance(fiducial, str) else list(fiducial)
+    for k in kinds:
+        if k not in FIDUCIAL_KINDS:
+            raise InvalidInputError(
+                f"fiducial must be None or one or more of {', '.join(FIDUCIAL_KINDS)}, got {k!r}"
+            )
+    arr = np.asarray(site)
+    if arr.ndim == 1:
+        arr = arr.reshape(1, -1)
+    if arr.ndim != 2 or arr.shape != (len(kinds), 2) or not np.all(arr == np.round(arr)):
+        raise InvalidInputError(
+            f"fiducial_site must give one integer (i, j) site per fiducial ({len(kinds)}), "
+            f"got {site!r}"
+        )
+    sites = [(int(a), int(b)) for a, b in arr]
+    if len(set(sites)) != len(sites):
+        raise InvalidInputError(f"fiducial_site: two fiducials on one site: {sites}")
+    return kinds, sites

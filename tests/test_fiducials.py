@@ -1,0 +1,136 @@
+"""Fiducials that fix a plate's origin and axes (issue 15): printed squares, triangles and rings
+read from the image, the origin on the highest-ranked one, +u towards a second one on a lattice
+line, so that calibrations of one plate agree however the camera is turned. Every case is
+rendered with an exact answer (rspiv.synth)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from rspiv import _rspiv, calibrate
+from rspiv.errors import InvalidInputError
+from rspiv.fiducial import classify_shape
+from rspiv.synth import calibration_target
+from rspiv.synth.target import PAPER_OPTICS
+from scipy.spatial import cKDTree
+
+PITCH = PAPER_OPTICS.pitch_mm
+
+
+def _mark(
+    sides: int, radius: float, seed: int, dark: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
+    """One printed mark (0: a disc) of circumradius ``radius`` px, blur 1 px, 12-bit noise, at a
+    random sub-pixel centre and orientation."""
+    rng = np.random.default_rng(seed)
+    size = int(4 * radius + 24)
+    c = np.array([[0.5 * size, 0.5 * size]]) + rng.uniform(-0.5, 0.5, (1, 2))
+    img = _rspiv.render_target(
+        size, size, c, np.array([1.0]), np.array([-1500.0 if dark else 1500.0]),
+        radius_px=np.array([radius]), sides=np.array([sides], dtype=np.uint32),
+        orientation_rad=np.array([rng.uniform(0, 2 * np.pi)]), seed=seed,
+        plate=2500.0 if dark else 0.0,
+    )  # fmt: skip
+    return img, c[0]
+
+
+@pytest.mark.parametrize("radius", [4.0, 6.0, 10.0, 20.0, 40.0])
+@pytest.mark.parametrize("dark", [False, True])
+def test_shapes_are_read_from_the_image(radius, dark):
+    for sides, kind in ((0, None), (3, "triangle"), (4, "square")):
+        for seed in range(3):
+            img, c = _mark(sides, radius, seed, dark)
+            got, centroid, m = classify_shape(img, c, 1.6 * radius, dark)
+            assert got == kind, (sides, radius, seed, m)
+            # A regular polygon's centroid is its centre.
+            assert np.hypot(*(centroid - c)) < 0.05 * radius + 0.1
+
+
+def test_a_ring_is_read_as_a_ring_and_nothing_as_nothing():
+    size, c = 80, np.array([[40.3, 39.6]])
+    ring = _rspiv.render_target(
+        size, size, np.vstack([c, c]), np.array([1.0, 1.0]), np.array([1500.0, -1500.0]),
+        radius_px=np.array([14.0, 9.0]),
+    )  # fmt: skip
+    assert classify_shape(ring, c[0], 25.0, False)[0] == "ring"
+    blank = _rspiv.render_target(size, size, c, np.array([1.0]), np.array([0.0]))
+    assert classify_shape(blank, c[0], 25.0, False)[0] is None
+
+
+@pytest.mark.parametrize(
+    ("rotation", "dot", "square_plate"),
+    [(0.0, "disc", False), (180.0, "gaussian", False), (90.0, "gaussian", True),
+     (-30.0, "disc", True)],
+)  # fmt: skip
+def test_square_and_triangle_fix_origin_and_axes_however_the_camera_is_turned(
+    rotation, dot, square_plate
+):
+    optics = dataclasses.replace(PAPER_OPTICS, n_markers=(7, 7)) if square_plate else PAPER_OPTICS
+    t = calibration_target(
+        scale=0.25, optics=optics, seed=2, dot=dot, dot_diameter_px=14.0, rotation_deg=rotation,
+        fiducial=("square", "triangle", "ring"), fiducial_site=((1, 0), (3, 0), (-1, 2)),
+    )  # fmt: skip
+    cal = calibrate(t.image, PITCH, model="auto")
+    la = cal.lattice
+    fx = la["fiducial"]
+    assert fx["kind"] == "square" and fx["axis"]["kind"] == "triangle"
+    truth = t.extra["fiducial_px"]
+    assert np.hypot(*(np.array(fx["image_px"]) - truth[0])) < 0.5
+    assert np.hypot(*(np.array(fx["axis"]["image_px"]) - truth[1])) < 1.0
+    # Object coordinates in the plate's own frame (origin on the square, +u towards the
+    # triangle), whatever the camera's turn; the marks themselves are not fitted.
+    d, k = cKDTree(t.markers_px).query(cal.markers.image_px)
+    assert np.max(d) < 0.1 and len(cal.markers) >= len(t.markers_px) - 2
+    rel = (t.index[k] - t.extra["fiducial_index"]) * PITCH
+    assert np.allclose(cal.markers.object_mm, rel)
+    assert np.min(cKDTree(cal.markers.image_px).query(truth)[0]) > 10.0
+    assert "origin on the square fiducial" in cal.lattice_summary()
+    assert "+u towards the triangle fiducial" in cal.lattice_summary()
+
+
+@pytest.mark.parametrize(("fiducial", "dot"), [("square", "gaussian"), ("triangle", "disc")])
+def test_two_level_plate_with_a_printed_fiducial(fiducial, dot):
+    t = calibration_target(
+        scale=0.25, seed=1, levels=2, level_scale=0.995, fiducial=fiducial, dot=dot,
+        dot_diameter_px=14.0,
+    )  # fmt: skip
+    cal = calibrate(t.image, PITCH, model="auto")
+    la = cal.lattice
+    assert la["levels"] == 2 and la["level"] == 1 and la["fiducial"]["kind"] == fiducial
+    assert cal.magnification == pytest.approx(t.optics.magnification, rel=2e-3)
+    d, k = cKDTree(t.markers_px).query(cal.markers.image_px)
+    assert np.max(d) < 0.1
+    assert np.allclose(cal.markers.object_mm, (t.index[k] - t.extra["fiducial_index"]) * PITCH)
+
+
+def test_two_marks_of_the_top_kind_give_no_origin():
+    # Two squares: which is the origin cannot be told; the central marker is, and it is said.
+    t = calibration_target(
+        scale=0.25, seed=3, fiducial=("square", "square"), fiducial_site=((1, 0), (-2, 1))
+    )
+    cal = calibrate(t.image, PITCH, model="auto")
+    assert cal.lattice["fiducial"] is None
+    assert "origin on the central marker" in cal.lattice_summary()
+
+
+def test_bad_fiducial_options_are_one_line_errors():
+    for kw, msg in (
+        ({"fiducial": ("square", "star")}, "fiducial must be"),
+        ({"fiducial": ("square", "triangle"), "fiducial_site": (1, 0)}, "one integer"),
+        ({"fiducial": ("square", "ring"), "fiducial_site": ((1, 0), (1, 0))}, "two fiducials"),
+    ):
+        with pytest.raises(InvalidInputError, match=msg) as e:
+            calibration_target(scale=0.25, **kw)
+        assert "\n" not in str(e.value)
+    with pytest.raises(ValueError, match="orientation_rad without sides"):
+        _rspiv.render_target(
+            20, 20, np.array([[10.0, 10.0]]), np.array([1.0]), np.array([100.0]),
+            orientation_rad=np.array([0.0]),
+        )  # fmt: skip
+    with pytest.raises(ValueError, match="3-64 sides"):
+        _rspiv.render_target(
+            20, 20, np.array([[10.0, 10.0]]), np.array([1.0]), np.array([100.0]),
+            radius_px=np.array([5.0]), sides=np.array([2], dtype=np.uint32),
+        )  # fmt: skip
