@@ -118,7 +118,9 @@ def test_two_marks_of_the_top_kind_give_no_origin():
 def test_bad_fiducial_options_are_one_line_errors():
     for kw, msg in (
         ({"fiducial": ("square", "star")}, "fiducial must be"),
-        ({"fiducial": ("square", "triangle"), "fiducial_site": (1, 0)}, "one integer"),
+        ({"fiducial": ("square", "triangle"), "fiducial_site": (1, 0)}, "one .i, j. site"),
+        ({"fiducial": "square", "fiducial_site": (0.3, 0)}, "half-integers"),
+        ({"fiducial": "square", "fiducial_site": (0.5, 0.5), "levels": 2}, "level-2 dot"),
         ({"fiducial": ("square", "ring"), "fiducial_site": ((1, 0), (1, 0))}, "two fiducials"),
     ):
         with pytest.raises(InvalidInputError, match=msg) as e:
@@ -134,3 +136,49 @@ def test_bad_fiducial_options_are_one_line_errors():
             20, 20, np.array([[10.0, 10.0]]), np.array([1.0]), np.array([100.0]),
             radius_px=np.array([5.0]), sides=np.array([2], dtype=np.uint32),
         )  # fmt: skip
+
+
+@pytest.mark.parametrize("rotation", [0.0, 180.0])
+def test_marks_between_the_sites_of_a_two_level_plate(rotation):
+    # As commercial two-level plates print them: a square and a triangle half-way between two
+    # level-1 dots (the centre of a cell of the union), every dot in place; object coordinates
+    # are half-integer multiples of the pitch from the square, +u towards the triangle.
+    t = calibration_target(
+        scale=0.25, seed=4, levels=2, level_scale=0.995, dot="disc", dot_diameter_px=14.0,
+        rotation_deg=rotation, fiducial=("square", "triangle"),
+        fiducial_site=((0.5, 0), (2.5, 0)),
+    )  # fmt: skip
+    cal = calibrate(t.image, PITCH, model="auto")
+    la = cal.lattice
+    fx = la["fiducial"]
+    assert la["levels"] == 2 and la["level"] == 1
+    assert fx["kind"] == "square" and fx["axis"]["kind"] == "triangle"
+    assert np.hypot(*(np.array(fx["image_px"]) - t.extra["fiducial_px"][0])) < 0.5
+    # (The level's four corner markers touch one union neighbour each and may be pruned.)
+    d, k = cKDTree(t.markers_px).query(cal.markers.image_px)
+    assert np.max(d) < 0.1 and len(cal.markers) >= len(t.markers_px) - 4
+    rel = (t.index[k] - np.array([0.5, 0.0])) * PITCH
+    assert np.allclose(cal.markers.object_mm, rel)
+    assert cal.magnification == pytest.approx(t.optics.magnification, rel=2e-3)
+
+
+def test_two_level_plate_seen_obliquely():
+    # The second level shifted by a parallax of 10 % of the union's pitch (OpenPTV's 4-camera
+    # plate shows 9-10 %): the union is no lattice, its two parity classes are (grid.rs).
+    t = calibration_target(
+        scale=0.25, seed=5, levels=2, level_scale=0.995, level_shift_px=(12.0, 4.0), dot="disc",
+        dot_diameter_px=14.0, fiducial=("square", "triangle"), fiducial_site=((0.5, 0), (2.5, 0)),
+    )  # fmt: skip
+    cal = calibrate(t.image, PITCH, model="auto")
+    la = cal.lattice
+    assert la["levels"] == 2 and la["fiducial"]["kind"] == "square"
+    assert la["plate"]["other_scale"] == pytest.approx(0.995, abs=5e-4)
+    assert len(la["other_level_px"]) >= len(t.extra["level2_px"]) - 4
+    d, k = cKDTree(t.markers_px).query(cal.markers.image_px)
+    assert np.max(d) < 0.1 and len(cal.markers) >= len(t.markers_px) - 4
+    assert np.allclose(cal.markers.object_mm, (t.index[k] - np.array([0.5, 0.0])) * PITCH)
+    assert cal.magnification == pytest.approx(t.optics.magnification, rel=2e-3)
+    cal2 = calibrate(t.image, PITCH, model="auto", level=2)
+    assert cal2.magnification == pytest.approx(0.995 * t.optics.magnification, rel=2e-3)
+    d2, _ = cKDTree(t.extra["level2_px"]).query(cal2.markers.image_px)
+    assert np.max(d2) < 0.1

@@ -475,7 +475,7 @@ def calibrate(
     size = np.where(det["radius_px"] > 0, det["radius_px"], det["width_px"])
     plate = analyse_plate(
         pts, idx, found, a1, a2, size, det["amplitude"], (h, w), levels=levels, level=level,
-        image=img, dark=bool(det["dark"]),
+        image=img, dark=bool(det["dark"]), unfitted_px=det["rejected_px"],
     )  # fmt: skip
     size_px = float(det["size_px"])
     keep = np.flatnonzero(plate.use)

@@ -12,23 +12,31 @@ A marker whose fitted size or amplitude departs from the median of its (at least
 neighbours' by more than :data:`FIDUCIAL_SIZE` / :data:`FIDUCIAL_AMPLITUDE` (log ratio), or an
 interior site whose four neighbours are all present while it is empty (the detector may leave a
 printed shape unfitted, or the plate may have no dot there), is a candidate; so is an empty site
-at the lattice's edge (three neighbours) when a shape is read there. A shape mark the
-size and contrast of the dots is not searched for: a plate's fiducials are larger than its dots.
+at the lattice's edge (three neighbours) when a shape is read there, and a blob off every
+lattice half-way between sites (:func:`off_site`: where two-level plates print their marks, at
+the centre of a cell of the union of the levels) when a shape is read there. Such a fiducial's
+site is a half-integer ``(u, v)``, and object coordinates relative to it are half-integer
+multiples of the pitch. A shape mark of the dots' size and contrast on a site is not searched
+for: a plate's fiducials are larger than its dots.
 
 Shape
 -----
 Each candidate's mark is read from the image within half the distance to its nearest other
 marker: the pixels above half its height over the median level there (bright or dark marks
-alike), the connected part at the site. A region whose holes fill more than :data:`RING_HOLE` of
-it is a ``"ring"``. Otherwise the normalised complex moments of the filled region about its
-centroid, ``c_n = |sum z^n| / sum |z|^n`` (``z = (x - xc) + i (y - yc)``), are zero for a disc,
-about 0.6 (``n = 3``) for a triangle and 0.4 (``n = 4``) for a square, blurred or not, from a
-circumradius of 4 px; measured on rendered marks of radius 4-40 px with 1 px blur and noise, a
-disc stays below 0.09, a square's ``c_3`` below 0.22 and a triangle's ``c_4`` below 0.25. A
-region is a ``"triangle"`` when ``c_3 > C3_TRIANGLE`` and ``c_3 / 0.6 > c_4 / 0.4``, a
-``"square"`` when ``c_4 > C4_SQUARE`` and ``c_4 / 0.4 > c_3 / 0.6``. Regions smaller than a
-disc of radius :data:`MIN_SHAPE_RADIUS_PX` (a triangle of circumradius 4 px blurred by 1 px
-covers a disc of 2.4 px) keep the kind their size or contrast gave.
+alike), the connected part at the site, its holes filled. With ``z = (x - xc) + i (y - yc)``
+about the filled region's centroid, the normalised complex moments
+``c_n = |sum z^n| / sum |z|^n`` are 0 for a disc, about 0.6 (``n = 3``) for a triangle and 0.4
+(``n = 4``) for a square, blurred or not. Measured on rendered marks of circumradius 4-40 px
+with 1 px blur and 12-bit noise, a disc's stay below 0.09, a square's ``c_3`` below 0.22, a
+triangle's ``c_4`` below 0.25, and every regular mark's ``c_2`` (elongation) below 0.21.
+
+- Regions smaller than a disc of radius :data:`MIN_SHAPE_RADIUS_PX` (a triangle of
+  circumradius 4 px blurred by 1 px covers 2.4 px) or elongated (``c_2 > C2_MAX``; OpenPTV's
+  plate: its isosceles triangle 0.13, a glint on its edge 0.57, the "0" of its label beyond)
+  have no shape: they keep the kind their size or contrast gave.
+- A region whose holes fill more than :data:`RING_HOLE` of it is a ``"ring"``;
+- a ``"triangle"`` when ``c_3 > C3_TRIANGLE`` and ``c_3 / 0.6 > c_4 / 0.4``;
+- a ``"square"`` when ``c_4 > C4_SQUARE`` and ``c_4 / 0.4 > c_3 / 0.6``.
 
 Origin and axes
 ---------------
@@ -49,6 +57,7 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 __all__ = [
     "FIDUCIAL_SIZE",
@@ -57,6 +66,7 @@ __all__ = [
     "SHAPES",
     "candidates",
     "edge_sites",
+    "off_site",
     "local_contrast",
     "classify_shape",
     "choose",
@@ -70,6 +80,7 @@ FIDUCIAL_AMPLITUDE = 0.3
 RING_HOLE = 0.2
 C3_TRIANGLE = 0.25
 C4_SQUARE = 0.15
+C2_MAX = 0.3
 MIN_SHAPE_RADIUS_PX = 2.2
 #: The kinds that mark a plate on purpose, in the order they take the origin.
 SHAPES = ("square", "ring", "triangle")
@@ -136,6 +147,42 @@ def edge_sites(uv: np.ndarray) -> list[tuple[int, int]]:
     return sorted(out)
 
 
+def off_site(
+    uv: np.ndarray, px: np.ndarray, blobs: np.ndarray, tol: float = 0.12
+) -> list[tuple[tuple[float, float], np.ndarray]]:
+    """Blobs (off every lattice) that sit half-way between sites of a level: at ``(u + 1/2, v)``,
+    ``(u, v + 1/2)`` or ``(u + 1/2, v + 1/2)`` within ``tol`` of the level's pitch, inside the
+    lattice (three of its markers within 1.6 pitches). Where commercial two-level plates print
+    their fiducials (the centre of a cell of the union of the levels).
+
+    Each blob's fractional ``(u, v)`` comes from an affine fit of the level's 12 markers
+    nearest it (image px from ``(u, v)``), inverted at the blob; returns ``(site, blob_px)``.
+    """
+    out: list[tuple[tuple[float, float], np.ndarray]] = []
+    uvf, pxf = np.asarray(uv, dtype=np.float64), np.asarray(px, dtype=np.float64)
+    if len(pxf) < 6 or len(blobs) == 0:
+        return out
+    tree = cKDTree(pxf)
+    k = min(12, len(pxf))
+    for b in np.asarray(blobs, dtype=np.float64).reshape(-1, 2):
+        d, q = tree.query(b, k=k)
+        design = np.column_stack([np.ones(k), uvf[q]])
+        coef, *_ = np.linalg.lstsq(design, pxf[q], rcond=None)
+        steps = coef[1:]  # rows: image step of +u, of +v
+        pitch = float(np.mean(np.hypot(steps[:, 0], steps[:, 1])))
+        if np.count_nonzero(d < 1.6 * pitch) < 3:
+            continue
+        try:
+            f = np.linalg.solve(steps.T, b - coef[0])
+        except np.linalg.LinAlgError:
+            continue
+        half = np.round(2.0 * f)
+        if np.max(np.abs(2.0 * f - half)) > 2.0 * tol or np.all(half % 2 == 0):
+            continue  # not half-way, or on a site (the empty-site probes cover those)
+        out.append(((float(half[0]) / 2.0 + 0.0, float(half[1]) / 2.0 + 0.0), b))  # no -0.0
+    return out
+
+
 def classify_shape(
     image: np.ndarray, centre_px: np.ndarray, radius_px: float, dark: bool
 ) -> tuple[str | None, np.ndarray, dict[str, float]]:
@@ -181,14 +228,15 @@ def classify_shape(
     centroid = np.array([xs.mean(), ys.mean()])
     z = (xs - centroid[0]) + 1j * (ys - centroid[1])
     a = np.abs(z)
+    c2 = float(abs(np.sum(z**2)) / max(np.sum(a**2), 1e-300))
     c3 = float(abs(np.sum(z**3)) / max(np.sum(a**3), 1e-300))
     c4 = float(abs(np.sum(z**4)) / max(np.sum(a**4), 1e-300))
     radius = float(np.sqrt(area / np.pi))
-    measures = {"c3": c3, "c4": c4, "hole": float(hole), "radius": radius}
+    measures = {"c2": c2, "c3": c3, "c4": c4, "hole": float(hole), "radius": radius}
+    if radius < MIN_SHAPE_RADIUS_PX or c2 > C2_MAX:
+        return None, centroid, measures
     if hole > RING_HOLE:
         return "ring", centroid, measures
-    if radius < MIN_SHAPE_RADIUS_PX:
-        return None, centroid, measures
     if c3 > C3_TRIANGLE and c3 / 0.6 > c4 / 0.4:
         return "triangle", centroid, measures
     if c4 > C4_SQUARE and c4 / 0.4 > c3 / 0.6:

@@ -90,8 +90,9 @@ class PlateLayout:
         Detections used for the calibration (the chosen level, the fiducial left out).
     indexed : ndarray of bool (n,)
         Detections on a lattice site of either level (the rest are rejected blobs).
-    index : ndarray of int (n, 2)
-        ``(u, v)`` on the chosen level's lattice relative to the origin (rows not in ``use``: 0).
+    index : ndarray of float (n, 2)
+        ``(u, v)`` on the chosen level's lattice relative to the origin (rows not in ``use``: 0):
+        integers, or half-integers when the origin is a fiducial between sites.
     central : int
         Row (into the detections) of the chosen level's marker nearest the image centre.
     fiducial : dict or None
@@ -197,6 +198,7 @@ def analyse_plate(
     level: int | None = None,
     image: np.ndarray | None = None,
     dark: bool = False,
+    unfitted_px: np.ndarray | None = None,
 ) -> PlateLayout:
     """Levels, indices and fiducial of a target plate from its union lattice.
 
@@ -221,6 +223,9 @@ def analyse_plate(
         without it they are told by size, contrast or absence only.
     dark : bool
         The markers are darker than the plate.
+    unfitted_px : ndarray (k, 2), optional
+        Blobs the detector found off its coarse lattice and did not fit (with the detections
+        that no level indexes, the places where a fiducial between sites is looked for).
 
     Returns
     -------
@@ -320,10 +325,22 @@ def analyse_plate(
             uv_all[c] = _orient(uv_all[c], px[m])
         fid_of[c] = fid.candidates(uv_all[c], sz[m], am[m]) if len(m) >= 5 else []
         _read_shapes(fid_of[c], uv_all[c], px[m], image, image_px, dark)
+        if image is not None and len(m) >= 6:
+            off = np.ones(len(image_px), dtype=bool)
+            off[rows] = False
+            loose = np.vstack([np.asarray(image_px)[off], np.zeros((0, 2)) if unfitted_px is
+                               None else np.asarray(unfitted_px).reshape(-1, 2)])  # fmt: skip
+            fid_of[c] += _between_sites(uv_all[c], px[m], loose, image, image_px, dark)
         chosen_fid[c] = fid.choose(fid_of[c])
-    with_fid = [c for c in uv_all if chosen_fid[c][0] is not None]
+    # The level holding the fiducial: on one of its sites (a mark between sites, at the centre
+    # of a cell of the union, belongs to both levels alike).
+    origin_of = {c: chosen_fid[c][0] for c in uv_all}
+    on_site = [
+        c for c, f in origin_of.items()
+        if f is not None and all(float(v).is_integer() for v in f["site"])
+    ]  # fmt: skip
     if level is None:
-        chosen = with_fid[0] if len(with_fid) == 1 else next(c for c in uv_all if names[c] == 1)
+        chosen = on_site[0] if len(on_site) == 1 else next(c for c in uv_all if names[c] == 1)
     else:
         chosen = next(c for c in uv_all if names[c] == level)
     m = members[chosen]
@@ -361,7 +378,7 @@ def analyse_plate(
     use[rows[used]] = True
     indexed = np.zeros(len(image_px), dtype=bool)
     indexed[rows] = True
-    index = np.zeros((len(image_px), 2), dtype=np.int64)
+    index = np.zeros((len(image_px), 2), dtype=np.float64)
     index[rows[m]] = uv - origin
     central = int(rows[used][np.argmin(np.hypot(*(px[used] - centre).T))])
     steps = [np.hypot(*d) for d in _level_steps(uv, px[m])]
@@ -411,6 +428,26 @@ def _read_shapes(
         if kind is not None:
             f["kind"], f["image_px"] = kind, centroid
     cands.extend(f for f in probes[len(cands):] if f["kind"] is not None)
+
+
+def _between_sites(
+    uv: np.ndarray,
+    px: np.ndarray,
+    loose: np.ndarray,
+    image: np.ndarray,
+    all_px: np.ndarray,
+    dark: bool,
+) -> list[dict[str, Any]]:
+    """Shape fiducials among the loose blobs half-way between a level's sites."""
+    out: list[dict[str, Any]] = []
+    near = np.vstack([np.asarray(all_px, dtype=np.float64).reshape(-1, 2), loose])
+    for site, b in fid.off_site(uv, px, loose):
+        d = np.hypot(*(near - b).T)
+        d = d[d > 1e-6]
+        kind, centroid, _ = fid.classify_shape(image, b, 0.5 * float(np.min(d)), dark)
+        if kind is not None and all(np.hypot(*(centroid - f["image_px"])) > 1.0 for f in out):
+            out.append({"kind": kind, "row": None, "site": site, "image_px": centroid})
+    return out
 
 
 def _extend(

@@ -256,6 +256,7 @@ def calibration_target(
     levels: int = 1,
     level_scale: float = 0.995,
     level_contrast: float = 0.8,
+    level_shift_px: tuple[float, float] = (0.0, 0.0),
     fiducial: str | Sequence[str] | None = None,
     fiducial_site: tuple[int, int] | Sequence[tuple[int, int]] = (1, 0),
 ) -> CalibrationTarget:
@@ -311,15 +312,21 @@ def calibration_target(
         is scaled by ``level_scale`` about the sensor centre (the principal point) before the
         lens, and its dots have ``level_contrast`` times the amplitude. Its true positions and
         indices are ``extra["level2_px"]``, ``extra["level2_index"]`` (half-integer sites).
+    level_shift_px : (float, float)
+        The second level's parallax in an oblique view: its ideal image shifted by this many px
+        (at the rendered scale) before the lens.
     fiducial : str or sequence of str, optional
         Fiducials on the first level, one per site of ``fiducial_site`` (a site, or one site per
         fiducial): ``"large"`` (a dot 1.6 times larger), ``"ring"`` (a hollow ring, outer radius
         1.6, inner 1.0 times the dot's), ``"missing"`` (no dot), ``"square"`` (a printed square
         of half side 1.3 dot radii, its edges along the lattice) or ``"triangle"`` (an
         equilateral triangle of circumradius 2 dot radii, a vertex towards the lattice's +i);
-        a dot's radius is the disc's, or 2 sigma. They are left out of ``markers_px``/``index``;
-        their true positions are ``extra["fiducial_px"]`` (k, 2), their sites
-        ``extra["fiducial_sites"]`` (k, 2), the first's ``extra["fiducial_index"]``.
+        a dot's radius is the disc's, or 2 sigma. A site may be half-way between two: a shape
+        printed there (``(i + 1/2, j)``, ``(i, j + 1/2)``; on a one-level plate also
+        ``(i + 1/2, j + 1/2)``) leaves every dot in place, as commercial two-level plates do.
+        Fiducials on sites are left out of ``markers_px``/``index``; their true positions are
+        ``extra["fiducial_px"]`` (k, 2), their sites ``extra["fiducial_sites"]`` (k, 2), the
+        first's ``extra["fiducial_index"]``.
 
     Returns
     -------
@@ -347,7 +354,12 @@ def calibration_target(
             raise InvalidInputError(f"lens must be a LensDistortion, 'paper' or None, got {lens!r}")
         lens = paper_lens(o)
     nx, ny = o.n_markers
-    miss = {(int(a), int(b)) for a, b in missing} | set(fid_sites)
+    miss = {(int(a), int(b)) for a, b in missing} | {f for f in fid_sites if isinstance(f[0], int)}
+    if levels == 2 and any(not float(a).is_integer() and not float(b).is_integer()
+                           for a, b in fid_sites):  # fmt: skip
+        raise InvalidInputError(
+            f"fiducial_site: a site (i + 1/2, j + 1/2) holds a level-2 dot: {fid_sites}"
+        )
     ij = np.array(
         [
             (i, j)
@@ -375,7 +387,7 @@ def calibration_target(
     ).reshape(-1, 2)
     if levels == 2:
         c0 = np.array([0.5 * (o.width - 1), 0.5 * (o.height - 1)])
-        ideal2 = c0 + float(level_scale) * (tgt.ideal_px(ij2) - c0)
+        ideal2 = c0 + float(level_scale) * (tgt.ideal_px(ij2) - c0) + np.asarray(level_shift_px)
         if mapping is not None:
             pts2 = np.asarray(mapping.forward(ideal2))
         elif lens is not None:
@@ -515,7 +527,7 @@ def calibration_target(
         dark=bool(dark), bit_depth=bits, clutter_px=clut_arr, level2_px=pts2,
         level2_index=ij2, fiducial=fiducial, fiducial_px=fid_px,
         fiducial_index=np.array(fid_sites[0]) if fid_sites else None,
-        fiducial_sites=np.array(fid_sites, dtype=np.int64).reshape(-1, 2),
+        fiducial_sites=np.array(fid_sites, dtype=np.float64).reshape(-1, 2),
     )
     return tgt
 
@@ -535,15 +547,18 @@ def _fiducials(
             raise InvalidInputError(
                 f"fiducial must be None or one or more of {', '.join(FIDUCIAL_KINDS)}, got {k!r}"
             )
-    arr = np.asarray(site)
+    arr = np.asarray(site, dtype=np.float64)
     if arr.ndim == 1:
         arr = arr.reshape(1, -1)
-    if arr.ndim != 2 or arr.shape != (len(kinds), 2) or not np.all(arr == np.round(arr)):
+    if arr.ndim != 2 or arr.shape != (len(kinds), 2) or not np.all(2 * arr == np.round(2 * arr)):
         raise InvalidInputError(
-            f"fiducial_site must give one integer (i, j) site per fiducial ({len(kinds)}), "
-            f"got {site!r}"
+            f"fiducial_site must give one (i, j) site per fiducial ({len(kinds)}), integers or "
+            f"half-integers, got {site!r}"
         )
-    sites = [(int(a), int(b)) for a, b in arr]
+    sites = [
+        (int(a), int(b)) if a == round(a) and b == round(b) else (float(a), float(b))
+        for a, b in arr
+    ]
     if len(set(sites)) != len(sites):
         raise InvalidInputError(f"fiducial_site: two fiducials on one site: {sites}")
     return kinds, sites

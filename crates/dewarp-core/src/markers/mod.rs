@@ -32,7 +32,9 @@
 //!    noise, not misfit). For crosses the blob term is the brighter of two perpendicular
 //!    Gaussian bars; `size_px` is then the bar's Gaussian sigma.
 //!    Fits that diverge (centre moving more than `s`, width out of range, amplitude of the
-//!    wrong sign) are dropped; duplicates closer than `s` are merged.
+//!    wrong sign) are dropped; duplicates closer than `s` are merged. Only starts on the coarse
+//!    lattice, or within 1.5 of its steps of it (the plate's edge), are fitted: clutter, glare
+//!    and text beyond are reported (`rejected`), never fitted.
 
 mod blob;
 mod coarse;
@@ -293,6 +295,15 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
             Err(_) => vec![true; starts.len()],
         }
     };
+    // Starts next to the lattice (within 1.5 of its steps of an indexed start) are fitted too:
+    // a plate's edge markers, which the indexing may prune (a two-level plate's corners touch
+    // one marker of the union), are then there for the plate analysis to take back; clutter
+    // farther out is still only reported.
+    let to_fit = near_lattice(
+        &starts,
+        &on_lattice,
+        1.5 * lattice_step(&starts, &on_lattice),
+    );
     let (width, auto_profile) = if auto || opts.size_px.is_none() {
         sample_fits(image, &starts, &on_lattice, s, sign, base, max_hw)
     } else {
@@ -316,13 +327,13 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     // blob never costs a fit (when the starts form no lattice, every start is fitted).
     let rejected: Vec<[f64; 2]> = starts
         .iter()
-        .zip(&on_lattice)
+        .zip(&to_fit)
         .filter(|(_, &on)| !on)
         .map(|(st, _)| [st.0, st.1])
         .collect();
     let mut markers: Vec<Marker> = starts
         .par_iter()
-        .zip(on_lattice.par_iter())
+        .zip(to_fit.par_iter())
         .filter(|(_, &on)| on)
         .map_init(
             || BlobScratch::with_budget(FIT_MAX_EVALS).windows(2.5, max_hw),
@@ -374,6 +385,64 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
 
 /// The [`PROFILE_SAMPLE`] strongest starts on the coarse lattice (by coarse correlation):
 /// markers, not clutter or glare.
+/// The median distance from an indexed start to the nearest other indexed start (the lattice's
+/// step; 0 when fewer than two are indexed).
+fn lattice_step(starts: &[(f64, f64, f64)], on: &[bool]) -> f64 {
+    let pts: Vec<[f64; 2]> = starts
+        .iter()
+        .zip(on)
+        .filter(|(_, &o)| o)
+        .map(|(s, _)| [s.0, s.1])
+        .collect();
+    if pts.len() < 2 {
+        return 0.0;
+    }
+    // A sample of at most 200 points keeps this O(n) for large targets.
+    let stride = (pts.len() / 200).max(1);
+    let mut d: Vec<f64> = pts
+        .iter()
+        .step_by(stride)
+        .map(|p| {
+            pts.iter()
+                .map(|q| (q[0] - p[0]).hypot(q[1] - p[1]))
+                .filter(|&v| v > 0.0)
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    let k = d.len() / 2;
+    *d.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+}
+
+/// Which starts are indexed or within `reach` px of an indexed one (cells of `reach` px).
+fn near_lattice(starts: &[(f64, f64, f64)], on: &[bool], reach: f64) -> Vec<bool> {
+    if reach.is_nan() || reach <= 0.0 || on.iter().all(|&o| o) {
+        return on.to_vec();
+    }
+    let key = |x: f64, y: f64| ((x / reach).floor() as i64, (y / reach).floor() as i64);
+    let mut cells: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
+    for (k, st) in starts.iter().enumerate().filter(|(k, _)| on[*k]) {
+        cells.entry(key(st.0, st.1)).or_default().push(k);
+    }
+    starts
+        .iter()
+        .enumerate()
+        .map(|(k, st)| {
+            if on[k] {
+                return true;
+            }
+            let (cx, cy) = key(st.0, st.1);
+            (cx - 1..=cx + 1).any(|a| {
+                (cy - 1..=cy + 1).any(|b| {
+                    cells.get(&(a, b)).is_some_and(|v| {
+                        v.iter()
+                            .any(|&q| (starts[q].0 - st.0).hypot(starts[q].1 - st.1) <= reach)
+                    })
+                })
+            })
+        })
+        .collect()
+}
+
 fn strongest(starts: &[(f64, f64, f64)], on_lattice: &[bool]) -> Vec<usize> {
     let mut order: Vec<usize> = (0..starts.len()).filter(|&k| on_lattice[k]).collect();
     order.sort_by(|&a, &b| starts[b].2.total_cmp(&starts[a].2));
