@@ -162,11 +162,14 @@ def test_marks_between_the_sites_of_a_two_level_plate(rotation):
     assert cal.magnification == pytest.approx(t.optics.magnification, rel=2e-3)
 
 
-def test_two_level_plate_seen_obliquely():
+@pytest.mark.parametrize("shift", [(12.0, 4.0), (45.0, -20.0)])
+def test_two_level_plate_seen_obliquely(shift):
     # The second level shifted by a parallax of 10 % of the union's pitch (OpenPTV's 4-camera
-    # plate shows 9-10 %): the union is no lattice, its two parity classes are (grid.rs).
+    # plate shows 9-10 %): the union is no lattice, its two parity classes are (grid.rs). At
+    # 42 % the grid takes one level, and the other is found as a second lattice at one offset
+    # from its half-sites (plate.union_of_levels).
     t = calibration_target(
-        scale=0.25, seed=5, levels=2, level_scale=0.995, level_shift_px=(12.0, 4.0), dot="disc",
+        scale=0.25, seed=5, levels=2, level_scale=0.995, level_shift_px=shift, dot="disc",
         dot_diameter_px=14.0, fiducial=("square", "triangle"), fiducial_site=((0.5, 0), (2.5, 0)),
     )  # fmt: skip
     cal = calibrate(t.image, PITCH, model="auto")

@@ -53,6 +53,7 @@ from rspiv.plate import (
     lattice_problems,
     lattice_record,
     lattice_to_json,
+    union_of_levels,
 )
 
 __all__ = [
@@ -472,6 +473,10 @@ def calibrate(
     idx, found, _, a1, a2 = _rspiv.index_grid(
         pts, (0.5 * (w - 1), 0.5 * (h - 1)), grid_tolerance
     )
+    if levels != 1:  # a two-level plate seen so obliquely that its union is no lattice
+        union = union_of_levels(pts, idx, found, a1, a2, (0.5 * (w - 1), 0.5 * (h - 1)))
+        if union is not None:
+            idx, found, a1, a2 = union
     size = np.where(det["radius_px"] > 0, det["radius_px"], det["width_px"])
     plate = analyse_plate(
         pts, idx, found, a1, a2, size, det["amplitude"], (h, w), levels=levels, level=level,

@@ -48,13 +48,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from rspiv import _rspiv
 from rspiv import fiducial as fid
 from rspiv.errors import InvalidInputError
 
 __all__ = [
     "PlateLayout",
     "analyse_plate",
+    "union_of_levels",
     "lattice_record",
     "lattice_line",
     "lattice_to_json",
@@ -428,6 +431,71 @@ def _read_shapes(
         if kind is not None:
             f["kind"], f["image_px"] = kind, centroid
     cands.extend(f for f in probes[len(cands):] if f["kind"] is not None)
+
+
+def union_of_levels(
+    image_px: np.ndarray,
+    index: np.ndarray,
+    found: np.ndarray,
+    a1: Any,
+    a2: Any,
+    centre: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The union indexing of a two-level plate whose union is no lattice, or None.
+
+    Seen obliquely enough (a parallax beyond 15 % of the union's step), a two-level plate's
+    union is no lattice for :func:`rspiv._rspiv.index_grid`, which then indexes one level and
+    leaves the other's markers out. When the markers left out form a second lattice of the same
+    steps (lengths within 5 %, axes within 3 degrees) whose points sit at one common offset from
+    the first's half-sites ``(i + 1/2, j + 1/2)`` (the parallax: their fractional positions in
+    the first's lattice, from a local affine fit of its 12 nearest markers, agree within 0.1
+    of a step about their median), the two are one plate: returns its union indexing
+    ``(index, found, a1, a2)`` (:func:`analyse_plate`'s input; the second level in the odd
+    parity class). None otherwise.
+    """
+    pts = np.asarray(image_px, dtype=np.float64)
+    found = np.asarray(found, dtype=bool)
+    rest = np.flatnonzero(~found)
+    if len(rest) < 12 or len(rest) < 0.3 * np.count_nonzero(found):
+        return None
+    try:
+        idx_b, found_b, _, b1, b2 = _rspiv.index_grid(np.ascontiguousarray(pts[rest]), centre, 0.3)
+    except InvalidInputError:
+        return None
+    s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
+    la, lb = sorted([np.hypot(*s1), np.hypot(*s2)]), sorted([np.hypot(*b1), np.hypot(*b2)])
+    if not np.allclose(la, lb, rtol=0.05):
+        return None
+    ang = lambda v: np.degrees(np.arctan2(v[1], v[0])) % 90.0  # noqa: E731
+    da = abs((ang(s1) - ang(b1) + 45.0) % 90.0 - 45.0)
+    if da > 3.0:
+        return None
+    rows_a, rows_b = np.flatnonzero(found), rest[np.asarray(found_b, dtype=bool)]
+    ij_a = np.asarray(index)[rows_a].astype(np.float64)
+    tree = cKDTree(pts[rows_a])
+    k = min(12, len(rows_a))
+    frac = np.empty((len(rows_b), 2))
+    for n, b in enumerate(pts[rows_b]):
+        _, q = tree.query(b, k=k)
+        design = np.column_stack([np.ones(k), ij_a[q]])
+        coef, *_ = np.linalg.lstsq(design, pts[rows_a][q], rcond=None)
+        frac[n] = np.linalg.solve(coef[1:].T, b - coef[0])
+    # The common offset from the half-sites, taken circularly (a parallax near half a step).
+    phase = np.angle(np.mean(np.exp(2j * np.pi * (frac - 0.5)), axis=0)) / (2 * np.pi)
+    cell = np.round(frac - 0.5 - phase)
+    off = frac - 0.5 - cell - phase
+    if np.median(np.hypot(*off.T)) > 0.1:
+        return None
+    # Union indices (p, q) = (i + j, j - i) of the doubled coordinates; level B odd.
+    ia, ja = np.round(ij_a).astype(np.int64).T
+    ib, jb = cell.astype(np.int64).T
+    union = np.zeros((len(pts), 2), dtype=np.int64)
+    union[rows_a] = np.column_stack([ia + ja, ja - ia])
+    union[rows_b] = np.column_stack([ib + jb + 1, jb - ib])
+    both = np.zeros(len(pts), dtype=bool)
+    both[rows_a] = True
+    both[rows_b] = True
+    return union, both, 0.5 * (s1 + s2), 0.5 * (s2 - s1)
 
 
 def _between_sites(
