@@ -20,6 +20,7 @@ from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.piv import PivField, piv, piv_at
 from rspiv.reference import load_dns
+from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
 from rspiv.stats import FieldAccumulator
 from rspiv.wall import Wall, find_wall
@@ -36,3 +37,4 @@ __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField"]
+__all__ += ["Repeatability", "repeatability"]

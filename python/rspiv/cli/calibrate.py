@@ -1,4 +1,4 @@
-"""``rspiv calibrate`` and ``rspiv montecarlo``.
+"""``rspiv calibrate``, ``rspiv montecarlo`` and ``rspiv repeatability``.
 
 - ``rspiv calibrate TARGET --pitch-mm 19.51 [--model auto] -o calib.json [--plots DIR]``:
   detect and index the markers of a target image, fit the mapping, print the lattice found and
@@ -10,6 +10,9 @@
   warning is printed on a line starting ``WARNING:``.
 - ``rspiv montecarlo calib.json [-n 500000] [--seed 0] [--plots DIR]``: the Monte Carlo study of
   the calibration's mapping (paper section 4); prints per-marker confidence.
+- ``rspiv repeatability shot1.json shot2.json``: two calibrations of one plate compared: the
+  markers' scatter between the shots against their reported sigma, the shared field apart
+  (:mod:`rspiv.repeatability`); one line.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from rspiv.cli.mapping import read_csv_columns
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_image
 from rspiv.montecarlo import monte_carlo
+from rspiv.repeatability import repeatability
 
 POINT_COLUMNS = ["x_px", "y_px", "x_mm", "y_mm"]
 SIGMA_COLUMNS = ("sigma_px", "sxx", "syy", "sxy")
@@ -143,6 +147,17 @@ def _montecarlo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _repeatability(args: argparse.Namespace) -> int:
+
+    rep = repeatability(
+        Calibration.load(args.calibration_a),
+        Calibration.load(args.calibration_b),
+        neighbours=args.neighbours,
+    )
+    print(rep)
+    return 0
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
@@ -232,3 +247,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--half-range-px", type=float, default=2.5, help="JPDF half range (px)")
     q.add_argument("--plots", default=None, help="directory for the JPDF figure")
     q.set_defaults(func=_montecarlo)
+
+    r = sub.add_parser(
+        "repeatability",
+        help="how well two shots of one plate repeat, against the markers' reported sigma",
+        description="Pair the markers of two calibrations of the same plate, remove the "
+        "shots' motion and the field their neighbours share (shimmer, vibration), and compare "
+        "the markers' own scatter with their reported sigma (rspiv.repeatability).",
+    )
+    r.add_argument("calibration_a", help="calibration file of one shot (from rspiv calibrate)")
+    r.add_argument("calibration_b", help="calibration file of another shot of the same plate")
+    r.add_argument("--neighbours", type=int, default=4, help="markers whose mean is the field")
+    r.set_defaults(func=_repeatability)
