@@ -185,3 +185,24 @@ def test_two_level_plate_seen_obliquely(shift):
     assert cal2.magnification == pytest.approx(0.995 * t.optics.magnification, rel=2e-3)
     d2, _ = cKDTree(t.extra["level2_px"]).query(cal2.markers.image_px)
     assert np.max(d2) < 0.1
+
+
+def test_a_stepped_target_is_calibrated_on_one_section_and_says_so():
+    # Two flat sections side by side at different depths (MyPTV's stepped body): 9 x 15 dots at
+    # 40 px, and 5 x 15 at 39.6 px beyond a gap, off the first's lattice. A planar calibration
+    # takes the larger section alone and says what it left out.
+    ii, jj = np.meshgrid(np.arange(9), np.arange(15), indexing="ij")
+    a = np.column_stack([150.0 + 40.0 * ii.ravel(), 100.0 + 40.0 * jj.ravel()])
+    ii, jj = np.meshgrid(np.arange(5), np.arange(15), indexing="ij")
+    b = np.column_stack([550.0 + 13.7 + 39.6 * ii.ravel(), 100.0 + 9.3 + 39.6 * jj.ravel()])
+    pts = np.vstack([a, b])
+    img = _rspiv.render_target(
+        720, 900, pts, np.full(len(pts), 3.0), np.full(len(pts), 1500.0), seed=3
+    )
+    cal = calibrate(img, 1.0, model="r1")
+    d, _ = cKDTree(a).query(cal.markers.image_px)
+    assert np.max(d) < 0.1 and len(cal.markers) >= len(a) - 2
+    assert cal.lattice["other_lattices"] == [len(b)]
+    assert "1 other lattice(s) of the same pitch (75 markers) not used" in cal.lattice_summary()
+    assert any("stepped or 3-D target" in w for w in cal.warnings)
+    assert cal.magnification == pytest.approx(40.0, rel=2e-3)

@@ -53,6 +53,7 @@ from rspiv.plate import (
     lattice_problems,
     lattice_record,
     lattice_to_json,
+    other_lattices,
     union_of_levels,
 )
 
@@ -485,6 +486,8 @@ def calibrate(
     size_px = float(det["size_px"])
     keep = np.flatnonzero(plate.use)
     lattice = lattice_record(pts, a1, a2, det, plate)
+    centre_px = (0.5 * (w - 1), 0.5 * (h - 1))
+    lattice["other_lattices"] = other_lattices(pts, plate.indexed, a1, a2, centre_px)
     # Too few markers for the model is its own (more specific) error, raised by the fit.
     needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
     problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []
@@ -505,7 +508,12 @@ def calibrate(
     origin_of_points = _Origin(
         unit="markers", verb="indexed", marker=marker, size_px=size_px,
         n_detected=lattice["n_detected"], image_sigma_source=DETECTOR, lattice=lattice,
-        warnings=tuple(f"kept (accept_poor_fit=True): {p}" for p in problems),
+        warnings=tuple(f"kept (accept_poor_fit=True): {p}" for p in problems) + tuple(
+            f"{len(lattice['other_lattices'])} other lattice(s) of the same pitch "
+            f"({', '.join(map(str, lattice['other_lattices']))} markers) were left out: a "
+            "stepped or 3-D target? the calibration holds for its one flat section"
+            for _ in lattice["other_lattices"][:1]
+        ),
     )  # fmt: skip
     return _calibrate_points(
         np.ascontiguousarray(pts[keep]),

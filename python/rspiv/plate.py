@@ -58,6 +58,7 @@ __all__ = [
     "PlateLayout",
     "analyse_plate",
     "union_of_levels",
+    "other_lattices",
     "lattice_record",
     "lattice_line",
     "lattice_to_json",
@@ -446,7 +447,8 @@ def union_of_levels(
     Seen obliquely enough (a parallax beyond 15 % of the union's step), a two-level plate's
     union is no lattice for :func:`rspiv._rspiv.index_grid`, which then indexes one level and
     leaves the other's markers out. When the markers left out form a second lattice of the same
-    steps (lengths within 5 %, axes within 3 degrees) whose points sit at one common offset from
+    steps (lengths within 5 %, axes within 3 degrees), interleaved with the first (80 % of its
+    points within 1.25 steps of one of the first's), whose points sit at one common offset from
     the first's half-sites ``(i + 1/2, j + 1/2)`` (the parallax: their fractional positions in
     the first's lattice, from a local affine fit of its 12 nearest markers, agree within 0.1
     of a step about their median), the two are one plate: returns its union indexing
@@ -473,6 +475,12 @@ def union_of_levels(
     rows_a, rows_b = np.flatnonzero(found), rest[np.asarray(found_b, dtype=bool)]
     ij_a = np.asarray(index)[rows_a].astype(np.float64)
     tree = cKDTree(pts[rows_a])
+    # Interleaved: a half-site is 0.71 of a step from the nearest site (a parallax moves it by
+    # at most half a step). A second lattice beside the first (another section of a stepped or
+    # 3-D target) is no second level.
+    near = tree.query(pts[rows_b])[0] / float(np.mean(la))
+    if np.mean(near < 1.25) < 0.8:
+        return None
     k = min(12, len(rows_a))
     frac = np.empty((len(rows_b), 2))
     for n, b in enumerate(pts[rows_b]):
@@ -496,6 +504,30 @@ def union_of_levels(
     both[rows_a] = True
     both[rows_b] = True
     return union, both, 0.5 * (s1 + s2), 0.5 * (s2 - s1)
+
+
+def other_lattices(
+    image_px: np.ndarray, indexed: np.ndarray, a1: Any, a2: Any, centre: tuple[float, float]
+) -> list[int]:
+    """Sizes of the further lattices (at most 3, of 12 markers or more, steps within 20 % of
+    the calibrated one's) among the detections no level indexed: a stepped or 3-D target's
+    other sections, which a planar calibration leaves out."""
+    pts = np.asarray(image_px, dtype=np.float64)
+    left = np.flatnonzero(~np.asarray(indexed, dtype=bool))
+    s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
+    step = 0.5 * (np.hypot(*s1) + np.hypot(*s2))
+    sizes: list[int] = []
+    while len(left) >= 12 and len(sizes) < 3:
+        try:
+            _, found, _, b1, b2 = _rspiv.index_grid(np.ascontiguousarray(pts[left]), centre, 0.3)
+        except InvalidInputError:
+            break
+        n = int(np.count_nonzero(found))
+        if n < 12 or abs(0.5 * (np.hypot(*b1) + np.hypot(*b2)) / step - 1.0) > 0.2:
+            break
+        sizes.append(n)
+        left = left[~np.asarray(found, dtype=bool)]
+    return sizes
 
 
 def _between_sites(
@@ -635,6 +667,7 @@ def lattice_from_json(d: Any) -> dict[str, Any] | None:
     out["fiducial"] = d.get("fiducial")
     out["plate"] = d.get("plate", {})
     out["other_level_px"] = np.asarray(d.get("other_level_px", []), dtype=np.float64).reshape(-1, 2)
+    out["other_lattices"] = [int(v) for v in d.get("other_lattices", [])]
     out.update({k: int(d[k]) for k in ("n_indexed", "n_detected", "n_rejected")})
     out["pitch_px"] = [float(v) for v in out["pitch_px"]]
     out["rejected_px"] = np.asarray(d["rejected_px"], dtype=np.float64).reshape(-1, 2)
@@ -660,6 +693,12 @@ def lattice_line(la: dict[str, Any]) -> str:
             f"{len(la['other_level_px'])} markers imaged at {r:.5f} x its scale "
             f"(+/- {pl.get('other_scale_se', 0.0):.5f}: {100 * (1 / r - 1):+.2f} % of the "
             "working distance farther)"
+        )
+    sections = la.get("other_lattices") or []
+    if sections:
+        line += (
+            f"; {len(sections)} other lattice(s) of the same pitch ({', '.join(map(str, sections))}"
+            " markers) not used: a stepped or 3-D target? (calibrated on one flat section)"
         )
     fid = la.get("fiducial")
     if fid:

@@ -286,15 +286,8 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     let max_hw = surveyed
         .as_ref()
         .map_or(0, |sv| (0.5 * sv.pitch_px).floor().max(3.0) as usize);
-    // Which starts the coarse lattice holds (all when they form none).
-    let on_lattice: Vec<bool> = {
-        let pts: Vec<[f64; 2]> = starts.iter().map(|s| [s.0, s.1]).collect();
-        let centre = [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)];
-        match crate::grid::index_grid(&pts, centre, 0.3) {
-            Ok(g) => g.index.iter().map(|i| i.is_some()).collect(),
-            Err(_) => vec![true; starts.len()],
-        }
-    };
+    // Which starts the coarse lattices hold (all when they form none).
+    let on_lattice = coarse_lattices(&starts, [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)]);
     // Starts next to the lattice (within 1.5 of its steps of an indexed start) are fitted too:
     // a plate's edge markers, which the indexing may prune (a two-level plate's corners touch
     // one marker of the union), are then there for the plate analysis to take back; clutter
@@ -385,6 +378,46 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
 
 /// The [`PROFILE_SAMPLE`] strongest starts on the coarse lattice (by coarse correlation):
 /// markers, not clutter or glare.
+/// At most this many lattices of one step are looked for among the coarse starts.
+const MAX_LATTICES: usize = 4;
+
+/// Which starts lie on a lattice: the grid indexed from `centre`, then, among the starts it left
+/// out, up to [`MAX_LATTICES`] - 1 more grids of at least 12 points whose steps are within 20 %
+/// of the first's (a stepped or 3-D target's other sections, a two-level plate's other level
+/// seen obliquely: they are fitted and the plate analysis decides; clutter forms none). All
+/// starts when they form no lattice.
+fn coarse_lattices(starts: &[(f64, f64, f64)], centre: [f64; 2]) -> Vec<bool> {
+    let mut on = vec![false; starts.len()];
+    let mut left: Vec<usize> = (0..starts.len()).collect();
+    let mut step0 = None;
+    for _ in 0..MAX_LATTICES {
+        let pts: Vec<[f64; 2]> = left.iter().map(|&k| [starts[k].0, starts[k].1]).collect();
+        let Ok(g) = crate::grid::index_grid(&pts, centre, 0.3) else {
+            break;
+        };
+        let n = g.index.iter().filter(|i| i.is_some()).count();
+        let step = 0.5 * (g.a1[0].hypot(g.a1[1]) + g.a2[0].hypot(g.a2[1]));
+        match step0 {
+            None => step0 = Some(step),
+            Some(s0) if n < 12 || (step / s0 - 1.0).abs() > 0.2 => break,
+            Some(_) => {}
+        }
+        for (q, i) in g.index.iter().enumerate() {
+            if i.is_some() {
+                on[left[q]] = true;
+            }
+        }
+        left.retain(|&k| !on[k]);
+        if left.len() < 12 {
+            break;
+        }
+    }
+    if step0.is_none() {
+        return vec![true; starts.len()];
+    }
+    on
+}
+
 /// The median distance from an indexed start to the nearest other indexed start (the lattice's
 /// step; 0 when fewer than two are indexed).
 fn lattice_step(starts: &[(f64, f64, f64)], on: &[bool]) -> f64 {
