@@ -474,10 +474,15 @@ def calibrate(
     idx, found, _, a1, a2 = _rspiv.index_grid(
         pts, (0.5 * (w - 1), 0.5 * (h - 1)), grid_tolerance
     )
+    centre_px = (0.5 * (w - 1), 0.5 * (h - 1))
+    union = None
     if levels != 1:  # a two-level plate seen so obliquely that its union is no lattice
-        union = union_of_levels(pts, idx, found, a1, a2, (0.5 * (w - 1), 0.5 * (h - 1)))
+        union = union_of_levels(pts, idx, found, a1, a2, centre_px)
         if union is not None:
             idx, found, a1, a2 = union
+    # A stepped target's other sections (the grid took the one at the centre: a lattice grown
+    # from another could cross into its neighbours at another depth).
+    others = [] if union is not None else other_lattices(pts, found, a1, a2, centre_px)
     size = np.where(det["radius_px"] > 0, det["radius_px"], det["width_px"])
     plate = analyse_plate(
         pts, idx, found, a1, a2, size, det["amplitude"], (h, w), levels=levels, level=level,
@@ -486,8 +491,10 @@ def calibrate(
     size_px = float(det["size_px"])
     keep = np.flatnonzero(plate.use)
     lattice = lattice_record(pts, a1, a2, det, plate)
-    centre_px = (0.5 * (w - 1), 0.5 * (h - 1))
-    lattice["other_lattices"] = other_lattices(pts, plate.indexed, a1, a2, centre_px)
+    # Other sections: the lattices beside the plate's that no level took.
+    lattice["other_lattices"] = [
+        n for n in (int(np.count_nonzero(g[1] & ~plate.indexed)) for g in others) if n >= 12
+    ]
     # Too few markers for the model is its own (more specific) error, raised by the fit.
     needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
     problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []

@@ -508,26 +508,35 @@ def union_of_levels(
 
 def other_lattices(
     image_px: np.ndarray, indexed: np.ndarray, a1: Any, a2: Any, centre: tuple[float, float]
-) -> list[int]:
-    """Sizes of the further lattices (at most 3, of 12 markers or more, steps within 20 % of
-    the calibrated one's) among the detections no level indexed: a stepped or 3-D target's
-    other sections, which a planar calibration leaves out."""
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The further lattices among the detections not ``indexed``: at most 3, of 12 markers or
+    more, steps within 20 % of ``a1``/``a2``'s (a stepped or 3-D target's other sections, which
+    a planar calibration leaves out), each as ``(index, found, a1, a2)`` over all detections
+    (:func:`rspiv._rspiv.index_grid`'s output), largest first."""
     pts = np.asarray(image_px, dtype=np.float64)
     left = np.flatnonzero(~np.asarray(indexed, dtype=bool))
     s1, s2 = np.asarray(a1, dtype=np.float64), np.asarray(a2, dtype=np.float64)
     step = 0.5 * (np.hypot(*s1) + np.hypot(*s2))
-    sizes: list[int] = []
-    while len(left) >= 12 and len(sizes) < 3:
+    out: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    for _ in range(8):  # grids of junk (too small, another step) are set aside, not counted
+        if len(left) < 12 or len(out) == 3:
+            break
         try:
-            _, found, _, b1, b2 = _rspiv.index_grid(np.ascontiguousarray(pts[left]), centre, 0.3)
+            idx, found, _, b1, b2 = _rspiv.index_grid(np.ascontiguousarray(pts[left]), centre, 0.3)
         except InvalidInputError:
             break
+        found = np.asarray(found, dtype=bool)
         n = int(np.count_nonzero(found))
         if n < 12 or abs(0.5 * (np.hypot(*b1) + np.hypot(*b2)) / step - 1.0) > 0.2:
-            break
-        sizes.append(n)
-        left = left[~np.asarray(found, dtype=bool)]
-    return sizes
+            left = left[~found]
+            continue
+        full_idx = np.zeros((len(pts), 2), dtype=np.int64)
+        full_idx[left] = np.asarray(idx)
+        full_found = np.zeros(len(pts), dtype=bool)
+        full_found[left] = found
+        out.append((full_idx, full_found, np.asarray(b1), np.asarray(b2)))
+        left = left[~found]
+    return sorted(out, key=lambda g: -int(np.count_nonzero(g[1])))
 
 
 def _between_sites(

@@ -32,7 +32,8 @@
 //!    noise, not misfit). For crosses the blob term is the brighter of two perpendicular
 //!    Gaussian bars; `size_px` is then the bar's Gaussian sigma.
 //!    Fits that diverge (centre moving more than `s`, width out of range, amplitude of the
-//!    wrong sign) are dropped; duplicates closer than `s` are merged. Only starts on the coarse
+//!    wrong sign) are dropped, and so are fits whose centre's sigma exceeds the marker size
+//!    (or 1 px); duplicates closer than `s` are merged. Only starts on the coarse
 //!    lattice, or within 1.5 of its steps of it (the plate's edge), are fitted: clutter, glare
 //!    and text beyond are reported (`rejected`), never fitted.
 
@@ -288,15 +289,7 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
         .map_or(0, |sv| (0.5 * sv.pitch_px).floor().max(3.0) as usize);
     // Which starts the coarse lattices hold (all when they form none).
     let on_lattice = coarse_lattices(&starts, [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)]);
-    // Starts next to the lattice (within 1.5 of its steps of an indexed start) are fitted too:
-    // a plate's edge markers, which the indexing may prune (a two-level plate's corners touch
-    // one marker of the union), are then there for the plate analysis to take back; clutter
-    // farther out is still only reported.
-    let to_fit = near_lattice(
-        &starts,
-        &on_lattice,
-        1.5 * lattice_step(&starts, &on_lattice),
-    );
+    let to_fit = &on_lattice;
     let (width, auto_profile) = if auto || opts.size_px.is_none() {
         sample_fits(image, &starts, &on_lattice, s, sign, base, max_hw)
     } else {
@@ -320,7 +313,7 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
     // blob never costs a fit (when the starts form no lattice, every start is fitted).
     let rejected: Vec<[f64; 2]> = starts
         .iter()
-        .zip(&to_fit)
+        .zip(to_fit)
         .filter(|(_, &on)| !on)
         .map(|(st, _)| [st.0, st.1])
         .collect();
@@ -332,6 +325,12 @@ pub fn detect_markers<T: Pixel>(image: ArrayView2<T>, opts: &DetectOptions) -> R
             || BlobScratch::with_budget(FIT_MAX_EVALS).windows(2.5, max_hw),
             |scratch, (&(x0, y0, v), _)| {
                 let f = fit_blob(image, x0, y0, s, sign, profile, scratch)?;
+                // A fit that cannot place its centre (a degenerate profile on a blob that is no
+                // dot) is no marker: its sigma would poison every average of the markers'.
+                let worst = f.cov[0][0].max(f.cov[1][1]).sqrt();
+                if worst.is_nan() || worst > s.max(1.0) {
+                    return None;
+                }
                 Some(Marker {
                     x: f.p[1],
                     y: f.p[2],
@@ -384,8 +383,11 @@ const MAX_LATTICES: usize = 4;
 /// Which starts lie on a lattice: the grid indexed from `centre`, then, among the starts it left
 /// out, up to [`MAX_LATTICES`] - 1 more grids of at least 12 points whose steps are within 20 %
 /// of the first's (a stepped or 3-D target's other sections, a two-level plate's other level
-/// seen obliquely: they are fitted and the plate analysis decides; clutter forms none). All
-/// starts when they form no lattice.
+/// seen obliquely: they are fitted and the plate analysis decides; clutter forms none). Each
+/// grid is extended by one ring: a start within 0.3 of a step of the site beyond its edge,
+/// extrapolated from the sites before it, is on it too (edge markers the indexing pruned:
+/// a two-level plate's corners touch one marker of the union). All starts when they form no
+/// lattice.
 fn coarse_lattices(starts: &[(f64, f64, f64)], centre: [f64; 2]) -> Vec<bool> {
     let mut on = vec![false; starts.len()];
     let mut left: Vec<usize> = (0..starts.len()).collect();
@@ -402,12 +404,15 @@ fn coarse_lattices(starts: &[(f64, f64, f64)], centre: [f64; 2]) -> Vec<bool> {
             Some(s0) if n < 12 || (step / s0 - 1.0).abs() > 0.2 => break,
             Some(_) => {}
         }
+        let mut sites: std::collections::HashMap<(i32, i32), usize> = Default::default();
         for (q, i) in g.index.iter().enumerate() {
-            if i.is_some() {
+            if let Some(ij) = i {
                 on[left[q]] = true;
+                sites.insert(*ij, left[q]);
             }
         }
         left.retain(|&k| !on[k]);
+        extend_ring(starts, &sites, &mut left, &mut on);
         if left.len() < 12 {
             break;
         }
@@ -418,62 +423,47 @@ fn coarse_lattices(starts: &[(f64, f64, f64)], centre: [f64; 2]) -> Vec<bool> {
     on
 }
 
-/// The median distance from an indexed start to the nearest other indexed start (the lattice's
-/// step; 0 when fewer than two are indexed).
-fn lattice_step(starts: &[(f64, f64, f64)], on: &[bool]) -> f64 {
-    let pts: Vec<[f64; 2]> = starts
-        .iter()
-        .zip(on)
-        .filter(|(_, &o)| o)
-        .map(|(s, _)| [s.0, s.1])
-        .collect();
-    if pts.len() < 2 {
-        return 0.0;
-    }
-    // A sample of at most 200 points keeps this O(n) for large targets.
-    let stride = (pts.len() / 200).max(1);
-    let mut d: Vec<f64> = pts
-        .iter()
-        .step_by(stride)
-        .map(|p| {
-            pts.iter()
-                .map(|q| (q[0] - p[0]).hypot(q[1] - p[1]))
-                .filter(|&v| v > 0.0)
-                .fold(f64::INFINITY, f64::min)
-        })
-        .collect();
-    let k = d.len() / 2;
-    *d.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
-}
-
-/// Which starts are indexed or within `reach` px of an indexed one (cells of `reach` px).
-fn near_lattice(starts: &[(f64, f64, f64)], on: &[bool], reach: f64) -> Vec<bool> {
-    if reach.is_nan() || reach <= 0.0 || on.iter().all(|&o| o) {
-        return on.to_vec();
-    }
-    let key = |x: f64, y: f64| ((x / reach).floor() as i64, (y / reach).floor() as i64);
-    let mut cells: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
-    for (k, st) in starts.iter().enumerate().filter(|(k, _)| on[*k]) {
-        cells.entry(key(st.0, st.1)).or_default().push(k);
-    }
-    starts
-        .iter()
-        .enumerate()
-        .map(|(k, st)| {
-            if on[k] {
-                return true;
+/// One ring of sites beyond a grid's edge (see [`coarse_lattices`]): starts of `left` taken
+/// onto it are marked `on` and removed from `left`.
+fn extend_ring(
+    starts: &[(f64, f64, f64)],
+    sites: &std::collections::HashMap<(i32, i32), usize>,
+    left: &mut Vec<usize>,
+    on: &mut [bool],
+) {
+    let p = |k: usize| [starts[k].0, starts[k].1];
+    // In site order: the result does not depend on the map's iteration order.
+    let mut order: Vec<((i32, i32), usize)> = sites.iter().map(|(&ij, &k)| (ij, k)).collect();
+    order.sort_unstable();
+    for ((i, j), k) in order {
+        for (di, dj) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+            if sites.contains_key(&(i + di, j + dj)) {
+                continue;
             }
-            let (cx, cy) = key(st.0, st.1);
-            (cx - 1..=cx + 1).any(|a| {
-                (cy - 1..=cy + 1).any(|b| {
-                    cells.get(&(a, b)).is_some_and(|v| {
-                        v.iter()
-                            .any(|&q| (starts[q].0 - st.0).hypot(starts[q].1 - st.1) <= reach)
-                    })
-                })
-            })
-        })
-        .collect()
+            let Some(&b) = sites.get(&(i - di, j - dj)) else {
+                continue;
+            };
+            // The step two back crosses between the same parity classes as the one predicted
+            // (a two-level union's parallax cancels, see crate::grid); else the last step.
+            let (pk, pb) = (p(k), p(b));
+            let back = sites.get(&(i - 2 * di, j - 2 * dj)).map(|&c| p(c));
+            let pred = match back {
+                Some(pc) => [pk[0] + pb[0] - pc[0], pk[1] + pb[1] - pc[1]],
+                None => [2.0 * pk[0] - pb[0], 2.0 * pk[1] - pb[1]],
+            };
+            let tol = 0.3 * (pk[0] - pb[0]).hypot(pk[1] - pb[1]);
+            let best = left
+                .iter()
+                .enumerate()
+                .map(|(n, &q)| (n, (p(q)[0] - pred[0]).hypot(p(q)[1] - pred[1])))
+                .filter(|&(_, d)| d < tol)
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            if let Some((n, _)) = best {
+                on[left[n]] = true;
+                left.swap_remove(n);
+            }
+        }
+    }
 }
 
 fn strongest(starts: &[(f64, f64, f64)], on_lattice: &[bool]) -> Vec<usize> {
