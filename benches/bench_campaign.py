@@ -11,14 +11,19 @@ per-pair cost for a *single* pass without any distortion correction.
 Usage::
 
     python benches/bench_campaign.py [--scales 0.4 1.0] [--pairs 4] [--workdir /tmp/rspiv-bench]
+    python benches/bench_campaign.py --scales 0.146 0.505 1.0 --methods II --threads 1 2 --no-peer
 
-Prints a Markdown table (for benches/RESULTS.md).
+Prints a Markdown table (for benches/RESULTS.md). With ``--threads``, each configuration runs
+once per thread count (``RAYON_NUM_THREADS``, the pool every rspiv kernel runs on) and a scaling
+table follows: the loop's seconds per pair and per megapixel, and the speed-up over one thread
+(scales 0.146 / 0.505 / 1.0 are 1 / 12 / 47 MP sensors).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import subprocess
 import sys
@@ -86,6 +91,7 @@ def main() -> int:
     ap.add_argument("--workdir", default="/tmp/rspiv-bench-campaign")
     ap.add_argument("--methods", nargs="+", default=["II", "I", "none"])
     ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--threads", type=int, nargs="+", default=[None])
     args = ap.parse_args()
 
     import dataclasses
@@ -111,23 +117,29 @@ def main() -> int:
         shape = json.loads((d / "truth.json").read_text())["image_shape"]
         mp = shape[0] * shape[1] / 1e6
         for method in args.methods:
-            out = d / f"out-{method}"
-            if out.exists():
-                import shutil
+            for threads in args.threads:
+                out = d / f"out-{method}"
+                if out.exists():
+                    import shutil
 
-                shutil.rmtree(out)
-            r = subprocess.run(
-                [sys.executable, "-c", CHILD, str(toml), method, str(out)],
-                capture_output=True,
-                text=True,
-            )
-            if r.returncode != 0:
-                print(r.stderr, file=sys.stderr)
-                continue
-            m = json.loads(r.stdout.strip().splitlines()[-1])
-            m.update(scale=scale, mp=mp, method=method, per_min=60.0 * m["pairs"] / m["loop_s"])
-            rows.append(m)
-            print(f"# {scale:g} {method}: {m}", file=sys.stderr)
+                    shutil.rmtree(out)
+                env = dict(os.environ)
+                if threads is not None:
+                    env["RAYON_NUM_THREADS"] = str(threads)
+                r = subprocess.run(
+                    [sys.executable, "-c", CHILD, str(toml), method, str(out)],
+                    capture_output=True,
+                    text=True,
+                    env=env,
+                )
+                if r.returncode != 0:
+                    print(r.stderr, file=sys.stderr)
+                    continue
+                m = json.loads(r.stdout.strip().splitlines()[-1])
+                m.update(scale=scale, mp=mp, method=method, threads=threads,
+                         per_min=60.0 * m["pairs"] / m["loop_s"])  # fmt: skip
+                rows.append(m)
+                print(f"# {scale:g} {method} threads={threads}: {m}", file=sys.stderr)
         if not args.no_peer:
             raw = sorted((d / "raw").glob("*.tif"))
             r = subprocess.run(
@@ -143,17 +155,32 @@ def main() -> int:
                 print(r.stderr, file=sys.stderr)
 
     print(
-        "| sensor | method | pairs/min | read s | dewarp s | PIV s | statistics s | "
+        "| sensor | method | threads | pairs/min | read s | dewarp s | PIV s | statistics s | "
         "prepare s | peak RSS MB, loop | peak RSS MB, prepare |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for m in rows:
         label = {"II": "Method II", "I": "Method I", "none": "uncorrected"}[m["method"]]
+        threads = "all" if m["threads"] is None else m["threads"]
         print(
-            f"| {m['mp']:.1f} MP (scale {m['scale']:g}) | {label} | {m['per_min']:.1f} | "
+            f"| {m['mp']:.1f} MP (scale {m['scale']:g}) | {label} | {threads} | "
+            f"{m['per_min']:.1f} | "
             f"{m['read']:.2f} | {m['dewarp']:.2f} | {m['piv']:.2f} | {m['statistics']:.3f} | "
             f"{m['prepare_s']:.1f} | {m['peak_rss_mb']:.0f} | {m['prepare_peak_mb']:.0f} |"
         )
+    if any(m["threads"] is not None for m in rows):
+        print()
+        print("| sensor | method | threads | s per pair | s per MP | speed-up over 1 thread |")
+        print("|---|---|---|---|---|---|")
+        one = {(m["scale"], m["method"]): m for m in rows if m["threads"] == 1}
+        for m in rows:
+            per_pair = m["loop_s"] / m["pairs"]
+            base = one.get((m["scale"], m["method"]))
+            up = base["loop_s"] / base["pairs"] / per_pair if base else float("nan")
+            print(
+                f"| {m['mp']:.1f} MP | {m['method']} | {m['threads']} | {per_pair:.2f} | "
+                f"{per_pair / m['mp']:.3f} | {up:.2f} |"
+            )
     if peers:
         print()
         print("| sensor | OpenPIV 1 pass 32x32 (s) | rspiv 1 pass 32x32 (s) | ratio |")
