@@ -8,6 +8,13 @@ indexing of all detected markers (the *union* lattice, indices ``(i, j)`` from
 :func:`rspiv._rspiv.index_grid`), whether the plate has one level or two, splits the levels,
 indexes each on its own square lattice and finds the fiducial.
 
+Seen obliquely, the second level shifts against the first's half-sites by a parallax ``t``. Up to
+15 % of the union's step the union is still indexed as one lattice (the grid allows the
+class-signed error, ``rspiv._rspiv.index_grid``); beyond, the grid takes one level and
+:func:`union_of_levels` finds the other among the markers left out and rebuilds the union's
+indices. Lattices of the same pitch beside the plate's (a stepped or 3-D target's other
+sections) are counted by :func:`other_lattices` and reported, never mixed in.
+
 Levels
 ------
 The union lattice's two parity classes (``i + j`` even or odd) are the candidate levels. They
@@ -100,8 +107,10 @@ class PlateLayout:
     central : int
         Row (into the detections) of the chosen level's marker nearest the image centre.
     fiducial : dict or None
-        ``kind`` ("larger", "smaller", "brighter", "dimmer" or "missing"), ``level``, ``site``
-        (its ``(u, v)`` before re-centring), ``image_px``.
+        ``kind`` ("square", "ring", "triangle", "larger", "smaller", "brighter", "dimmer" or
+        "missing"), ``level``, ``site`` (its ``(u, v)`` before re-centring and turning; half-
+        integers between sites), ``image_px``, and ``axis``: None, or the ``kind`` and
+        ``image_px`` of the fiducial that fixed +u (:mod:`rspiv.fiducial`).
     summary : dict
         Per level: counts, pitch (px), and the tests' statistics, the scale ratio.
     other_px : ndarray (k, 2)
@@ -468,8 +477,8 @@ def union_of_levels(
     la, lb = sorted([np.hypot(*s1), np.hypot(*s2)]), sorted([np.hypot(*b1), np.hypot(*b2)])
     if not np.allclose(la, lb, rtol=0.05):
         return None
-    ang = lambda v: np.degrees(np.arctan2(v[1], v[0])) % 90.0  # noqa: E731
-    da = abs((ang(s1) - ang(b1) + 45.0) % 90.0 - 45.0)
+    angle_a, angle_b = (float(np.degrees(np.arctan2(v[1], v[0]))) % 90.0 for v in (s1, b1))
+    da = abs((angle_a - angle_b + 45.0) % 90.0 - 45.0)
     if da > 3.0:
         return None
     rows_a, rows_b = np.flatnonzero(found), rest[np.asarray(found_b, dtype=bool)]

@@ -308,13 +308,10 @@ mod tests {
     use super::*;
     use ndarray::{array, Array1};
 
-    #[test]
-    fn polygons_have_their_area_and_centroid() {
-        // A square and a triangle of circumradius 12 px, blur 1 px: the integral is the
-        // polygon's area (the blur conserves it; the rounded corners lose < 1 %), the centroid
-        // its centre, and bad polygons are refused.
-        let scene = TargetScene {
-            background: 0.0,
+    /// A scene without illumination field or noise over a `background`.
+    fn flat(background: f64) -> TargetScene {
+        TargetScene {
+            background,
             gradient: (0.0, 0.0),
             vignetting: 0.0,
             gain: 0.0,
@@ -322,7 +319,27 @@ mod tests {
             plate: 0.0,
             full_scale: 65535.0,
             seed: 1,
-        };
+        }
+    }
+
+    /// The image's zeroth moment and centroid over a `background`.
+    fn moments(img: &Array2<u16>, background: f64) -> (f64, f64, f64) {
+        let (mut sx, mut sy, mut s) = (0.0, 0.0, 0.0);
+        for ((y, x), v) in img.indexed_iter() {
+            let w = *v as f64 - background;
+            sx += w * x as f64;
+            sy += w * y as f64;
+            s += w;
+        }
+        (s, sx / s, sy / s)
+    }
+
+    #[test]
+    fn polygons_have_their_area_and_centroid() {
+        // A square and a triangle of circumradius 12 px, blur 1 px: the integral is the
+        // polygon's area (the blur conserves it; the rounded corners lose < 1 %), the centroid
+        // its centre, and bad polygons are refused.
+        let scene = flat(0.0);
         for (sides, area) in [(4u32, 2.0 * 144.0), (3, 0.75 * 3f64.sqrt() * 144.0)] {
             let c = array![[30.4, 29.7]];
             let shapes = [Some(Polygon { sides, angle: 0.3 })];
@@ -337,16 +354,10 @@ mod tests {
                 &scene,
             )
             .unwrap();
-            let (mut sx, mut sy, mut s) = (0.0, 0.0, 0.0);
-            for ((y, x), v) in img.indexed_iter() {
-                let w = *v as f64;
-                sx += w * x as f64;
-                sy += w * y as f64;
-                s += w;
-            }
+            let (s, cx, cy) = moments(&img, 0.0);
             let rel = s / 1000.0 / area - 1.0;
             assert!(rel.abs() < 0.01, "{sides} sides: area off by {rel}");
-            assert!((sx / s - 30.4).abs() < 0.02 && (sy / s - 29.7).abs() < 0.02);
+            assert!((cx - 30.4).abs() < 0.02 && (cy - 29.7).abs() < 0.02);
             assert_eq!(img[[30, 30]], 1000);
         }
         let c = array![[30.0, 30.0]];
@@ -369,16 +380,7 @@ mod tests {
     #[test]
     fn blob_peak_and_centroid_at_centre() {
         let c = array![[20.3, 15.7]];
-        let scene = TargetScene {
-            background: 10.0,
-            gradient: (0.0, 0.0),
-            vignetting: 0.0,
-            gain: 0.0,
-            read_noise: 0.0,
-            plate: 0.0,
-            full_scale: 65535.0,
-            seed: 1,
-        };
+        let scene = flat(10.0);
         let img = render_target(
             32,
             40,
@@ -389,15 +391,9 @@ mod tests {
             &scene,
         )
         .unwrap();
-        let (mut sx, mut sy, mut s) = (0.0, 0.0, 0.0);
-        for ((y, x), v) in img.indexed_iter() {
-            let w = *v as f64 - 10.0;
-            sx += w * x as f64;
-            sy += w * y as f64;
-            s += w;
-        }
-        assert!((sx / s - 20.3).abs() < 0.01, "{}", sx / s);
-        assert!((sy / s - 15.7).abs() < 0.01, "{}", sy / s);
+        let (_, cx, cy) = moments(&img, 10.0);
+        assert!((cx - 20.3).abs() < 0.01, "{cx}");
+        assert!((cy - 15.7).abs() < 0.01, "{cy}");
         assert_eq!(
             img[[16, 20]],
             (10.0 + 1000.0 * (-(0.09 + 0.09) / 12.5f64).exp()).round() as u16
