@@ -40,6 +40,7 @@ from rspiv.calibration_fit import (
     choose_model,
     compare_models,
     fit_stats,
+    lattice_outliers,
     magnification,
 )
 from rspiv.errors import InvalidInputError
@@ -491,6 +492,24 @@ def calibrate(
     size_px = float(det["size_px"])
     keep = np.flatnonzero(plate.use)
     lattice = lattice_record(pts, a1, a2, det, plate)
+    # Isolated markers off their lattice (a dot half hidden, a glint) are left out and said so.
+    out_rows, out_scale = lattice_outliers(plate.index[keep], pts[keep])
+    outlier_note = []
+    if len(out_rows):
+        dropped = keep[out_rows]
+        keep = np.delete(keep, out_rows)
+        lattice["n_indexed"] -= len(dropped)
+        lattice["n_rejected"] += len(dropped)
+        lattice["rejected_px"] = np.vstack([lattice["rejected_px"], pts[dropped]])
+        outlier_note.append(
+            f"{len(dropped)} indexed marker(s) left out at "
+            + ", ".join(f"({x:.0f}, {y:.0f})" for x, y in pts[dropped])
+            + f" px: off the lattice by more than {8 * out_scale:.3f} px (8 x the markers' "
+            "scatter about a cubic through it): a dot half hidden, or a glint?"
+        )
+    central = plate.central
+    if central not in keep and len(keep):
+        central = int(keep[np.argmin(np.hypot(*(pts[keep] - np.array(centre_px)).T))])
     # Other sections: the lattices beside the plate's that no level took.
     lattice["other_lattices"] = [
         n for n in (int(np.count_nonzero(g[1] & ~plate.indexed)) for g in others) if n >= 12
@@ -516,6 +535,8 @@ def calibrate(
         unit="markers", verb="indexed", marker=marker, size_px=size_px,
         n_detected=lattice["n_detected"], image_sigma_source=DETECTOR, lattice=lattice,
         warnings=tuple(f"kept (accept_poor_fit=True): {p}" for p in problems) + tuple(
+            outlier_note
+        ) + tuple(
             f"{len(lattice['other_lattices'])} other lattice(s) of the same pitch "
             f"({', '.join(map(str, lattice['other_lattices']))} markers) were left out: a "
             "stepped or 3-D target? the calibration holds for its one flat section"
@@ -526,7 +547,7 @@ def calibrate(
         np.ascontiguousarray(pts[keep]),
         pitch * plate.index[keep].astype(np.float64),
         det["cov_px2"][keep],
-        centre=int(np.flatnonzero(keep == plate.central)[0]),
+        centre=int(np.flatnonzero(keep == central)[0]),
         pitch_mm=pitch,
         pitch_sigma_mm=psig,
         model=model,

@@ -22,6 +22,7 @@ __all__ = [
     "choose_model",
     "compare_models",
     "fit_stats",
+    "lattice_outliers",
     "magnification",
 ]
 
@@ -37,6 +38,10 @@ WARN_FACTOR = 3.0
 # Neighbours of the central marker that give the magnification: those within this factor of
 # the nearest one's distance on the target (on a square grid: the four axial neighbours).
 NEIGHBOUR_SHELL = 1.2
+# Isolated outliers: markers whose miss of a cubic through the lattice exceeds this many robust
+# standard deviations of all the misses, at most OUTLIER_SHARE of the markers (or 2).
+OUTLIER_FACTOR = 8.0
+OUTLIER_SHARE = 0.01
 
 
 #: Up to this many markers the held-out error is leave-one-out; above, K-fold with HELD_OUT_FOLDS
@@ -205,3 +210,35 @@ def check_fit(
             "view? a few misplaced markers?)"
         ]
     return []
+
+
+def lattice_outliers(index: npt.ArrayLike, image_px: npt.ArrayLike) -> tuple[np.ndarray, float]:
+    """Isolated markers that disagree with their lattice (a dot half hidden by the plate's edge,
+    a glint on it): a cubic in the markers' ``(u, v)`` fitted to their image positions
+    (least squares), and its misses ``e`` (px). A marker is an outlier when ``|e|`` exceeds
+    :data:`OUTLIER_FACTOR` robust standard deviations of the misses (``1.4826 x`` their median
+    absolute value per axis). When more markers than ``max(2, OUTLIER_SHARE n)`` do, none is
+    flagged: that is no isolated outlier but a lattice the cubic cannot follow, and the fit's
+    own check must see it (removing them would hide it).
+
+    Returns the outliers' rows and the robust standard deviation (px, per axis); no rows when
+    there are fewer than 3 markers per cubic coefficient.
+    """
+    uv = np.asarray(index, dtype=np.float64).reshape(-1, 2)
+    px = np.asarray(image_px, dtype=np.float64).reshape(-1, 2)
+    n = len(uv)
+    if n < 30:
+        return np.zeros(0, dtype=np.int64), 0.0
+    c = uv - uv.mean(axis=0)
+    half = max(1.0, float(np.max(np.abs(c))))
+    u, v = c[:, 0] / half, c[:, 1] / half
+    design = np.column_stack([u**i * v**j for i in range(4) for j in range(4 - i)])
+    coef, *_ = np.linalg.lstsq(design, px, rcond=None)
+    e = px - design @ coef
+    scale = 1.4826 * float(np.median(np.abs(e)))
+    if not scale > 0:
+        return np.zeros(0, dtype=np.int64), 0.0
+    rows = np.flatnonzero(np.hypot(*e.T) > OUTLIER_FACTOR * scale)
+    if len(rows) > max(2, int(OUTLIER_SHARE * n)):
+        return np.zeros(0, dtype=np.int64), scale
+    return rows, scale
