@@ -227,3 +227,25 @@ def test_a_dot_half_hidden_is_left_out_and_said():
     assert not any("follows the target less closely" in w for w in cal.warnings)
     assert cal.magnification == pytest.approx(t.optics.magnification, rel=2e-3)
     assert cal.lattice["n_rejected"] >= 1
+
+
+def test_lattice_outliers_takes_out_isolated_markers_only():
+    from rspiv.calibration_fit import lattice_outliers
+
+    rng = np.random.default_rng(0)
+    ii, jj = np.meshgrid(np.arange(20), np.arange(20), indexing="ij")
+    uv = np.column_stack([ii.ravel(), jj.ravel()]).astype(np.float64)
+    # A smooth lattice (a 2 % barrel) with 0.01 px of noise.
+    c = uv - 9.5
+    r2 = np.sum(c**2, axis=1) / 200.0
+    px = 500.0 + 40.0 * c * (1.0 - 0.02 * r2)[:, None] + rng.normal(0, 0.01, uv.shape)
+    one = px.copy()
+    one[123] += (0.7, -0.4)
+    rows, scale = lattice_outliers(uv - 0.5, one)  # an origin between sites changes nothing
+    # (the scale holds the barrel's own second differences, 0.06 px, besides the noise)
+    assert rows.tolist() == [123] and 0.01 < scale < 0.1
+    assert lattice_outliers(uv, px)[0].size == 0
+    # Many markers off (more than 1 % of 400, or 2): no isolated outlier, none taken out.
+    many = px.copy()
+    many[[5, 77, 150, 222, 301, 380]] += 0.5
+    assert lattice_outliers(uv, many)[0].size == 0

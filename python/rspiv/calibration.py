@@ -492,7 +492,8 @@ def calibrate(
     size_px = float(det["size_px"])
     keep = np.flatnonzero(plate.use)
     lattice = lattice_record(pts, a1, a2, det, plate)
-    # Isolated markers off their lattice (a dot half hidden, a glint) are left out and said so.
+    # Isolated markers off their lattice (a dot half hidden, a glint) are left out and said so
+    # (calibration_fit.lattice_outliers).
     out_rows, out_scale = lattice_outliers(plate.index[keep], pts[keep])
     outlier_note = []
     if len(out_rows):
@@ -504,8 +505,9 @@ def calibrate(
         outlier_note.append(
             f"{len(dropped)} indexed marker(s) left out at "
             + ", ".join(f"({x:.0f}, {y:.0f})" for x, y in pts[dropped])
-            + f" px: off the lattice by more than {8 * out_scale:.3f} px (8 x the markers' "
-            "scatter about a cubic through it): a dot half hidden, or a glint?"
+            + f" px: off the place their lattice neighbours predict by more than "
+            f"{8 * out_scale:.3f} px (8 x the markers' scatter about it): a dot half hidden, "
+            "a glint, or cut by the image's border?"
         )
     central = plate.central
     if central not in keep and len(keep):

@@ -7,6 +7,7 @@ Residuals and sigmas are per axis (the RMS over x and y), px.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,7 @@ WARN_FACTOR = 3.0
 # Neighbours of the central marker that give the magnification: those within this factor of
 # the nearest one's distance on the target (on a square grid: the four axial neighbours).
 NEIGHBOUR_SHELL = 1.2
-# Isolated outliers: markers whose miss of a cubic through the lattice exceeds this many robust
+# Isolated outliers: markers whose miss of their neighbours' prediction exceeds this many robust
 # standard deviations of all the misses, at most OUTLIER_SHARE of the markers (or 2).
 OUTLIER_FACTOR = 8.0
 OUTLIER_SHARE = 0.01
@@ -212,33 +213,67 @@ def check_fit(
     return []
 
 
-def lattice_outliers(index: npt.ArrayLike, image_px: npt.ArrayLike) -> tuple[np.ndarray, float]:
-    """Isolated markers that disagree with their lattice (a dot half hidden by the plate's edge,
-    a glint on it): a cubic in the markers' ``(u, v)`` fitted to their image positions
-    (least squares), and its misses ``e`` (px). A marker is an outlier when ``|e|`` exceeds
-    :data:`OUTLIER_FACTOR` robust standard deviations of the misses (``1.4826 x`` their median
-    absolute value per axis). When more markers than ``max(2, OUTLIER_SHARE n)`` do, none is
-    flagged: that is no isolated outlier but a lattice the cubic cannot follow, and the fit's
-    own check must see it (removing them would hide it).
+def _neighbour_miss(grid: np.ndarray) -> np.ndarray:
+    """Each site's miss of the position its lattice neighbours predict (NaN where there is no
+    marker or no prediction): the mean of the midpoints of its neighbours on either side along
+    u and along v; at an edge, the extrapolations from the two sites behind."""
+    nu, nv, _ = grid.shape
+    pad = np.full((nu + 4, nv + 4, 2), np.nan)
+    pad[2:-2, 2:-2] = grid
 
-    Returns the outliers' rows and the robust standard deviation (px, per axis); no rows when
-    there are fewer than 3 markers per cubic coefficient.
+    def at(du: int, dv: int) -> np.ndarray:
+        return pad[2 + du : 2 + du + nu, 2 + dv : 2 + dv + nv]
+
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN means: no prediction
+        mids = np.stack([0.5 * (at(-1, 0) + at(1, 0)), 0.5 * (at(0, -1) + at(0, 1))])
+        pred = np.nanmean(mids, axis=0)
+        ext = np.stack([2 * at(d, 0) - at(2 * d, 0) for d in (-1, 1)]
+                       + [2 * at(0, d) - at(0, 2 * d) for d in (-1, 1)])  # fmt: skip
+        pred = np.where(np.isnan(pred), np.nanmean(ext, axis=0), pred)
+    return np.hypot(*(grid - pred).transpose(2, 0, 1))
+
+
+def lattice_outliers(index: npt.ArrayLike, image_px: npt.ArrayLike) -> tuple[np.ndarray, float]:
+    """Isolated markers that disagree with their lattice neighbours (a dot half hidden by the
+    plate's edge, a glint on it, a dot cut by the image's border).
+
+    Each marker's miss is its distance from the position its neighbours predict (the mean of the
+    midpoints of its neighbours on either side along u and v; at an edge, extrapolations from
+    two sites behind): a local second difference, which a smooth distortion keeps small. The
+    scale is the misses' robust standard deviation (``1.4826 x`` their median). The marker of
+    the largest miss beyond :data:`OUTLIER_FACTOR` scales is taken out and the misses computed
+    again (its neighbours' predictions no longer see it), until none is beyond. When that would
+    take out more than ``max(2, OUTLIER_SHARE n)`` markers, none is: that is no isolated outlier
+    but a lattice that bends faster than its neighbours follow (a strong distortion, mixed
+    depths), which the fit's own check must see, not have hidden.
+
+    Returns the outliers' rows and the scale (px); no rows below 30 markers.
     """
     uv = np.asarray(index, dtype=np.float64).reshape(-1, 2)
     px = np.asarray(image_px, dtype=np.float64).reshape(-1, 2)
     n = len(uv)
     if n < 30:
         return np.zeros(0, dtype=np.int64), 0.0
-    c = uv - uv.mean(axis=0)
-    half = max(1.0, float(np.max(np.abs(c))))
-    u, v = c[:, 0] / half, c[:, 1] / half
-    design = np.column_stack([u**i * v**j for i in range(4) for j in range(4 - i)])
-    coef, *_ = np.linalg.lstsq(design, px, rcond=None)
-    e = px - design @ coef
-    scale = 1.4826 * float(np.median(np.abs(e)))
+    ij = np.rint(uv - uv[0]).astype(np.int64)  # (an origin between sites shifts them all alike)
+    ij -= ij.min(axis=0)
+    grid = np.full((*(ij.max(axis=0) + 1), 2), np.nan)
+    grid[ij[:, 0], ij[:, 1]] = px
+    miss = _neighbour_miss(grid)
+    scale = 1.4826 * float(np.nanmedian(miss)) / np.sqrt(2.0)  # per axis, from the 2-D misses
     if not scale > 0:
         return np.zeros(0, dtype=np.int64), 0.0
-    rows = np.flatnonzero(np.hypot(*e.T) > OUTLIER_FACTOR * scale)
-    if len(rows) > max(2, int(OUTLIER_SHARE * n)):
-        return np.zeros(0, dtype=np.int64), scale
-    return rows, scale
+    cap = max(2, int(OUTLIER_SHARE * n))
+    out: list[tuple[int, int]] = []
+    while True:
+        k = np.nanargmax(miss) if np.any(np.isfinite(miss)) else None
+        if k is None or miss.flat[k] <= OUTLIER_FACTOR * scale:
+            break
+        if len(out) == cap:
+            return np.zeros(0, dtype=np.int64), scale
+        site = np.unravel_index(k, miss.shape)
+        out.append((int(site[0]), int(site[1])))
+        grid[site] = np.nan
+        miss = _neighbour_miss(grid)
+    rows = [int(np.flatnonzero((ij[:, 0] == a) & (ij[:, 1] == b))[0]) for a, b in out]
+    return np.asarray(sorted(rows), dtype=np.int64), scale
