@@ -67,6 +67,8 @@ __all__ = [
     "candidates",
     "edge_sites",
     "off_site",
+    "lattice_coordinates",
+    "shape_at",
     "local_contrast",
     "classify_shape",
     "choose",
@@ -147,6 +149,32 @@ def edge_sites(uv: np.ndarray) -> list[tuple[int, int]]:
     return sorted(out)
 
 
+def lattice_coordinates(
+    uv: np.ndarray, px: np.ndarray, points: np.ndarray, k: int = 12
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fractional ``(u, v)`` of image ``points`` on a lattice of sites ``uv`` at ``px``: an
+    affine fit of the ``k`` sites nearest each point (image px from ``(u, v)``), inverted at
+    it. Returns the coordinates (NaN where the fit is singular), each fit's mean step (px) and
+    the distances to the ``k`` nearest sites (px), one row per point."""
+    uvf, pxf = np.asarray(uv, dtype=np.float64), np.asarray(px, dtype=np.float64)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    k = min(k, len(pxf))
+    dist, near = cKDTree(pxf).query(pts, k=k)
+    dist, near = dist.reshape(len(pts), k), near.reshape(len(pts), k)
+    frac = np.full((len(pts), 2), np.nan)
+    step = np.zeros(len(pts))
+    for n, (b, q) in enumerate(zip(pts, near, strict=True)):
+        design = np.column_stack([np.ones(k), uvf[q]])
+        coef, *_ = np.linalg.lstsq(design, pxf[q], rcond=None)
+        steps = coef[1:]  # rows: image step of +u, of +v
+        step[n] = float(np.mean(np.hypot(steps[:, 0], steps[:, 1])))
+        try:
+            frac[n] = np.linalg.solve(steps.T, b - coef[0])
+        except np.linalg.LinAlgError:
+            pass
+    return frac, step, dist
+
+
 def off_site(
     uv: np.ndarray, px: np.ndarray, blobs: np.ndarray, tol: float = 0.12
 ) -> list[tuple[tuple[float, float], np.ndarray]]:
@@ -155,32 +183,35 @@ def off_site(
     lattice (three of its markers within 1.6 pitches). Where commercial two-level plates print
     their fiducials (the centre of a cell of the union of the levels).
 
-    Each blob's fractional ``(u, v)`` comes from an affine fit of the level's 12 markers
-    nearest it (image px from ``(u, v)``), inverted at the blob; returns ``(site, blob_px)``.
+    Each blob's fractional ``(u, v)`` is :func:`lattice_coordinates`'; returns
+    ``(site, blob_px)``.
     """
     out: list[tuple[tuple[float, float], np.ndarray]] = []
-    uvf, pxf = np.asarray(uv, dtype=np.float64), np.asarray(px, dtype=np.float64)
-    if len(pxf) < 6 or len(blobs) == 0:
+    blobs = np.asarray(blobs, dtype=np.float64).reshape(-1, 2)
+    if len(px) < 6 or len(blobs) == 0:
         return out
-    tree = cKDTree(pxf)
-    k = min(12, len(pxf))
-    for b in np.asarray(blobs, dtype=np.float64).reshape(-1, 2):
-        d, q = tree.query(b, k=k)
-        design = np.column_stack([np.ones(k), uvf[q]])
-        coef, *_ = np.linalg.lstsq(design, pxf[q], rcond=None)
-        steps = coef[1:]  # rows: image step of +u, of +v
-        pitch = float(np.mean(np.hypot(steps[:, 0], steps[:, 1])))
-        if np.count_nonzero(d < 1.6 * pitch) < 3:
-            continue
-        try:
-            f = np.linalg.solve(steps.T, b - coef[0])
-        except np.linalg.LinAlgError:
+    frac, step, dist = lattice_coordinates(uv, px, blobs)
+    for f, pitch, d, b in zip(frac, step, dist, blobs, strict=True):
+        if np.count_nonzero(d < 1.6 * pitch) < 3 or not np.all(np.isfinite(f)):
             continue
         half = np.round(2.0 * f)
         if np.max(np.abs(2.0 * f - half)) > 2.0 * tol or np.all(half % 2 == 0):
             continue  # not half-way, or on a site (the empty-site probes cover those)
         out.append(((float(half[0]) / 2.0 + 0.0, float(half[1]) / 2.0 + 0.0), b))  # no -0.0
     return out
+
+
+def shape_at(
+    image: np.ndarray, at: np.ndarray, others_px: np.ndarray, dark: bool
+) -> tuple[str | None, np.ndarray]:
+    """:func:`classify_shape` of the mark at ``at`` within half the distance to the nearest of
+    ``others_px`` (itself, at distance 0, excluded): the kind and the centroid."""
+    d = np.hypot(*(np.asarray(others_px, dtype=np.float64).reshape(-1, 2) - at).T)
+    d = d[d > 1e-6]
+    if len(d) == 0:
+        return None, np.asarray(at, dtype=np.float64)
+    kind, centroid, _ = classify_shape(image, at, 0.5 * float(np.min(d)), dark)
+    return kind, centroid
 
 
 def classify_shape(

@@ -433,11 +433,7 @@ def _read_shapes(
         f["image_px"] = at
         if image is None:
             continue
-        d = np.hypot(*(np.asarray(all_px, dtype=np.float64) - at).T)
-        d = d[d > 1e-6]
-        if len(d) == 0:
-            continue
-        kind, centroid, _ = fid.classify_shape(image, at, 0.5 * float(np.min(d)), dark)
+        kind, centroid = fid.shape_at(image, at, all_px, dark)
         if kind is not None:
             f["kind"], f["image_px"] = kind, centroid
     cands.extend(f for f in probes[len(cands):] if f["kind"] is not None)
@@ -459,7 +455,7 @@ def union_of_levels(
     steps (lengths within 5 %, axes within 3 degrees), interleaved with the first (80 % of its
     points within 1.25 steps of one of the first's), whose points sit at one common offset from
     the first's half-sites ``(i + 1/2, j + 1/2)`` (the parallax: their fractional positions in
-    the first's lattice, from a local affine fit of its 12 nearest markers, agree within 0.1
+    the first's lattice, :func:`rspiv.fiducial.lattice_coordinates`, agree within 0.1
     of a step about their median), the two are one plate: returns its union indexing
     ``(index, found, a1, a2)`` (:func:`analyse_plate`'s input; the second level in the odd
     parity class). None otherwise.
@@ -490,13 +486,9 @@ def union_of_levels(
     near = tree.query(pts[rows_b])[0] / float(np.mean(la))
     if np.mean(near < 1.25) < 0.8:
         return None
-    k = min(12, len(rows_a))
-    frac = np.empty((len(rows_b), 2))
-    for n, b in enumerate(pts[rows_b]):
-        _, q = tree.query(b, k=k)
-        design = np.column_stack([np.ones(k), ij_a[q]])
-        coef, *_ = np.linalg.lstsq(design, pts[rows_a][q], rcond=None)
-        frac[n] = np.linalg.solve(coef[1:].T, b - coef[0])
+    frac, _, _ = fid.lattice_coordinates(ij_a, pts[rows_a], pts[rows_b])
+    if not np.all(np.isfinite(frac)):
+        return None
     # The common offset from the half-sites, taken circularly (a parallax near half a step).
     phase = np.angle(np.mean(np.exp(2j * np.pi * (frac - 0.5)), axis=0)) / (2 * np.pi)
     cell = np.round(frac - 0.5 - phase)
@@ -560,9 +552,7 @@ def _between_sites(
     out: list[dict[str, Any]] = []
     near = np.vstack([np.asarray(all_px, dtype=np.float64).reshape(-1, 2), loose])
     for site, b in fid.off_site(uv, px, loose):
-        d = np.hypot(*(near - b).T)
-        d = d[d > 1e-6]
-        kind, centroid, _ = fid.classify_shape(image, b, 0.5 * float(np.min(d)), dark)
+        kind, centroid = fid.shape_at(image, b, near, dark)
         if kind is not None and all(np.hypot(*(centroid - f["image_px"])) > 1.0 for f in out):
             out.append({"kind": kind, "row": None, "site": site, "image_px": centroid})
     return out
