@@ -266,6 +266,32 @@ def test_grid_windows_deformed_past_the_edge_are_invalid():
     np.testing.assert_allclose(f.v[f.valid], -5.0, atol=0.1)
 
 
+def test_clean_background_is_correlated_not_blank():
+    """A noise-free render (0.03 ppp, 1.5 px particles: 72 % of the pixels exactly zero and a
+    third of the 4 x 4 px blocks empty) is particle images on a clean background, not fill:
+    every window is correlated and the field is as good as with camera noise. Before, the
+    blank-window rule refused all 49 first-pass windows and the final 32 x 8 pass, left with
+    a zero predictor, returned 105 valid vectors off by more than 3 px."""
+    n = 256
+
+    def field(x, y):
+        return 3.3 + 0.05 * (y - n / 2), -1.7 + 0.025 * (x - n / 2)
+
+    rms = {}
+    for noise in (0.0, 0.05):
+        a, b = particle_pair((n, n), field, density=0.03, diameter=1.5, noise=noise, seed=20)
+        first = rspiv.piv(a, b, passes=[(64, 64)], overlap=0.5)
+        assert first.valid.all(), noise
+        f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=0.5)
+        tu, tv = field(f.x, f.y)
+        err = np.hypot(f.u - tu, f.v - tv)[f.valid]
+        inside = (f.x > 32) & (f.x < n - 33) & (f.y > 32) & (f.y < n - 33)
+        assert f.valid[inside].mean() > 0.95 and err.max() < 0.5, (noise, err.max())
+        rms[noise] = np.sqrt(np.mean(err**2))
+    # measured: 0.065 px noise-free, 0.108 px with 5 % noise
+    assert rms[0.0] <= rms[0.05], rms
+
+
 def test_zero_filled_half_frame_is_blank():
     a, b = _edge_pair(d=(1.5, 0.5))
     a = a.copy()

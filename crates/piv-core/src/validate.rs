@@ -67,6 +67,30 @@ pub fn residual(
     Some(ru.max(rv))
 }
 
+/// The median of the usable vectors of the 3 x 3 neighbourhood of `(j, i)` (itself excluded)
+/// for `u` and for `v`; `None` with fewer than 3 of them.
+pub fn neighbour_median(
+    u: &Array2<f64>,
+    v: &Array2<f64>,
+    usable: &Array2<bool>,
+    (j, i): (usize, usize),
+) -> Option<(f64, f64)> {
+    let (ny, nx) = u.dim();
+    let mut nu = [0.0f64; 8];
+    let mut nv = [0.0f64; 8];
+    let mut k = 0;
+    for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+        for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+            if (jj, ii) != (j, i) && usable[[jj, ii]] {
+                nu[k] = u[[jj, ii]];
+                nv[k] = v[[jj, ii]];
+                k += 1;
+            }
+        }
+    }
+    (k >= 3).then(|| (median(&mut nu[..k]), median(&mut nv[..k])))
+}
+
 fn median(x: &mut [f64]) -> f64 {
     x.sort_unstable_by(|a, b| a.total_cmp(b));
     let n = x.len();

@@ -89,9 +89,10 @@ pub(crate) struct Frames<'a, T: Pixel> {
     /// The interpolation images, computed on first use (windows on integer positions need
     /// none).
     coeffs: std::sync::OnceLock<Coeffs>,
-    /// Per-pixel variance below which a window counts as blank: [`BLANK_VARIANCE`] times the
-    /// larger variance of the two frames.
-    floor: f32,
+    /// How a window's blank blocks are told: the per-pixel variance below which a block is
+    /// blank ([`BLANK_VARIANCE`] times the larger variance of the two frames), and the
+    /// frames' clean background level, if both have the same one ([`clean_background`]).
+    rule: BlankRule,
 }
 
 /// A window whose per-pixel variance is below this fraction of its frame's variance is blank
@@ -132,12 +133,17 @@ impl<'a, T: Pixel> Frames<'a, T> {
         let a = Img::new(a, "frame_a")?;
         let b = Img::new(b, "frame_b")?;
         let floor = (BLANK_VARIANCE * frame_variance(&a).max(frame_variance(&b))) as f32;
+        let clean = |i: &Img<'_, T>| clean_background(i.slice(), i.width, i.height);
+        let background = match (clean(&a), clean(&b)) {
+            (Some(la), Some(lb)) if la == lb => Some(la),
+            _ => None,
+        };
         Ok(Frames {
             a,
             b,
             interp,
             coeffs: std::sync::OnceLock::new(),
-            floor,
+            rule: BlankRule { floor, background },
         })
     }
 
@@ -190,7 +196,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
             b,
             interp: Interpolation::Keys,
             coeffs: std::sync::OnceLock::from(Coeffs::Keys),
-            floor: self.floor,
+            rule: self.rule,
         }
     }
 
@@ -226,7 +232,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
             base,
             sub,
             uncertainty,
-            self.floor
+            self.rule
         ))
     }
 
@@ -256,7 +262,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
             self.coeffs()
         };
         with_source!(self, coeffs, |src| sweep_into(
-            &src, w, h, points, offsets, base, skip, self.floor, out, stride, &f
+            &src, w, h, points, offsets, base, skip, self.rule, out, stride, &f
         ))
     }
 }

@@ -60,7 +60,7 @@ mod settings;
 mod tests;
 mod window;
 
-pub use field::PivField;
+pub use field::{ambiguity_variance, PivField, AMBIGUITY_RATE, AMBIGUITY_SCALE};
 pub(crate) use frames::Frames;
 pub use frames::BLANK_VARIANCE;
 pub use points::{piv_at, piv_with_final_points, Predictor};

@@ -413,7 +413,7 @@ fn signal_fraction_rule() {
     let (a0, b0) = (wa.clone(), wb.clone());
     // all signal: untouched
     assert_eq!(
-        signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, 0.0),
+        signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, BlankRule::noisy(0.0)),
         1.0
     );
     assert_eq!((&wa, &wb), (&a0, &b0));
@@ -425,7 +425,7 @@ fn signal_fraction_rule() {
             wb[r * w + c] = 0.0;
         }
     }
-    let f = signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, 0.0);
+    let f = signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, BlankRule::noisy(0.0));
     assert_eq!(f, 0.75);
     let sig = |v: &[f32]| {
         (0..h)
@@ -449,14 +449,90 @@ fn signal_fraction_rule() {
     for r in 0..h {
         wa[r * w..r * w + 8].fill(5.0);
     }
-    assert!(signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, 0.0) < MIN_SIGNAL_FRACTION);
+    assert!(
+        signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, BlankRule::noisy(0.0))
+            < MIN_SIGNAL_FRACTION
+    );
     // a sample outside the frame: not correlated
     let (mut wa, mut wb) = (a0.clone(), b0.clone());
     wb[17] = f32::NAN;
     assert_eq!(
-        signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, 0.0),
+        signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, BlankRule::noisy(0.0)),
         0.0
     );
+}
+
+#[test]
+fn clean_background_is_not_fill() {
+    // a noise-free window: zero background, a few 3 x 3 "particles"; half of its 4 x 4 blocks
+    // are empty: with the frames' clean background at 0 they are correlated as they are, with
+    // camera noise (no clean background) they would be fill
+    let (w, h) = (32, 32);
+    let mut scratch = FillScratch::new(w * h);
+    let mut wa = vec![0.0f32; w * h];
+    for (k, &(x, y)) in [
+        (3, 5),
+        (13, 2),
+        (22, 9),
+        (6, 18),
+        (27, 21),
+        (15, 27),
+        (9, 11),
+    ]
+    .iter()
+    .enumerate()
+    {
+        for r in y - 1..=y + 1 {
+            for c in x - 1..=x + 1 {
+                wa[r * w + c] = 100.0 + 10.0 * k as f32;
+            }
+        }
+    }
+    let mut wb = wa.clone();
+    wb.rotate_right(1);
+    let (a0, b0) = (wa.clone(), wb.clone());
+    let clean = BlankRule {
+        floor: 0.0,
+        background: Some(0.0),
+    };
+    assert_eq!(
+        signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, clean),
+        1.0
+    );
+    assert_eq!((&wa, &wb), (&a0, &b0));
+    assert!(signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, BlankRule::noisy(0.0)) < 0.75);
+    // a saturated block is blank on a clean background too
+    let (mut wa, mut wb) = (a0.clone(), b0.clone());
+    for r in 0..16 {
+        wa[r * w..r * w + 16].fill(4095.0);
+    }
+    let f = signal_fraction(&mut wa, &mut wb, &mut scratch, w, h, clean);
+    assert!((f - 0.75).abs() < 1e-12, "{f}");
+}
+
+#[test]
+fn clean_background_of_a_frame() {
+    let (h, w) = (96, 160);
+    let render = |noise: f64, fill: usize| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let n = (0.03 * (h * w) as f64) as usize;
+        let xs: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * w as f64).collect();
+        let ys: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * h as f64).collect();
+        let it = vec![2000.0; n];
+        let mut img = render_particles(h, w, &xs, &ys, &it, &[1.5], noise, 4095, 1).unwrap();
+        img.slice_mut(ndarray::s![.., w - fill..]).fill(0);
+        img
+    };
+    let level = |img: &Array2<u16>| clean_background(img.as_slice().unwrap(), w, h);
+    // noise-free, with or without a zero fill: clean at 0
+    assert_eq!(level(&render(0.0, 0)), Some(0.0));
+    assert_eq!(level(&render(0.0, 60)), Some(0.0));
+    // camera noise clipped at zero in about half the pixels, with a zero fill over 40 % of
+    // the frame: not clean
+    let noisy = render(40.0, 64);
+    let zeros = noisy.iter().filter(|&&v| v == 0).count() as f64 / (h * w) as f64;
+    assert!(zeros > 0.6, "{zeros}");
+    assert_eq!(level(&noisy), None);
 }
 
 #[test]
@@ -655,4 +731,21 @@ fn second_peak_recovers_static_glare_spots() {
     assert!(three_counts.1 + three_counts.2 >= 4, "{three_counts:?}");
     assert!(three_sites >= one_sites + 3, "{one_sites} -> {three_sites}");
     assert!(three_all >= one_all + 6, "{one_all} -> {three_all} of {n}");
+}
+
+#[test]
+fn ambiguity_variance_follows_the_peak_ratio() {
+    use super::field::ambiguity_variance;
+    // near-equal peaks: 0.8 of the squared distance to the neighbours or, weighted once more,
+    // to the second peak, whichever is larger
+    assert!((ambiguity_variance(1.0, 2.0, 0.0) - 0.8 * 4.0).abs() < 1e-12);
+    assert!((ambiguity_variance(1.0, 0.0, 2.0) - 0.64 * 4.0).abs() < 1e-12);
+    assert!((ambiguity_variance(1.0, 2.0, 1.0) - 0.8 * 4.0).abs() < 1e-12);
+    // falls off with the ratio: a clear peak (ratio 4) is hardly widened
+    let p = |r: f64| ambiguity_variance(r, 1.0, 0.0);
+    assert!(p(1.2) > p(1.5) && p(1.5) > p(2.0) && p(2.0) > p(3.0));
+    assert!((p(2.0) - 0.8 * (-3.0f64).exp()).abs() < 1e-12);
+    assert!(p(4.0) < 1e-4 && ambiguity_variance(4.0, 0.0, 10.0) < 1e-5);
+    // a ratio under 1 (not computed) counts as 1
+    assert_eq!(p(0.0), p(1.0));
 }
