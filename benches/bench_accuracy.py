@@ -2,6 +2,7 @@
 
     python benches/bench_accuracy.py              # everything (a few minutes on 2 cores)
     python benches/bench_accuracy.py --size 2048 1024
+    python benches/bench_accuracy.py --only coverage    # items 3 and 5
 
 1. Final windows 32, 16, 12, 8 px and 32 x 8 on one synthetic pair (2.5 px particles, 0.03 ppp,
    5 % noise, 12 bit; a smooth field of a few px, exact truth): RMS error of u and v for 1, 2
@@ -12,8 +13,11 @@
    window's ``sinc(h / L)`` for L = 4, 6, 8 window heights, 1-3 iterations.
 3. The per-vector uncertainty: coverage (fraction with ``|error| <= sigma``) and RMS of
    ``error / sigma`` over 54 image conditions (density 0.01-0.05 ppp, diameter 1.5-4 px, noise
-   0-10 %, gradient 0-0.05 px/px), and its cost: the paper's passes on the pair with
-   ``uncertainty`` on and off (best of 3, interleaved).
+   0-10 %, gradient 0-0.05 px/px), final windows 32, 16 and 32 x 8.
+4. Its cost: the paper's passes on the pair with ``uncertainty`` on and off (best of 3,
+   interleaved).
+5. The uncertainty where the flow varies inside the windows (a random field, the truth its
+   top-hat window mean).
 """
 
 from __future__ import annotations
@@ -163,6 +167,52 @@ def coverage_table():
                   f"{rms[1]:.3f} | {sel.sum()} |")
 
 
+def random_field_table():
+    """Coverage where the flow varies inside the windows: a random field (Gaussian-filtered
+    noise, 0.4 px RMS per component, correlation lengths 8, 16, 32 px) on 512 x 512 pairs, 3
+    seeds; the truth a vector is compared with is the field's top-hat mean over the final
+    window (the spatial response of ``crates/piv-core/src/multipass/mod.rs``)."""
+    from scipy.ndimage import gaussian_filter, map_coordinates, uniform_filter
+
+    n = 512
+    print("\n5. per-vector uncertainty in a random field (512 x 512, 0.03 ppp, 5 % noise)")
+    print("| correlation length px | final window | coverage u | coverage v | rms(e/sigma) u | "
+          "rms(e/sigma) v | rms error px | rms sigma px |")
+    print("|---|---|---|---|---|---|---|---|")
+    for length in (8, 16, 32):
+        rng = np.random.default_rng(length)
+        fu, fv = (gaussian_filter(rng.standard_normal((n, n)), length) for _ in range(2))
+        fu, fv = 0.4 * fu / fu.std(), 0.4 * fv / fv.std()
+
+        def field(x, y, fu=fu, fv=fv):
+            x, y = np.asarray(x, float), np.asarray(y, float)
+            c = np.array([np.clip(y, 0, n - 1).ravel(), np.clip(x, 0, n - 1).ravel()])
+            return (3.0 + map_coordinates(fu, c, order=1).reshape(x.shape),
+                    -1.0 + map_coordinates(fv, c, order=1).reshape(x.shape))  # fmt: skip
+
+        for passes in (CASES["32"], CASES["32x8"]):
+            w, h = passes[-1]
+            mu, mv = uniform_filter(fu, (h, w)), uniform_filter(fv, (h, w))
+            q, e, sg = [], [], []
+            for seed in range(3):
+                a, b = particle_pair((n, n), field, density=0.03, noise=0.05, seed=seed)
+                f = rspiv.piv(a, b, passes=passes, overlap=0.5)
+                ok = f.valid & np.isfinite(f.sigma_u) & (f.x > 40) & (f.x < n - 41)
+                ok &= (f.y > 40) & (f.y < n - 41)
+                c = np.array([f.y[ok], f.x[ok]])
+                tu = 3.0 + map_coordinates(mu, c, order=1)
+                tv = -1.0 + map_coordinates(mv, c, order=1)
+                q.append(np.column_stack([(f.u[ok] - tu) / f.sigma_u[ok],
+                                          (f.v[ok] - tv) / f.sigma_v[ok]]))  # fmt: skip
+                e.append(f.u[ok] - tu)
+                sg.append(f.sigma_u[ok])
+            q, e, sg = np.concatenate(q), np.concatenate(e), np.concatenate(sg)
+            cov = np.mean(np.abs(q) <= 1, axis=0)
+            rms = np.sqrt(np.mean(q**2, axis=0))
+            print(f"| {length} | {w}x{h} | {cov[0]:.3f} | {cov[1]:.3f} | {rms[0]:.3f} | "
+                  f"{rms[1]:.3f} | {np.sqrt(np.mean(e**2)):.4f} | {np.sqrt(np.mean(sg**2)):.4f} |")
+
+
 def cost(shape):
     field = smooth(shape)
     a, b = particle_pair(shape, field, seed=5)
@@ -180,12 +230,18 @@ def cost(shape):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, nargs=2, default=(4096, 2048), metavar=("W", "H"))
+    ap.add_argument("--only", choices=["coverage"], help="only the uncertainty (items 3, 5)")
     args = ap.parse_args()
     shape = (args.size[1], args.size[0])
+    if args.only == "coverage":
+        coverage_table()
+        random_field_table()
+        return
     cost(shape)
     accuracy_table(shape)
     sine_table()
     coverage_table()
+    random_field_table()
 
 
 if __name__ == "__main__":

@@ -43,8 +43,10 @@ class PivField:
         Standard uncertainty (one sigma) of ``u`` and ``v``, px (object px for a corrected
         field), of every valid vector, from the statistics of its last correlation (Wieneke
         2015: the scatter of the per-pixel contributions to the peak's asymmetry carried
-        through the 3-point Gaussian estimator; DESIGN.md "Per-vector uncertainty"), widened
-        by the chance that the peak is a noise peak: ``p(peak_ratio) d**2`` is added to the
+        through the 3-point Gaussian estimator; DESIGN.md "Per-vector uncertainty"), its
+        variance pooled with the valid 3 x 3 neighbours' (the estimate of one window of a few
+        particle images scatters by tens of percent), widened by the chance that the peak is a
+        noise peak: ``p(peak_ratio) d**2`` is added to the
         variance, ``p = 0.8 exp(-3 (peak_ratio - 1))`` and ``d`` the distance to the median of
         the valid neighbours or, weighted by ``p`` once more, to the second peak
         (``piv_core::multipass::ambiguity_variance``); NaN where the vector is not valid
