@@ -3,14 +3,18 @@
     python benches/bench_accuracy.py              # everything (a few minutes on 2 cores)
     python benches/bench_accuracy.py --size 2048 1024
     python benches/bench_accuracy.py --only coverage    # items 3 and 5
+    python benches/bench_accuracy.py --only accuracy    # items 1, 2 and 4
+    python benches/bench_accuracy.py --only weighting   # item 6
 
 1. Final windows 32, 16, 12, 8 px and 32 x 8 on one synthetic pair (2.5 px particles, 0.03 ppp,
    5 % noise, 12 bit; a smooth field of a few px, exact truth): RMS error of u and v for 1, 2
-   and 3 iterations on the last pass (symmetric deformation, 50 % overlap), next to
-   ``openpiv.windef.simple_multipass`` with the same windows (square only: windef has no
-   rectangular windows). Vectors within 32 px of the border are left out of both.
-2. The sine response: ``u = 0.5 sin(2 pi y / L)`` recovered amplitude against the top-hat
-   window's ``sinc(h / L)`` for L = 4, 6, 8 window heights, 1-3 iterations.
+   and 3 iterations on the last pass (symmetric deformation, 50 % overlap, extra iterations
+   under-relaxed), next to ``openpiv.windef.simple_multipass`` with the same windows (32 x 8
+   as windef's ``(8, 32)``, rows by columns). Vectors within 32 px of the border are left out
+   of both.
+2. The sine response: ``u`` or ``v = 0.5 sin(2 pi y / L)`` recovered amplitude against the
+   top-hat window's ``sinc(h / L)`` for L = 4, 6, 8 window heights, 1-3 iterations, and
+   windef's with the same passes.
 3. The per-vector uncertainty: coverage (fraction with ``|error| <= sigma``) and RMS of
    ``error / sigma`` over 54 image conditions (density 0.01-0.05 ppp, diameter 1.5-4 px, noise
    0-10 %, gradient 0-0.05 px/px), final windows 32, 16 and 32 x 8.
@@ -18,6 +22,8 @@
    interleaved).
 5. The uncertainty where the flow varies inside the windows (a random field, the truth its
    top-hat window mean).
+6. The weighting windows (top-hat, Gaussian, Blackman): RMS error on the pair of item 1 and the
+   sine response against ``rspiv.window_response``.
 """
 
 from __future__ import annotations
@@ -60,18 +66,31 @@ def errors(x, y, u, v, field, shape, margin=32):
 
 
 def openpiv_errors(a, b, sizes, field, shape):
+    t = time.perf_counter()
+    x, y, u, v = openpiv_field(a, b, sizes)
+    t = time.perf_counter() - t
+    return errors(x, y, u, v, field, shape), t
+
+
+def windef_sizes(passes):
+    """windef's window sizes for rspiv's passes: an int for a square window, ``(rows,
+    columns)`` for a rectangular one."""
+    return [w if w == h else (h, w) for w, h in passes]
+
+
+def openpiv_field(a, b, sizes):
+    """``windef.simple_multipass`` at 50 % overlap: x, y (rspiv's pixel-centre convention),
+    u, v (image axes)."""
     from openpiv import tools, windef
 
     s = windef.PIVSettings()
     s.windowsizes = tuple(sizes)
-    s.overlap = tuple(w // 2 for w in sizes)
+    s.overlap = tuple(w // 2 if isinstance(w, int) else (w[0] // 2, w[1] // 2) for w in sizes)
     s.num_iterations = len(sizes)
     s.show_plot = False
-    t = time.perf_counter()
     x, y, u, v, _ = windef.simple_multipass(a.astype(np.float64), b.astype(np.float64), s)
-    t = time.perf_counter() - t
     x, y, u, v = tools.transform_coordinates(x, y, u, v)
-    return errors(x - 0.5, y - 0.5, u, v, field, shape), t
+    return x - 0.5, y - 0.5, u, v
 
 
 def accuracy_table(shape):
@@ -92,27 +111,36 @@ def accuracy_table(shape):
                 t1 = time.perf_counter() - t
             eu, ev = errors(f.x, f.y, f.u, f.v, field, shape)
             cells.append(f"{eu:.4f} / {ev:.4f}")
-        if "x" in name:
-            theirs, tw = "- (square windows only)", float("nan")
-        else:
-            (eu, ev), tw = openpiv_errors(a, b, [p[0] for p in passes], field, shape)
-            theirs = f"{eu:.4f} / {ev:.4f}"
+        (eu, ev), tw = openpiv_errors(a, b, windef_sizes(passes), field, shape)
+        theirs = f"{eu:.4f} / {ev:.4f}"
         print(f"| {name} | {' | '.join(cells)} | {theirs} | {t1:.2f} | {tw:.1f} |", flush=True)
 
 
 def sine_table():
     shape = (768, 768)
     amp = 0.5
-    print("\n2. sine response: recovered amplitude / A (top-hat: sinc(h / L))")
-    print("| final window | L / h | sinc | 1 iteration | 2 | 3 |")
-    print("|---|---|---|---|---|---|")
-    for passes in (CASES["32"], CASES["16"], CASES["32x8"]):
+    print("\n2. sine response: recovered amplitude / A of u or v = A sin(2 pi y / L) (top-hat: "
+          "sinc(h / L)); windef with the same passes")
+    print("| final window | component | L / h | sinc | 1 iteration | 2 | 3 | windef |")
+    print("|---|---|---|---|---|---|---|---|")
+
+    def amplitude(y, u, wl):
+        ph = 2 * np.pi * y / wl
+        m = np.column_stack([np.ones_like(y), np.sin(ph), np.cos(ph)])
+        c, *_ = np.linalg.lstsq(m, u, rcond=None)
+        return np.hypot(c[1], c[2]) / amp
+
+    def inside(x, y):
+        return (y > 40) & (y < shape[0] - 41) & (x > 40) & (x < shape[1] - 41)
+
+    for passes, comp in itertools.product((CASES["32"], CASES["16"], CASES["32x8"]), "uv"):
         h = passes[-1][1]
         for ratio in (4, 6, 8):
             wl = ratio * h
 
-            def field(x, y, wl=wl):
-                return 2.0 + amp * np.sin(2 * np.pi * y / wl) + 0 * x, 0.0 * x
+            def field(x, y, wl=wl, comp=comp):
+                wave = amp * np.sin(2 * np.pi * y / wl) + 0 * x
+                return (2.0 + wave, 0.0 * x) if comp == "u" else (2.0 + 0 * x, wave)
 
             a, b = particle_pair(shape, field, seed=ratio)
             got = []
@@ -120,16 +148,59 @@ def sine_table():
                 f = rspiv.piv(
                     a, b, passes=passes, overlap=0.75, iterations=[1] * (len(passes) - 1) + [it]
                 )
-                ok = f.valid & (f.y > 40) & (f.y < shape[0] - 41) & (f.x > 40)
-                ok &= f.x < shape[1] - 41
-                y, u = f.y[ok], f.u[ok]
-                ph = 2 * np.pi * y / wl
-                m = np.column_stack([np.ones_like(y), np.sin(ph), np.cos(ph)])
-                c, *_ = np.linalg.lstsq(m, u, rcond=None)
-                got.append(np.hypot(c[1], c[2]) / amp)
+                ok = f.valid & inside(f.x, f.y)
+                got.append(amplitude(f.y[ok], (f.u if comp == "u" else f.v)[ok], wl))
+            x, y, u, v = openpiv_field(a, b, windef_sizes(passes))
+            ok = np.isfinite(u) & np.isfinite(v) & inside(x, y)
+            theirs = amplitude(y[ok], (u if comp == "u" else v)[ok], wl)
             w = "x".join(map(str, passes[-1]))
             cells = " | ".join(f"{g:.3f}" for g in got)
-            print(f"| {w} | {ratio} | {np.sinc(1 / ratio):.3f} | {cells} |", flush=True)
+            print(f"| {w} | {comp} | {ratio} | {np.sinc(1 / ratio):.3f} | {cells} | "
+                  f"{theirs:.3f} |", flush=True)
+
+
+def weighting_table(shape):
+    """Item 6: the weighting windows, their RMS error on the accuracy pair and their sine
+    response against ``rspiv.window_response``."""
+    field = smooth(shape)
+    a, b = particle_pair(shape, field, seed=3)
+    print(f"\n6. weighting windows, {shape[1]} x {shape[0]} pair (RMS error u / v, px; s)")
+    print("| final window | tophat | gaussian | blackman |")
+    print("|---|---|---|---|")
+    for name in ("32", "16", "32x8"):
+        cells = []
+        for wt in ("tophat", "gaussian", "blackman"):
+            t = time.perf_counter()
+            f = rspiv.piv(a, b, passes=CASES[name], overlap=0.5, weighting=wt)
+            t = time.perf_counter() - t
+            eu, ev = errors(f.x, f.y, f.u, f.v, field, shape)
+            cells.append(f"{eu:.4f} / {ev:.4f} ({t:.2f} s)")
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+    n, amp = 768, 0.5
+    print("\nsine response u = A sin(2 pi y / L), 768 x 768, 75 % overlap, 1 iteration: "
+          "measured (documented H)")
+    print("| final window | L / h | tophat | gaussian | blackman |")
+    print("|---|---|---|---|---|")
+    for passes in (CASES["32"], CASES["32x8"]):
+        h = passes[-1][1]
+        for ratio in (1, 2, 4, 8):
+            wl = ratio * h
+
+            def wave(x, y, wl=wl):
+                return 2.0 + amp * np.sin(2 * np.pi * y / wl) + 0 * x, 0.0 * x
+
+            fa, fb = particle_pair((n, n), wave, seed=10 * ratio)
+            cells = []
+            for wt in ("tophat", "gaussian", "blackman"):
+                f = rspiv.piv(fa, fb, passes=passes, overlap=0.75, weighting=wt)
+                ok = f.valid & (f.x > 40) & (f.x < n - 41) & (f.y > 40) & (f.y < n - 41)
+                ph = 2 * np.pi * f.y[ok] / wl
+                m = np.column_stack([np.ones_like(ph), np.sin(ph), np.cos(ph)])
+                c, *_ = np.linalg.lstsq(m, f.u[ok], rcond=None)
+                got = np.sign(c[1]) * np.hypot(c[1], c[2]) / amp
+                cells.append(f"{got:.3f} ({rspiv.window_response(wt, h, wl):.3f})")
+            w = "x".join(map(str, passes[-1]))
+            print(f"| {w} | {ratio} | {' | '.join(cells)} |", flush=True)
 
 
 def coverage_table():
@@ -230,18 +301,26 @@ def cost(shape):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, nargs=2, default=(4096, 2048), metavar=("W", "H"))
-    ap.add_argument("--only", choices=["coverage"], help="only the uncertainty (items 3, 5)")
+    ap.add_argument("--only", choices=["accuracy", "coverage", "weighting"],
+                    help="accuracy: items 1, 2, 4; coverage: the uncertainty, items 3, 5; "
+                    "weighting: item 6")
     args = ap.parse_args()
     shape = (args.size[1], args.size[0])
     if args.only == "coverage":
         coverage_table()
         random_field_table()
         return
+    if args.only == "weighting":
+        weighting_table(shape)
+        return
     cost(shape)
     accuracy_table(shape)
     sine_table()
+    if args.only == "accuracy":
+        return
     coverage_table()
     random_field_table()
+    weighting_table(shape)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from rspiv.errors import ConvergenceError, InvalidInputError, RspivError
 from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
-from rspiv.piv import PivField, piv, piv_at
+from rspiv.piv import PivField, piv, piv_at, window_response
 from rspiv.reference import load_dns
 from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
@@ -30,7 +30,7 @@ __all__ = ["__version__", "RspivError", "InvalidInputError", "ConvergenceError"]
 __all__ += ["FieldAccumulator", "CampaignConfig", "load_campaign_config", "analyse_profile"]
 __all__ += ["BoundaryLayerResult", "load_dns"]
 __all__ += ["Mapping", "fit_mapping"]
-__all__ += ["PivField", "PivSettings", "piv", "piv_at"]
+__all__ += ["PivField", "PivSettings", "piv", "piv_at", "window_response"]
 __all__ += ["Calibration", "calibrate", "calibrate_points", "MonteCarloResult", "monte_carlo"]
 __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]

@@ -244,6 +244,10 @@ def render_particles(
     area, plus Gaussian noise (counts), rounded and clipped to [0, max_count]. ``diameter`` holds
     one value or one per particle. Deterministic for a seed whatever the thread count."""
 
+def window_response(weighting: str, n: int, wavelength: float) -> float:
+    """Amplitude ratio of a sine displacement of ``wavelength`` px returned by an ``n`` px
+    window weighted by ``weighting`` ("tophat", "gaussian", "blackman")."""
+
 def conditioned(
     frame: npt.NDArray[np.generic],
     hot_pixels: float | None = None,

@@ -39,6 +39,7 @@ A complete file (every key optional except where noted; defaults shown)::
     deformation = "offset"       # "offset" | "symmetric" (old key: deform = false | true)
     interpolation = "bspline"    # "bspline" (quintic) | "bspline3" | "keys"
     subpixel = "gauss3"          # "gauss3" | "gauss2d"
+    weighting = "tophat"         # "tophat" | "gaussian" | "blackman" (window weighting)
     validate = true              # normalised median test (Westerweel & Scarano 2005)
     median_threshold = 2.0
     median_eps = 0.1             # px (old key: median_epsilon)
@@ -121,6 +122,7 @@ from rspiv.settings import (
     MAPPING_MODES,
     OPTION_KEYS,
     SUBPIXELS,
+    WEIGHTINGS,
     PivSettings,
     parse_method,
 )
@@ -211,6 +213,7 @@ class PIVConfig:
     deformation: str = "offset"
     interpolation: str = "bspline"
     subpixel: str = "gauss3"
+    weighting: str = "tophat"
     validate: bool = True
     median_threshold: float = 2.0
     median_eps: float = 0.1
@@ -575,6 +578,7 @@ _PARSERS: dict[str, dict[str, Any]] = {
         "deformation": lambda c, w, v: _choice(c, w, v, DEFORMATIONS, fold=str.lower),
         "interpolation": lambda c, w, v: _choice(c, w, v, INTERPOLATIONS, fold=str.lower),
         "subpixel": lambda c, w, v: _choice(c, w, v, SUBPIXELS, fold=str.lower),
+        "weighting": lambda c, w, v: _choice(c, w, v, WEIGHTINGS, fold=str.lower),
         "validate": _boolean,
         "median_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "median_eps": lambda c, w, v: _number(c, w, v, minimum=0),

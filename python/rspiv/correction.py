@@ -445,6 +445,7 @@ def piv_vectors(
     iterations: int = 1,
     subpixel: str = "gauss3",
     interpolation: str = "bspline",
+    weighting: str = "tophat",
     median_threshold: float = 2.0,
     median_eps: float = 0.1,
     mask: Any = None,
@@ -484,8 +485,8 @@ def piv_vectors(
     iterations : int
         Correlation iterations of the final pass (1, as each pass of :func:`rspiv.piv`: a
         second iteration doubles the final pass's cost for an RMS gain of ~2 %).
-    subpixel, interpolation, median_threshold, median_eps, mask, validate, min_peak_ratio,
-    peak_candidates, uncertainty
+    subpixel, interpolation, weighting, median_threshold, median_eps, mask, validate,
+    min_peak_ratio, peak_candidates, uncertainty
         As for :func:`rspiv.piv` / :func:`rspiv.piv_at` (both the predictor and the final
         pass).
     predictor_overlap, predictor_iterations : float or sequence, int or sequence

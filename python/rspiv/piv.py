@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv import _rspiv
 from rspiv.correction import correct
 from rspiv.errors import InvalidInputError
 from rspiv.field import PivField
@@ -27,7 +28,40 @@ from rspiv.multipass import run_grid, run_points
 from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import OPTION_KEYS, PivSettings, parse_mapping_mode, parse_method
 
-__all__ = ["PivField", "piv", "piv_at"]
+__all__ = ["PivField", "piv", "piv_at", "window_response"]
+
+
+def window_response(weighting: str, n: int, wavelength: float) -> float:
+    """The spatial response of an interrogation window: the amplitude ratio with which an
+    ``n`` px window weighted by ``weighting`` returns a displacement ``A sin(2 pi y / L)``
+    varying along its ``n`` px axis, ``L = wavelength`` px.
+
+    ``H(L) = sum_j p(j) cos(2 pi (j - (n - 1) / 2) / L)`` with the pixel weights ``p = w**2 /
+    sum(w**2)`` of the weighting window ``w`` (both windows of a pair are weighted, so a
+    particle pair counts with ``w**2``; ``piv_core::weighting``). The top-hat gives the
+    discrete ``sinc(n / L)`` (0.900 at ``L = 4 n``, 0 at ``L = n``, negative between ``n / 2``
+    and ``n``); "gaussian" and "blackman" stay positive down to ``L = n / 2``. This is the
+    response of :func:`piv` for any number of passes and iterations (deformation), within a
+    few percent where the particle images resolve the wavelength.
+
+    Parameters
+    ----------
+    weighting : {"tophat", "gaussian", "blackman"}
+    n : int
+        Window size along the axis, px.
+    wavelength : float
+        Wavelength of the displacement, px.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    InvalidInputError
+        An unknown weighting, ``n`` or ``wavelength`` not positive.
+    """
+    return float(_rspiv.window_response(str(weighting), int(n), float(wavelength)))
 
 
 def piv(
@@ -44,6 +78,7 @@ def piv(
     iterations: int | Sequence[int] = 1,
     subpixel: str = "gauss3",
     interpolation: str = "bspline",
+    weighting: str = "tophat",
     validate: bool = True,
     median_eps: float = 0.1,
     median_threshold: float = 2.0,
@@ -100,7 +135,10 @@ def piv(
     mapping : {"full", "positions"}
         Method II's displacement mapping (:mod:`rspiv.correction`); ignored by Method I.
     iterations : int or sequence of int
-        Correlation iterations per pass (each re-deforms with the latest field).
+        Correlation iterations per pass (each re-deforms with the latest field). The extra
+        iterations of a pass are under-relaxed (each moves the field 0.4 of the way to the
+        new estimate, ``piv_core::multipass::RELAXATION``) so that each is at least as
+        accurate as the one before.
     subpixel : {"gauss3", "gauss2d"}
         3-point Gaussian per axis, or a 9-point 2D Gaussian least-squares fit.
     interpolation : {"bspline", "bspline3", "keys"}
@@ -110,6 +148,10 @@ def piv(
         scipy's ``order=3`` and openpiv.windef; up to 0.018 px bias at half-pixel shifts) or
         Keys bicubic (a = -0.5), which biases sub-pixel shifts of 2-3 px particles by a few
         0.01 px.
+    weighting : {"tophat", "gaussian", "blackman"}
+        Weighting window of the interrogation windows (:class:`rspiv.PivSettings`): the
+        top-hat (default, the most accurate on smooth flows) or a taper whose spatial response
+        has no sign reversal at wavelengths shorter than the window, for more random error.
     validate : bool
         Normalised median test with replacement after every iteration.
     median_eps, median_threshold : float
@@ -177,6 +219,7 @@ def piv_at(
     validate: bool | None = None,
     subpixel: str = "gauss3",
     interpolation: str = "bspline",
+    weighting: str = "tophat",
     median_eps: float = 0.1,
     median_threshold: float = 2.0,
     min_peak_ratio: float = 0.0,
@@ -204,14 +247,15 @@ def piv_at(
         with a common sub-pixel shift of both frames (Keys; a filter applied to both windows
         alike does not move the correlation peak); later iterations interpolate each window.
     iterations : int
-        Iterations per window size; each re-offsets the windows by the latest result.
+        Iterations per window size; each re-offsets the windows by the latest result, the
+        extra ones under-relaxed as in :func:`piv`.
     mask : ndarray of bool, optional
         Points centred on a True pixel are not computed.
     validate : bool, optional
         Normalised median test among grid neighbours; defaults to True for ``(ny, nx, 2)``
         points and False for a ``(N, 2)`` list.
-    subpixel, interpolation, median_eps, median_threshold, min_peak_ratio, peak_candidates,
-    uncertainty
+    subpixel, interpolation, weighting, median_eps, median_threshold, min_peak_ratio,
+    peak_candidates, uncertainty
         As for :func:`piv`.
 
     Returns
@@ -229,6 +273,7 @@ def piv_at(
         passes=tuple(windows),
         interpolation=interpolation,
         subpixel=subpixel,
+        weighting=weighting,
         median_eps=median_eps,
         median_threshold=median_threshold,
         min_peak_ratio=min_peak_ratio,

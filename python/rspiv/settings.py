@@ -14,6 +14,7 @@ iterations        int or one per pass         >= 1 correlation iterations per pa
 deformation       str                         "symmetric" (image deformation) or "offset"
 interpolation     str                         "bspline" (quintic), "bspline3", "keys"
 subpixel          str                         "gauss3" or "gauss2d"
+weighting         str                         "tophat", "gaussian" or "blackman" windows
 validate          bool                        normalised median test + replacement
 median_eps        float                       px, noise level of the median test
 median_threshold  float                       threshold of the normalised median test
@@ -49,6 +50,7 @@ __all__ = [
     "DEFORMATIONS",
     "INTERPOLATIONS",
     "SUBPIXELS",
+    "WEIGHTINGS",
     "METHODS",
     "MAPPING_MODES",
     "MODELS",
@@ -61,6 +63,7 @@ __all__ = [
 DEFORMATIONS = ("symmetric", "offset")
 INTERPOLATIONS = ("bspline", "bspline3", "keys")
 SUBPIXELS = ("gauss3", "gauss2d")
+WEIGHTINGS = ("tophat", "gaussian", "blackman")
 METHODS = ("I", "II", "none")
 MAPPING_MODES = ("full", "positions")
 MODELS = ("r1", "r2", "p3")
@@ -71,6 +74,7 @@ OPTION_KEYS = (
     "deformation",
     "interpolation",
     "subpixel",
+    "weighting",
     "validate",
     "median_eps",
     "median_threshold",
@@ -168,6 +172,13 @@ class PivSettings:
         or Keys bicubic (a = -0.5).
     subpixel : {"gauss3", "gauss2d"}
         3-point Gaussian per axis, or a 9-point 2D Gaussian least-squares fit.
+    weighting : {"tophat", "gaussian", "blackman"}
+        Weighting window of the interrogation windows (``piv_core::weighting``): every pixel
+        alike (the most accurate on smooth flows; response ``sinc(h / L)`` to a sine of
+        wavelength ``L``, sign-reversed between ``L = h / 2`` and ``h``), or tapered towards
+        the edges, which returns every wavelength down to ``h / 2`` with a positive, higher
+        amplitude (Gaussian 0.964, Blackman 0.983 at ``L = 4 h``; 0.55 and 0.75 at ``L = h``)
+        from fewer particle images (more random error).
     validate : bool
         Normalised median test with replacement after every iteration.
     median_eps : float
@@ -195,6 +206,7 @@ class PivSettings:
     deformation: str = "symmetric"
     interpolation: str = "bspline"
     subpixel: str = "gauss3"
+    weighting: str = "tophat"
     validate: bool = True
     median_eps: float = 0.1
     median_threshold: float = 2.0
@@ -219,6 +231,7 @@ class PivSettings:
         s(self, "deformation", parse_choice(self.deformation, DEFORMATIONS, "deformation"))
         s(self, "interpolation", parse_choice(self.interpolation, INTERPOLATIONS, "interpolation"))
         s(self, "subpixel", parse_choice(self.subpixel, SUBPIXELS, "subpixel"))
+        s(self, "weighting", parse_choice(self.weighting, WEIGHTINGS, "weighting"))
         s(self, "validate", bool(self.validate))
         s(self, "uncertainty", bool(self.uncertainty))
         for key in ("median_eps", "median_threshold", "min_peak_ratio"):

@@ -11,6 +11,8 @@
 //! - [`multipass::piv_at`]: the same at arbitrary image positions with given predictors
 //!   (Method II);
 //! - [`correlate::Correlator`]: one window pair's normalised FFT cross-correlation;
+//! - [`weighting`]: the windows' weighting (top-hat, Gaussian, Blackman) and its spatial
+//!   response;
 //! - [`ensemble`]: correlation planes summed over many pairs (mean displacement and Reynolds
 //!   stresses from the summed peak);
 //! - [`synth::render_particles`]: synthetic particle images.
@@ -25,6 +27,7 @@ pub mod image;
 pub mod multipass;
 pub mod synth;
 pub mod validate;
+pub mod weighting;
 
 pub use condition::{condition, conditioned, conditioned_into, Conditioning};
 pub use correlate::{Correlator, Peak, SubPixel, Uncertainty};
@@ -35,3 +38,4 @@ pub use multipass::{
     piv, piv_at, piv_with_final_points, Interpolation, Mode, Pass, PivField, PivSettings, Predictor,
 };
 pub use synth::render_particles;
+pub use weighting::Weighting;

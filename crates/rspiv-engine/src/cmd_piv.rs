@@ -4,7 +4,7 @@
 //!
 //! Settings: `--settings FILE.json` holds the keys of the one vocabulary (`rspiv.PivSettings`,
 //! `piv_core::PivSettings::from_json`: passes, overlap, iterations, deformation, interpolation,
-//! subpixel, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates, uncertainty); the flags given on the
+//! subpixel, weighting, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates, uncertainty); the flags given on the
 //! command line override the file. Pixel frame: x right, y down, origin at the centre of the
 //! top-left pixel; px (object px with a calibration). Values are written to full precision
 //! (shortest round-trip decimal), NaN where a vector is masked.
@@ -13,7 +13,7 @@ use crate::cmd_dewarp::load_mapping;
 use crate::csv::write_atomic;
 use crate::imageio::read_u16;
 use correction_core::{method_one, method_two, DisplacementMapping, Method, ZeroFill};
-use piv_core::{piv, Interpolation, Mode, Pass, PivField, PivSettings, SubPixel};
+use piv_core::{piv, Interpolation, Mode, Pass, PivField, PivSettings, SubPixel, Weighting};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -48,6 +48,10 @@ pub struct PivArgs {
     /// Sub-pixel estimator: gauss3 or gauss2d [default gauss3].
     #[arg(long)]
     pub subpixel: Option<String>,
+    /// Weighting window of the interrogation windows: tophat, gaussian or blackman [default
+    /// tophat].
+    #[arg(long)]
+    pub weighting: Option<String>,
     /// Correlation peaks tried per vector before interpolating a rejected one: 1, 2 or 3
     /// [default 3].
     #[arg(long)]
@@ -130,6 +134,9 @@ pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
     }
     if let Some(p) = &args.subpixel {
         s.subpixel = p.parse::<SubPixel>().map_err(flag)?;
+    }
+    if let Some(p) = &args.weighting {
+        s.weighting = p.parse::<Weighting>().map_err(flag)?;
     }
     if let Some(n) = args.peak_candidates {
         s.peak_candidates = n;

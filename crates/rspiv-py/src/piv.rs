@@ -1,4 +1,5 @@
-//! Binding of piv-core: `piv`, `piv_at`, `piv_final_points`, `render_particles`.
+//! Binding of piv-core: `piv`, `piv_at`, `piv_final_points`, `render_particles`,
+//! `window_response`.
 //!
 //! Frames may be uint8, uint16, float32 or float64 (both of one dtype); they are read in place
 //! (no copy for C-contiguous arrays). All work runs with the GIL released.
@@ -218,11 +219,25 @@ pub(crate) fn grid_field(
     })
 }
 
+/// The amplitude ratio with which an `n`-px window weighted by `weighting` returns a sine
+/// displacement of wavelength `wavelength` px along its axis (`piv_core::weighting`).
+#[pyfunction]
+fn window_response(weighting: &str, n: usize, wavelength: f64) -> PyResult<f64> {
+    let wt: piv_core::Weighting = weighting.parse().map_err(PyRspivErr::from)?;
+    if n == 0 || !(wavelength.is_finite() && wavelength > 0.0) {
+        return Err(invalid(format!(
+            "window_response: window {n} px and wavelength {wavelength} px must be > 0"
+        )));
+    }
+    Ok(wt.response(n, wavelength))
+}
+
 /// Register the PIV functions in the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(piv, m)?)?;
     m.add_function(wrap_pyfunction!(piv_at, m)?)?;
     m.add_function(wrap_pyfunction!(piv_final_points, m)?)?;
     m.add_function(wrap_pyfunction!(render_particles, m)?)?;
+    m.add_function(wrap_pyfunction!(window_response, m)?)?;
     Ok(())
 }

@@ -114,10 +114,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     if cal is not None and main.method != "none" and cfg.wall.enabled and cfg.wall.rotate:
         t0 = time.perf_counter()
         pilot_ctx = dataclasses.replace(base, runs=(main,), _cache={})
-        accs, used = _pilot(camp, pilot_ctx, pairs)
-        acc = accs.get(main.name)
-        if acc is None:
-            raise InvalidInputError("no readable image pair for the wall alignment pilot")
+        accs, used = _pilot(camp, pilot_ctx, pairs, "the wall alignment pilot")
+        acc = accs[main.name]
         gx, gy = base.grid()
         wall, side = find_run_wall(
             acc, gx, gy, cfg.wall.stations, cfg.wall.side, cfg.statistics.min_count
@@ -160,21 +158,28 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     return ctx
 
 def _pilot(
-    camp, ctx: PairContext, pairs: list[PairSpec]
+    camp, ctx: PairContext, pairs: list[PairSpec], what: str
 ) -> tuple[dict[str, FieldAccumulator], list[int]]:
     """The instantaneous statistics of every run of ``ctx`` over the first ``camp.pilot_pairs``
-    usable pairs, and the ids of those pairs (unreadable ones are passed over)."""
+    usable pairs, and the ids of those pairs (unreadable ones are passed over). No usable pair
+    at all is an InvalidInputError for ``what`` that quotes the first pair's reason (a
+    setting every pair fails on is not an unreadable file)."""
     accs: dict[str, FieldAccumulator] = {}
     used: list[int] = []
+    first_reason = ""
     for p in pairs:
         if len(used) >= camp.pilot_pairs:
             break
         r = pair_work.process_pair(ctx, p)
         if not r.ok:
+            first_reason = first_reason or f"pair {p.pair_id}: {r.reason}"
             continue
         for name, (u, v, valid, *_) in r.fields.items():
             accs.setdefault(name, FieldAccumulator(u.shape)).add(u, v, valid)
         used.append(p.pair_id)
+    if not used:
+        why = f" ({first_reason})" if first_reason else ""
+        raise InvalidInputError(f"no readable image pair for {what}{why}")
     return accs, used
 
 
@@ -183,9 +188,7 @@ def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dic
     first ``camp.pilot_pairs`` usable pairs, every run; ``ctx`` with them."""
     t0 = time.perf_counter()
     cfg = camp.config
-    accs, used = _pilot(camp, ctx, pairs)
-    if not used:
-        raise InvalidInputError("[ensemble]: no readable image pair for the band's pilot")
+    accs, used = _pilot(camp, ctx, pairs, "the [ensemble] band's pilot")
     gx, gy = ctx.grid()
     walls = {}
     for run in ctx.runs:

@@ -26,6 +26,7 @@ from rspiv.settings import (
     INTERPOLATIONS,
     MAPPING_MODES,
     SUBPIXELS,
+    WEIGHTINGS,
     PivSettings,
     parse_method,
 )
@@ -34,6 +35,7 @@ _SCALAR_KEYS = (
     "deformation",
     "interpolation",
     "subpixel",
+    "weighting",
     "validate",
     "median_eps",
     "median_threshold",
@@ -182,6 +184,7 @@ def register(sub) -> None:
     p.add_argument("--deformation", default=None, type=str.lower, choices=DEFORMATIONS)
     p.add_argument("--interpolation", default=None, type=str.lower, choices=INTERPOLATIONS)
     p.add_argument("--subpixel", default=None, type=str.lower, choices=SUBPIXELS)
+    p.add_argument("--weighting", default=None, type=str.lower, choices=WEIGHTINGS)
     g = p.add_argument_group("image conditioning (rspiv.preprocess; 0: off)")
     g.add_argument("--hot-pixels", type=float, default=0.0, help="factor over the neighbours (3)")
     g.add_argument("--high-pass", type=float, default=0.0, help="Gaussian sigma, px (2)")

@@ -111,6 +111,60 @@ impl GridField {
         (su, sv)
     }
 
+    /// The mean of the field's bilinear interpolant over the pixel centres of the window
+    /// centred at (x, y) whose columns and rows weigh `px` and `py` (each summing to 1; the
+    /// window is `px.len()` px wide, `py.len()` tall; pixel `i` at `x - (w - 1) / 2 + i`): the
+    /// displacement a deformed window weighted so measures ([`crate::weighting`]).
+    ///
+    /// The interpolant is separable: the pixels' weights are gathered onto the grid nodes of
+    /// each axis (at most [`NODE_SPAN`] nodes per axis on the stack; wider spans sum the
+    /// pixels directly), then one small double sum over the nodes.
+    pub fn weighted_mean_at(&self, x: f64, y: f64, px: &[f64], py: &[f64]) -> (f64, f64) {
+        let g = &self.grid;
+        let x0 = x - (px.len() as f64 - 1.0) / 2.0;
+        let y0 = y - (py.len() as f64 - 1.0) / 2.0;
+        let (mut cx, mut cy) = ([0.0f64; NODE_SPAN], [0.0f64; NODE_SPAN]);
+        let bx = node_weights(px, x0, g.x0, g.dx, g.nx, &mut cx);
+        let by = node_weights(py, y0, g.y0, g.dy, g.ny, &mut cy);
+        let (Some((bx, nx)), Some((by, ny))) = (bx, by) else {
+            return self.weighted_mean_direct(x0, y0, px, py);
+        };
+        let stride = g.nx;
+        let (us, vs) = (
+            self.u.as_slice().expect("standard layout"),
+            self.v.as_slice().expect("standard layout"),
+        );
+        let (mut su, mut sv) = (0.0, 0.0);
+        for (j, &wy) in cy[..ny].iter().enumerate() {
+            let row = (by + j) * stride + bx;
+            let (mut ru, mut rv) = (0.0, 0.0);
+            for (i, &wx) in cx[..nx].iter().enumerate() {
+                ru += wx * us[row + i];
+                rv += wx * vs[row + i];
+            }
+            su += wy * ru;
+            sv += wy * rv;
+        }
+        (su, sv)
+    }
+
+    /// [`Self::weighted_mean_at`] summed pixel by pixel (window corner `(x0, y0)`).
+    fn weighted_mean_direct(&self, x0: f64, y0: f64, px: &[f64], py: &[f64]) -> (f64, f64) {
+        let (mut su, mut sv) = (0.0, 0.0);
+        for (j, &wy) in py.iter().enumerate() {
+            let row = self.row(y0 + j as f64);
+            let (mut ru, mut rv) = (0.0, 0.0);
+            for (i, &wx) in px.iter().enumerate() {
+                let (u, v) = self.at_row(&row, x0 + i as f64);
+                ru += wx * u;
+                rv += wx * v;
+            }
+            su += wy * ru;
+            sv += wy * rv;
+        }
+        (su, sv)
+    }
+
     /// Displacement (u, v) at (x, y).
     #[inline]
     pub fn at(&self, x: f64, y: f64) -> (f64, f64) {
@@ -124,6 +178,36 @@ impl GridField {
         };
         (bl(&self.u), bl(&self.v))
     }
+}
+
+/// Most grid nodes per axis that [`GridField::weighted_mean_at`] gathers on the stack.
+pub const NODE_SPAN: usize = 64;
+
+/// The weights `w[i]` of the pixels `p0 + i` of one axis gathered onto the grid nodes
+/// `first + k` of the axis `g0 + n step` (`n < count`; linear interpolation, constant beyond
+/// the outer nodes) into `out[k]`: `Some((first, nodes))`, or `None` when the pixels span more
+/// than [`NODE_SPAN`] nodes.
+#[inline]
+fn node_weights(
+    w: &[f64],
+    p0: f64,
+    g0: f64,
+    step: f64,
+    count: usize,
+    out: &mut [f64; NODE_SPAN],
+) -> Option<(usize, usize)> {
+    let first = GridField::axis(p0, g0, step, count).0;
+    let last = GridField::axis(p0 + (w.len() as f64 - 1.0), g0, step, count).1;
+    let nodes = last.checked_sub(first)? + 1;
+    if nodes > NODE_SPAN {
+        return None;
+    }
+    for (i, &wi) in w.iter().enumerate() {
+        let (i0, i1, t) = GridField::axis(p0 + i as f64, g0, step, count);
+        out[i0 - first] += wi * (1.0 - t);
+        out[i1 - first] += wi * t;
+    }
+    Some((first, nodes))
 }
 
 /// The integral of the unit hat (support `[-1, 1]`) from `-inf` to `x`.

@@ -422,3 +422,73 @@ fn separable_shift_equals_the_per_pixel_taps() {
         &mut out
     )); // too wide
 }
+
+/// The weighted window mean of a field: exact for a linear field (symmetric weights: its value
+/// at the centre), and for the top-hat's pixel weights within the pixel discretisation of
+/// [`GridField::window_mean_at`] on a curved one.
+#[test]
+fn weighted_window_mean_of_a_field() {
+    use crate::grid::Grid;
+    use crate::weighting::Weighting;
+    let grid = Grid {
+        x0: 3.5,
+        y0: 2.0,
+        dx: 8.0,
+        dy: 4.0,
+        nx: 20,
+        ny: 30,
+    };
+    let make = |f: &dyn Fn(f64, f64) -> (f64, f64)| {
+        let u = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
+            f(grid.xy(j, i).0, grid.xy(j, i).1).0
+        });
+        let v = Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| {
+            f(grid.xy(j, i).0, grid.xy(j, i).1).1
+        });
+        GridField { grid, u, v }
+    };
+    let linear = make(&|x, y| (1.5 + 0.02 * x - 0.01 * y, -0.7 + 0.03 * y + 0.005 * x));
+    for wt in [Weighting::Gaussian, Weighting::Blackman] {
+        let (px, py) = (wt.pixel_weights(32), wt.pixel_weights(8));
+        for (x, y) in [(60.3, 50.0), (77.0, 61.7)] {
+            let (u, v) = linear.weighted_mean_at(x, y, &px, &py);
+            let (eu, ev) = linear.at(x, y);
+            assert!(
+                (u - eu).abs() < 1e-12 && (v - ev).abs() < 1e-12,
+                "{wt:?} {u} {eu}"
+            );
+        }
+    }
+    let curved = make(&|x, y| ((x / 40.0).sin(), (y / 20.0).cos()));
+    // the node-gathered sum is the pixel-by-pixel one, inside and past the grid's ends
+    let (px, py) = (
+        Weighting::Gaussian.pixel_weights(32),
+        Weighting::Gaussian.pixel_weights(8),
+    );
+    for (x, y) in [(60.3, 50.0), (-5.0, 1.0), (170.0, 130.0)] {
+        let (u, v) = curved.weighted_mean_at(x, y, &px, &py);
+        let mut d = (0.0, 0.0);
+        for (j, wy) in py.iter().enumerate() {
+            for (i, wx) in px.iter().enumerate() {
+                let (a, b) = curved.at(x - 15.5 + i as f64, y - 3.5 + j as f64);
+                d = (d.0 + wx * wy * a, d.1 + wx * wy * b);
+            }
+        }
+        assert!(
+            (u - d.0).abs() < 1e-12 && (v - d.1).abs() < 1e-12,
+            "{x} {y}"
+        );
+    }
+    let (px, py) = (
+        Weighting::TopHat.pixel_weights(32),
+        Weighting::TopHat.pixel_weights(8),
+    );
+    for (x, y) in [(60.3, 50.0), (77.0, 61.7)] {
+        let (u, v) = curved.weighted_mean_at(x, y, &px, &py);
+        let (eu, ev) = curved.window_mean_at(x, y, 32, 8);
+        assert!(
+            (u - eu).abs() < 2e-3 && (v - ev).abs() < 2e-3,
+            "{u} {eu} {v} {ev}"
+        );
+    }
+}

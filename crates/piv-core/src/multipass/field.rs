@@ -6,6 +6,7 @@ use crate::correlate::Peak;
 use crate::grid::Grid;
 use crate::image::GridField;
 use crate::validate::{median_test, neighbour_median, replace, residual};
+use crate::weighting::Weighting;
 use ndarray::Array2;
 
 /// A vector field. All arrays have the same shape (ny, nx).
@@ -82,6 +83,59 @@ pub(crate) struct Validation {
     pub valid: Array2<bool>,
     pub replaced: Array2<bool>,
     pub peak_choice: Array2<u8>,
+}
+
+/// The part of a vector that a deformed window reports of its deformation field: the field's
+/// mean over the window, top-hat ([`GridField::window_mean_at`]) or weighted as the
+/// correlation weighs the window's pixels ([`GridField::weighted_mean_at`], see
+/// [`crate::weighting`]); the residual the window measures is the same mean of `true - d`,
+/// so the vector is the window's mean of the true field whatever the deformation `d`.
+pub(crate) struct WindowMean {
+    w: usize,
+    h: usize,
+    weights: Option<(Vec<f64>, Vec<f64>)>,
+}
+
+impl WindowMean {
+    pub(crate) fn new(w: usize, h: usize, weighting: Weighting) -> WindowMean {
+        let weights = (weighting != Weighting::TopHat)
+            .then(|| (weighting.pixel_weights(w), weighting.pixel_weights(h)));
+        WindowMean { w, h, weights }
+    }
+
+    /// The mean of `f` over the window centred at `(x, y)`.
+    pub(crate) fn at(&self, f: &GridField, x: f64, y: f64) -> (f64, f64) {
+        match &self.weights {
+            None => f.window_mean_at(x, y, self.w, self.h),
+            Some((px, py)) => f.weighted_mean_at(x, y, px, py),
+        }
+    }
+}
+
+/// Under-relaxation of the extra iterations of a pass: the `k + 1`-th estimate is the `k`-th
+/// moved by `RELAXATION` times its change, `x_{k+1} = x_k + RELAXATION (g(x_k) - x_k)`, where
+/// `g(x_k)` is the validated field correlated with the windows deformed by `x_k` ([`relax`]).
+///
+/// The plain iteration `x_{k+1} = g(x_k)` converges, but alternately: its error about the fixed
+/// point changes sign with a gain of about -0.27 (2048 x 1024 pair, 16 px: RMS 0.0452, 0.0441,
+/// 0.0444, 0.0443, 0.0444 px for 1-5 iterations; the particle-weighted window mean of the
+/// deformation field does not cancel the predictor's part exactly, see the module notes), so
+/// the third iteration is worse than the second; at 8 px, where a few percent of the vectors
+/// switch peaks from one iteration to the next, by 2-3 %. With a gain `-r` the relaxed error
+/// about the fixed point is multiplied by `1 - RELAXATION (1 + r)` per iteration, 0.49 here:
+/// no sign change, so each iteration is at least as accurate as the one before, and the extra
+/// iterations average the peak switching out. Same pair, 1-4 iterations: 16 px 0.0452, 0.0447,
+/// 0.0445, 0.0444; 12 px 0.0637, 0.0634, 0.0633, 0.0633; 8 px 0.1207, 0.1158, 0.1148, 0.1151;
+/// 32 x 8 0.0454, 0.0449, 0.0446, 0.0446 (0.5 let the 8 px error rise again at the third
+/// iteration on some seeds, 0.3 converges more slowly). The unrelaxed second iteration (0.0441
+/// at 16 px) lies below the fixed point it alternates about: more iterations cannot keep that.
+/// The spatial response is unchanged (a blend of fields with the top-hat response has it). The
+/// first iteration of a pass (predictor from the coarser pass, another grid) is not relaxed.
+pub const RELAXATION: f64 = 0.4;
+
+/// `new = prev + RELAXATION (new - prev)`, element by element (see [`RELAXATION`]).
+pub(crate) fn relax(new: &mut Array2<f64>, prev: &Array2<f64>) {
+    new.zip_mut_with(prev, |a, &b| *a = b + RELAXATION * (*a - b));
 }
 
 /// Validate (optionally), try the second and third peaks of rejected vectors, and replace the

@@ -9,6 +9,7 @@ use crate::image::{
     bspline5_coeffs, bspline5_weights, bspline_coeffs, bspline_weights, deform_pair, into_buffers,
     keys_weights, sample_shift, GridField, Img, Pixel, Source,
 };
+use crate::weighting::Weighting;
 use ndarray::ArrayView2;
 use rayon::prelude::*;
 
@@ -210,7 +211,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
         dv: &[f64],
         skip: &[bool],
         base: Option<&GridField>,
-        sub: SubPixel,
+        est: (SubPixel, Weighting),
         uncertainty: Uncertainty,
     ) -> Vec<Peak> {
         // windows on integer positions are plain copies: no interpolation images needed
@@ -230,7 +231,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
             dv,
             skip,
             base,
-            sub,
+            est,
             uncertainty,
             self.rule
         ))

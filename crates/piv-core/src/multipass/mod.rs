@@ -18,11 +18,18 @@
 //!   mean_W(d)` to every vector, which sharpens the response to curved fields but feeds the
 //!   previous estimate's noise back with a gain of up to 1.25 per iteration (Scarano 2002,
 //!   Schrijer & Scarano 2008): more iterations then raise the error. Here they converge: the
-//!   deformation only reduces the correlation's error (in-window gradients, loss of pairs),
+//!   deformation only reduces the correlation's error (in-window gradients, loss of pairs);
+//!   the extra iterations of a pass are under-relaxed ([`RELAXATION`]: each moves the
+//!   estimate 0.4 of the way to the new one), which removes the alternation the
+//!   particle-weighted residual leaves, so no iteration is less accurate than the one before;
 //!   and the spatial response is fixed, that of the top-hat window: a displacement `A sin(2 pi
 //!   y / L)` is recovered with the amplitude `A sinc(h / L)` (`sinc(t) = sin(pi t) / (pi t)`;
 //!   `w / L` along x): 0.900 at `L = 4 h`, 0.955 at `6 h`, 0.974 at `8 h`, for any number of
-//!   passes and iterations (tested against the synthetic sine in `tests.rs`);
+//!   passes and iterations (tested against the synthetic sine in `tests.rs`). With a
+//!   tapered weighting window ([`PivSettings::weighting`], [`crate::weighting`]) both means
+//!   are weighted as the correlation weighs the window's pixels
+//!   ([`crate::GridField::weighted_mean_at`]) and the response is the weighting's
+//!   ([`crate::weighting::Weighting::response`]);
 //! - [`Mode::Offset`]: symmetric sub-pixel window offset by the predictor at the window centre.
 //!
 //! On the regular grid of [`piv`] the deformation is applied to the whole frame pair once per
@@ -60,7 +67,7 @@ mod settings;
 mod tests;
 mod window;
 
-pub use field::{ambiguity_variance, PivField, AMBIGUITY_RATE, AMBIGUITY_SCALE};
+pub use field::{ambiguity_variance, PivField, AMBIGUITY_RATE, AMBIGUITY_SCALE, RELAXATION};
 pub(crate) use frames::Frames;
 pub use frames::BLANK_VARIANCE;
 pub use points::{piv_at, piv_with_final_points, Predictor};

@@ -154,8 +154,9 @@ pub(crate) fn at_points<T: Pixel>(
     let mut deformed: Option<Frames<'static, f32>> = None;
     for (p, &(w, h)) in windows.iter().enumerate() {
         if let Some(f) = base {
+            let mean = WindowMean::new(w, h, settings.weighting);
             for k in 0..n {
-                let (mu, mv) = f.window_mean_at(xs[k], ys[k], w, h);
+                let (mu, mv) = mean.at(f, xs[k], ys[k]);
                 if p > 0 {
                     // a new window: the windows keep their displacement, the offset stays
                     // relative to the predictor's part
@@ -175,7 +176,7 @@ pub(crate) fn at_points<T: Pixel>(
             if no_offset && base.is_some() && deformed.is_none() {
                 deformed = base.map(|f| frames.deformed(f, None));
             }
-            let sub = settings.subpixel;
+            let sub = (settings.subpixel, settings.weighting);
             let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| match (
                 base, &deformed,
             ) {
@@ -194,6 +195,18 @@ pub(crate) fn at_points<T: Pixel>(
                 bv[k] + dv[k] + peaks[k].dy
             });
             let checked = validate_replace(&mut u, &mut v, &peaks, &skip, settings);
+            if it > 0 {
+                // an extra iteration of this window (see `RELAXATION`): the previous estimate
+                // is the predictor's part plus the offset
+                let prev = |b: &[f64], d: &[f64]| {
+                    Array2::from_shape_fn(shape, |(j, i)| {
+                        let k = j * shape.1 + i;
+                        b[k] + d[k]
+                    })
+                };
+                relax(&mut u, &prev(&bu, &du));
+                relax(&mut v, &prev(&bv, &dv));
+            }
             if unc != Uncertainty::Off {
                 fill_alt_sigmas(
                     &mut peaks,

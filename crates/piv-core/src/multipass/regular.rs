@@ -66,6 +66,7 @@ pub(crate) fn grid_passes<T: Pixel>(
             .map(|(&x, &y)| excluded(mask, dim, x, y))
             .collect();
         let last_pass = std::ptr::eq(pass, s.passes.last().expect("non-empty"));
+        let mean = WindowMean::new(pass.w, pass.h, s.weighting);
         for it in 0..pass.iterations {
             // the uncertainty of the vectors returned
             let unc = if s.uncertainty && last_pass && it + 1 == pass.iterations {
@@ -83,11 +84,9 @@ pub(crate) fn grid_passes<T: Pixel>(
             // field (the residual a deformed window measures is the window mean of
             // `true - deformation`, see the module notes)
             let (pu, pv): (Vec<f64>, Vec<f64>) = match (&cur, s.mode) {
-                (Some(f), Mode::Deform) => xs
-                    .iter()
-                    .zip(&ys)
-                    .map(|(&x, &y)| f.window_mean_at(x, y, pass.w, pass.h))
-                    .unzip(),
+                (Some(f), Mode::Deform) => {
+                    xs.iter().zip(&ys).map(|(&x, &y)| mean.at(f, x, y)).unzip()
+                }
                 (Some(f), _) => xs.iter().zip(&ys).map(|(&x, &y)| f.at(x, y)).unzip(),
                 (None, _) => (vec![0.0; n], vec![0.0; n]),
             };
@@ -100,7 +99,7 @@ pub(crate) fn grid_passes<T: Pixel>(
             // windows are plain copies (the deformed pair's buffers serve the next one)
             let deformed = base.map(|f| frames.deformed(f, spare.take()));
             let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| {
-                let sub = s.subpixel;
+                let sub = (s.subpixel, s.weighting);
                 match &deformed {
                     Some(d) => d.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, u),
                     None => frames.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, u),
@@ -116,6 +115,11 @@ pub(crate) fn grid_passes<T: Pixel>(
                 pv[k] + peaks[k].dy
             });
             let checked = validate_replace(&mut u, &mut v, &peaks, &skip, s);
+            if let (true, Some(prev)) = (it > 0, &pred) {
+                // an extra iteration on this pass's grid (see `RELAXATION`)
+                relax(&mut u, &prev.u);
+                relax(&mut v, &prev.v);
+            }
             if unc != Uncertainty::Off {
                 fill_alt_sigmas(
                     &mut peaks,

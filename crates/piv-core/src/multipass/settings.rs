@@ -12,6 +12,7 @@
 //! | deformation      | `"symmetric"`, `"offset"`  | [`Mode::Deform`], [`Mode::Offset`]             |
 //! | interpolation    | `"bspline"`, `"bspline3"`, `"keys"` | [`Interpolation`]                     |
 //! | subpixel         | `"gauss3"`, `"gauss2d"`    | [`SubPixel`]                                   |
+//! | weighting        | `"tophat"`, `"gaussian"`, `"blackman"` | [`Weighting`] of the windows       |
 //! | validate         | bool                       | normalised median test                         |
 //! | median_eps       | number, px                 | noise level of the median test                 |
 //! | median_threshold | number                     | threshold of the median test                   |
@@ -31,6 +32,7 @@
 
 use crate::correlate::SubPixel;
 use crate::error::{PivError, Result};
+use crate::weighting::Weighting;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -93,6 +95,8 @@ pub struct PivSettings {
     pub mode: Mode,
     pub subpixel: SubPixel,
     pub interpolation: Interpolation,
+    /// Weighting window of every pass's windows ([`Weighting`]); the top-hat.
+    pub weighting: Weighting,
     /// Run the normalised median test (replacement of failed correlations always happens).
     pub validate: bool,
     /// Normalised median test: noise level epsilon (px), 0.1.
@@ -115,6 +119,7 @@ impl Default for PivSettings {
             mode: Mode::Deform,
             subpixel: SubPixel::Gauss3,
             interpolation: Interpolation::BSpline,
+            weighting: Weighting::TopHat,
             validate: true,
             median_eps: 0.1,
             median_threshold: 2.0,
@@ -214,6 +219,13 @@ vocabulary_enum!(
     ("keys", Interpolation::Keys)
 );
 vocabulary_enum!(
+    Weighting,
+    "weighting",
+    ("tophat", Weighting::TopHat),
+    ("gaussian", Weighting::Gaussian),
+    ("blackman", Weighting::Blackman)
+);
+vocabulary_enum!(
     SubPixel,
     "subpixel",
     ("gauss3", SubPixel::Gauss3),
@@ -263,6 +275,7 @@ struct SettingsJson {
     deformation: String,
     interpolation: String,
     subpixel: String,
+    weighting: String,
     validate: bool,
     median_eps: f64,
     median_threshold: f64,
@@ -286,6 +299,7 @@ impl From<&PivSettings> for SettingsJson {
             deformation: s.mode.to_string(),
             interpolation: s.interpolation.to_string(),
             subpixel: s.subpixel.to_string(),
+            weighting: s.weighting.to_string(),
             validate: s.validate,
             median_eps: s.median_eps,
             median_threshold: s.median_threshold,
@@ -322,6 +336,7 @@ impl PivSettings {
             mode: j.deformation.parse()?,
             subpixel: j.subpixel.parse()?,
             interpolation: j.interpolation.parse()?,
+            weighting: j.weighting.parse()?,
             validate: j.validate,
             median_eps: j.median_eps,
             median_threshold: j.median_threshold,
@@ -359,6 +374,16 @@ mod vocabulary_tests {
         assert_eq!(Mode::Deform.to_string(), "symmetric");
         assert_eq!(Interpolation::BSpline.to_string(), "bspline");
         assert_eq!(SubPixel::Gauss3.to_string(), "gauss3");
+        assert_eq!(
+            "Gaussian".parse::<Weighting>().unwrap(),
+            Weighting::Gaussian
+        );
+        assert_eq!(Weighting::Blackman.to_string(), "blackman");
+        assert!("hann"
+            .parse::<Weighting>()
+            .unwrap_err()
+            .to_string()
+            .contains("weighting \"hann\""));
         let e = "cubic".parse::<Interpolation>().unwrap_err().to_string();
         assert!(
             e.contains("interpolation \"cubic\"") && e.contains("\"keys\""),
@@ -373,6 +398,7 @@ mod vocabulary_tests {
         let s = PivSettings::from_json(
             r#"{"passes": [[64, 64], [32, 8]], "overlap": [0.5, 0.75], "iterations": 2,
                 "deformation": "Offset", "interpolation": "keys", "subpixel": "gauss2d",
+                "weighting": "blackman",
                 "validate": false, "median_eps": 0.2, "median_threshold": 3,
                 "min_peak_ratio": 1.2, "uncertainty": false}"#,
         )
@@ -389,6 +415,7 @@ mod vocabulary_tests {
         assert_eq!(s.mode, Mode::Offset);
         assert_eq!(s.interpolation, Interpolation::Keys);
         assert_eq!(s.subpixel, SubPixel::Gauss2d);
+        assert_eq!(s.weighting, Weighting::Blackman);
         assert!(!s.validate);
         assert!(!s.uncertainty);
         assert_eq!(

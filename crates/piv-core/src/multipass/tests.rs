@@ -605,7 +605,7 @@ fn field_predictor_on_the_deformed_pair_matches_per_window_sampling() {
         &zeros,
         &skip,
         Some(&field),
-        s.subpixel,
+        (s.subpixel, s.weighting),
         crate::correlate::Uncertainty::Off,
     );
     let (mut e_fast, mut e_slow, mut diff, mut m) = (0.0, 0.0, 0.0f64, 0);

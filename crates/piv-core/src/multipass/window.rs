@@ -4,6 +4,7 @@
 use crate::correlate::{Correlator, Peak, SubPixel, Uncertainty};
 use crate::error::{PivError, Result};
 use crate::image::{sample_pair, GridField, Pixel, Source, WindowSpec};
+use crate::weighting::Weighting;
 use ndarray::ArrayView2;
 use rayon::prelude::*;
 
@@ -99,7 +100,7 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
     dv: &[f64],
     skip: &[bool],
     base: Option<&GridField>,
-    sub: SubPixel,
+    (sub, weighting): (SubPixel, Weighting),
     uncertainty: Uncertainty,
     rule: BlankRule,
 ) -> Vec<Peak> {
@@ -112,6 +113,7 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
                 let mut c = Correlator::new(w, h);
                 c.min_var = rule.floor;
                 c.uncertainty = uncertainty;
+                c.set_weighting(weighting);
                 (c, FillScratch::new(w * h))
             },
             |(c, keep), k| {
