@@ -4,10 +4,11 @@ Reynolds stresses, and their exact bookkeeping (merge, round trip, old states, b
 The end-to-end check uses a synthetic campaign with a known answer: every pair moves as a whole
 by a Gaussian random displacement (so the true variance is the sample variance of the drawn
 displacements, exactly), imaged with 10 % noise and evaluated with 32 px windows, where the
-measurement noise is a quarter of the measured variance. Measured: uu 0.00262 raw, 0.00195
+measurement noise is a quarter of the measured variance. Measured: uu 0.00264 raw, 0.00196
 corrected, 0.00176 true (vv 0.00225, 0.00160, 0.00143); with 16 px windows, where the noise is
-larger than the fluctuations, 0.00425 raw and 0.00231 corrected (the per-vector sigma there is
-~13 % low, as the coverage test finds, ``benches/RESULTS.md``).
+twice the fluctuations, uu 0.00566 raw and 0.00243 corrected (vv 0.00552, 0.00239): the
+per-vector sigma there is 9-12 % low on these noisy pairs, as the coverage table's 16 x 16
+"noisy" rows find (RMS of error / sigma 1.04-1.11, ``benches/RESULTS.md``).
 """
 
 from __future__ import annotations

@@ -212,10 +212,9 @@ pub struct Correlator {
     /// otherwise (the ensemble keeps frame B's window in `cb`).
     pub(crate) ca: Vec<f32>,
     pub(crate) cb: Vec<f32>,
-    /// The weighting window ([`Correlator::set_weighting`]); for anything but the top-hat its
+    /// The weighting window ([`Correlator::set_weighting`]): for anything but the top-hat its
     /// `w * h` pixel weights and the overlap of the weighted windows at the plane's lags (f64
     /// for the uncertainty, f32 for the sub-pixel fit); empty for the top-hat.
-    weighting: Weighting,
     wgt: Vec<f32>,
     ovx: Vec<f64>,
     ovy: Vec<f64>,
@@ -252,7 +251,6 @@ impl Correlator {
             uncertainty: Uncertainty::Off,
             ca: vec![0.0; w * h],
             cb: vec![0.0; w * h],
-            weighting: Weighting::TopHat,
             wgt: Vec::new(),
             ovx: Vec::new(),
             ovy: Vec::new(),
@@ -266,12 +264,10 @@ impl Correlator {
     /// weighted windows' energies and the sub-pixel fit (and the uncertainty) divides by the
     /// weighted windows' overlap at each lag ([`Weighting::overlap`]).
     pub fn set_weighting(&mut self, weighting: Weighting) {
-        self.weighting = weighting;
         if weighting == Weighting::TopHat {
-            for v in [&mut self.ovx, &mut self.ovy] {
-                v.clear();
-            }
             self.wgt.clear();
+            self.ovx.clear();
+            self.ovy.clear();
             self.ovx32.clear();
             self.ovy32.clear();
             return;
@@ -290,11 +286,6 @@ impl Correlator {
         self.ovy = lags(self.ch, self.h);
         self.ovx32 = self.ovx.iter().map(|&o| o as f32).collect();
         self.ovy32 = self.ovy.iter().map(|&o| o as f32).collect();
-    }
-
-    /// The weighting window in use ([`Self::set_weighting`]).
-    pub fn weighting(&self) -> Weighting {
-        self.weighting
     }
 
     /// Peak search half-ranges (sx, sy) in px.
