@@ -287,6 +287,28 @@ def test_bad_pairs_are_skipped_and_reported(synth, tmp_path):
     assert res.result("uncorrected") is not None  # the good pairs are analysed
 
 
+def test_a_pilot_without_one_usable_pair_says_why(synth, tmp_path):
+    """When every pilot pair fails, the refusal quotes the first pair's reason (not only "no
+    readable image pair": a setting every pair fails on is not an unreadable file)."""
+    import tifffile
+
+    files = sorted((synth / "raw").glob("*.tif"))
+    small = tmp_path / "small.tif"
+    tifffile.imwrite(small, np.zeros((64, 80), np.uint16))
+    cfg = load_campaign_config(synth / "campaign.toml")
+    assert cfg.correction.method == "II" and cfg.wall.enabled and cfg.wall.rotate
+    cfg.images.glob = None
+    cfg.images.pairs = [(files[0], small), (files[2], small)]
+    cfg.preprocess.background = "none"  # else the background stage refuses them first
+    cfg.calibration.monte_carlo_samples = 0
+    cfg.output.report = False
+    with pytest.raises(rspiv.InvalidInputError) as e:
+        Campaign(cfg, progress=False, out_dir=tmp_path / "out").run()
+    msg = str(e.value)
+    assert msg.startswith("no readable image pair for the wall alignment pilot (pair 0: "), msg
+    assert "80 x 64 px" in msg and "\n" not in msg, msg
+
+
 def test_the_next_pair_is_read_while_the_current_one_is_processed(synth, tmp_path, monkeypatch):
     """The local executor reads pair k + 1 in its reader thread while pair k's PIV runs: the
     PIV of each pair but the last sees the next pair's read start (it waits for it, so a

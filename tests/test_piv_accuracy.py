@@ -314,3 +314,6 @@ def test_the_default_top_hat_is_the_most_accurate(smooth_pair):
         rspiv.PivSettings(weighting="hann")
     with pytest.raises(rspiv.InvalidInputError, match="weighting"):
         rspiv.window_response("hann", 32, 64.0)
+    for n, wl in ((0, 64.0), (32, 0.0), (32, float("nan"))):
+        with pytest.raises(rspiv.InvalidInputError, match="must be > 0"):
+            rspiv.window_response("gaussian", n, wl)

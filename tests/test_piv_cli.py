@@ -81,6 +81,29 @@ def test_engine_binary_piv(pair_files, tmp_path, engine):
     assert r.returncode == 2 and "nope.tif" in r.stderr
 
 
+def test_weighting_flag_in_both_clis(pair_files, tmp_path, engine):
+    """``--weighting`` of the engine binary and of ``rspiv piv`` give rspiv.piv's field with
+    that weighting; an unknown name is one line naming the flag, exit 2."""
+    d, a, b = pair_files
+    py = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], weighting="gaussian")
+    out = tmp_path / "f.csv"
+    args = [engine, "piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(out)]
+    args += ["--passes", "64x64,32x32"]
+    r = subprocess.run(args + ["--weighting", "Gaussian"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    data = np.genfromtxt(out, delimiter=",", names=True)
+    np.testing.assert_allclose(data["u"], py.u.ravel(), atol=1e-3)
+    r = subprocess.run(args + ["--weighting", "hann"], capture_output=True, text=True)
+    assert r.returncode == 2 and "--weighting" in r.stderr and "hann" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+    nc = tmp_path / "f.nc"
+    assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(nc), "--passes",
+                 "64x64,32x32", "--weighting", "gaussian"]) == 0  # fmt: skip
+    ds = xr.load_dataset(nc, engine="h5netcdf")
+    np.testing.assert_array_equal(ds.u.values, py.u)
+    assert json.loads(ds.attrs["piv_settings"])["weighting"] == "gaussian"
+
+
 def test_read_image_checks_arrays_by_the_file_rules():
     """One reader: arrays pass through the same rules as files."""
     img = read_image(np.arange(12, dtype=np.int32).reshape(3, 4))
