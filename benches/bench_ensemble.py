@@ -11,7 +11,11 @@ depend on it), then, in one run, times per pair
   by the wall-parallel profile; the auto planes as in the first ``auto_pairs`` pairs and without
   them as in the rest),
 
-and prints the ratio (the issue's limit: the band <= 25 % of the PIV), the accumulator's size
+- adding the pair to single-pixel rows at the wall (``rspiv.ensemble.PixelAccumulator`` with
+  the campaign's defaults: rows every 0.5 px up to ``--pixel-band`` px, 64 px segments, lags
+  +-8 x +-3, the reflection beyond the wall masked),
+
+and prints the ratios (the issue's limit: the band <= 25 % of the PIV), the accumulator's size
 and the process's peak RSS (limit: <= 1 GB for a 600 px band).
 """
 
@@ -23,7 +27,13 @@ import time
 
 import numpy as np
 import rspiv
-from rspiv.ensemble import EnsembleAccumulator, band_grid, profile_field
+from rspiv.ensemble import (
+    EnsembleAccumulator,
+    PixelAccumulator,
+    band_grid,
+    pixel_band,
+    profile_field,
+)
 from rspiv.synth import tbl_pair
 
 
@@ -32,6 +42,7 @@ def main() -> None:
     ap.add_argument("--pairs", type=int, default=3, help="timed repetitions")
     ap.add_argument("--band", type=float, default=600.0, help="band height, px")
     ap.add_argument("--no-piv", action="store_true", help="time the band alone (its memory)")
+    ap.add_argument("--pixel-band", type=float, default=10.0, help="single-pixel rows, px")
     args = ap.parse_args()
     t = time.perf_counter()
     a, b, truth = tbl_pair(scale=1.0, seed=1, lens=None, wall_angle_deg=0.0)
@@ -46,7 +57,12 @@ def main() -> None:
         f"band {args.band:g} px: {x.size} windows ({x.shape[0]} rows x {x.shape[1]}), "
         f"accumulator {acc.acc.nbytes / 1e6:.0f} MB"
     )
-    t_piv, t_auto, t_cross = [], [], []
+    rows = np.arange(0.5, args.pixel_band + 1e-9, 0.5)
+    py, px0, pd = pixel_band(a.shape, 64, rows, truth.wall_y0_px, "above", margin_x=32)
+    pdu = truth.mean_displacement_px(pd)
+    pix = PixelAccumulator(py, 64, px0, (pdu[:, None], 0.0), wall=(truth.wall_y0_px, "above"))
+    print(f"single-pixel: {py.shape[0]} rows x {py.shape[1]} segments of 64 px")
+    t_piv, t_auto, t_cross, t_pix = [], [], [], []
     for _ in range(args.pairs):
         t = time.perf_counter()
         if not args.no_piv:
@@ -59,12 +75,17 @@ def main() -> None:
         t = time.perf_counter()
         acc.add(a, b, auto=False)
         t_cross.append(time.perf_counter() - t)
-    piv, auto, cross = (float(np.median(v)) for v in (t_piv, t_auto, t_cross))
+        t = time.perf_counter()
+        pix.add(a, b, auto=True)
+        t_pix.append(time.perf_counter() - t)
+    piv, auto, cross, pixel = (float(np.median(v)) for v in (t_piv, t_auto, t_cross, t_pix))
     if not args.no_piv:
         print(f"instantaneous PIV per pair: {piv:.2f} s")
     for name, v in (("with auto planes", auto), ("cross only", cross)):
         share = "" if args.no_piv else f" ({100 * v / piv:.0f} % of the PIV)"
         print(f"ensemble band per pair, {name}: {v:.2f} s{share}")
+    share = "" if args.no_piv else f" ({100 * pixel / piv:.1f} % of the PIV)"
+    print(f"single-pixel rows per pair, with auto planes: {pixel:.3f} s{share}")
     t = time.perf_counter()
     res = acc.result(rows=True)
     print(f"fit of {x.shape[0]} rows: {time.perf_counter() - t:.2f} s, ok {int(res.ok.sum())}")

@@ -87,6 +87,14 @@ A complete file (every key optional except where noted; defaults shown)::
     band = 60.0                  # height of the band from the wall (see band_units)
     band_units = "px"            # "px" | "plus" (wall units of the pilot's profile fit)
     auto_pairs = 200             # pairs whose auto planes (the particle images) are summed
+    single_pixel = false         # also single-pixel ensemble correlation in rows at the wall
+                                 # (rspiv.ensemble_pixel): one px wall-normal resolution; rows
+                                 # the wall biases (within two particle-image widths) are
+                                 # flagged near_wall in the outputs
+    pixel_band = 10.0            # height of the single-pixel rows from the wall (band_units)
+    pixel_step = 0.5             # px between the rows (the first one step from the wall)
+    pixel_segment = 64           # px along the wall per summed segment (>= 8)
+    pixel_lags = [8, 3]          # lag half-ranges [x, y] px around the pilot's profile
 
     [output]
     dir = "rspiv-out"
@@ -113,21 +121,14 @@ try:  # Python >= 3.11
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as _toml  # type: ignore[no-redef]
 
+from rspiv.campaign_schema import ALIASES, PARSERS, Ctx, parse_pairs
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text
 from rspiv.preprocess import Preprocess
 from rspiv.settings import (
-    DEFORMATIONS,
-    INTERPOLATIONS,
-    MAPPING_MODES,
     OPTION_KEYS,
-    SUBPIXELS,
-    WEIGHTINGS,
     PivSettings,
-    parse_method,
 )
-
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".im7", ".imx", ".ims")
 
 
 # ---------------------------------------------------------------------------- sections
@@ -284,6 +285,11 @@ class EnsembleConfig:
     band: float = 60.0
     band_units: str = "px"
     auto_pairs: int = 200
+    single_pixel: bool = False
+    pixel_band: float = 10.0
+    pixel_step: float = 0.5
+    pixel_segment: int = 64
+    pixel_lags: tuple[int, int] = (8, 3)
 
 
 @dataclasses.dataclass
@@ -380,6 +386,7 @@ class CampaignConfig:
             out[name] = dataclasses.asdict(getattr(self, name))
         out["ensemble"]["window"] = [int(v) for v in self.ensemble.window]
         out["ensemble"]["step"] = [float(v) for v in self.ensemble.step]
+        out["ensemble"]["pixel_lags"] = [int(v) for v in self.ensemble.pixel_lags]
         o = dataclasses.asdict(self.output)
         o["dir"] = p(self.output.dir)
         out["output"] = o
@@ -430,225 +437,6 @@ def _dump_toml(data: dict[str, dict[str, Any]]) -> str:
 
 
 # ---------------------------------------------------------------------------- loading
-class _Ctx:
-    def __init__(self, fname: str, base: pathlib.Path):
-        self.fname = fname
-        self.base = base
-
-    def err(self, where: str, msg: str) -> InvalidInputError:
-        return InvalidInputError(f"{self.fname}: {where}: {msg}")
-
-    def path(self, where, v, *, image=False, allow_empty=True, tiff=False, json_ok=False):
-        if not isinstance(v, str):
-            raise self.err(where, f"expected a path string, got {v!r}")
-        if v == "":
-            if allow_empty:
-                return None
-            raise self.err(where, "expected a path, got an empty string")
-        pth = pathlib.Path(os.path.expanduser(v))
-        if tiff and pth.suffix.lower() not in (".tif", ".tiff"):
-            raise self.err(where, f"expected a multi-frame TIFF (.tif, .tiff), got {v!r}")
-        if image and pth.suffix.lower() not in IMAGE_SUFFIXES + ((".json",) if json_ok else ()):
-            raise self.err(
-                where, f"expected an image file ({', '.join(IMAGE_SUFFIXES)}), got {v!r}"
-            )
-        return pathlib.Path(os.path.normpath(pth if pth.is_absolute() else self.base / pth))
-
-
-def _number(ctx, where, v, *, integer=False, minimum=None, exclusive_min=False, maximum=None):
-    kind = "an integer" if integer else "a number"
-    if (
-        isinstance(v, bool)
-        or not isinstance(v, (int, float))
-        or (integer and not isinstance(v, int))
-    ):
-        raise ctx.err(where, f"expected {kind}, got {v!r}")
-    if v != v or v in (float("inf"), float("-inf")):
-        raise ctx.err(where, f"expected a finite number, got {v!r}")
-    if minimum is not None and (v <= minimum if exclusive_min else v < minimum):
-        rel = ">" if exclusive_min else ">="
-        raise ctx.err(where, f"expected a value {rel} {minimum}, got {v!r}")
-    if maximum is not None and v > maximum:
-        raise ctx.err(where, f"expected a value <= {maximum}, got {v!r}")
-    return int(v) if integer else float(v)
-
-
-def _boolean(ctx, where, v):
-    if not isinstance(v, bool):
-        raise ctx.err(where, f"expected true or false, got {v!r}")
-    return v
-
-
-def _choice(ctx, where, v, options, fold=None):
-    """``v`` if it is one of ``options``; with ``fold`` (e.g. ``str.upper``) any case is
-    accepted and folded to the options' spelling."""
-    if isinstance(v, str) and fold is not None and fold(v) in options:
-        return fold(v)
-    if not isinstance(v, str) or v not in options:
-        raise ctx.err(where, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
-    return v
-
-
-def _string(ctx, where, v):
-    if not isinstance(v, str):
-        raise ctx.err(where, f"expected a string, got {v!r}")
-    return v
-
-
-def _passes(ctx, where, v):
-    msg = "expected a list of [w, h] pairs"
-    if not isinstance(v, list) or not v:
-        raise ctx.err(where, f"{msg}, got {v!r}")
-    out = []
-    for item in v:
-        if (
-            not isinstance(item, list)
-            or len(item) != 2
-            or not all(isinstance(t, int) and not isinstance(t, bool) for t in item)
-        ):
-            raise ctx.err(where, f"{msg}, got {v!r}")
-        w, h = item
-        if w < 2 or h < 2:
-            raise ctx.err(where, f"window sizes must be >= 2 px, got {item!r}")
-        out.append((w, h))
-    return out
-
-
-def _pair(ctx, where, v, *, integer, minimum):
-    """``[a, b]``: two numbers (integers when ``integer``), each >= ``minimum`` (integers) or
-    > ``minimum`` (floats)."""
-    kind = "integers" if integer else "numbers"
-    if not isinstance(v, list) or len(v) != 2:
-        raise ctx.err(where, f"expected a list of two {kind}, got {v!r}")
-    out = []
-    for item in v:
-        bad = isinstance(item, bool) or not isinstance(item, (int, float))
-        if integer:
-            bad = bad or isinstance(item, float)
-        if bad or not (item >= minimum if integer else item > minimum):
-            rel = ">=" if integer else ">"
-            raise ctx.err(where, f"expected two {kind} {rel} {minimum}, got {v!r}")
-        out.append(int(item) if integer else float(item))
-    return tuple(out)
-
-
-def _method(ctx, where, v):
-    try:
-        return parse_method(v)
-    except InvalidInputError:
-        raise ctx.err(where, f"expected one of 'I', 'II', 'none', got {v!r}") from None
-
-
-#: Old keys still read: (section, old key) -> the vocabulary's key (the parser converts).
-_ALIASES = {
-    ("piv", "median_epsilon"): "median_eps",
-    ("piv", "deform"): "deformation",
-    ("correction", "mapping"): "map_displacement",
-}
-
-# per section: key -> parser(ctx, where, value)
-_PARSERS: dict[str, dict[str, Any]] = {
-    "campaign": {"name": _string, "description": _string},
-    "calibration": {
-        "target": lambda c, w, v: c.path(w, v, image=True),
-        "pitch_mm": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
-        "pitch_sigma_mm": lambda c, w, v: _number(c, w, v, minimum=0),
-        "model": lambda c, w, v: _choice(c, w, v, ("R1", "R2", "P3"), fold=str.upper),
-        "marker": lambda c, w, v: _choice(c, w, v, ("dot", "cross")),
-        "marker_size_px": lambda c, w, v: _number(c, w, v, minimum=0),
-        "monte_carlo_samples": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
-    },
-    "images": {
-        "glob": lambda c, w, v: str(c.path(w, v, image=True, allow_empty=False)),
-        "pairs": None,  # special-cased
-        "multiframe": lambda c, w, v: c.path(w, v, image=True, allow_empty=False, tiff=True),
-        "double_frame": lambda c, w, v: str(c.path(w, v, allow_empty=False)),
-        "max_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
-    },
-    "correction": {
-        "method": _method,
-        "mapping": lambda c, w, v: _choice(c, w, v, MAPPING_MODES, fold=str.lower) == "full",
-        "map_displacement": _boolean,
-        "compare_uncorrected": _boolean,
-    },
-    "piv": {
-        "passes": _passes,
-        "overlap": lambda c, w, v: _number(c, w, v, minimum=0, maximum=0.95),
-        "iterations": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
-        "deformation": lambda c, w, v: _choice(c, w, v, DEFORMATIONS, fold=str.lower),
-        "interpolation": lambda c, w, v: _choice(c, w, v, INTERPOLATIONS, fold=str.lower),
-        "subpixel": lambda c, w, v: _choice(c, w, v, SUBPIXELS, fold=str.lower),
-        "weighting": lambda c, w, v: _choice(c, w, v, WEIGHTINGS, fold=str.lower),
-        "validate": _boolean,
-        "median_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
-        "median_eps": lambda c, w, v: _number(c, w, v, minimum=0),
-        "median_epsilon": lambda c, w, v: _number(c, w, v, minimum=0),
-        "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
-        "peak_candidates": lambda c, w, v: _number(c, w, v, integer=True, minimum=1, maximum=3),
-        "uncertainty": _boolean,
-        "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
-        "mask": lambda c, w, v: c.path(w, v, image=True, json_ok=True),
-    },
-    "preprocess": {
-        "background": lambda c, w, v: _choice(c, w, v, ("none", "min", "mean"), fold=str.lower),
-        "percentile": lambda c, w, v: _number(c, w, v, minimum=0, maximum=100),
-        "hot_pixels": lambda c, w, v: _number(c, w, v, minimum=0),
-        "high_pass": lambda c, w, v: _number(c, w, v, minimum=0),
-        "cap": lambda c, w, v: _number(c, w, v, minimum=0),
-        "min_max": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
-    },
-    "wall": {
-        "enabled": _boolean,
-        "side": lambda c, w, v: _choice(c, w, v, ("auto", "top", "bottom")),
-        "rotate": _boolean,
-        "stations": lambda c, w, v: _number(c, w, v, integer=True, minimum=2),
-    },
-    "flow": {
-        "nu": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
-        "dt": lambda c, w, v: _number(c, w, v, minimum=0),
-        "u_inf": lambda c, w, v: _number(c, w, v, minimum=0),
-    },
-    "statistics": {
-        "min_count": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
-        "use_n_eff": _boolean,
-        "fit_offset": _boolean,
-        "reference_re_theta": lambda c, w, v: _number(c, w, v, minimum=0),
-        "noise_correction": _boolean,
-    },
-    "ensemble": {
-        "enabled": _boolean,
-        "window": lambda c, w, v: _pair(c, w, v, integer=True, minimum=2),
-        "step": lambda c, w, v: _pair(c, w, v, integer=False, minimum=0),
-        "band": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
-        "band_units": lambda c, w, v: _choice(c, w, v, ("px", "plus"), fold=str.lower),
-        "auto_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
-    },
-    "output": {
-        "dir": lambda c, w, v: c.path(w, v, allow_empty=False),
-        "netcdf": _boolean,
-        "csv": _boolean,
-        "report": _boolean,
-    },
-}
-
-
-def _parse_pairs(ctx, where, v):
-    msg = "expected a list of [frame_a, frame_b] image paths"
-    if not isinstance(v, list) or not v:
-        raise ctx.err(where, f"{msg}, got {v!r}")
-    out = []
-    for item in v:
-        if not isinstance(item, list) or len(item) != 2:
-            raise ctx.err(where, f"{msg}, got {item!r}")
-        out.append(
-            (
-                ctx.path(where, item[0], image=True, allow_empty=False),
-                ctx.path(where, item[1], image=True, allow_empty=False),
-            )
-        )
-    return out
-
-
 def parse_campaign_config(
     data: dict[str, Any], *, fname: str = "<campaign>", base: str | os.PathLike = "."
 ) -> CampaignConfig:
@@ -656,21 +444,21 @@ def parse_campaign_config(
 
     ``fname`` is used in error messages, ``base`` resolves relative paths.
     """
-    ctx = _Ctx(fname, pathlib.Path(base).resolve())
+    ctx = Ctx(fname, pathlib.Path(base).resolve())
     cfg = CampaignConfig()
     for section, table in data.items():
-        if section not in _PARSERS:
-            raise ctx.err(f"[{section}]", f"unknown section; expected one of {', '.join(_PARSERS)}")
+        if section not in PARSERS:
+            raise ctx.err(f"[{section}]", f"unknown section; expected one of {', '.join(PARSERS)}")
         if not isinstance(table, dict):
             raise ctx.err(f"[{section}]", f"expected a table, got {table!r}")
-        parsers = _PARSERS[section]
+        parsers = PARSERS[section]
         values: dict[str, Any] = {}
         for key, val in table.items():
             where = f"[{section}].{key}"
             if key not in parsers:
                 raise ctx.err(where, f"unknown key; expected one of {', '.join(parsers)}")
-            parse = _parse_pairs if (section, key) == ("images", "pairs") else parsers[key]
-            name = _ALIASES.get((section, key), key)
+            parse = parse_pairs if (section, key) == ("images", "pairs") else parsers[key]
+            name = ALIASES.get((section, key), key)
             if name in values:
                 raise ctx.err(where, f"given twice (as {name} and an alias of it)")
             values[name] = parse(ctx, where, val)
@@ -702,6 +490,10 @@ def parse_campaign_config(
         raise ctx.err(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
+        )
+    if cfg.ensemble.single_pixel and not cfg.ensemble.enabled:
+        raise ctx.err(
+            "[ensemble].single_pixel", "needs the ensemble band ([ensemble] enabled = true)"
         )
     if "dir" not in data.get("output", {}):
         cfg.output.dir = ctx.base / cfg.output.dir

@@ -24,8 +24,9 @@ fitting (a flow homogeneous along the rows): one peak from all the row's windows
 boundary-layer profile wants; :func:`band_grid` lays such rows along a wall and
 :func:`profile_field` turns a wall-parallel profile into the ``deform=`` predictor (no slip at
 the wall). :mod:`rspiv.campaign.ensemble` runs this in a campaign. :class:`PixelAccumulator`
-(with :func:`pixel_band`) is the single-pixel ensemble: one pixel row of frame A against the rows
-of frame B around it, summed over the pairs and along the row (its limits in its Notes).
+(with :func:`pixel_band`, both in :mod:`rspiv.ensemble_pixel` and exported here) is the
+single-pixel ensemble: one pixel row of frame A against the rows of frame B around it, summed
+over the pairs and along the row (its limits in its Notes).
 
 Accuracy: on pairs moved by Gaussian random displacements (Rust tests) the mean within
 0.012 px and the covariances within 13 % at 16 x 4 px windows (9 % at 32 x 16). On the synthetic
@@ -49,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from rspiv import _rspiv
+from rspiv.ensemble_pixel import PixelAccumulator, _wall_y, pixel_band
 from rspiv.errors import InvalidInputError
 from rspiv.settings import INTERPOLATIONS, parse_choice
 
@@ -90,16 +92,6 @@ def ensemble_grid(
     xs = np.arange((w - 1) / 2, cols - (w - 1) / 2 - 0.5 + 1e-9, sx)
     ys = np.arange((h - 1) / 2, rows - (h - 1) / 2 - 0.5 + 1e-9, sy)
     return np.meshgrid(xs, ys)
-
-
-def _wall_y(wall: Any, x: np.ndarray) -> np.ndarray:
-    """The wall's pixel y at ``x``: ``wall`` is a float (a level wall), a callable, or an
-    object with ``line(x)`` (:class:`rspiv.Wall`)."""
-    if hasattr(wall, "line"):
-        return np.asarray(wall.line(x), dtype=np.float64)
-    if callable(wall):
-        return np.asarray(wall(x), dtype=np.float64) + 0.0 * x
-    return np.full(np.shape(x), float(wall))
 
 
 def band_grid(
@@ -521,164 +513,3 @@ class EnsembleAccumulator:
             coef=shaped("coef"),
             ok=ok,
         )
-
-
-class PixelAccumulator:
-    """Single-pixel ensemble correlation along rows (``piv_core::ensemble_pixel``): each row's
-    pixels of frame A correlated with the rows of frame B around it, summed over the pairs and
-    along the row, so that the wall-normal resolution is one pixel (the particle image's own
-    size), not a window's height (Westerweel, Geelhoed & Lindken 2004; Kähler, Scholz &
-    Ortmanns 2006).
-
-    Parameters
-    ----------
-    y : array_like, shape (rows, nseg)
-        The y (px, pixel frame; fractional allowed) of each row's segments: a row may follow a
-        tilted wall, one y per segment.
-    seg : int
-        Segment length along x, px (>= 8); segment ``j`` covers the pixel centres
-        ``x0 + j seg .. x0 + j seg + seg - 1``.
-    x0 : float
-        The first segment's first pixel centre, px.
-    offset : (array_like, array_like)
-        ``(du, dv)`` per segment (the shape of ``y``), px: the predictor (frame A sampled at
-        ``p - d/2``, B at ``p + d/2``).
-    lags : (int, int)
-        Lag half-ranges ``(rx, ry)`` around the predictor (>= 1); the residual displacement
-        and the fluctuations must lie well inside them.
-    interpolation : {"bspline", "bspline3", "keys"}
-
-    Notes
-    -----
-    :meth:`result` gives per row ``u, v`` (the segments' mean predictor plus the summed peak's
-    centre, px) and ``uu, vv, uv`` (the cross peak's covariance less the auto peaks', px^2).
-    Measured on the synthetic boundary layer (``tests/test_ensemble.py``: 2.5 px particles,
-    viscous length 1.49 px, 40-80 pairs, the exact wall and profile as predictor): rows 3.5 px
-    or more from the wall within 0-2.2 % of the realisations' exact mean, each half-pixel row
-    its own value. Closer, where the particle image (and its reflection) straddles the wall,
-    the rows read 3-12 % low (1-3 px) and 50 % high at 0.5 px, and the wall-normal variance
-    comes out negative. Without a reflection they read high as the particle image truncated by
-    the wall predicts (``d + s phi(d/s) / Phi(d/s)`` for a linear profile, ``s`` the image's
-    row weight, about 0.7 px: +11 % at 1 px, measured +11 %); with it they do not follow the
-    simple mirror model. That near-wall correction is not done, so these rows are not yet the
-    y+ < 2 profile, and the campaign does not run it yet.
-    """
-
-    def __init__(
-        self,
-        y: Any,
-        seg: int,
-        x0: float,
-        offset: tuple[Any, Any],
-        lags: tuple[int, int] = (8, 3),
-        interpolation: str = "bspline",
-    ) -> None:
-        self.y = np.ascontiguousarray(np.atleast_2d(np.asarray(y, dtype=np.float64)))
-        self.seg, self.x0 = int(seg), float(x0)
-        self.lags = (int(lags[0]), int(lags[1]))
-        du, dv = (np.broadcast_to(np.asarray(o, dtype=np.float64), self.y.shape) for o in offset)
-        self.du, self.dv = np.ascontiguousarray(du), np.ascontiguousarray(dv)
-        self.interpolation = parse_choice(interpolation, INTERPOLATIONS, "interpolation")
-        stride = _rspiv.pixel_stride(*self.lags)
-        self.acc = np.zeros((self.y.shape[0], stride), dtype=np.float64)
-        self.pairs = 0
-
-    def add(self, frame_a: Any, frame_b: Any, mask: Any = None, auto: bool = True) -> int:
-        """Add one pair (2D arrays of one dtype); the auto planes too when ``auto``. Returns the
-        segments added (masked, outside the image or blank ones are left out)."""
-        m = None if mask is None else np.ascontiguousarray(mask, dtype=bool)
-        n = _rspiv.pixel_add(
-            np.ascontiguousarray(frame_a),
-            np.ascontiguousarray(frame_b),
-            self.seg,
-            self.y.shape[1],
-            self.x0,
-            self.lags,
-            self.y.ravel(),
-            self.du.ravel(),
-            self.dv.ravel(),
-            self.acc,
-            auto=auto,
-            mask=m,
-            interpolation=self.interpolation,
-        )
-        self.pairs += 1
-        return int(n)
-
-    def merge(self, other: PixelAccumulator) -> PixelAccumulator:
-        """Add another accumulator of the same band into this one."""
-        same = (
-            self.seg == other.seg
-            and self.x0 == other.x0
-            and self.lags == other.lags
-            and np.array_equal(self.y, other.y)
-            and np.array_equal(self.du, other.du)
-            and np.array_equal(self.dv, other.dv)
-        )
-        if not same:
-            raise InvalidInputError("single-pixel accumulators of different bands cannot merge")
-        self.acc += other.acc
-        self.pairs += other.pairs
-        return self
-
-    def result(self) -> dict[str, np.ndarray]:
-        """Per row: ``u, v`` (px), ``uu, vv, uv`` (px^2), ``cross``, ``auto`` (the peaks'
-        fitted covariances ``(xx, yy, xy)``), ``count`` (segments summed), ``ok``."""
-        d = _rspiv.pixel_peaks(self.acc, self.lags)
-        ok = np.asarray(d["ok"], dtype=bool)
-        cross = np.stack([d["cxx"], d["cyy"], d["cxy"]], axis=-1)
-        auto = np.stack([d["axx"], d["ayy"], d["axy"]], axis=-1)
-        cov = cross - auto
-        return {
-            "u": np.where(ok, self.du.mean(axis=1) + d["dx"], np.nan),
-            "v": np.where(ok, self.dv.mean(axis=1) + d["dy"], np.nan),
-            "uu": cov[:, 0],
-            "vv": cov[:, 1],
-            "uv": cov[:, 2],
-            "cross": cross,
-            "auto": auto,
-            "count": np.asarray(d["count"]),
-            "ok": ok,
-        }
-
-
-def pixel_band(
-    shape: tuple[int, int],
-    seg: int,
-    dist: Any,
-    wall: Any,
-    flow_side: str = "above",
-    lags: tuple[int, int] = (8, 3),
-    margin_x: int = 8,
-) -> tuple[np.ndarray, float, np.ndarray]:
-    """The rows of a single-pixel band along a wall: row ``k`` at wall distance ``dist[k]`` (px,
-    into the flow), following the wall line segment by segment, segments of ``seg`` px from
-    ``margin_x`` px in from the image's sides.
-
-    Returns ``(y, x0, d)``: ``y`` of shape (rows, nseg) for :class:`PixelAccumulator`, the first
-    pixel centre ``x0``, and ``d`` the rows' distances. ``margin_x`` must also hold half the
-    predictor's displacement, else the end segments reach outside and are left out.
-    InvalidInputError when a row's strips (its lags around it) leave the image.
-    """
-    rows, cols = (int(s) for s in shape)
-    d = np.asarray(dist, dtype=np.float64).ravel()
-    rx, ry = (int(t) for t in lags)
-    x0 = float(max(int(margin_x), rx + 2))
-    nseg = int((cols - 2 * x0) // int(seg))
-    if nseg < 1 or d.size < 1 or not np.all(np.isfinite(d)):
-        raise InvalidInputError(
-            f"single-pixel band: no {seg} px segment fits the {cols} px wide image, or no finite "
-            "row distance"
-        )
-    if flow_side not in ("above", "below"):
-        raise InvalidInputError(f"flow_side must be 'above' or 'below', got {flow_side!r}")
-    xc = x0 + (np.arange(nseg) + 0.5) * seg - 0.5
-    sign = -1.0 if flow_side == "above" else 1.0
-    y = _wall_y(wall, xc)[None, :] + sign * d[:, None]
-    margin = ry + 3.0
-    if np.min(y) < margin or np.max(y) > rows - 1 - margin:
-        raise InvalidInputError(
-            f"single-pixel band: rows {d.min():g}..{d.max():g} px from the wall leave the "
-            f"{cols} x {rows} px image"
-        )
-    return np.ascontiguousarray(y), x0, d

@@ -128,6 +128,9 @@ class FieldAccumulator:
         #: optional :class:`rspiv.EnsembleAccumulator` of the same pairs (a campaign's ensemble
         #: band): carried through :meth:`merge`, pickles and :meth:`to_xarray`
         self.ensemble: Any = None
+        #: optional :class:`rspiv.ensemble.PixelAccumulator` of the same pairs (the campaign's
+        #: single-pixel rows at the wall), carried alike
+        self.pixel: Any = None
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -319,11 +322,14 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        if other.ensemble is not None:
-            if self.ensemble is None:
-                self.ensemble = copy.deepcopy(other.ensemble)
-            else:
-                self.ensemble.merge(other.ensemble)
+        for name in ("ensemble", "pixel"):
+            theirs = getattr(other, name)
+            if theirs is not None:
+                mine = getattr(self, name)
+                if mine is None:
+                    setattr(self, name, copy.deepcopy(theirs))
+                else:
+                    mine.merge(theirs)
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
         return self
@@ -459,6 +465,7 @@ class FieldAccumulator:
     def __setstate__(self, state):
         self.__dict__.update(state)
         self.__dict__.setdefault("ensemble", None)
+        self.__dict__.setdefault("pixel", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
             if name not in self.__dict__:
@@ -518,6 +525,8 @@ class FieldAccumulator:
             ds[k] = (dims, arr, {"long_name": long_name, "units": stress_units})
         if self.ensemble is not None:
             _ensemble_to_dataset(ds, self.ensemble)
+        if self.pixel is not None:
+            _pixel_to_dataset(ds, self.pixel)
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:
@@ -563,6 +572,8 @@ class FieldAccumulator:
                 setattr(acc, k, np.array(ds[k].values, dtype=dtype))
         if "ensemble_sum" in ds:
             acc.ensemble = _ensemble_from_dataset(ds)
+        if "pixel_sum" in ds:
+            acc.pixel = _pixel_from_dataset(ds)
         return acc
 
     def __repr__(self) -> str:
@@ -609,3 +620,41 @@ def _ensemble_from_dataset(ds):
 
 
 __all__ = ["FieldAccumulator"]
+
+
+def _pixel_to_dataset(ds, pix) -> None:
+    """Write a PixelAccumulator's state into ``ds`` (variables and attributes ``pixel_*``;
+    :func:`_pixel_from_dataset` reads them back exactly)."""
+    d = pix.to_arrays()
+    ds["pixel_sum"] = (("pixel_row", "pixel_value"), d["sum"])
+    for k in ("y", "du", "dv"):
+        ds[f"pixel_{k}"] = (("pixel_row", "pixel_segment"), d[k])
+    if "wall_side" in d:
+        ds["pixel_wall_x"] = (("pixel_wall_column",), d["wall_x"])
+        ds["pixel_wall_y"] = (("pixel_wall_column",), d["wall_y"])
+        ds.attrs["pixel_wall_side"] = str(d["wall_side"])
+    ds.attrs["pixel_seg"] = int(d["seg"])
+    ds.attrs["pixel_x0"] = float(d["x0"])
+    ds.attrs["pixel_lags"] = [int(t) for t in d["lags"]]
+    ds.attrs["pixel_pairs"] = int(d["pairs"])
+    ds.attrs["pixel_interpolation"] = str(d["interpolation"])
+
+
+def _pixel_from_dataset(ds):
+    from rspiv.ensemble import PixelAccumulator  # deferred: ensemble imports the extension
+
+    d: dict[str, Any] = {
+        "sum": ds["pixel_sum"].values,
+        "seg": int(ds.attrs["pixel_seg"]),
+        "x0": float(ds.attrs["pixel_x0"]),
+        "lags": np.ravel(ds.attrs["pixel_lags"]),
+        "pairs": int(ds.attrs["pixel_pairs"]),
+        "interpolation": str(ds.attrs["pixel_interpolation"]),
+    }
+    for k in ("y", "du", "dv"):
+        d[k] = np.ascontiguousarray(ds[f"pixel_{k}"].values, dtype=np.float64)
+    if "pixel_wall_x" in ds:
+        d["wall_side"] = str(ds.attrs["pixel_wall_side"])
+        d["wall_x"] = np.asarray(ds["pixel_wall_x"].values, dtype=np.float64)
+        d["wall_y"] = np.asarray(ds["pixel_wall_y"].values, dtype=np.float64)
+    return PixelAccumulator.from_arrays(d)

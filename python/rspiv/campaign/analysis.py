@@ -56,7 +56,8 @@ def scaled_accumulator(
 ) -> FieldAccumulator:
     """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
     and axis flips; every moment of the state transforms exactly)."""
-    out = copy.deepcopy(acc, memo={id(acc.ensemble): None})  # not the ensemble's sums
+    # not the ensemble's sums
+    out = copy.deepcopy(acc, memo={id(acc.ensemble): None, id(acc.pixel): None})
     ku, kv = k * sign_u, k * sign_v
     out.mean_u = acc.mean_u * ku
     out.mean_v = acc.mean_v * kv
@@ -394,6 +395,19 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         if prof is not None:
             res.ensembles[run.name] = prof
             rs["ensemble"] = {"pairs": prof["pairs"], "rows": int(prof["dist_px"].size)}
+        try:
+            pix = ensemble_work.write_pixel_outputs(camp, res, run, an)
+        except (RspivError, ValueError) as exc:
+            camp.say(f"{run.label}: single-pixel profile failed: {exc}")
+            rs["single_pixel_error"] = str(exc)
+            pix = None
+        if pix is not None:
+            res.pixel_profiles[run.name] = pix
+            rs["single_pixel"] = {
+                "pairs": pix["pairs"],
+                "rows": int(pix["dist_px"].size),
+                "near_wall_rows": int(np.count_nonzero(pix["near_wall"])),
+            }
         summary["runs"][run.name] = rs
     summary["wall_deviation_px"] = res.wall_deviation
     summary["timings_s"] = res.timings
@@ -437,7 +451,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     extra = list(extra_sections)
-    if res.ensembles:
+    if res.ensembles or res.pixel_profiles:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:
             extra.insert(0, sec)

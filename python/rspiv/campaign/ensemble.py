@@ -38,6 +38,14 @@ from typing import Any
 
 import numpy as np
 
+from rspiv.campaign.ensemble_pixel import (
+    Line,
+    new_pixel_accumulator,
+    pixel_layout,
+    pixel_profile,
+    pixel_spec,
+    to_object,
+)
 from rspiv.campaign.spec import PairContext, RunSpec
 from rspiv.ensemble import EnsembleAccumulator, band_grid, profile_field
 from rspiv.errors import InvalidInputError
@@ -58,6 +66,7 @@ __all__ = [
     "WALL_MARGIN_PX",
     "accumulate",
     "attach",
+    "band_accumulators",
     "band_layout",
     "ensemble_profile",
     "new_accumulator",
@@ -86,8 +95,11 @@ def plan_bands(
     walls: dict[str, tuple[Any, str]],
     cfg: Any,
     band_px: float,
+    pixel_band_px: float | None = None,
 ) -> dict[str, Any]:
-    """The ensemble band of every run, as plain data for ``PairContext.ensemble``.
+    """The ensemble band of every run, as plain data for ``PairContext.ensemble``; with
+    ``pixel_band_px``, the single-pixel rows too (``spec["pixel"]``,
+    :mod:`rspiv.campaign.ensemble_pixel`).
 
     Parameters
     ----------
@@ -131,18 +143,14 @@ def plan_bands(
             "v": [float(t) for t in v],
             "auto_pairs": int(ec.auto_pairs),
         }
+        if pixel_band_px is not None:
+            spec["pixel"] = pixel_spec(cfg, pixel_band_px)
         out[run.name] = spec
         # refuse a band that does not fit now, not at the first pair
         band_layout(ctx, run, spec)
+        if pixel_band_px is not None:
+            pixel_layout(ctx, run, spec)
     return out
-
-
-class _Line:
-    def __init__(self, intercept: float, slope: float) -> None:
-        self.intercept_px, self.slope = intercept, slope
-
-    def line(self, x):
-        return self.intercept_px + self.slope * np.asarray(x, dtype=np.float64)
 
 
 def band_layout(ctx: PairContext, run: RunSpec, spec: dict[str, Any] | None = None) -> dict:
@@ -161,7 +169,7 @@ def band_layout(ctx: PairContext, run: RunSpec, spec: dict[str, Any] | None = No
         if not ctx.ensemble or run.name not in ctx.ensemble:
             raise InvalidInputError(f"{run.label}: the context has no ensemble band")
         spec = ctx.ensemble[run.name]
-    wall = _Line(*spec["wall"])
+    wall = Line(*spec["wall"])
     side = spec["flow_side"]
     window = (int(spec["window"][0]), int(spec["window"][1]))
     step = (float(spec["step"][0]), float(spec["step"][1]))
@@ -259,33 +267,39 @@ def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
         return accs
     for run in ctx.runs:
         a = accs.get(run.name)
-        if a is not None and getattr(a, "ensemble", None) is None and a.n_fields == 0:
+        if a is None or a.n_fields != 0:
+            continue
+        if getattr(a, "ensemble", None) is None:
             a.ensemble = new_accumulator(ctx, run)
+        if getattr(a, "pixel", None) is None and "pixel" in ctx.ensemble.get(run.name, {}):
+            a.pixel = new_pixel_accumulator(ctx, run)
     return accs
 
 
-def accumulate(
-    ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, a, b, mask=None
-) -> int:
-    """Add one pair's frames (those ``run`` correlates: dewarped for Method I) to ``acc``;
-    the auto planes for the first ``auto_pairs`` pairs. Returns the windows added."""
-    lay = band_layout(ctx, run)
-    return acc.add(a, b, mask=mask, auto=acc.pairs < lay["auto_pairs"])
+def band_accumulators(accs: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
+    """Run name -> ``(windows, single-pixel)`` accumulators of the runs' FieldAccumulators
+    that carry either (what :func:`rspiv.campaign.pair.process_pair` adds each pair to)."""
+    out = {}
+    for name, a in accs.items():
+        band = (getattr(a, "ensemble", None), getattr(a, "pixel", None))
+        if band != (None, None):
+            out[name] = band
+    return out
 
 
-def _to_object(ctx: PairContext, lay: dict, u, v, uu, vv, uv) -> tuple:
-    """Method II: per row, displacements ``J^-1 d`` and covariances ``J^-1 C J^-T`` in object
-    px, with ``J`` the mapping's Jacobian averaged over the row's windows (object positions)."""
-    X = np.column_stack([lay["X"].ravel(), lay["Y"].ravel()])
-    J = ctx.mapping.forward_jacobian(X).reshape(lay["X"].shape + (2, 2)).mean(axis=1)
-    Ji = np.linalg.inv(J)  # (rows, 2, 2)
-    d = np.stack([u, v], axis=-1)
-    do = np.einsum("nij,nj->ni", Ji, d)
-    C = np.empty((u.size, 2, 2))
-    C[:, 0, 0], C[:, 1, 1] = uu, vv
-    C[:, 0, 1] = C[:, 1, 0] = uv
-    Co = np.einsum("nij,njk,nlk->nil", Ji, C, Ji)
-    return do[:, 0], do[:, 1], Co[:, 0, 0], Co[:, 1, 1], Co[:, 0, 1]
+def accumulate(ctx: PairContext, run: RunSpec, band: tuple[Any, Any], a, b, mask=None) -> int:
+    """Add one pair's frames (those ``run`` correlates: dewarped for Method I) to the run's
+    band accumulators ``(windows, single-pixel)`` (either may be None); the auto planes for the
+    first ``auto_pairs`` pairs. Returns the windows and segments added."""
+    windows, pixel = band
+    n = 0
+    if windows is not None:
+        lay = band_layout(ctx, run)
+        n += windows.add(a, b, mask=mask, auto=windows.pairs < lay["auto_pairs"])
+    if pixel is not None:
+        lay = pixel_layout(ctx, run)
+        n += pixel.add(a, b, mask=mask, auto=pixel.pairs < lay["auto_pairs"])
+    return n
 
 
 def ensemble_profile(ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, an: Any) -> dict:
@@ -314,7 +328,7 @@ def ensemble_profile(ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, a
     res = acc.result(axes=lay["axes"], rows=True)
     u, v, uu, vv, uv = (a[:, 0] for a in (res.u, res.v, res.uu, res.vv, res.uv))
     if run.method == "II":
-        u, v, uu, vv, uv = _to_object(ctx, lay, u, v, uu, vv, uv)
+        u, v, uu, vv, uv = to_object(ctx, lay, u, v, uu, vv, uv)
     counts = acc.window_counts
     X, Y = lay["X"], lay["Y"]
     if an is not None and an.wall is not None:
@@ -340,6 +354,14 @@ def ensemble_profile(ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, a
         "windows": n[keep],
         "pairs": int(acc.pairs),
     }
+    return with_units(out, an)
+
+
+def with_units(out: dict[str, Any], an: Any) -> dict[str, Any]:
+    """Add to a band's profile (``dist_px``, ``U``, ``V``, ``uu``, ``vv``, ``uv`` in px per pair)
+    the SI columns and the wall units of the run's analysis ``an``, converted as the run's own
+    profile (its ``k``, axis signs, ``m_per_px``, the fit's ``u_tau``, ``nu``, ``y0``), when it
+    has them; returns ``out``."""
     pr = getattr(an, "profile", None) or {}
     if pr.get("si"):
         k, sx, sy = pr["k"], pr["sign_x"], pr["sign_y"]
@@ -374,6 +396,8 @@ def ensemble_dataset(prof: dict[str, Any], attrs: dict[str, Any] | None = None):
         "vv": ("displacement variance along y", "pix2"),
         "uv": ("displacement covariance (pixel axes)", "pix2"),
         "windows": ("windows fitted in the row", "1"),
+        "segments": ("single-pixel segments summed in the row", "1"),
+        "near_wall": ("1: the row lies within two particle-image widths of the wall", "1"),
         "y_m": ("wall distance", "m"),
         "U_si": ("mean streamwise velocity", "m s-1"),
         "V_si": ("mean wall-normal velocity (into the flow)", "m s-1"),
@@ -389,7 +413,9 @@ def ensemble_dataset(prof: dict[str, Any], attrs: dict[str, Any] | None = None):
     ds = xr.Dataset()
     for k, (name, unit) in units.items():
         if k in prof:
-            ds[k] = (("row",), np.asarray(prof[k]), {"long_name": name, "units": unit})
+            val = np.asarray(prof[k])
+            val = val.astype(np.int8) if val.dtype == bool else val
+            ds[k] = (("row",), val, {"long_name": name, "units": unit})
     ds.attrs.update(
         {
             "title": "rspiv ensemble-correlation profile",
@@ -438,11 +464,61 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     return prof
 
 
+def write_pixel_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
+    """The single-pixel profile of ``run`` (:func:`rspiv.campaign.ensemble_pixel.pixel_profile`
+    with units) written as ``OUT/profile_pixel_<run>.csv`` and ``.nc``; the profile, or None
+    when the run has no single-pixel rows."""
+    acc = getattr(res.accumulators[run.name], "pixel", None)
+    if acc is None or not res.context.ensemble:
+        return None
+    if acc.pairs < MIN_PAIRS:
+        raise InvalidInputError(
+            f"the single-pixel rows summed {acc.pairs} pair(s); their peaks need at least "
+            f"{MIN_PAIRS}, no single-pixel profile written"
+        )
+    prof = with_units(pixel_profile(res.context, run, acc, an), an)
+    spec = res.context.ensemble[run.name]["pixel"]
+    lay = pixel_layout(res.context, run)
+    near = int(np.count_nonzero(prof["near_wall"]))
+    meta = {
+        "run": run.name,
+        "label": run.label,
+        "pairs": prof["pairs"],
+        "segment_px": spec["segment"],
+        "row_step_px": spec["step"],
+        "band_px": spec["band_px"],
+        "row_bend_px": round(lay["bend_px"], 4),
+        "near_wall_rows": near,
+        "warning": (
+            f"the first {near} row(s) lie within two particle-image widths of the wall and "
+            "are biased by it (near_wall = 1)"
+            if near
+            else ""
+        ),
+    }
+    if near:
+        camp.say(f"{run.label}: single-pixel rows: {meta['warning']}")
+    cols = {k: (v.astype(int) if k == "near_wall" else v) for k, v in prof.items() if k != "pairs"}
+    out = camp.out_dir
+    cfg = camp.config
+    if cfg.output.csv:
+        res.files[f"profile_pixel_{run.name}_csv"] = write_profile_csv(
+            out / f"profile_pixel_{run.name}.csv", cols, metadata=meta
+        )
+    if cfg.output.netcdf:
+        ds = ensemble_dataset(prof, attrs={k: str(v) for k, v in meta.items()})
+        ds.attrs["title"] = "rspiv single-pixel ensemble profile"
+        res.files[f"profile_pixel_{run.name}_nc"] = write_netcdf(
+            ds, out / f"profile_pixel_{run.name}.nc"
+        )
+    return prof
+
+
 def report_section(camp: Any, res: Any) -> Any:
     """The report's section on the ensemble: U+ and the stresses of every run's instantaneous
     and ensemble profiles against the DNS, and the first rows of the main run's profile."""
     runs: dict[str, Any] = {}
-    rows = []
+    pixel_rows: list[dict[str, Any]] = []
     for run in res.context.runs:
         an = res.analyses.get(run.name)
         prof = res.ensembles.get(run.name)
@@ -451,14 +527,13 @@ def report_section(camp: Any, res: Any) -> Any:
         if not runs:
             runs[f"{run.label} (instantaneous)"] = an.result
             first = prof
-        runs[f"{run.label} (ensemble)"] = {
-            "y_plus": prof["y_plus"],
-            "u_plus": prof["U_plus"],
-            "uu_plus": prof["uu_plus"],
-            "vv_plus": prof["vv_plus"],
-            "uv_plus": prof["uv_plus"],
-            "re_tau": an.result.re_tau,
-        }
+        runs[f"{run.label} (ensemble)"] = _series(prof, an.result.re_tau)
+        pix = getattr(res, "pixel_profiles", {}).get(run.name)
+        if pix is not None and "y_plus" in pix:
+            if not pixel_rows:
+                pixel_rows = _table(pix, "segments", near=pix["near_wall"])
+            far = ~np.asarray(pix["near_wall"], dtype=bool)
+            runs[f"{run.label} (single-pixel)"] = _series(pix, an.result.re_tau, far)
     if not runs:
         return None
     figures = []
@@ -474,17 +549,7 @@ def report_section(camp: Any, res: Any) -> Any:
         ]
     except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
         camp.say(f"ensemble figures failed: {exc}")
-    for i in range(min(12, first["y_plus"].size)):
-        rows.append(
-            {
-                "y+": float(first["y_plus"][i]),
-                "U+": float(first["U_plus"][i]),
-                "uu+": float(first["uu_plus"][i]),
-                "vv+": float(first["vv_plus"][i]),
-                "-uv+": float(-first["uv_plus"][i]),
-                "windows": int(first["windows"][i]),
-            }
-        )
+    rows = _table(first, "windows")
     info = camp.info.get("ensemble", {})
     text = (
         "Correlation planes summed over every pair in thin windows "
@@ -493,9 +558,43 @@ def report_section(camp: Any, res: Any) -> Any:
         "by the pilot's mean profile (no slip at the wall); the Reynolds stresses from the "
         "summed peak's covariance less the particle images' own."
     )
+    tables = [ReportTable("Ensemble profile near the wall (main run)", rows)]
+    if pixel_rows:
+        text += (
+            " Single-pixel rows: one pixel row of frame A against the rows of frame B, summed "
+            "along the wall, the reflection beyond the wall masked; rows within two "
+            "particle-image widths of the wall (near wall = yes) are biased by it and left out "
+            "of the figures."
+        )
+        tables.append(ReportTable("Single-pixel profile at the wall (main run)", pixel_rows))
     return ReportSection(
-        "Ensemble correlation near the wall",
-        text=text,
-        figures=figures,
-        tables=[ReportTable("Ensemble profile near the wall (main run)", rows)],
+        "Ensemble correlation near the wall", text=text, figures=figures, tables=tables
     )
+
+
+def _series(prof: dict[str, Any], re_tau: float, keep: Any = None) -> dict[str, Any]:
+    """A band profile as a series of :func:`rspiv.plots.boundary_layer.plot_boundary_layer`."""
+    sel = slice(None) if keep is None else keep
+    out = {k.lower() if k == "U_plus" else k: prof[k][sel] for k in _PLUS}
+    return {**out, "re_tau": re_tau}
+
+
+_PLUS = ("y_plus", "U_plus", "uu_plus", "vv_plus", "uv_plus")
+
+
+def _table(prof: dict[str, Any], count: str, near: Any = None) -> list[dict[str, Any]]:
+    """The first 12 rows of a band profile for the report."""
+    rows = []
+    for i in range(min(12, prof["y_plus"].size)):
+        row = {
+            "y+": float(prof["y_plus"][i]),
+            "U+": float(prof["U_plus"][i]),
+            "uu+": float(prof["uu_plus"][i]),
+            "vv+": float(prof["vv_plus"][i]),
+            "-uv+": float(-prof["uv_plus"][i]),
+            count: int(prof[count][i]),
+        }
+        if near is not None:
+            row["near wall"] = "yes" if near[i] else "no"
+        rows.append(row)
+    return rows

@@ -115,9 +115,10 @@ def process_pair(
     """Process one pair for every run of ``context`` (pure: no files written, no state kept
     beyond the context's cache of the parsed mapping).
 
-    ``ensembles``: run name -> :class:`rspiv.EnsembleAccumulator` of the run's ensemble band
-    (:mod:`rspiv.campaign.ensemble`), added to in place once every run's PIV succeeded (the
-    only state this function touches; ``timings["ensemble"]``).
+    ``ensembles``: run name -> the run's band accumulators ``(windows, single-pixel)``
+    (:func:`rspiv.campaign.ensemble.band_accumulators`; either may be None), added to in place
+    once every run's PIV succeeded (the only state this function touches;
+    ``timings["ensemble"]``).
 
     ``frames``: the pair's frames already read (:func:`read_ahead`: the arrays or the reason
     they cannot be used); None reads them here (``timings["read"]`` is then the read itself,
@@ -194,9 +195,9 @@ def process_pair(
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
     for run in context.runs:
-        acc = ensembles.get(run.name)
-        if acc is not None:
+        band = ensembles.get(run.name)
+        if band is not None:
             fa, fb, fm = ens_frames[run.name]
-            ensemble_work.accumulate(context, run, acc, fa, fb, fm)
+            ensemble_work.accumulate(context, run, band, fa, fb, fm)
     t["ensemble"] = time.perf_counter() - t0
     return PairResult(pair.pair_id, True, "", fields, t)

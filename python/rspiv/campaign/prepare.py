@@ -225,7 +225,10 @@ def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dic
                     "[flow].dt > 0"
                 )
             band_px = float(ec.band) * lv_px
-    bands = plan_bands(ctx, accs, walls, cfg, band_px)
+    pixel_px = None
+    if ec.single_pixel:
+        pixel_px = float(ec.pixel_band) * (lv_px if ec.band_units == "plus" else 1.0)
+    bands = plan_bands(ctx, accs, walls, cfg, band_px, pixel_px)
     info["ensemble"] = {
         "pilot_pairs": used,
         "band_px": band_px,
@@ -233,9 +236,22 @@ def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dic
         "window": list(ec.window),
         "step": list(ec.step),
     }
+    if pixel_px is not None:
+        info["ensemble"]["single_pixel"] = {
+            "band_px": pixel_px,
+            "step_px": float(ec.pixel_step),
+            "segment_px": int(ec.pixel_segment),
+            "lags": list(ec.pixel_lags),
+        }
+    rows = (
+        ""
+        if pixel_px is None
+        else f", single-pixel rows every {ec.pixel_step:g} px to {pixel_px:.1f} px"
+    )
     camp.say(
         f"ensemble band: {band_px:.1f} px from the wall, {ec.window[0]} x {ec.window[1]} px "
-        f"windows, predicted from {len(used)} pilot pair(s) ({time.perf_counter() - t0:.1f} s)"
+        f"windows{rows}, predicted from {len(used)} pilot pair(s) "
+        f"({time.perf_counter() - t0:.1f} s)"
     )
     return dataclasses.replace(ctx, ensemble=bands, _cache={})
 

@@ -107,6 +107,9 @@ class CampaignResult:
         Condition -> the wall's maximum deviation (px), as in the paper's table.
     ensembles : dict
         Run name -> its ensemble profile near the wall (``[ensemble]``; empty without).
+    pixel_profiles : dict
+        Run name -> its single-pixel profile at the wall (``[ensemble] single_pixel``; empty
+        without).
     """
 
     out_dir: pathlib.Path
@@ -123,6 +126,8 @@ class CampaignResult:
     info: dict[str, Any] = dataclasses.field(default_factory=dict)
     #: run name -> the ensemble profile (:func:`rspiv.campaign.ensemble.ensemble_profile`)
     ensembles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> the single-pixel profile (:mod:`rspiv.campaign.ensemble_pixel`)
+    pixel_profiles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
     @property
     def report(self) -> pathlib.Path | None:

@@ -127,7 +127,7 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
     context = _CONTEXTS.setdefault(context.fingerprint(), context)
     gx, _ = context.grid()
     accs = ensemble_work.attach(context, {r.name: FieldAccumulator(gx.shape) for r in context.runs})
-    ens = {n: a.ensemble for n, a in accs.items() if a.ensemble is not None}
+    ens = ensemble_work.band_accumulators(accs)
     first = None
     done: list[int] = []
     skipped: dict[int, tuple[str, str]] = {}

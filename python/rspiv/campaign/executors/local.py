@@ -7,6 +7,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair as pair_work
 from rspiv.campaign.reduce import RunReducer, add_fields
 from rspiv.campaign.state import RunState
@@ -50,7 +51,7 @@ class LocalExecutor:
                 waited = time.perf_counter() - t0
                 nxt = todo[i + 1] if i + 1 < len(todo) else None
                 ahead = reader.submit(pair_work.read_ahead, nxt, shape) if nxt else None
-                ens = {n: a.ensemble for n, a in state.accs.items() if a.ensemble is not None}
+                ens = ensemble_work.band_accumulators(state.accs)
                 consistent = not ens  # the ensembles are added to inside process_pair
                 r = pair_work.process_pair(state.ctx, p, frames=frames, ensembles=ens)
                 del frames

@@ -1,0 +1,256 @@
+"""The campaign's single-pixel ensemble in rows at the wall (``[ensemble] single_pixel``, issue 13).
+
+Next to the ensemble windows of :mod:`rspiv.campaign.ensemble`, every pair is also added to a
+:class:`rspiv.ensemble.PixelAccumulator`: rows ``pixel_step`` px apart from ``pixel_step`` to
+``pixel_band`` from the wall, each row cut into ``pixel_segment`` px segments along it, one pixel
+row of frame A against the rows of frame B around it. The pixels beyond the wall (its
+reflection) are masked first. The plan is the window band's: the pilot's wall and mean profile
+(continued linearly to 0 at the wall) are the predictor, frozen into ``PairContext.ensemble``
+(``spec["pixel"]``), so into the fingerprint and the checkpoints.
+
+Frames per run
+    ``none``: the raw frames, the rows along the wall found in the raw field. Method I: the
+    dewarped frames, rows in object px. Method II: the raw frames; each object-plane row (a line
+    at a fixed distance from the object wall) is mapped to the raw image segment by segment
+    (one raw y per segment, at the segment's centre column), the predictor mapped as
+    ``F(X + D/2) - F(X - D/2)``, the wall masked along its mapped line; the result goes back to
+    the object plane through the mapping's Jacobian averaged over the row (``J^-1 d``,
+    ``J^-1 C J^-T``). A row bent by the distortion across a segment blurs it by the bend
+    (``spec["pixel"]["bend_px"]``, reported in the profile's metadata).
+
+Result (:func:`pixel_profile`)
+    Per row: the mean displacement and the stresses (px per pair, pixel axes of the run's frame),
+    the row's distance from the wall the final analysis found, the segments summed and
+    ``near_wall``: the rows within two particle-image widths of the wall, which the wall biases
+    (:class:`rspiv.ensemble.PixelAccumulator`, Notes: +15 % at 0.75 px on the synthetic layer).
+    Units as the window profile (SI, wall units) when the analysis has them.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.spec import PairContext, RunSpec
+from rspiv.ensemble import PixelAccumulator, pixel_band
+from rspiv.errors import InvalidInputError
+
+__all__ = [
+    "Line",
+    "new_pixel_accumulator",
+    "pixel_layout",
+    "pixel_profile",
+    "pixel_spec",
+    "to_object",
+]
+
+
+def pixel_spec(cfg: Any, band_px: float) -> dict[str, Any]:
+    """The plain-data plan of the single-pixel rows (``spec["pixel"]`` of a run's band)."""
+    ec = cfg.ensemble
+    return {
+        "band_px": float(band_px),
+        "step": float(ec.pixel_step),
+        "segment": int(ec.pixel_segment),
+        "lags": [int(t) for t in ec.pixel_lags],
+    }
+
+
+class Line:
+    """A straight wall line ``y = intercept + slope x`` (px) with ``line(x)``."""
+
+    def __init__(self, intercept: float, slope: float) -> None:
+        self.intercept_px, self.slope = intercept, slope
+
+    def line(self, x):
+        return self.intercept_px + self.slope * np.asarray(x, dtype=np.float64)
+
+
+def _profile_fn(spec: dict[str, Any]):
+    """The pilot's profile as functions of the wall distance, 0 at the wall (no slip)."""
+    d = np.r_[0.0, np.asarray(spec["dist"], dtype=np.float64)]
+    u = np.r_[0.0, np.asarray(spec["u"], dtype=np.float64)]
+    v = np.r_[0.0, np.asarray(spec["v"], dtype=np.float64)]
+    return lambda t: np.interp(t, d, u), lambda t: np.interp(t, d, v)
+
+
+def pixel_layout(ctx: PairContext, run: RunSpec, spec: dict[str, Any] | None = None) -> dict:
+    """The rows of ``run``'s single-pixel band (cached per process).
+
+    Returns a dict: ``y`` (rows, segments: each segment's row y in the frames the run
+    correlates), ``x0``, ``seg``, ``du``, ``dv`` (the predictor per segment, px of those frames),
+    ``X``, ``Y`` (the segments' centres in the run's own frame), ``dist`` (each row's distance
+    from the pilot's wall, px of the run's frame), ``wall`` (the wall line in the correlated
+    frames: an object with ``line(x)``), ``side``, ``lags``, ``auto_pairs``, ``bend_px`` (the
+    largest change of a mapped row's y across one segment; 0 unless Method II).
+    """
+    key = f"pixel_layout:{run.name}"
+    if spec is None:
+        if key in ctx._cache:
+            return ctx._cache[key]
+        if not ctx.ensemble or "pixel" not in ctx.ensemble.get(run.name, {}):
+            raise InvalidInputError(f"{run.label}: the context has no single-pixel band")
+        spec = ctx.ensemble[run.name]
+    p = spec["pixel"]
+    wall = Line(*spec["wall"])
+    side = spec["flow_side"]
+    sign = 1.0 if side == "above" else -1.0
+    lags = (int(p["lags"][0]), int(p["lags"][1]))
+    seg = int(p["segment"])
+    dist = np.arange(p["step"], p["band_px"] + 1e-9, p["step"])
+    fu, fv = _profile_fn(spec)
+    where = f"{run.label}: [ensemble] single_pixel"
+    if dist.size < 1:
+        raise InvalidInputError(f"{where}: pixel_band {p['band_px']:g} px holds no row")
+    umax = float(np.max(np.abs(fu(dist))))
+    margin = lags[0] + int(np.ceil(umax / 2)) + 4
+    bend = 0.0
+    if run.method != "II":
+        shape = tuple(ctx.object_shape if run.method == "I" else ctx.image_shape)
+        try:
+            y, x0, d = pixel_band(shape, seg, dist, wall, side, lags, margin_x=margin)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{where}: {exc}") from None
+        xc = x0 + (np.arange(y.shape[1]) + 0.5) * seg - 0.5
+        X = np.broadcast_to(xc[None, :], y.shape).copy()
+        du = np.broadcast_to(fu(d)[:, None], y.shape).copy()
+        dv = np.broadcast_to(fv(d)[:, None], y.shape).copy()
+        Y, line = y, wall
+    else:
+        y, x0, X, Y, du, dv, line, bend = _mapped_rows(ctx, wall, sign, dist, fu, fv, seg, margin)
+        h = ctx.image_shape[0]
+        if np.min(y) < lags[1] + 3 or np.max(y) > h - 1 - lags[1] - 3:
+            raise InvalidInputError(
+                f"{where}: rows {dist[0]:g}..{dist[-1]:g} px from the wall, mapped to the raw "
+                f"image, leave its {ctx.image_shape[1]} x {h} px"
+            )
+    out = {
+        "y": np.ascontiguousarray(y),
+        "x0": float(x0),
+        "seg": seg,
+        "du": du,
+        "dv": dv,
+        "X": X,
+        "Y": Y,
+        "dist": dist,
+        "wall": line,
+        "side": side,
+        "lags": lags,
+        "auto_pairs": int(spec["auto_pairs"]),
+        "bend_px": float(bend),
+    }
+    ctx._cache[key] = out
+    return out
+
+
+class _MappedLine:
+    """The object wall mapped to the raw image, as a line of raw x (tabulated)."""
+
+    def __init__(self, xr: np.ndarray, yr: np.ndarray) -> None:
+        order = np.argsort(xr)
+        self.xr, self.yr = xr[order], yr[order]
+
+    def line(self, x):
+        return np.interp(np.asarray(x, dtype=np.float64), self.xr, self.yr)
+
+
+def _mapped_rows(ctx, wall, sign, dist, fu, fv, seg, margin):
+    """Method II: the object rows at ``dist`` from the wall, mapped to the raw image at the
+    raw segments' centre columns (see the module docstring)."""
+    m = ctx.mapping
+    h, w = ctx.image_shape
+    x0 = float(margin)
+    nseg = int((w - 2 * x0) // seg)
+    if nseg < 1:
+        raise InvalidInputError(
+            f"[ensemble] single_pixel: no {seg} px segment fits the {w} px wide image"
+        )
+    xc = x0 + (np.arange(nseg) + 0.5) * seg - 0.5
+    ow = ctx.object_shape[1]
+    xo = np.linspace(-0.1 * ow, 1.1 * ow, max(int(1.2 * ow / 4), 64))
+
+    def raw_row(d):
+        obj = np.column_stack([xo, wall.line(xo) - sign * d])
+        r = m.forward(obj)
+        return r[:, 0], r[:, 1]
+
+    wx, wy = raw_row(0.0)
+    rows = dist.size
+    y = np.empty((rows, nseg))
+    X = np.empty((rows, nseg))
+    bend = 0.0
+    for k, d in enumerate(dist):
+        rx, ry = raw_row(d)
+        order = np.argsort(rx)
+        rx, ry, ox = rx[order], ry[order], xo[order]
+        y[k] = np.interp(xc, rx, ry)
+        X[k] = np.interp(xc, rx, ox)
+        ends = np.interp(np.c_[xc - seg / 2, xc + seg / 2], rx, ry)
+        bend = max(bend, float(np.max(np.abs(ends[:, 1] - ends[:, 0]))))
+    Y = wall.line(X) - sign * dist[:, None]
+    D = np.stack([fu(dist), fv(dist)], axis=-1)[:, None, :]
+    P = np.stack([X, Y], axis=-1)
+    flat = (rows * nseg, 2)
+    raw = m.forward((P + 0.5 * D).reshape(flat)) - m.forward((P - 0.5 * D).reshape(flat))
+    du = raw[:, 0].reshape(rows, nseg)
+    dv = raw[:, 1].reshape(rows, nseg)
+    return y, x0, X, Y, du, dv, _MappedLine(wx, wy), bend
+
+
+def new_pixel_accumulator(ctx: PairContext, run: RunSpec) -> PixelAccumulator:
+    """An empty single-pixel accumulator of ``run``'s rows, the wall masked."""
+    lay = pixel_layout(ctx, run)
+    return PixelAccumulator(
+        lay["y"],
+        lay["seg"],
+        lay["x0"],
+        (lay["du"], lay["dv"]),
+        lags=lay["lags"],
+        interpolation=ctx.piv.interpolation,
+        wall=(lay["wall"], lay["side"]),
+    )
+
+
+def to_object(ctx: PairContext, lay: dict, u, v, uu, vv, uv) -> tuple:
+    """Method II, per row of a band (windows or single-pixel rows): displacements ``J^-1 d``
+    and covariances ``J^-1 C J^-T`` in object px, with ``J`` the mapping's Jacobian averaged
+    over the row's positions ``lay["X"], lay["Y"]`` (object px, shape (rows, columns))."""
+    X = np.column_stack([lay["X"].ravel(), lay["Y"].ravel()])
+    J = ctx.mapping.forward_jacobian(X).reshape(lay["X"].shape + (2, 2)).mean(axis=1)
+    Ji = np.linalg.inv(J)  # (rows, 2, 2)
+    d = np.stack([u, v], axis=-1)
+    do = np.einsum("nij,nj->ni", Ji, d)
+    C = np.empty((u.size, 2, 2))
+    C[:, 0, 0], C[:, 1, 1] = uu, vv
+    C[:, 0, 1] = C[:, 1, 0] = uv
+    Co = np.einsum("nij,njk,nlk->nil", Ji, C, Ji)
+    return do[:, 0], do[:, 1], Co[:, 0, 0], Co[:, 1, 1], Co[:, 0, 1]
+
+
+def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any) -> dict:
+    """The single-pixel profile of ``run`` (module docstring): ``dist_px``, ``U``, ``V``,
+    ``uu``, ``vv``, ``uv``, ``segments``, ``near_wall`` per row, ``pairs``."""
+    lay = pixel_layout(ctx, run)
+    res = acc.result()
+    u, v, uu, vv, uv = (res[k] for k in ("u", "v", "uu", "vv", "uv"))
+    if run.method == "II":
+        u, v, uu, vv, uv = to_object(ctx, lay, u, v, uu, vv, uv)
+    X, Y = lay["X"], lay["Y"]
+    if an is not None and an.wall is not None:
+        sign = 1.0 if an.flow_side == "above" else -1.0
+        dist = np.mean(sign * (an.wall.line(X) - Y), axis=1)
+    else:
+        dist = lay["dist"]
+    keep = res["ok"] & np.isfinite(u) & np.isfinite(v)
+    return {
+        "dist_px": dist[keep],
+        "U": u[keep],
+        "V": v[keep],
+        "uu": uu[keep],
+        "vv": vv[keep],
+        "uv": uv[keep],
+        "segments": np.asarray(res["count"])[keep],
+        "near_wall": np.asarray(res["near_wall"])[keep],
+        "pairs": int(acc.pairs),
+    }

@@ -1,0 +1,249 @@
+"""The campaign file's vocabulary: every key of every section with the check that turns its TOML
+value into the typed value of :mod:`rspiv.campaign_config` (or raises a one-line
+:class:`~rspiv.errors.InvalidInputError` naming the file and the key), and the old key names
+still read. The sections, their defaults and the loader live in :mod:`rspiv.campaign_config`.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+from typing import Any
+
+from rspiv.errors import InvalidInputError
+from rspiv.settings import (
+    DEFORMATIONS,
+    INTERPOLATIONS,
+    MAPPING_MODES,
+    SUBPIXELS,
+    WEIGHTINGS,
+    parse_method,
+)
+
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".im7", ".imx", ".ims")
+
+
+class Ctx:
+    """The file being read: its name for the messages, its folder for relative paths."""
+
+    def __init__(self, fname: str, base: pathlib.Path):
+        self.fname = fname
+        self.base = base
+
+    def err(self, where: str, msg: str) -> InvalidInputError:
+        return InvalidInputError(f"{self.fname}: {where}: {msg}")
+
+    def path(self, where, v, *, image=False, allow_empty=True, tiff=False, json_ok=False):
+        if not isinstance(v, str):
+            raise self.err(where, f"expected a path string, got {v!r}")
+        if v == "":
+            if allow_empty:
+                return None
+            raise self.err(where, "expected a path, got an empty string")
+        pth = pathlib.Path(os.path.expanduser(v))
+        if tiff and pth.suffix.lower() not in (".tif", ".tiff"):
+            raise self.err(where, f"expected a multi-frame TIFF (.tif, .tiff), got {v!r}")
+        if image and pth.suffix.lower() not in IMAGE_SUFFIXES + ((".json",) if json_ok else ()):
+            raise self.err(
+                where, f"expected an image file ({', '.join(IMAGE_SUFFIXES)}), got {v!r}"
+            )
+        return pathlib.Path(os.path.normpath(pth if pth.is_absolute() else self.base / pth))
+
+
+def _number(ctx, where, v, *, integer=False, minimum=None, exclusive_min=False, maximum=None):
+    kind = "an integer" if integer else "a number"
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, (int, float))
+        or (integer and not isinstance(v, int))
+    ):
+        raise ctx.err(where, f"expected {kind}, got {v!r}")
+    if v != v or v in (float("inf"), float("-inf")):
+        raise ctx.err(where, f"expected a finite number, got {v!r}")
+    if minimum is not None and (v <= minimum if exclusive_min else v < minimum):
+        rel = ">" if exclusive_min else ">="
+        raise ctx.err(where, f"expected a value {rel} {minimum}, got {v!r}")
+    if maximum is not None and v > maximum:
+        raise ctx.err(where, f"expected a value <= {maximum}, got {v!r}")
+    return int(v) if integer else float(v)
+
+
+def _boolean(ctx, where, v):
+    if not isinstance(v, bool):
+        raise ctx.err(where, f"expected true or false, got {v!r}")
+    return v
+
+
+def _choice(ctx, where, v, options, fold=None):
+    """``v`` if it is one of ``options``; with ``fold`` (e.g. ``str.upper``) any case is
+    accepted and folded to the options' spelling."""
+    if isinstance(v, str) and fold is not None and fold(v) in options:
+        return fold(v)
+    if not isinstance(v, str) or v not in options:
+        raise ctx.err(where, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
+    return v
+
+
+def _string(ctx, where, v):
+    if not isinstance(v, str):
+        raise ctx.err(where, f"expected a string, got {v!r}")
+    return v
+
+
+def _passes(ctx, where, v):
+    msg = "expected a list of [w, h] pairs"
+    if not isinstance(v, list) or not v:
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    out = []
+    for item in v:
+        if (
+            not isinstance(item, list)
+            or len(item) != 2
+            or not all(isinstance(t, int) and not isinstance(t, bool) for t in item)
+        ):
+            raise ctx.err(where, f"{msg}, got {v!r}")
+        w, h = item
+        if w < 2 or h < 2:
+            raise ctx.err(where, f"window sizes must be >= 2 px, got {item!r}")
+        out.append((w, h))
+    return out
+
+
+def _pair(ctx, where, v, *, integer, minimum):
+    """``[a, b]``: two numbers (integers when ``integer``), each >= ``minimum`` (integers) or
+    > ``minimum`` (floats)."""
+    kind = "integers" if integer else "numbers"
+    if not isinstance(v, list) or len(v) != 2:
+        raise ctx.err(where, f"expected a list of two {kind}, got {v!r}")
+    out = []
+    for item in v:
+        bad = isinstance(item, bool) or not isinstance(item, (int, float))
+        if integer:
+            bad = bad or isinstance(item, float)
+        if bad or not (item >= minimum if integer else item > minimum):
+            rel = ">=" if integer else ">"
+            raise ctx.err(where, f"expected two {kind} {rel} {minimum}, got {v!r}")
+        out.append(int(item) if integer else float(item))
+    return tuple(out)
+
+
+def _method(ctx, where, v):
+    try:
+        return parse_method(v)
+    except InvalidInputError:
+        raise ctx.err(where, f"expected one of 'I', 'II', 'none', got {v!r}") from None
+
+
+#: Old keys still read: (section, old key) -> the vocabulary's key (the parser converts).
+ALIASES = {
+    ("piv", "median_epsilon"): "median_eps",
+    ("piv", "deform"): "deformation",
+    ("correction", "mapping"): "map_displacement",
+}
+
+# per section: key -> parser(ctx, where, value)
+PARSERS: dict[str, dict[str, Any]] = {
+    "campaign": {"name": _string, "description": _string},
+    "calibration": {
+        "target": lambda c, w, v: c.path(w, v, image=True),
+        "pitch_mm": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "pitch_sigma_mm": lambda c, w, v: _number(c, w, v, minimum=0),
+        "model": lambda c, w, v: _choice(c, w, v, ("R1", "R2", "P3"), fold=str.upper),
+        "marker": lambda c, w, v: _choice(c, w, v, ("dot", "cross")),
+        "marker_size_px": lambda c, w, v: _number(c, w, v, minimum=0),
+        "monte_carlo_samples": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+    },
+    "images": {
+        "glob": lambda c, w, v: str(c.path(w, v, image=True, allow_empty=False)),
+        "pairs": None,  # special-cased
+        "multiframe": lambda c, w, v: c.path(w, v, image=True, allow_empty=False, tiff=True),
+        "double_frame": lambda c, w, v: str(c.path(w, v, allow_empty=False)),
+        "max_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+    },
+    "correction": {
+        "method": _method,
+        "mapping": lambda c, w, v: _choice(c, w, v, MAPPING_MODES, fold=str.lower) == "full",
+        "map_displacement": _boolean,
+        "compare_uncorrected": _boolean,
+    },
+    "piv": {
+        "passes": _passes,
+        "overlap": lambda c, w, v: _number(c, w, v, minimum=0, maximum=0.95),
+        "iterations": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "deformation": lambda c, w, v: _choice(c, w, v, DEFORMATIONS, fold=str.lower),
+        "interpolation": lambda c, w, v: _choice(c, w, v, INTERPOLATIONS, fold=str.lower),
+        "subpixel": lambda c, w, v: _choice(c, w, v, SUBPIXELS, fold=str.lower),
+        "weighting": lambda c, w, v: _choice(c, w, v, WEIGHTINGS, fold=str.lower),
+        "validate": _boolean,
+        "median_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "median_eps": lambda c, w, v: _number(c, w, v, minimum=0),
+        "median_epsilon": lambda c, w, v: _number(c, w, v, minimum=0),
+        "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
+        "peak_candidates": lambda c, w, v: _number(c, w, v, integer=True, minimum=1, maximum=3),
+        "uncertainty": _boolean,
+        "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
+        "mask": lambda c, w, v: c.path(w, v, image=True, json_ok=True),
+    },
+    "preprocess": {
+        "background": lambda c, w, v: _choice(c, w, v, ("none", "min", "mean"), fold=str.lower),
+        "percentile": lambda c, w, v: _number(c, w, v, minimum=0, maximum=100),
+        "hot_pixels": lambda c, w, v: _number(c, w, v, minimum=0),
+        "high_pass": lambda c, w, v: _number(c, w, v, minimum=0),
+        "cap": lambda c, w, v: _number(c, w, v, minimum=0),
+        "min_max": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+    },
+    "wall": {
+        "enabled": _boolean,
+        "side": lambda c, w, v: _choice(c, w, v, ("auto", "top", "bottom")),
+        "rotate": _boolean,
+        "stations": lambda c, w, v: _number(c, w, v, integer=True, minimum=2),
+    },
+    "flow": {
+        "nu": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "dt": lambda c, w, v: _number(c, w, v, minimum=0),
+        "u_inf": lambda c, w, v: _number(c, w, v, minimum=0),
+    },
+    "statistics": {
+        "min_count": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "use_n_eff": _boolean,
+        "fit_offset": _boolean,
+        "reference_re_theta": lambda c, w, v: _number(c, w, v, minimum=0),
+        "noise_correction": _boolean,
+    },
+    "ensemble": {
+        "enabled": _boolean,
+        "window": lambda c, w, v: _pair(c, w, v, integer=True, minimum=2),
+        "step": lambda c, w, v: _pair(c, w, v, integer=False, minimum=0),
+        "band": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "band_units": lambda c, w, v: _choice(c, w, v, ("px", "plus"), fold=str.lower),
+        "auto_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "single_pixel": _boolean,
+        "pixel_band": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "pixel_step": lambda c, w, v: _number(c, w, v, minimum=0.05),
+        "pixel_segment": lambda c, w, v: _number(c, w, v, integer=True, minimum=8),
+        "pixel_lags": lambda c, w, v: _pair(c, w, v, integer=True, minimum=1),
+    },
+    "output": {
+        "dir": lambda c, w, v: c.path(w, v, allow_empty=False),
+        "netcdf": _boolean,
+        "csv": _boolean,
+        "report": _boolean,
+    },
+}
+
+
+def parse_pairs(ctx, where, v):
+    msg = "expected a list of [frame_a, frame_b] image paths"
+    if not isinstance(v, list) or not v:
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    out = []
+    for item in v:
+        if not isinstance(item, list) or len(item) != 2:
+            raise ctx.err(where, f"{msg}, got {item!r}")
+        out.append(
+            (
+                ctx.path(where, item[0], image=True, allow_empty=False),
+                ctx.path(where, item[1], image=True, allow_empty=False),
+            )
+        )
+    return out
