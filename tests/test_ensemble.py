@@ -229,3 +229,26 @@ def test_band_helpers_refuse_bad_input_in_one_line(pairs):
     state["sum"] = state["sum"][:, :-1]
     with pytest.raises(rspiv.InvalidInputError, match="do not fit"):
         EnsembleAccumulator.from_arrays(state)
+
+
+def test_saturation_is_counted_only_on_a_plateau():
+    """A frame saturates at its maximum only when many pixels share it (clipped images); the
+    tally per row refuses fractions of the wrong size or outside 0..1 in one line."""
+    from rspiv.campaign.ensemble_pixel import saturation, saturation_level
+    from rspiv.ensemble_pixel import SaturationTally
+
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 3000, (64, 256)).astype(np.uint16)
+    assert saturation_level(frame) == np.inf  # one brightest pixel is a particle peak
+    frame[10:12, :] = 4095
+    assert saturation_level(frame) == 4095.0
+    lay = {"raw_pixels": (np.array([[10, 10], [30, 30]]), np.array([[0, 5], [0, 5]]))}
+    np.testing.assert_array_equal(saturation(lay, (frame, frame, [4095.0, np.inf])), [1.0, 0.0])
+    tally = SaturationTally(2)
+    tally.add([1.0, 0.0])
+    tally.add([0.5, 0.0])
+    np.testing.assert_allclose(tally.mean(), [0.75, 0.0])
+    for bad in ([0.1], [0.1, 1.5], [np.nan, 0.0]):
+        with pytest.raises(rspiv.InvalidInputError, match="2 rows, each in 0..1"):
+            tally.add(bad)
+

@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from rspiv import _rspiv
-from rspiv.ensemble_pixel import PixelAccumulator, _wall_y, pixel_band
+from rspiv.ensemble_pixel import PixelAccumulator, SaturationTally, _wall_y, pixel_band
 from rspiv.errors import InvalidInputError
 from rspiv.settings import INTERPOLATIONS, parse_choice
 
@@ -317,6 +317,9 @@ class EnsembleAccumulator:
         stride = _rspiv.ensemble_stride(*self.window)
         self.acc = np.zeros((x.size, stride), dtype=np.float64)
         self.pairs = 0
+        #: per window, the fraction of its pixels saturated in the raw frames (a campaign adds
+        #: it per pair)
+        self.saturation = SaturationTally(self.x.size)
 
     def _field_kwargs(self) -> dict[str, Any]:
         if self.deform is None:
@@ -369,6 +372,7 @@ class EnsembleAccumulator:
             "dv": self.dv,
             "window": np.asarray(self.window, dtype=np.int64),
             "pairs": int(self.pairs),
+            **self.saturation.to_arrays(),
             "interpolation": self.interpolation,
         }
         if self.deform is not None:
@@ -400,6 +404,7 @@ class EnsembleAccumulator:
             )
         out.acc = np.array(s)
         out.pairs = int(d["pairs"])
+        out.saturation = SaturationTally.from_arrays(d, out.x.size)
         return out
 
     def merge(self, other: EnsembleAccumulator) -> EnsembleAccumulator:
@@ -423,6 +428,7 @@ class EnsembleAccumulator:
             raise InvalidInputError("ensemble accumulators of different windows cannot merge")
         self.acc += other.acc
         self.pairs += other.pairs
+        self.saturation.merge(other.saturation)
         return self
 
     def result(self, axes: tuple[Any, Any] | None = None, rows: bool = False) -> EnsembleField:

@@ -16,7 +16,47 @@ from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 from rspiv.settings import INTERPOLATIONS, parse_choice
 
-__all__ = ["PixelAccumulator", "pixel_band"]
+__all__ = ["PixelAccumulator", "SaturationTally", "pixel_band"]
+
+
+class SaturationTally:
+    """Per row (or window) of a band: the summed fraction of its pixels saturated in the raw
+    frames over the pairs reported (:meth:`add`), so that the rows whose particle images are
+    clipped (a glare line, overexposure) can be flagged; merges by adding."""
+
+    def __init__(self, n: int) -> None:
+        self.sum = np.zeros(int(n))
+        self.pairs = 0
+
+    def add(self, fraction: Any) -> None:
+        """One pair's fraction (0-1) per row."""
+        f = np.asarray(fraction, dtype=np.float64).ravel()
+        if f.size != self.sum.size or not np.all((f >= 0) & (f <= 1)):
+            raise InvalidInputError(
+                f"saturation: {f.size} fractions for {self.sum.size} rows, each in 0..1"
+            )
+        self.sum += f
+        self.pairs += 1
+
+    def merge(self, other: SaturationTally) -> None:
+        self.sum += other.sum
+        self.pairs += other.pairs
+
+    def mean(self) -> np.ndarray:
+        """The mean fraction per row (0 before any pair)."""
+        return self.sum / max(self.pairs, 1)
+
+    def to_arrays(self) -> dict[str, Any]:
+        return {"saturated": self.sum, "saturation_pairs": int(self.pairs)}
+
+    @classmethod
+    def from_arrays(cls, d: dict[str, Any], n: int) -> SaturationTally:
+        """From :meth:`to_arrays`' keys in ``d`` (empty when absent: older states)."""
+        out = cls(n)
+        if d.get("saturated") is not None:
+            out.sum = np.array(d["saturated"], dtype=np.float64).reshape(n)
+            out.pairs = int(d["saturation_pairs"])
+        return out
 
 
 def _wall_y(wall: Any, x: np.ndarray) -> np.ndarray:
@@ -108,6 +148,9 @@ class PixelAccumulator:
         stride = _rspiv.pixel_stride(*self.lags)
         self.acc = np.zeros((self.y.shape[0], stride), dtype=np.float64)
         self.pairs = 0
+        #: per row, the fraction of its pixels saturated in the raw frames (a campaign adds it
+        #: per pair)
+        self.saturation = SaturationTally(self.y.shape[0])
         #: the wall as ``(flow_side, x, y)``: its pixel y sampled at every column the strips
         #: can reach (linear in between, constant beyond), or None
         self.wall: tuple[str, np.ndarray, np.ndarray] | None = None
@@ -167,6 +210,7 @@ class PixelAccumulator:
             "lags": np.asarray(self.lags, dtype=np.int64),
             "pairs": int(self.pairs),
             "interpolation": self.interpolation,
+            **self.saturation.to_arrays(),
         }
         if self.wall is not None:
             out.update(wall_side=self.wall[0], wall_x=self.wall[1], wall_y=self.wall[2])
@@ -195,6 +239,7 @@ class PixelAccumulator:
             )
         out.acc = np.array(s)
         out.pairs = int(d["pairs"])
+        out.saturation = SaturationTally.from_arrays(d, out.y.shape[0])
         return out
 
     def add(self, frame_a: Any, frame_b: Any, mask: Any = None, auto: bool = True) -> int:
@@ -252,6 +297,7 @@ class PixelAccumulator:
             raise InvalidInputError("single-pixel accumulators of different bands cannot merge")
         self.acc += other.acc
         self.pairs += other.pairs
+        self.saturation.merge(other.saturation)
         return self
 
     def result(self) -> dict[str, np.ndarray]:
@@ -260,7 +306,8 @@ class PixelAccumulator:
         ``wall``, ``dist`` (the row's mean distance from it, px) and ``near_wall``: the rows
         within two particle-image row widths of the wall (the width ``sqrt(auto_yy / 2)``, the
         median over the rows), whose values the wall biases (see Notes); without one, ``dist``
-        is NaN and ``near_wall`` False.
+        is NaN and ``near_wall`` False. ``saturated``: the mean fraction of each row's pixels
+        reported saturated (``saturation``; 0 when nothing was reported).
 
         ``uu`` and ``uv`` have the mean gradient across the particle image removed: a row sees
         the particles over the image's height ``s`` (``s^2 = auto_yy / 2``), each moving with
@@ -296,6 +343,7 @@ class PixelAccumulator:
         return {
             "dist": dist,
             "near_wall": near,
+            "saturated": self.saturation.mean(),
             "u": u,
             "v": np.where(ok, self.dv.mean(axis=1) + d["dy"], np.nan),
             "uu": cov[:, 0] - grad**2 * s2,

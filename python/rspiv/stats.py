@@ -598,6 +598,8 @@ def _ensemble_to_dataset(ds, ens) -> None:
     ds.attrs["ensemble_window_px"] = [int(t) for t in d["window"]]
     ds.attrs["ensemble_pairs"] = int(d["pairs"])
     ds.attrs["ensemble_interpolation"] = str(d["interpolation"])
+    ds["ensemble_saturated"] = (("ensemble_window",), np.ravel(d["saturated"]))
+    ds.attrs["ensemble_saturation_pairs"] = int(d["saturation_pairs"])
 
 
 def _ensemble_from_dataset(ds):
@@ -612,6 +614,9 @@ def _ensemble_from_dataset(ds):
     }
     for k in ("x", "y", "du", "dv"):
         d[k] = np.asarray(ds[f"ensemble_{k}"].values, dtype=np.float64).reshape(shape)
+    if "ensemble_saturated" in ds:
+        d["saturated"] = np.asarray(ds["ensemble_saturated"].values, dtype=np.float64)
+        d["saturation_pairs"] = int(ds.attrs["ensemble_saturation_pairs"])
     if "ensemble_field_u" in ds:
         d["field_grid"] = np.ravel(ds.attrs["ensemble_field_grid"])
         d["field_u"] = np.ascontiguousarray(ds["ensemble_field_u"].values, dtype=np.float64)
@@ -638,6 +643,8 @@ def _pixel_to_dataset(ds, pix) -> None:
     ds.attrs["pixel_lags"] = [int(t) for t in d["lags"]]
     ds.attrs["pixel_pairs"] = int(d["pairs"])
     ds.attrs["pixel_interpolation"] = str(d["interpolation"])
+    ds["pixel_saturated"] = (("pixel_row",), d["saturated"])
+    ds.attrs["pixel_saturation_pairs"] = int(d["saturation_pairs"])
 
 
 def _pixel_from_dataset(ds):
@@ -653,6 +660,9 @@ def _pixel_from_dataset(ds):
     }
     for k in ("y", "du", "dv"):
         d[k] = np.ascontiguousarray(ds[f"pixel_{k}"].values, dtype=np.float64)
+    if "pixel_saturated" in ds:
+        d["saturated"] = np.asarray(ds["pixel_saturated"].values, dtype=np.float64)
+        d["saturation_pairs"] = int(ds.attrs["pixel_saturation_pairs"])
     if "pixel_wall_x" in ds:
         d["wall_side"] = str(ds.attrs["pixel_wall_side"])
         d["wall_x"] = np.asarray(ds["pixel_wall_x"].values, dtype=np.float64)

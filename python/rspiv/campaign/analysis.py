@@ -386,28 +386,23 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 )
         elif an.error:
             rs["error"] = an.error
-        try:
-            prof = ensemble_work.write_outputs(camp, res, run, an)
-        except (RspivError, ValueError) as exc:
-            camp.say(f"{run.label}: ensemble profile failed: {exc}")
-            rs["ensemble_error"] = str(exc)
-            prof = None
-        if prof is not None:
-            res.ensembles[run.name] = prof
-            rs["ensemble"] = {"pairs": prof["pairs"], "rows": int(prof["dist_px"].size)}
-        try:
-            pix = ensemble_work.write_pixel_outputs(camp, res, run, an)
-        except (RspivError, ValueError) as exc:
-            camp.say(f"{run.label}: single-pixel profile failed: {exc}")
-            rs["single_pixel_error"] = str(exc)
-            pix = None
-        if pix is not None:
-            res.pixel_profiles[run.name] = pix
-            rs["single_pixel"] = {
-                "pairs": pix["pairs"],
-                "rows": int(pix["dist_px"].size),
-                "near_wall_rows": int(np.count_nonzero(pix["near_wall"])),
-            }
+        bands = (
+            ("ensemble", "ensemble", ensemble_work.write_outputs, res.ensembles),
+            ("single_pixel", "single-pixel", ensemble_work.write_pixel_outputs, res.pixel_profiles),
+        )
+        for key, what, write, store in bands:
+            try:
+                prof = write(camp, res, run, an)
+            except (RspivError, ValueError) as exc:
+                camp.say(f"{run.label}: {what} profile failed: {exc}")
+                rs[f"{key}_error"] = str(exc)
+                continue
+            if prof is not None:
+                store[run.name] = prof
+                rs[key] = {"pairs": prof["pairs"], "rows": int(prof["dist_px"].size)}
+                for flag in ("near_wall", "clipped"):
+                    if flag in prof:
+                        rs[key][f"{flag}_rows"] = int(np.count_nonzero(prof[flag]))
         summary["runs"][run.name] = rs
     summary["wall_deviation_px"] = res.wall_deviation
     summary["timings_s"] = res.timings

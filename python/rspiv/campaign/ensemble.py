@@ -39,11 +39,14 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign.ensemble_pixel import (
+    SATURATED_MAX,
     Line,
     new_pixel_accumulator,
     pixel_layout,
     pixel_profile,
     pixel_spec,
+    raw_pixels,
+    saturation,
     to_object,
 )
 from rspiv.campaign.spec import PairContext, RunSpec
@@ -199,7 +202,12 @@ def band_layout(ctx: PairContext, run: RunSpec, spec: dict[str, Any] | None = No
             )
         X, Y, x, y = (np.ascontiguousarray(t[:, cols]) for t in (X, Y, x, y))
         field = _raw_field(ctx, field, (x, y), window)
+    # each window's pixels on a 4 x 2 px lattice, for their saturation in the raw frames
+    ox = np.arange(-(window[0] - 1) / 2, window[0] / 2, 4.0)
+    oy = np.arange(-(window[1] - 1) / 2, window[1] / 2, 2.0)
+    OX, OY = (t.ravel() for t in np.meshgrid(ox, oy))
     out = {
+        "raw_pixels": raw_pixels(ctx, run, x.ravel()[:, None] + OX, y.ravel()[:, None] + OY),
         "x": x,
         "y": y,
         "X": X,
@@ -287,18 +295,22 @@ def band_accumulators(accs: dict[str, Any]) -> dict[str, tuple[Any, Any]]:
     return out
 
 
-def accumulate(ctx: PairContext, run: RunSpec, band: tuple[Any, Any], a, b, mask=None) -> int:
+def accumulate(
+    ctx: PairContext, run: RunSpec, band: tuple[Any, Any], a, b, mask=None, raw=None
+) -> int:
     """Add one pair's frames (those ``run`` correlates: dewarped for Method I) to the run's
     band accumulators ``(windows, single-pixel)`` (either may be None); the auto planes for the
-    first ``auto_pairs`` pairs. Returns the windows and segments added."""
+    first ``auto_pairs`` pairs. ``raw``: ``(frame_a, frame_b, levels)``, the pair as recorded
+    and its :func:`~rspiv.campaign.ensemble_pixel.saturation_level`, whose saturated pixels
+    on the single-pixel rows are counted. Returns the windows and segments added."""
     windows, pixel = band
     n = 0
-    if windows is not None:
-        lay = band_layout(ctx, run)
-        n += windows.add(a, b, mask=mask, auto=windows.pairs < lay["auto_pairs"])
-    if pixel is not None:
-        lay = pixel_layout(ctx, run)
-        n += pixel.add(a, b, mask=mask, auto=pixel.pairs < lay["auto_pairs"])
+    for acc, layout in ((windows, band_layout), (pixel, pixel_layout)):
+        if acc is not None:
+            lay = layout(ctx, run)
+            n += acc.add(a, b, mask=mask, auto=acc.pairs < lay["auto_pairs"])
+            if raw is not None:
+                acc.saturation.add(saturation(lay, raw))
     return n
 
 
@@ -344,6 +356,8 @@ def ensemble_profile(ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, a
     n = used.sum(axis=1)
     dist = np.where(used, d, 0.0).sum(axis=1) / np.maximum(n, 1)
     keep = (n > 0) & res.ok[:, 0] & np.isfinite(u) & np.isfinite(v)
+    sat = acc.saturation.mean().reshape(X.shape)
+    sat = np.where(used, sat, 0.0).sum(axis=1) / np.maximum(n, 1)
     out: dict[str, Any] = {
         "dist_px": dist[keep],
         "U": u[keep],
@@ -352,6 +366,8 @@ def ensemble_profile(ctx: PairContext, run: RunSpec, acc: EnsembleAccumulator, a
         "vv": vv[keep],
         "uv": uv[keep],
         "windows": n[keep],
+        "saturated": sat[keep],
+        "clipped": sat[keep] > SATURATED_MAX,
         "pairs": int(acc.pairs),
     }
     return with_units(out, an)
@@ -398,6 +414,8 @@ def ensemble_dataset(prof: dict[str, Any], attrs: dict[str, Any] | None = None):
         "windows": ("windows fitted in the row", "1"),
         "segments": ("single-pixel segments summed in the row", "1"),
         "near_wall": ("1: the row lies within two particle-image widths of the wall", "1"),
+        "saturated": ("mean fraction of the row's pixels saturated in the raw frames", "1"),
+        "clipped": ("1: more of the row's pixels saturated than SATURATED_MAX", "1"),
         "y_m": ("wall distance", "m"),
         "U_si": ("mean streamwise velocity", "m s-1"),
         "V_si": ("mean wall-normal velocity (into the flow)", "m s-1"),
@@ -414,7 +432,7 @@ def ensemble_dataset(prof: dict[str, Any], attrs: dict[str, Any] | None = None):
     for k, (name, unit) in units.items():
         if k in prof:
             val = np.asarray(prof[k])
-            val = val.astype(np.int8) if val.dtype == bool else val
+            val = val.astype(np.int8) if val.dtype == bool else val  # flags as 0/1
             ds[k] = (("row",), val, {"long_name": name, "units": unit})
     ds.attrs.update(
         {
@@ -430,16 +448,12 @@ def ensemble_dataset(prof: dict[str, Any], attrs: dict[str, Any] | None = None):
 
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
     """The ensemble profile of ``run`` (:func:`ensemble_profile`) written as
-    ``OUT/profile_ensemble_<run>.csv`` and ``.nc`` (as ``[output]`` says); the profile, or
-    None when the run has no ensemble."""
+    ``OUT/profile_ensemble_<run>.csv`` and ``.nc`` (as ``[output]`` says); the profile, or None
+    when the run has no ensemble."""
     acc = res.accumulators[run.name].ensemble
     if acc is None or not res.context.ensemble:
         return None
-    if acc.pairs < MIN_PAIRS:
-        raise InvalidInputError(
-            f"the ensemble band summed {acc.pairs} pair(s); its peaks need at least {MIN_PAIRS}, "
-            "no ensemble profile written"
-        )
+    _enough_pairs(acc, "the ensemble band", "ensemble")
     prof = ensemble_profile(res.context, run, acc, an)
     spec = res.context.ensemble[run.name]
     meta = {
@@ -448,38 +462,22 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "pairs": prof["pairs"],
         "window_px": "x".join(str(t) for t in spec["window"]),
         "band_px": spec["band_px"],
+        **_flags(camp, run, prof, "ensemble rows"),
     }
-    cols = {k: v for k, v in prof.items() if k != "pairs"}
-    out = camp.out_dir
-    cfg = camp.config
-    if cfg.output.csv:
-        res.files[f"profile_ensemble_{run.name}_csv"] = write_profile_csv(
-            out / f"profile_ensemble_{run.name}.csv", cols, metadata=meta
-        )
-    if cfg.output.netcdf:
-        res.files[f"profile_ensemble_{run.name}_nc"] = write_netcdf(
-            ensemble_dataset(prof, attrs={k: str(v) for k, v in meta.items()}),
-            out / f"profile_ensemble_{run.name}.nc",
-        )
+    _write(camp, res, run, prof, meta, "ensemble", "rspiv ensemble-correlation profile")
     return prof
 
 
 def write_pixel_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
     """The single-pixel profile of ``run`` (:func:`rspiv.campaign.ensemble_pixel.pixel_profile`
     with units) written as ``OUT/profile_pixel_<run>.csv`` and ``.nc``; the profile, or None
-    when the run has no single-pixel rows."""
+    when the run has no single-pixel rows. The rows the wall biases are said and flagged."""
     acc = getattr(res.accumulators[run.name], "pixel", None)
     if acc is None or not res.context.ensemble:
         return None
-    if acc.pairs < MIN_PAIRS:
-        raise InvalidInputError(
-            f"the single-pixel rows summed {acc.pairs} pair(s); their peaks need at least "
-            f"{MIN_PAIRS}, no single-pixel profile written"
-        )
+    _enough_pairs(acc, "the single-pixel rows", "single-pixel")
     prof = with_units(pixel_profile(res.context, run, acc, an), an)
     spec = res.context.ensemble[run.name]["pixel"]
-    lay = pixel_layout(res.context, run)
-    near = int(np.count_nonzero(prof["near_wall"]))
     meta = {
         "run": run.name,
         "label": run.label,
@@ -487,31 +485,63 @@ def write_pixel_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str,
         "segment_px": spec["segment"],
         "row_step_px": spec["step"],
         "band_px": spec["band_px"],
-        "row_bend_px": round(lay["bend_px"], 4),
-        "near_wall_rows": near,
-        "warning": (
-            f"the first {near} row(s) lie within two particle-image widths of the wall and "
-            "are biased by it (near_wall = 1)"
-            if near
-            else ""
-        ),
+        "row_bend_px": round(pixel_layout(res.context, run)["bend_px"], 4),
+        **_flags(camp, run, prof, "single-pixel rows"),
     }
+    _write(camp, res, run, prof, meta, "pixel", "rspiv single-pixel ensemble profile")
+    return prof
+
+
+def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
+    """The profile's flagged rows for its metadata (``near_wall_rows``, ``clipped_rows``,
+    ``warning``), said when there are any."""
+    near = int(np.count_nonzero(prof.get("near_wall", ())))
+    clipped = int(np.count_nonzero(prof["clipped"]))
+    said = []
     if near:
-        camp.say(f"{run.label}: single-pixel rows: {meta['warning']}")
-    cols = {k: (v.astype(int) if k == "near_wall" else v) for k, v in prof.items() if k != "pairs"}
-    out = camp.out_dir
+        said.append(
+            f"{near} row(s) lie within two particle-image widths of the wall and are biased by "
+            "it (near_wall = 1)"
+        )
+    if clipped:
+        said.append(
+            f"{clipped} row(s) have more than {100 * SATURATED_MAX:g} % of their pixels "
+            "saturated in the raw frames (glare?) and read wrong (clipped = 1)"
+        )
+    out: dict[str, Any] = {"clipped_rows": clipped, "warning": "; ".join(said)}
+    if "near_wall" in prof:
+        out["near_wall_rows"] = near
+    if said:
+        camp.say(f"{run.label}: {what}: {out['warning']}")
+    return out
+
+
+def _enough_pairs(acc: Any, what: str, name: str) -> None:
+    if acc.pairs < MIN_PAIRS:
+        raise InvalidInputError(
+            f"{what} summed {acc.pairs} pair(s); its peaks need at least {MIN_PAIRS}, no "
+            f"{name} profile written"
+        )
+
+
+def _write(camp, res, run, prof: dict, meta: dict, kind: str, title: str) -> None:
+    """``OUT/profile_<kind>_<run>.csv`` and ``.nc`` of a band's profile, as ``[output]``
+    says (flags as 0/1)."""
+    if np.size(prof["dist_px"]) == 0:
+        raise InvalidInputError(f"no row of the {kind} band gave a peak, nothing written")
+    flags = ("near_wall", "clipped")
+    cols = {k: (np.asarray(v).astype(int) if k in flags else v) for k, v in prof.items()}
+    cols.pop("pairs")
+    out = camp.out_dir / f"profile_{kind}_{run.name}"
     cfg = camp.config
     if cfg.output.csv:
-        res.files[f"profile_pixel_{run.name}_csv"] = write_profile_csv(
-            out / f"profile_pixel_{run.name}.csv", cols, metadata=meta
+        res.files[f"profile_{kind}_{run.name}_csv"] = write_profile_csv(
+            out.with_suffix(".csv"), cols, metadata=meta
         )
     if cfg.output.netcdf:
         ds = ensemble_dataset(prof, attrs={k: str(v) for k, v in meta.items()})
-        ds.attrs["title"] = "rspiv single-pixel ensemble profile"
-        res.files[f"profile_pixel_{run.name}_nc"] = write_netcdf(
-            ds, out / f"profile_pixel_{run.name}.nc"
-        )
-    return prof
+        ds.attrs["title"] = title
+        res.files[f"profile_{kind}_{run.name}_nc"] = write_netcdf(ds, out.with_suffix(".nc"))
 
 
 def report_section(camp: Any, res: Any) -> Any:
@@ -527,13 +557,14 @@ def report_section(camp: Any, res: Any) -> Any:
         if not runs:
             runs[f"{run.label} (instantaneous)"] = an.result
             first = prof
-        runs[f"{run.label} (ensemble)"] = _series(prof, an.result.re_tau)
+        runs[f"{run.label} (ensemble)"] = _series(prof, an.result.re_tau, ~prof["clipped"])
         pix = getattr(res, "pixel_profiles", {}).get(run.name)
         if pix is not None and "y_plus" in pix:
+            bad = np.asarray(pix["near_wall"], dtype=bool) | np.asarray(pix["clipped"], bool)
             if not pixel_rows:
-                pixel_rows = _table(pix, "segments", near=pix["near_wall"])
-            far = ~np.asarray(pix["near_wall"], dtype=bool)
-            runs[f"{run.label} (single-pixel)"] = _series(pix, an.result.re_tau, far)
+                pixel_rows = _table(pix, "segments", flagged=bad)
+            if not bad.all():
+                runs[f"{run.label} (single-pixel)"] = _series(pix, an.result.re_tau, ~bad)
     if not runs:
         return None
     figures = []
@@ -549,22 +580,23 @@ def report_section(camp: Any, res: Any) -> Any:
         ]
     except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
         camp.say(f"ensemble figures failed: {exc}")
-    rows = _table(first, "windows")
+    rows = _table(first, "windows", flagged=first["clipped"])
     info = camp.info.get("ensemble", {})
     text = (
         "Correlation planes summed over every pair in thin windows "
         f"({info.get('window', ['?', '?'])[0]} x {info.get('window', ['?', '?'])[1]} px) in a "
         f"band of {info.get('band_px', float('nan')):.1f} px at the wall, each window deformed "
         "by the pilot's mean profile (no slip at the wall); the Reynolds stresses from the "
-        "summed peak's covariance less the particle images' own."
+        "summed peak's covariance less the particle images' own. Rows with more than "
+        f"{100 * SATURATED_MAX:g} % of their pixels saturated in the recorded frames (clipped "
+        "particle images, e.g. a glare line) are flagged and left out of the figures."
     )
     tables = [ReportTable("Ensemble profile near the wall (main run)", rows)]
     if pixel_rows:
         text += (
             " Single-pixel rows: one pixel row of frame A against the rows of frame B, summed "
-            "along the wall, the reflection beyond the wall masked; rows within two "
-            "particle-image widths of the wall (near wall = yes) are biased by it and left out "
-            "of the figures."
+            "along the wall, the reflection beyond the wall masked; the rows within two "
+            "particle-image widths of the wall (biased by it) are flagged too."
         )
         tables.append(ReportTable("Single-pixel profile at the wall (main run)", pixel_rows))
     return ReportSection(
@@ -582,7 +614,7 @@ def _series(prof: dict[str, Any], re_tau: float, keep: Any = None) -> dict[str, 
 _PLUS = ("y_plus", "U_plus", "uu_plus", "vv_plus", "uv_plus")
 
 
-def _table(prof: dict[str, Any], count: str, near: Any = None) -> list[dict[str, Any]]:
+def _table(prof: dict[str, Any], count: str, flagged: Any = None) -> list[dict[str, Any]]:
     """The first 12 rows of a band profile for the report."""
     rows = []
     for i in range(min(12, prof["y_plus"].size)):
@@ -594,7 +626,7 @@ def _table(prof: dict[str, Any], count: str, near: Any = None) -> list[dict[str,
             "-uv+": float(-prof["uv_plus"][i]),
             count: int(prof[count][i]),
         }
-        if near is not None:
-            row["near wall"] = "yes" if near[i] else "no"
+        if flagged is not None:
+            row["flagged"] = "yes" if flagged[i] else "no"
         rows.append(row)
     return rows

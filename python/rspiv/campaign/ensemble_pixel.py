@@ -36,12 +36,23 @@ from rspiv.campaign.spec import PairContext, RunSpec
 from rspiv.ensemble import PixelAccumulator, pixel_band
 from rspiv.errors import InvalidInputError
 
+#: Largest mean fraction of a row's pixels saturated in the raw frames before the row is
+#: flagged ``clipped``: a particle image clipped by a glare line is flattened on the glare's
+#: side, and the row then weights the particles away from the wall (read high: +6 to +85 % on
+#: the synthetic layer under a saturating glare line, 5-99 % of their pixels saturated; 0.01-
+#: 0.05 % without the glare).
+SATURATED_MAX = 0.01
+
 __all__ = [
+    "SATURATED_MAX",
     "Line",
     "new_pixel_accumulator",
     "pixel_layout",
     "pixel_profile",
     "pixel_spec",
+    "raw_pixels",
+    "saturation",
+    "saturation_level",
     "to_object",
 ]
 
@@ -125,7 +136,12 @@ def pixel_layout(ctx: PairContext, run: RunSpec, spec: dict[str, Any] | None = N
                 f"{where}: rows {dist[0]:g}..{dist[-1]:g} px from the wall, mapped to the raw "
                 f"image, leave its {ctx.image_shape[1]} x {h} px"
             )
+    # the rows' pixels (every 2nd px of each segment), for their saturation in the raw frames
+    sx = x0 + np.arange(y.shape[1])[:, None] * seg + np.arange(0, seg, 2)[None, :]
+    px = np.broadcast_to(sx.ravel()[None, :], (y.shape[0], sx.size))
+    py = np.repeat(y, sx.shape[1], axis=1)
     out = {
+        "raw_pixels": raw_pixels(ctx, run, px, py),
         "y": np.ascontiguousarray(y),
         "x0": float(x0),
         "seg": seg,
@@ -198,6 +214,39 @@ def _mapped_rows(ctx, wall, sign, dist, fu, fv, seg, margin):
     return y, x0, X, Y, du, dv, _MappedLine(wx, wy), bend
 
 
+def raw_pixels(ctx: PairContext, run: RunSpec, px: np.ndarray, py: np.ndarray) -> tuple:
+    """Points ``(px, py)`` (shape (n, m): m points of each of n rows or windows) of the frames
+    ``run`` correlates, as the nearest pixels ``(rows, cols)`` of the raw frames (through the
+    mapping for Method I's dewarped frames)."""
+    if run.method == "I":
+        raw = ctx.mapping.forward(np.column_stack([np.ravel(px), np.ravel(py)]))
+        px, py = raw[:, 0].reshape(np.shape(py)), raw[:, 1].reshape(np.shape(py))
+    h, w = ctx.image_shape
+    return (
+        np.clip(np.rint(py), 0, h - 1).astype(np.intp),
+        np.clip(np.rint(px), 0, w - 1).astype(np.intp),
+    )
+
+
+def saturation_level(frame: np.ndarray) -> float:
+    """The code at which ``frame`` saturates: its maximum when at least 50 pixels (and 1 in
+    100,000) share it (a plateau: clipped particle images or glare), else inf (no pixel is
+    taken as saturated; one or a few brightest pixels are particle peaks)."""
+    top = frame.max()
+    n = int(np.count_nonzero(frame == top))
+    return float(top) if n >= max(50, frame.size // 100_000) else float("inf")
+
+
+def saturation(lay: dict, raw: tuple) -> np.ndarray:
+    """Per row (or window) of a band: the fraction of its pixels (``lay["raw_pixels"]``)
+    saturated in either raw frame; ``raw``: ``(frame_a, frame_b, levels)``, the levels from
+    :func:`saturation_level`."""
+    ri, ci = lay["raw_pixels"]
+    levels = raw[2]
+    sat = (raw[0][ri, ci] >= levels[0]) | (raw[1][ri, ci] >= levels[1])
+    return sat.mean(axis=1)
+
+
 def new_pixel_accumulator(ctx: PairContext, run: RunSpec) -> PixelAccumulator:
     """An empty single-pixel accumulator of ``run``'s rows, the wall masked."""
     lay = pixel_layout(ctx, run)
@@ -230,7 +279,9 @@ def to_object(ctx: PairContext, lay: dict, u, v, uu, vv, uv) -> tuple:
 
 def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any) -> dict:
     """The single-pixel profile of ``run`` (module docstring): ``dist_px``, ``U``, ``V``,
-    ``uu``, ``vv``, ``uv``, ``segments``, ``near_wall`` per row, ``pairs``."""
+    ``uu``, ``vv``, ``uv``, ``segments``, ``saturated`` (mean fraction of the row's pixels
+    saturated in the raw frames), the flags ``near_wall`` and ``clipped`` (more than
+    :data:`SATURATED_MAX` saturated) per row, ``pairs``."""
     lay = pixel_layout(ctx, run)
     res = acc.result()
     u, v, uu, vv, uv = (res[k] for k in ("u", "v", "uu", "vv", "uv"))
@@ -251,6 +302,8 @@ def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any
         "vv": vv[keep],
         "uv": uv[keep],
         "segments": np.asarray(res["count"])[keep],
+        "saturated": np.asarray(res["saturated"])[keep],
         "near_wall": np.asarray(res["near_wall"])[keep],
+        "clipped": np.asarray(res["saturated"])[keep] > SATURATED_MAX,
         "pairs": int(acc.pairs),
     }

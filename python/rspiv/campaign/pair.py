@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign.ensemble_pixel import saturation_level
 from rspiv.campaign.spec import STAGES, PairContext, PairResult, PairSpec
 from rspiv.correction import dewarp_pair, method_two
 from rspiv.errors import InvalidInputError, RspivError
@@ -194,10 +195,13 @@ def process_pair(
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
+    raw = None
+    if ensembles:  # the bands count the pixels saturated in the recorded frames
+        raw = (*frames, [saturation_level(f) for f in frames])
     for run in context.runs:
         band = ensembles.get(run.name)
         if band is not None:
             fa, fb, fm = ens_frames[run.name]
-            ensemble_work.accumulate(context, run, band, fa, fb, fm)
+            ensemble_work.accumulate(context, run, band, fa, fb, fm, raw=raw)
     t["ensemble"] = time.perf_counter() - t0
     return PairResult(pair.pair_id, True, "", fields, t)
