@@ -16,7 +16,12 @@ from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 from rspiv.settings import INTERPOLATIONS, parse_choice
 
-__all__ = ["PixelAccumulator", "SaturationTally", "pixel_band"]
+__all__ = ["PixelAccumulator", "SaturationTally", "pixel_band", "segment_centres"]
+
+
+def segment_centres(x0: float, seg: int, nseg: int) -> np.ndarray:
+    """The centre x (px) of ``nseg`` segments of ``seg`` px, the first pixel centre at ``x0``."""
+    return x0 + (np.arange(nseg) + 0.5) * seg - 0.5
 
 
 class SaturationTally:
@@ -67,7 +72,6 @@ def _wall_y(wall: Any, x: np.ndarray) -> np.ndarray:
     if callable(wall):
         return np.asarray(wall(x), dtype=np.float64) + 0.0 * x
     return np.full(np.shape(x), float(wall))
-
 
 
 class PixelAccumulator:
@@ -174,7 +178,7 @@ class PixelAccumulator:
 
     def segment_x(self) -> np.ndarray:
         """The centre x of each segment (px), shape ``(nseg,)``."""
-        return self.x0 + (np.arange(self.y.shape[1]) + 0.5) * self.seg - 0.5
+        return segment_centres(self.x0, self.seg, self.y.shape[1])
 
     def _without_reflection(self, frames: list[np.ndarray], mask: Any) -> tuple[Any, ...]:
         """The band's rows of the frames (with ``ry + 6`` px of margin) with the pixels beyond
@@ -389,7 +393,7 @@ def pixel_band(
         )
     if flow_side not in ("above", "below"):
         raise InvalidInputError(f"flow_side must be 'above' or 'below', got {flow_side!r}")
-    xc = x0 + (np.arange(nseg) + 0.5) * seg - 0.5
+    xc = segment_centres(x0, int(seg), nseg)
     sign = -1.0 if flow_side == "above" else 1.0
     y = _wall_y(wall, xc)[None, :] + sign * d[:, None]
     margin = ry + 3.0

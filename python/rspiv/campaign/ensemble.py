@@ -607,11 +607,12 @@ def report_section(camp: Any, res: Any) -> Any:
 def _series(prof: dict[str, Any], re_tau: float, keep: Any = None) -> dict[str, Any]:
     """A band profile as a series of :func:`rspiv.plots.boundary_layer.plot_boundary_layer`."""
     sel = slice(None) if keep is None else keep
-    out = {k.lower() if k == "U_plus" else k: prof[k][sel] for k in _PLUS}
+    out = {name: prof[k][sel] for name, k in _PLUS.items()}
     return {**out, "re_tau": re_tau}
 
 
-_PLUS = ("y_plus", "U_plus", "uu_plus", "vv_plus", "uv_plus")
+#: plot series name -> band profile column
+_PLUS = {k.lower(): k for k in ("y_plus", "U_plus", "uu_plus", "vv_plus", "uv_plus")}
 
 
 def _table(prof: dict[str, Any], count: str, flagged: Any = None) -> list[dict[str, Any]]:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign.spec import PairContext, RunSpec
-from rspiv.ensemble import PixelAccumulator, pixel_band
+from rspiv.ensemble_pixel import PixelAccumulator, pixel_band, segment_centres
 from rspiv.errors import InvalidInputError
 
 #: Largest mean fraction of a row's pixels saturated in the raw frames before the row is
@@ -123,7 +123,7 @@ def pixel_layout(ctx: PairContext, run: RunSpec, spec: dict[str, Any] | None = N
             y, x0, d = pixel_band(shape, seg, dist, wall, side, lags, margin_x=margin)
         except InvalidInputError as exc:
             raise InvalidInputError(f"{where}: {exc}") from None
-        xc = x0 + (np.arange(y.shape[1]) + 0.5) * seg - 0.5
+        xc = segment_centres(x0, seg, y.shape[1])
         X = np.broadcast_to(xc[None, :], y.shape).copy()
         du = np.broadcast_to(fu(d)[:, None], y.shape).copy()
         dv = np.broadcast_to(fv(d)[:, None], y.shape).copy()
@@ -182,7 +182,7 @@ def _mapped_rows(ctx, wall, sign, dist, fu, fv, seg, margin):
         raise InvalidInputError(
             f"[ensemble] single_pixel: no {seg} px segment fits the {w} px wide image"
         )
-    xc = x0 + (np.arange(nseg) + 0.5) * seg - 0.5
+    xc = segment_centres(x0, seg, nseg)
     ow = ctx.object_shape[1]
     xo = np.linspace(-0.1 * ow, 1.1 * ow, max(int(1.2 * ow / 4), 64))
 
