@@ -13,7 +13,7 @@
 use crate::error::{PivError, Result};
 pub use image_core::kernels::{bspline5_weights, bspline_weights, keys_weights, Weights};
 use image_core::kernels::{floor_i, mirror};
-use image_core::spline::{prefilter, SplineOrder};
+use image_core::spline::{prefilter_from, SplineOrder};
 pub use image_core::Pixel;
 use ndarray::parallel::prelude::*;
 use ndarray::{ArrayView2, CowArray, Ix2};
@@ -161,8 +161,7 @@ impl<T: Pixel> Img<'_, T> {
 /// B-spline coefficients of an image of `order` (image-core's prefilter, mirror boundaries).
 fn spline_coeffs<T: Pixel>(img: &Img<'_, T>, order: SplineOrder) -> Img<'static, f32> {
     let (w, h) = (img.width, img.height);
-    let mut c: Vec<f32> = img.slice().par_iter().map(|p| p.to_f32()).collect();
-    prefilter(&mut c, w, h, order);
+    let c = prefilter_from(img.slice(), w, h, order);
     let arr = ndarray::Array2::from_shape_vec((h, w), c).expect("shape");
     Img {
         data: CowArray::from(arr),

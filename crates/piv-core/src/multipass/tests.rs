@@ -749,3 +749,124 @@ fn ambiguity_variance_follows_the_peak_ratio() {
     // a ratio under 1 (not computed) counts as 1
     assert_eq!(p(0.0), p(1.0));
 }
+
+/// The blank test of one block as the definition reads (the first row's range, all rows'
+/// range, constant, the variance in f64), block by block.
+fn blank_by_definition(
+    win: &[f32],
+    w: usize,
+    xs: (usize, usize),
+    ys: (usize, usize),
+    floor: f32,
+) -> bool {
+    let m = ((xs.1 - xs.0) * (ys.1 - ys.0)) as f64;
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for rows in [(ys.0, ys.0 + 1), (ys.0 + 1, ys.1)] {
+        for r in rows.0..rows.1 {
+            for &v in &win[r * w + xs.0..r * w + xs.1] {
+                (lo, hi) = (lo.min(v), hi.max(v));
+            }
+        }
+        let (range, top) = ((hi - lo) as f64, lo.abs().max(hi.abs()) as f64);
+        if range * range > 2.0 * m * (floor as f64 + 1e-8 * top * top + 1e-12) {
+            return false;
+        }
+    }
+    if lo == hi {
+        return true;
+    }
+    let vals: Vec<f64> = (ys.0..ys.1)
+        .flat_map(|r| win[r * w + xs.0..r * w + xs.1].iter().map(|&v| v as f64))
+        .collect();
+    let mean = vals.iter().sum::<f64>() / m;
+    let var = (vals.iter().map(|v| v * v).sum::<f64>() / m - mean * mean).max(0.0);
+    var <= floor as f64 + 1e-8 * mean * mean + 1e-12
+}
+
+#[test]
+fn blank_blocks_decide_as_the_definition() {
+    // windows of particles on a clean (zero) or noisy background, with a zero fill, a
+    // saturated patch, near-constant ripples (an interpolated fill) and constant offsets, in
+    // shapes whose last block is wider than the others
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let mut scratch = FillScratch::new(0);
+    let mut checked = (0usize, 0usize);
+    for &(w, h) in &[
+        (32, 32),
+        (32, 8),
+        (16, 16),
+        (64, 64),
+        (10, 6),
+        (96, 20),
+        (128, 32),
+    ] {
+        let ((nbx, bw), (nby, bh)) = (blocks(w), blocks(h));
+        for case in 0..60 {
+            let floor = [0.0f32, 0.2, 5.0][case % 3];
+            let mut win: Vec<f32> = (0..w * h)
+                .map(|_| {
+                    let p: f64 = rng.random();
+                    match case % 4 {
+                        0 => {
+                            if p < 0.6 {
+                                0.0
+                            } else {
+                                (p * 3000.0) as f32
+                            }
+                        }
+                        1 => 100.0 + (p * 40.0) as f32,
+                        2 => 1000.0 + (p * 1e-3) as f32,
+                        _ => {
+                            if p < 0.5 {
+                                0.0
+                            } else {
+                                (p * 2.0) as f32
+                            }
+                        }
+                    }
+                })
+                .collect();
+            // a fill or saturated patch over part of the window
+            let (fx, fy) = (rng.random_range(0..w), rng.random_range(0..h));
+            let level = [0.0f32, 4095.0, 17.5][case % 3];
+            for y in fy..h {
+                for x in fx..w {
+                    win[y * w + x] = level;
+                }
+            }
+            let mut flags = [false; 256];
+            let any = blank_blocks(
+                &win,
+                (w, h),
+                (nbx, bw),
+                (nby, bh),
+                floor,
+                &mut scratch,
+                &mut flags,
+            );
+            let mut want_any = false;
+            for by in 0..nby {
+                let ys = (by * bh, if by + 1 == nby { h } else { (by + 1) * bh });
+                for bx in 0..nbx {
+                    let xs = (bx * bw, if bx + 1 == nbx { w } else { (bx + 1) * bw });
+                    let want = blank_by_definition(&win, w, xs, ys, floor);
+                    assert_eq!(
+                        flags[by * nbx + bx],
+                        want,
+                        "{w}x{h} case {case} block {bx},{by}"
+                    );
+                    want_any |= want;
+                    checked.0 += want as usize;
+                    checked.1 += 1;
+                }
+            }
+            assert_eq!(any, want_any);
+            assert!(flags[nbx * nby..].iter().all(|&f| !f));
+        }
+    }
+    // both outcomes were exercised, in numbers
+    assert!(
+        checked.0 > checked.1 / 10 && checked.0 < checked.1 * 9 / 10,
+        "{checked:?}"
+    );
+}

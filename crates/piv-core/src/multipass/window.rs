@@ -184,39 +184,6 @@ pub(crate) fn blocks(n: usize) -> (usize, usize) {
     (n / size, size)
 }
 
-/// Minimum and maximum of the block `x0..x1` x `y0..y1` of a `w`-wide window of finite values,
-/// kept in 4 independent lanes (blocks are 2-8 px wide): no serial min/max dependency chain.
-#[inline]
-pub(crate) fn block_range(
-    win: &[f32],
-    w: usize,
-    (x0, x1): (usize, usize),
-    (y0, y1): (usize, usize),
-) -> (f32, f32) {
-    let mut lo = [f32::INFINITY; 4];
-    let mut hi = [f32::NEG_INFINITY; 4];
-    for r in y0..y1 {
-        let mut it = win[r * w + x0..r * w + x1].chunks_exact(4);
-        for c in &mut it {
-            for k in 0..4 {
-                lo[k] = if c[k] < lo[k] { c[k] } else { lo[k] };
-                hi[k] = if c[k] > hi[k] { c[k] } else { hi[k] };
-            }
-        }
-        for (k, &v) in it.remainder().iter().enumerate() {
-            lo[k] = if v < lo[k] { v } else { lo[k] };
-            hi[k] = if v > hi[k] { v } else { hi[k] };
-        }
-    }
-    let l = lo
-        .iter()
-        .fold(f32::INFINITY, |a, &v| if v < a { v } else { a });
-    let h = hi
-        .iter()
-        .fold(f32::NEG_INFINITY, |a, &v| if v > a { v } else { a });
-    (l, h)
-}
-
 /// A window pair needs signal over at least this fraction of its area (see
 /// [`signal_fraction`]); otherwise it is not correlated (`valid = false`).
 pub const MIN_SIGNAL_FRACTION: f64 = 0.75;
@@ -237,6 +204,9 @@ pub(crate) fn all_finite(x: &[f32]) -> bool {
 pub(crate) struct FillScratch {
     keep: Vec<bool>,
     stack: Vec<usize>,
+    /// Per-column extremes of a block row's rows after its first ([`blank_blocks`]).
+    col_lo: Vec<f32>,
+    col_hi: Vec<f32>,
 }
 
 impl FillScratch {
@@ -244,8 +214,127 @@ impl FillScratch {
         FillScratch {
             keep: vec![true; n],
             stack: Vec::with_capacity(n),
+            col_lo: Vec::new(),
+            col_hi: Vec::new(),
         }
     }
+}
+
+/// Sets the blank flags (row-major `nby` x `nbx`, all `false` on entry) of the blocks of one
+/// window `win` (`w` x `h`, all values finite) by the test of [`signal_fraction`]; returns
+/// whether any block is blank.
+///
+/// A block is not blank when the range of its first row, or of all its rows, exceeds what the
+/// variance floor allows (the variance is at least `range^2 / (2 m)` for `m` pixels:
+/// `range^2 > 2 m (floor + 1e-8 top^2 + 1e-12)`, `top` the larger magnitude of the extremes); otherwise
+/// it is blank when constant, or when its variance (at most `range^2 / 4`, else summed) is
+/// under the limit. Which blocks pass the range tests follows the particles, so the tests run
+/// on every block without a branch (a data-dependent branch per block mispredicted about as
+/// often as not and cost more than the tests); only the blocks that fail them are looked at
+/// further.
+pub(crate) fn blank_blocks(
+    win: &[f32],
+    (w, h): (usize, usize),
+    (nbx, bw): (usize, usize),
+    (nby, bh): (usize, usize),
+    floor: f32,
+    scratch: &mut FillScratch,
+    flags: &mut [bool; 256],
+) -> bool {
+    let span = |b: usize, nb: usize, size: usize, len: usize| {
+        (b * size, if b + 1 == nb { len } else { (b + 1) * size })
+    };
+    let wide = |lo: f32, hi: f32, m: f64| {
+        let (range, top) = ((hi - lo) as f64, lo.abs().max(hi.abs()) as f64);
+        range * range > 2.0 * m * (floor as f64 + 1e-8 * top * top + 1e-12)
+    };
+    let (col_lo, col_hi) = (&mut scratch.col_lo, &mut scratch.col_hi);
+    // the blocks that fail both range tests, as bits
+    let mut open = [0u64; 4];
+    let mut ext = [[0.0f32; 2]; 256];
+    for by in 0..nby {
+        let (y0, y1) = span(by, nby, bh, h);
+        col_lo.clear();
+        col_lo.resize(w, f32::INFINITY);
+        col_hi.clear();
+        col_hi.resize(w, f32::NEG_INFINITY);
+        for row in win[(y0 + 1) * w..y1 * w].chunks_exact(w) {
+            for ((l, u), &v) in col_lo.iter_mut().zip(col_hi.iter_mut()).zip(row) {
+                *l = if v < *l { v } else { *l };
+                *u = if v > *u { v } else { *u };
+            }
+        }
+        let first = &win[y0 * w..(y0 + 1) * w];
+        for bx in 0..nbx {
+            let (x0, x1) = span(bx, nbx, bw, w);
+            let (mut l1, mut u1) = (f32::INFINITY, f32::NEG_INFINITY);
+            for &v in &first[x0..x1] {
+                l1 = if v < l1 { v } else { l1 };
+                u1 = if v > u1 { v } else { u1 };
+            }
+            let (mut l, mut u) = (l1, u1);
+            for (&a, &b) in col_lo[x0..x1].iter().zip(&col_hi[x0..x1]) {
+                l = if a < l { a } else { l };
+                u = if b > u { b } else { u };
+            }
+            let m = ((x1 - x0) * (y1 - y0)) as f64;
+            let k = by * nbx + bx;
+            let failed = !(wide(l1, u1, m) | wide(l, u, m));
+            open[k >> 6] |= (failed as u64) << (k & 63);
+            ext[k] = [l, u];
+        }
+    }
+    let mut any = false;
+    for (i, &bits) in open.iter().enumerate() {
+        let mut bits = bits;
+        while bits != 0 {
+            let k = i * 64 + bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let [lo, hi] = ext[k];
+            let (xs, ys) = (span(k % nbx, nbx, bw, w), span(k / nbx, nby, bh, h));
+            flags[k] = lo == hi || low_variance(win, w, xs, ys, (lo, hi), floor);
+            any |= flags[k];
+        }
+    }
+    any
+}
+
+/// Whether the block `x0..x1` x `y0..y1` of a `w`-wide window, of extremes `lo < hi`, has a
+/// per-pixel variance `<= floor + 1e-8 mean^2 + 1e-12` (sums in f64). The variance is at most
+/// `range^2 / 4`: when that is under the limit (taken with the smallest magnitude the mean can
+/// have) by a margin far above the sums' rounding, the block is blank without the sums, as
+/// the sums would decide.
+fn low_variance(
+    win: &[f32],
+    w: usize,
+    (x0, x1): (usize, usize),
+    (y0, y1): (usize, usize),
+    (lo, hi): (f32, f32),
+    floor: f32,
+) -> bool {
+    let least = if lo > 0.0 {
+        lo
+    } else if hi < 0.0 {
+        -hi
+    } else {
+        0.0
+    } as f64;
+    let range = (hi - lo) as f64;
+    if range * range / 4.0 <= 0.99 * (floor as f64 + 1e-8 * least * least + 1e-12) {
+        return true;
+    }
+    let m = ((x1 - x0) * (y1 - y0)) as f64;
+    let (mut s, mut s2) = (0.0f64, 0.0f64);
+    for r in y0..y1 {
+        for &v in &win[r * w + x0..r * w + x1] {
+            let v = v as f64;
+            s += v;
+            s2 += v * v;
+        }
+    }
+    let mean = s / m;
+    let var = (s2 / m - mean * mean).max(0.0);
+    var <= floor as f64 + 1e-8 * mean * mean + 1e-12
 }
 
 /// How [`signal_fraction`] tells blank blocks: `floor`, the per-pixel variance at or below
@@ -383,46 +472,11 @@ pub(crate) fn signal_fraction(
     let span = |b: usize, nb: usize, size: usize, len: usize| {
         (b * size, if b + 1 == nb { len } else { (b + 1) * size })
     };
-    let blank = |win: &[f32], (x0, x1): (usize, usize), (y0, y1): (usize, usize)| {
-        let m = ((x1 - x0) * (y1 - y0)) as f64;
-        // the variance is at least range^2 / (2 m), with the range of any subset: most blocks
-        // are decided by their first row
-        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-        for rows in [(y0, y0 + 1), (y0 + 1, y1)] {
-            let (l, u) = block_range(win, w, (x0, x1), rows);
-            (lo, hi) = (lo.min(l), hi.max(u));
-            let (range, top) = ((hi - lo) as f64, lo.abs().max(hi.abs()) as f64);
-            if range * range > 2.0 * m * (floor as f64 + 1e-8 * top * top + 1e-12) {
-                return false;
-            }
-        }
-        if lo == hi {
-            return true;
-        }
-        let (mut s, mut s2) = (0.0f64, 0.0f64);
-        for r in y0..y1 {
-            for &v in &win[r * w + x0..r * w + x1] {
-                let v = v as f64;
-                s += v;
-                s2 += v * v;
-            }
-        }
-        let mean = s / m;
-        let var = (s2 / m - mean * mean).max(0.0);
-        var <= floor as f64 + 1e-8 * mean * mean + 1e-12
-    };
     // blank flags of the (at most 16 x 16) blocks, per window
     let mut blank_in = [[false; 256]; 2];
     let mut any = false;
-    for by in 0..nby {
-        let ys = span(by, nby, bh, h);
-        for bx in 0..nbx {
-            let xs = span(bx, nbx, bw, w);
-            for (flags, win) in blank_in.iter_mut().zip([&*wa, &*wb]) {
-                flags[by * nbx + bx] = blank(win, xs, ys);
-                any |= flags[by * nbx + bx];
-            }
-        }
+    for (flags, win) in blank_in.iter_mut().zip([&*wa, &*wb]) {
+        any |= blank_blocks(win, (w, h), (nbx, bw), (nby, bh), floor, scratch, flags);
     }
     if !any {
         return 1.0;
@@ -434,7 +488,7 @@ pub(crate) fn signal_fraction(
             background_blocks(win, flags, w, (nbx, bw), (nby, bh), (level, rule.floor));
         }
     }
-    let FillScratch { keep, stack } = scratch;
+    let FillScratch { keep, stack, .. } = scratch;
     let mut is_blank = [false; 256];
     let mut blank_px = 0usize;
     for by in 0..nby {
