@@ -378,24 +378,33 @@ fn ring_sums<U: Pixel, const N: usize>(
     ring: &mut [f32],
     out: &mut [f32],
 ) {
-    // the horizontal sums of source row `iy + k` into ring slot `k % N`
-    let horizontal = |k: usize, ring: &mut [f32]| {
-        let src = &s[(iy + k) * stride + ix..][..w + N - 1];
-        let dst = &mut ring[(k % N) * w..][..w];
-        dst.fill(0.0);
-        for (j, &a) in wx.iter().enumerate() {
+    // the horizontal sums of source row `iy + k` into ring slot `k % N` (a function, not a
+    // closure, so that it is compiled with the caller's target features); each sum starts
+    // from 0.0 + the first product, as the per-pixel path's does, without a call to zero it
+    #[inline(always)]
+    fn horizontal<U: Pixel, const N: usize>(src: &[U], wx: &[f32; N], dst: &mut [f32]) {
+        let w = dst.len();
+        for (d, p) in dst.iter_mut().zip(&src[..w]) {
+            *d = 0.0 + wx[0] * p.to_f32();
+        }
+        for (j, &a) in wx.iter().enumerate().skip(1) {
             for (d, p) in dst.iter_mut().zip(&src[j..j + w]) {
                 *d += a * p.to_f32();
             }
         }
-    };
+    }
+    let row_at = |k: usize| &s[(iy + k) * stride + ix..][..w + N - 1];
     for k in 0..N - 1 {
-        horizontal(k, ring);
+        horizontal(row_at(k), wx, &mut ring[(k % N) * w..][..w]);
     }
     for (r, row) in out[..h * w].chunks_exact_mut(w).enumerate() {
-        horizontal(r + N - 1, ring);
-        row.fill(0.0);
-        for (j, &b) in wy.iter().enumerate() {
+        let k = r + N - 1;
+        horizontal(row_at(k), wx, &mut ring[(k % N) * w..][..w]);
+        let t = &ring[(r % N) * w..][..w];
+        for (o, v) in row.iter_mut().zip(t) {
+            *o = 0.0 + wy[0] * v;
+        }
+        for (j, &b) in wy.iter().enumerate().skip(1) {
             let t = &ring[((r + j) % N) * w..][..w];
             for (o, v) in row.iter_mut().zip(t) {
                 *o += b * v;

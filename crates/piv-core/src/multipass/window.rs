@@ -207,6 +207,8 @@ pub(crate) struct FillScratch {
     /// Per-column extremes of a block row's rows after its first ([`blank_blocks`]).
     col_lo: Vec<f32>,
     col_hi: Vec<f32>,
+    /// Per block, row-major: the extremes of all its rows.
+    ext: Vec<[f32; 2]>,
 }
 
 impl FillScratch {
@@ -216,6 +218,7 @@ impl FillScratch {
             stack: Vec::with_capacity(n),
             col_lo: Vec::new(),
             col_hi: Vec::new(),
+            ext: Vec::new(),
         }
     }
 }
@@ -248,10 +251,15 @@ pub(crate) fn blank_blocks(
         let (range, top) = ((hi - lo) as f64, lo.abs().max(hi.abs()) as f64);
         range * range > 2.0 * m * (floor as f64 + 1e-8 * top * top + 1e-12)
     };
-    let (col_lo, col_hi) = (&mut scratch.col_lo, &mut scratch.col_hi);
+    let FillScratch {
+        col_lo,
+        col_hi,
+        ext,
+        ..
+    } = scratch;
+    ext.clear();
     // the blocks that fail both range tests, as bits
     let mut open = [0u64; 4];
-    let mut ext = [[0.0f32; 2]; 256];
     for by in 0..nby {
         let (y0, y1) = span(by, nby, bh, h);
         col_lo.clear();
@@ -281,7 +289,7 @@ pub(crate) fn blank_blocks(
             let k = by * nbx + bx;
             let failed = !(wide(l1, u1, m) | wide(l, u, m));
             open[k >> 6] |= (failed as u64) << (k & 63);
-            ext[k] = [l, u];
+            ext.push([l, u]);
         }
     }
     let mut any = false;
