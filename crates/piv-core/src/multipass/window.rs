@@ -184,6 +184,12 @@ pub(crate) fn blocks(n: usize) -> (usize, usize) {
     (n / size, size)
 }
 
+/// The pixel span `start..end` of block `b` of `nb` blocks of `size` px along an axis of `len`
+/// px (the last block takes the remainder, see [`blocks`]).
+fn block_span(b: usize, nb: usize, size: usize, len: usize) -> (usize, usize) {
+    (b * size, if b + 1 == nb { len } else { (b + 1) * size })
+}
+
 /// A window pair needs signal over at least this fraction of its area (see
 /// [`signal_fraction`]); otherwise it is not correlated (`valid = false`).
 pub const MIN_SIGNAL_FRACTION: f64 = 0.75;
@@ -229,9 +235,9 @@ impl FillScratch {
 ///
 /// A block is not blank when the range of its first row, or of all its rows, exceeds what the
 /// variance floor allows (the variance is at least `range^2 / (2 m)` for `m` pixels:
-/// `range^2 > 2 m (floor + 1e-8 top^2 + 1e-12)`, `top` the larger magnitude of the extremes); otherwise
-/// it is blank when constant, or when its variance (at most `range^2 / 4`, else summed) is
-/// under the limit. Which blocks pass the range tests follows the particles, so the tests run
+/// `range^2 > 2 m (floor + 1e-8 top^2 + 1e-12)`, `top` the larger magnitude of the
+/// extremes); otherwise it is blank when constant, or when its variance (at most
+/// `range^2 / 4`, else summed) is under the limit. Which blocks pass the range tests follows the particles, so the tests run
 /// on every block without a branch (a data-dependent branch per block mispredicted about as
 /// often as not and cost more than the tests); only the blocks that fail them are looked at
 /// further.
@@ -244,9 +250,6 @@ pub(crate) fn blank_blocks(
     scratch: &mut FillScratch,
     flags: &mut [bool; 256],
 ) -> bool {
-    let span = |b: usize, nb: usize, size: usize, len: usize| {
-        (b * size, if b + 1 == nb { len } else { (b + 1) * size })
-    };
     let wide = |lo: f32, hi: f32, m: f64| {
         let (range, top) = ((hi - lo) as f64, lo.abs().max(hi.abs()) as f64);
         range * range > 2.0 * m * (floor as f64 + 1e-8 * top * top + 1e-12)
@@ -261,7 +264,7 @@ pub(crate) fn blank_blocks(
     // the blocks that fail both range tests, as bits
     let mut open = [0u64; 4];
     for by in 0..nby {
-        let (y0, y1) = span(by, nby, bh, h);
+        let (y0, y1) = block_span(by, nby, bh, h);
         col_lo.clear();
         col_lo.resize(w, f32::INFINITY);
         col_hi.clear();
@@ -274,7 +277,7 @@ pub(crate) fn blank_blocks(
         }
         let first = &win[y0 * w..(y0 + 1) * w];
         for bx in 0..nbx {
-            let (x0, x1) = span(bx, nbx, bw, w);
+            let (x0, x1) = block_span(bx, nbx, bw, w);
             let (mut l1, mut u1) = (f32::INFINITY, f32::NEG_INFINITY);
             for &v in &first[x0..x1] {
                 l1 = if v < l1 { v } else { l1 };
@@ -299,7 +302,10 @@ pub(crate) fn blank_blocks(
             let k = i * 64 + bits.trailing_zeros() as usize;
             bits &= bits - 1;
             let [lo, hi] = ext[k];
-            let (xs, ys) = (span(k % nbx, nbx, bw, w), span(k / nbx, nby, bh, h));
+            let (xs, ys) = (
+                block_span(k % nbx, nbx, bw, w),
+                block_span(k / nbx, nby, bh, h),
+            );
             flags[k] = lo == hi || low_variance(win, w, xs, ys, (lo, hi), floor);
             any |= flags[k];
         }
@@ -477,9 +483,6 @@ pub(crate) fn signal_fraction(
     }
     let floor = rule.floor;
     let ((nbx, bw), (nby, bh)) = (blocks(w), blocks(h));
-    let span = |b: usize, nb: usize, size: usize, len: usize| {
-        (b * size, if b + 1 == nb { len } else { (b + 1) * size })
-    };
     // blank flags of the (at most 16 x 16) blocks, per window
     let mut blank_in = [[false; 256]; 2];
     let mut any = false;
@@ -500,9 +503,9 @@ pub(crate) fn signal_fraction(
     let mut is_blank = [false; 256];
     let mut blank_px = 0usize;
     for by in 0..nby {
-        let ys = span(by, nby, bh, h);
+        let ys = block_span(by, nby, bh, h);
         for bx in 0..nbx {
-            let (k, xs) = (by * nbx + bx, span(bx, nbx, bw, w));
+            let (k, xs) = (by * nbx + bx, block_span(bx, nbx, bw, w));
             if blank_in[0][k] || blank_in[1][k] {
                 is_blank[k] = true;
                 blank_px += (xs.1 - xs.0) * (ys.1 - ys.0);
