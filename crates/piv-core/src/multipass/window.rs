@@ -237,10 +237,10 @@ impl FillScratch {
 /// variance floor allows (the variance is at least `range^2 / (2 m)` for `m` pixels:
 /// `range^2 > 2 m (floor + 1e-8 top^2 + 1e-12)`, `top` the larger magnitude of the
 /// extremes); otherwise it is blank when constant, or when its variance (at most
-/// `range^2 / 4`, else summed) is under the limit. Which blocks pass the range tests follows the particles, so the tests run
-/// on every block without a branch (a data-dependent branch per block mispredicted about as
-/// often as not and cost more than the tests); only the blocks that fail them are looked at
-/// further.
+/// `range^2 / 4`, else summed) is under the limit. Which blocks pass the range tests follows
+/// the particles, so the tests run on every block without a branch (a data-dependent branch
+/// per block mispredicted about as often as not and cost more than the tests); only the
+/// blocks that fail them are looked at further.
 pub(crate) fn blank_blocks(
     win: &[f32],
     (w, h): (usize, usize),
