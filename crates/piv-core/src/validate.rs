@@ -1,7 +1,8 @@
 //! Vector validation: normalised median test (Westerweel & Scarano 2005) and replacement of
 //! rejected vectors from their valid neighbours.
 
-use ndarray::Array2;
+use ndarray::parallel::prelude::*;
+use ndarray::{Array2, Axis};
 
 /// Fewest usable neighbours for the median test.
 pub const MIN_NEIGHBOURS: usize = 6;
@@ -19,18 +20,19 @@ pub fn median_test(
     eps: f64,
     threshold: f64,
 ) -> Array2<bool> {
-    let (ny, nx) = u.dim();
-    let mut out = Array2::from_elem((ny, nx), false);
-    for j in 0..ny {
-        for i in 0..nx {
-            if !usable[[j, i]] {
-                continue;
+    let mut out = Array2::from_elem(u.dim(), false);
+    // rows in parallel: each vector's test reads only the inputs
+    out.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(j, mut row)| {
+            for (i, o) in row.iter_mut().enumerate() {
+                if usable[[j, i]] {
+                    let at = (u[[j, i]], v[[j, i]]);
+                    *o = residual(u, v, usable, (j, i), at, eps).is_some_and(|r| r > threshold);
+                }
             }
-            if let Some(r) = residual(u, v, usable, (j, i), (u[[j, i]], v[[j, i]]), eps) {
-                out[[j, i]] = r > threshold;
-            }
-        }
-    }
+        });
     out
 }
 
