@@ -8,8 +8,9 @@
    selected with ``backend="rust"``) and ffpiv; vectors per second and the RMS error.
 2. Multipass with window deformation on the same pair: rspiv (64, 32 px) vs
    ``openpiv.windef.simple_multipass`` (64, 32 px); time and RMS error.
-3. The full 8864 x 5288 sensor with the paper's passes ending at 32 x 8 px, in a child process:
-   time and peak RSS.
+3. The full 8864 x 5288 sensor with the paper's passes ending at 32 x 8 px and with 64 -> 32,
+   in a child process: time and peak RSS; the same pair through ``openpiv.windef`` 64 -> 32
+   (square windows only) with its Rust backend in another child (``--no-full-peer`` skips it).
 4. Bias and RMS error against the true uniform displacement 0..1 px (32 x 32 final windows).
 
 Synthetic pairs: particles 2.5 px, 0.03 per px, 5 % noise, 12 bit (``rspiv.synth``); the
@@ -115,30 +116,67 @@ from rspiv.synth import particle_pair
 sys.path.insert(0, sys.argv[1])
 from bench_piv import field, rms
 a, b = particle_pair((5288, 8864), field, seed=5)
-t = time.perf_counter()
-f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=0.5)
-dt = time.perf_counter() - t
+out = {}
+for key, passes in (("paper", [(64, 64), (32, 32), (32, 8)]), ("64-32", [(64, 64), (32, 32)])):
+    t = time.perf_counter()
+    f = rspiv.piv(a, b, passes=passes, overlap=0.5)
+    out[key] = {"time": time.perf_counter() - t, "n": int(f.u.size),
+                "rms": rms(f.x, f.y, f.u, f.v)}
 # VmHWM: this process's own peak RSS (ru_maxrss would inherit the parent's across exec)
 hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
-print(json.dumps({"time": dt, "n": int(f.u.size), "rms": rms(f.x, f.y, f.u, f.v),
+out["maxrss_mb"] = int(hwm) / 1024
+print(json.dumps(out))
+"""
+
+# the same pair through openpiv.windef (square windows only: 64 -> 32, its Rust backend)
+PEER = r"""
+import json, sys, time
+import numpy as np
+from rspiv.synth import particle_pair
+sys.path.insert(0, sys.argv[1])
+from bench_piv import field, rms
+from openpiv import tools, windef
+a, b = particle_pair((5288, 8864), field, seed=5)
+s = windef.PIVSettings()
+s.windowsizes = (64, 32)
+s.overlap = (32, 16)
+s.num_iterations = 2
+s.show_plot = False
+s.backend = "rust"
+t = time.perf_counter()
+x, y, u, v, _ = windef.simple_multipass(a.astype(np.float64), b.astype(np.float64), s)
+dt = time.perf_counter() - t
+x, y, u, v = tools.transform_coordinates(x, y, u, v)
+hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
+print(json.dumps({"time": dt, "n": int(u.size), "rms": rms(x - 0.5, y - 0.5, u, v),
                   "maxrss_mb": int(hwm) / 1024}))
 """
 
 
-def full_size(rows):
+def child(code):
     here = os.path.dirname(os.path.abspath(__file__))
     r = subprocess.run(
-        [sys.executable, "-c", CHILD, here], capture_output=True, text=True, check=True
+        [sys.executable, "-c", code, here], capture_output=True, text=True, check=True
     )
-    d = json.loads(r.stdout.strip().splitlines()[-1])
-    rows.append(
-        (
-            f"rspiv 8864x5288 64->32->32x8 (peak RSS {d['maxrss_mb']:.0f} MB)",
-            d["time"],
-            d["n"],
-            d["rms"],
-        )
-    )
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def full_size(rows, peer):
+    """The 8864 x 5288 pair: rspiv with the paper's passes and with 64 -> 32, and (``peer``)
+    openpiv.windef 64 -> 32 on the same pair, each in a child process of its own."""
+    d = child(CHILD)
+    mb = d["maxrss_mb"]
+    for key, name in (("paper", "64->32->32x8"), ("64-32", "64->32")):
+        r = d[key]
+        rows.append((f"rspiv 8864x5288 {name} (peak RSS {mb:.0f} MB)", r["time"], r["n"], r["rms"]))
+    if peer:
+        try:
+            o = child(PEER)
+            name = f"openpiv.windef rust 8864x5288 64->32 (peak RSS {o['maxrss_mb']:.0f} MB)"
+            rows.append((name, o["time"], o["n"], o["rms"]))
+        except subprocess.CalledProcessError as exc:
+            err = exc.stderr.strip().splitlines()[-1:] or ["no output"]
+            rows.append((f"openpiv.windef 8864x5288 (failed: {err[0]})", np.nan, 0, np.nan))
 
 
 def accuracy_curve():
@@ -159,6 +197,9 @@ def accuracy_curve():
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument(
+        "--no-full-peer", action="store_true", help="skip openpiv.windef on the full pair (~1 min)"
+    )
     args = ap.parse_args()
     print(f"rspiv {rspiv.__version__}, {os.cpu_count()} cores")
     a, b = particle_pair((2048, 4096), field, seed=1)
@@ -166,7 +207,7 @@ def main():
     single_pass(a, b, rows)
     multipass(a, b, rows)
     if not args.quick:
-        full_size(rows)
+        full_size(rows, not args.no_full_peer)
     base = {r[0]: r for r in rows}
     print("\n| case | time (s) | vectors | k vectors/s | RMS error (px) |")
     print("|---|---:|---:|---:|---:|")
@@ -184,6 +225,13 @@ def main():
         f"multipass: windef time / rspiv time = {o[1] / m[1]:.1f}x "
         f"(RMS {m[3]:.4f} vs {o[3]:.4f} px)"
     )
+    full = [r for r in rows if r[0].startswith("rspiv 8864x5288 64->32 ")]
+    peer = [r for r in rows if r[0].startswith("openpiv.windef rust 8864x5288")]
+    if full and peer:
+        print(
+            f"full pair 64->32: windef time / rspiv time = {peer[0][1] / full[0][1]:.1f}x "
+            f"(RMS {full[0][3]:.4f} vs {peer[0][3]:.4f} px)"
+        )
     print("\nBias / RMS error (px) per 0.1 px bin of the true displacement 0..1 px:")
     for name, bias, rmse in accuracy_curve():
         print(f"{name:>14} bias: " + " ".join(f"{x:+.3f}" for x in bias))

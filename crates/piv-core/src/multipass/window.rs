@@ -263,8 +263,21 @@ pub(crate) fn blank_blocks(
     ext.clear();
     // the blocks that fail both range tests, as bits
     let mut open = [0u64; 4];
+    #[cfg(target_arch = "x86_64")]
+    let simd = bw == 4 && nbx * 4 == w && w % 8 == 0 && std::arch::is_x86_feature_detected!("avx2");
     for by in 0..nby {
         let (y0, y1) = block_span(by, nby, bh, h);
+        #[cfg(target_arch = "x86_64")]
+        if simd {
+            // SAFETY: AVX2 is present; `w` is a multiple of 8 and rows y0..y1 lie in `win`
+            let mut bits = unsafe { open_blocks4_avx2(win, w, (y0, y1), floor, ext) };
+            while bits != 0 {
+                let k = by * nbx + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                open[k >> 6] |= 1 << (k & 63);
+            }
+            continue;
+        }
         col_lo.clear();
         col_lo.resize(w, f32::INFINITY);
         col_hi.clear();
@@ -311,6 +324,94 @@ pub(crate) fn blank_blocks(
         }
     }
     any
+}
+
+/// [`blank_blocks`] on one block row (rows `y0..y1`) of a window `w` px wide, `w` a multiple
+/// of 8, in blocks of 4 px: pushes each block's extremes to `ext` and returns the blocks that
+/// fail both range tests as bits (bit `bx`). The same extremes (the values are finite, so
+/// `min`/`max` do not depend on the order) and the same f64 tests as the scalar loop, 8
+/// columns (2 blocks) per register and the tests 4 blocks at a time.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn open_blocks4_avx2(
+    win: &[f32],
+    w: usize,
+    (y0, y1): (usize, usize),
+    floor: f32,
+    ext: &mut Vec<[f32; 2]>,
+) -> u32 {
+    use std::arch::x86_64::*;
+    let nbx = w / 4;
+    let rows = &win[y0 * w..y1 * w];
+    // per block: extremes of its first row and of all its rows (16 blocks at most)
+    let mut lf = [0.0f32; 16];
+    let mut hf = [0.0f32; 16];
+    let mut la = [0.0f32; 16];
+    let mut ha = [0.0f32; 16];
+    // min / max over each group of 4 lanes, left in the group's first lane; the results of
+    // the two groups of a register go to blocks 2c and 2c + 1
+    macro_rules! groups {
+        ($v:expr, $op:ident, $out:ident, $c:expr) => {{
+            let a = $op($v, _mm256_permute_ps::<0b10_11_00_01>($v));
+            let a = $op(a, _mm256_permute_ps::<0b01_00_11_10>(a));
+            $out[2 * $c] = _mm256_cvtss_f32(a);
+            $out[2 * $c + 1] = _mm_cvtss_f32(_mm256_extractf128_ps::<1>(a));
+        }};
+    }
+    // 8 values from `i` (bounds checked)
+    let load8 = |v: &[f32], i: usize| {
+        let s = &v[i..i + 8];
+        // SAFETY: `s` holds 8 values; AVX2 is enabled in this function
+        unsafe { _mm256_loadu_ps(s.as_ptr()) }
+    };
+    let load4 = |v: &[f32; 16], i: usize| {
+        let s = &v[i..i + 4];
+        // SAFETY: `s` holds 4 values
+        unsafe { _mm_loadu_ps(s.as_ptr()) }
+    };
+    for c in 0..w / 8 {
+        let f = load8(rows, 8 * c);
+        let (mut lo, mut hi) = (f, f);
+        for r in 1..y1 - y0 {
+            let v = load8(rows, r * w + 8 * c);
+            lo = _mm256_min_ps(lo, v);
+            hi = _mm256_max_ps(hi, v);
+        }
+        groups!(f, _mm256_min_ps, lf, c);
+        groups!(f, _mm256_max_ps, hf, c);
+        groups!(lo, _mm256_min_ps, la, c);
+        groups!(hi, _mm256_max_ps, ha, c);
+    }
+    ext.extend((0..nbx).map(|b| [la[b], ha[b]]));
+    // range^2 > 2 m (floor + 1e-8 top^2 + 1e-12), top = max(|lo|, |hi|), as `blank_blocks`
+    let twice_m = _mm256_set1_pd(2.0 * (4 * (y1 - y0)) as f64);
+    let (fl, tiny, eps) = (
+        _mm256_set1_pd(floor as f64),
+        _mm256_set1_pd(1e-8),
+        _mm256_set1_pd(1e-12),
+    );
+    let magnitude = _mm_castsi128_ps(_mm_set1_epi32(0x7fff_ffff));
+    macro_rules! wide {
+        ($lo:ident, $hi:ident, $i:expr) => {{
+            let (l, u) = (load4(&$lo, $i), load4(&$hi, $i));
+            let range = _mm256_cvtps_pd(_mm_sub_ps(u, l));
+            let top = _mm256_cvtps_pd(_mm_max_ps(
+                _mm_and_ps(l, magnitude),
+                _mm_and_ps(u, magnitude),
+            ));
+            let lim = _mm256_add_pd(
+                _mm256_add_pd(fl, _mm256_mul_pd(_mm256_mul_pd(tiny, top), top)),
+                eps,
+            );
+            _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_mul_pd(range, range), _mm256_mul_pd(twice_m, lim))
+        }};
+    }
+    let mut bits = 0u32;
+    for i in (0..nbx).step_by(4) {
+        let either = _mm256_or_pd(wide!(lf, hf, i), wide!(la, ha, i));
+        bits |= ((!_mm256_movemask_pd(either) & 0xf) as u32) << i;
+    }
+    bits & ((1u32 << nbx) - 1)
 }
 
 /// Whether the block `x0..x1` x `y0..y1` of a `w`-wide window, of extremes `lo < hi`, has a
