@@ -117,7 +117,7 @@ impl GridField {
     /// displacement a deformed window weighted so measures ([`crate::weighting`]).
     ///
     /// The interpolant is separable: the pixels' weights are gathered onto the grid nodes of
-    /// each axis (at most [`NODE_SPAN`] nodes per axis on the stack; wider spans sum the
+    /// each axis (at most `NODE_SPAN` nodes per axis on the stack; wider spans sum the
     /// pixels directly), then one small double sum over the nodes.
     pub fn weighted_mean_at(&self, x: f64, y: f64, px: &[f64], py: &[f64]) -> (f64, f64) {
         let g = &self.grid;

@@ -24,7 +24,7 @@ pub struct Source<'s, 'a, 'c, T: Pixel, U: Pixel, W> {
     pub b: &'s Img<'a, T>,
     pub ia: &'s Img<'c, U>,
     pub ib: &'s Img<'c, U>,
-    /// The kernel, `Fn(f32) -> [f32; N]` (see [`Weights`]).
+    /// The kernel, `Fn(f32) -> [f32; N]` (see [`crate::image::Weights`]).
     pub wf: W,
 }
 

@@ -12,7 +12,7 @@ use ndarray::Array2;
 /// A vector field. All arrays have the same shape (ny, nx).
 #[derive(Debug, Clone)]
 pub struct PivField {
-    /// The regular grid of the vectors (`None` for [`piv_at`]).
+    /// The regular grid of the vectors (`None` for [`super::piv_at`]).
     pub grid: Option<Grid>,
     /// Window centres, px (pixel frame).
     pub x: Array2<f64>,
@@ -27,7 +27,7 @@ pub struct PivField {
     /// Standard uncertainty (one sigma) of `u` and `v`, px, of every valid vector from the
     /// statistics of its last correlation (Wieneke 2015, see
     /// [`crate::correlate::Correlator::uncertainty`]): the uncertainty of the peak the vector
-    /// comes from, its variance pooled with its valid 3 x 3 neighbours' ([`pooled`]), widened by
+    /// comes from, its variance pooled with its valid 3 x 3 neighbours' (`pooled`), widened by
     /// the chance that this peak is not the particles' ([`ambiguity_variance`]); NaN where the
     /// vector is not valid (replaced, masked) or the estimate has no maximum.
     pub sigma_u: Array2<f64>,
@@ -114,7 +114,7 @@ impl WindowMean {
 
 /// Under-relaxation of the extra iterations of a pass: the `k + 1`-th estimate is the `k`-th
 /// moved by `RELAXATION` times its change, `x_{k+1} = x_k + RELAXATION (g(x_k) - x_k)`, where
-/// `g(x_k)` is the validated field correlated with the windows deformed by `x_k` ([`relax`]).
+/// `g(x_k)` is the validated field correlated with the windows deformed by `x_k` (`relax`).
 ///
 /// The plain iteration `x_{k+1} = g(x_k)` converges, but alternately: its error about the fixed
 /// point changes sign with a gain of about -0.27 (2048 x 1024 pair, 16 px: RMS 0.0452, 0.0441,

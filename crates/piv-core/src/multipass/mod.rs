@@ -8,11 +8,11 @@
 //!   B at `p + d(p)/2` with `d` the deformation field at every pixel (quintic B-spline by
 //!   default, cubic B-spline or Keys bicubic as options, see [`Interpolation`]). The
 //!   deformation field is the latest validated field averaged over the pass's window
-//!   ([`GridField::window_average`]), which keeps the noise of the previous estimate (at the
+//!   ([`crate::image::GridField::window_average`]), which keeps the noise of the previous estimate (at the
 //!   grid spacing) out of the deformed particle images. The residual a deformed window pair
 //!   measures is the window mean of `true - d` (particles matched by `d`, the rest seen as the
 //!   residual), so a vector is reported as the window mean of the deformation field at its
-//!   centre ([`GridField::window_mean_at`]) plus the residual: `mean_W(d) + mean_W(true - d)
+//!   centre ([`crate::image::GridField::window_mean_at`]) plus the residual: `mean_W(d) + mean_W(true - d)
 //!   = mean_W(true)` + the correlation's own error, whatever `d` is. Adding the residual to
 //!   the point value `d(centre)` instead (the classic predictor-corrector) adds `d(centre) -
 //!   mean_W(d)` to every vector, which sharpens the response to curved fields but feeds the
@@ -44,7 +44,7 @@
 //! reported as NaN.
 //!
 //! Windows that cannot be correlated are never reported `valid` (the same rule in [`piv`] and
-//! [`piv_at`], applied by [`signal_fraction`] to every window pair before it is correlated):
+//! [`piv_at`], applied by `window.rs`'s `signal_fraction` to every window pair before it is correlated):
 //! - a window of either frame with a sample outside the image after its offset and
 //!   deformation (a sample position outside `[-0.5, width - 0.5] x [-0.5, height - 0.5]`; on
 //!   the regular grid, a deformed-frame pixel whose source lies outside the frame);
@@ -53,7 +53,7 @@
 //!   dewarped frame. A window with less blank area is correlated over its signal part only
 //!   (the blank part, and the fill next to it, neutralised in both windows);
 //! - a window whose content has (near) zero variance in either frame (see
-//!   [`Correlator::correlate`]).
+//!   [`crate::Correlator::correlate`]).
 //!
 //! Such vectors get `valid = false`, `replaced = true` and a value interpolated from their
 //! valid neighbours (used as the predictor of the next pass), `peak_ratio = coef = 0`.

@@ -191,7 +191,7 @@ fn block_span(b: usize, nb: usize, size: usize, len: usize) -> (usize, usize) {
 }
 
 /// A window pair needs signal over at least this fraction of its area (see
-/// [`signal_fraction`]); otherwise it is not correlated (`valid = false`).
+/// `signal_fraction`); otherwise it is not correlated (`valid = false`).
 pub const MIN_SIGNAL_FRACTION: f64 = 0.75;
 
 /// No NaN or infinity in `x` (a finite sum, 8 accumulators; the values are pixel levels).
