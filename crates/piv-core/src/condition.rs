@@ -281,48 +281,107 @@ fn mean_std(buf: &[f32]) -> (f64, f64) {
     (mean, (s2 / n - mean * mean).max(0.0).sqrt())
 }
 
+/// Rows per band of [`remove_hot_pixels`]: one thread's run of rows.
+const HOT_BAND: usize = 64;
+
 /// Hot pixels (module docs, step 1); border pixels use their neighbours inside the image.
-/// Reads a copy of the frame (one extra frame of memory), rows in parallel.
+/// Bands of [`HOT_BAND`] rows in parallel, each row from the original values of its
+/// neighbours: the row above kept before it was changed, the rows next to a band boundary
+/// copied before any band starts (no copy of the frame).
 fn remove_hot_pixels(buf: &mut [f32], w: usize, h: usize, factor: f32) {
-    let mut src = image_core::zeroed_frame(buf.len());
-    src.par_chunks_mut(1 << 16)
-        .zip(buf.par_chunks(1 << 16))
-        .for_each(|(d, s)| d.copy_from_slice(s));
-    let gt = |a: f32, b: f32| if a > b { a } else { b };
-    buf.par_chunks_mut(w).enumerate().for_each_init(
-        || vec![f32::NEG_INFINITY; w],
-        |m, (y, row)| {
-            // m[x]: the brightest of the 8 neighbours (those inside the frame)
-            m.fill(f32::NEG_INFINITY);
-            let line = |yy: usize| &src[yy * w..(yy + 1) * w];
-            let rows = [
-                (y > 0).then(|| line(y - 1)),
-                (y + 1 < h).then(|| line(y + 1)),
-            ];
-            for nb in rows.into_iter().flatten() {
-                for (o, &v) in m.iter_mut().zip(nb) {
-                    *o = gt(*o, v);
+    let nb = h.div_ceil(HOT_BAND);
+    // per band: its first row, then its last row, as they are before any change
+    let mut edges = vec![0.0f32; 2 * nb * w];
+    for (b, e) in edges.chunks_exact_mut(2 * w).enumerate() {
+        let (first, last) = (b * HOT_BAND, ((b + 1) * HOT_BAND).min(h) - 1);
+        e[..w].copy_from_slice(&buf[first * w..(first + 1) * w]);
+        e[w..].copy_from_slice(&buf[last * w..(last + 1) * w]);
+    }
+    let edge = |b: usize, last: bool| &edges[(2 * b + last as usize) * w..][..w];
+    buf.par_chunks_mut(HOT_BAND * w).enumerate().for_each_init(
+        || (vec![f32::NEG_INFINITY; w], vec![0.0f32; w], vec![0.0f32; w]),
+        |(m, above, keep), (b, band)| {
+            let rows = band.len() / w;
+            for i in 0..rows {
+                let y = b * HOT_BAND + i;
+                let (head, tail) = band.split_at_mut((i + 1) * w);
+                let row = &mut head[i * w..];
+                let below = if i + 1 < rows {
+                    Some(&tail[..w])
+                } else {
+                    (y + 1 < h).then(|| edge(b + 1, false))
+                };
+                let up = match (i, y) {
+                    (_, 0) => None,
+                    (0, _) => Some(edge(b - 1, true)),
+                    _ => Some(&above[..]),
+                };
+                let step = ([up, below], factor);
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU supports AVX2 (checked just above)
+                    unsafe { hot_row_avx2(step, row, m, keep) };
+                } else {
+                    hot_row(step, row, m, keep);
                 }
-                for (o, &v) in m[1..].iter_mut().zip(nb) {
-                    *o = gt(*o, v);
-                }
-                for (o, &v) in m.iter_mut().zip(&nb[1..]) {
-                    *o = gt(*o, v);
-                }
-            }
-            let mid = line(y);
-            for (o, &v) in m[1..].iter_mut().zip(mid) {
-                *o = gt(*o, v);
-            }
-            for (o, &v) in m.iter_mut().zip(&mid[1..]) {
-                *o = gt(*o, v);
-            }
-            for (v, &m) in row.iter_mut().zip(m.iter()) {
-                let hot = *v > 0.0 && m > f32::NEG_INFINITY && *v > factor * gt(m, 0.0);
-                *v = if hot { m } else { *v };
+                #[cfg(not(target_arch = "x86_64"))]
+                hot_row(step, row, m, keep);
+                // the row as it was is the next row's neighbour above
+                std::mem::swap(above, keep);
             }
         },
     );
+}
+
+/// [`hot_row`] compiled for AVX2: the same operations in 8 lanes, the same results.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn hot_row_avx2(
+    step: ([Option<&[f32]>; 2], f32),
+    row: &mut [f32],
+    m: &mut [f32],
+    keep: &mut [f32],
+) {
+    hot_row(step, row, m, keep)
+}
+
+/// One row of [`remove_hot_pixels`]: `rows` the original rows above and below `row` (`None`
+/// beyond the frame), `m` scratch, `keep` receives `row` as it was.
+#[inline(always)]
+fn hot_row(
+    (rows, factor): ([Option<&[f32]>; 2], f32),
+    row: &mut [f32],
+    m: &mut [f32],
+    keep: &mut [f32],
+) {
+    let gt = |a: f32, b: f32| if a > b { a } else { b };
+    // m[x]: the brightest of the 8 neighbours (those inside the frame)
+    m.fill(f32::NEG_INFINITY);
+    for nb in rows.into_iter().flatten() {
+        for (o, &v) in m.iter_mut().zip(nb) {
+            *o = gt(*o, v);
+        }
+        for (o, &v) in m[1..].iter_mut().zip(nb) {
+            *o = gt(*o, v);
+        }
+        for (o, &v) in m.iter_mut().zip(&nb[1..]) {
+            *o = gt(*o, v);
+        }
+    }
+    for (o, &v) in m[1..].iter_mut().zip(&*row) {
+        *o = gt(*o, v);
+    }
+    for (o, &v) in m.iter_mut().zip(&row[1..]) {
+        *o = gt(*o, v);
+    }
+    keep.copy_from_slice(row);
+    for (v, &m) in row.iter_mut().zip(m.iter()) {
+        let hot = *v > 0.0 && m > f32::NEG_INFINITY && *v > factor * gt(m, 0.0);
+        *v = if hot { m } else { *v };
+    }
 }
 
 /// Whole-sample mirror index into `0..n` (n >= 1).
@@ -341,15 +400,9 @@ fn gaussian_taps(sigma: f32) -> (Vec<f32>, usize) {
     (k.iter().map(|v| v / norm).collect(), r as usize)
 }
 
-/// `dst` row = `f(src row)` for every row (rows in parallel, no allocation).
-fn rows_into(src: &[f32], dst: &mut [f32], w: usize, f: impl Fn(&[f32], &mut [f32]) + Sync) {
-    dst.par_chunks_mut(w)
-        .zip(src.par_chunks(w))
-        .for_each(|(d, s)| f(s, d));
-}
-
 /// Horizontal Gaussian of one row (mirror boundaries): the interior as `2r + 1` passes of
 /// `dst += k_j * shifted src` (vectorised), the `r` samples at each end with mirrored taps.
+#[inline(always)]
 fn gauss_row(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
     let n = src.len();
     dst.fill(0.0);
@@ -371,28 +424,115 @@ fn gauss_row(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
     }
 }
 
-/// High-pass in place: `buf -= G_sigma * buf` (module docs, step 3): the horizontal blur of
-/// the frame into one scratch frame, then per output row (in parallel) the vertical blur into a
-/// row buffer, subtracted from the row (the frame itself is not read again).
+/// Rows per band of [`high_pass`]: one thread's run of rows.
+const PASS_BAND: usize = 128;
+
+/// High-pass in place: `buf -= G_sigma * buf` (module docs, step 3). The rows in bands of
+/// [`PASS_BAND`] in parallel: the horizontal blur of each band's rows into a buffer of the
+/// thread's, then per row the vertical blur of those (into a row buffer), subtracted from the
+/// row. The rows within `r` (the kernel's radius) of a band boundary, which the bands on
+/// either side read, are blurred before any band changes its rows and shared. The same sums
+/// in the same order as blurring the whole frame first, without a scratch frame.
 fn high_pass(buf: &mut [f32], w: usize, h: usize, sigma: f32) {
     let (k, r) = gaussian_taps(sigma);
-    let mut tmp = image_core::zeroed_frame(buf.len());
-    rows_into(buf, &mut tmp, w, |s, d| gauss_row(&k, r, s, d));
-    buf.par_chunks_mut(w).enumerate().for_each_init(
-        || vec![0.0f32; w],
-        |low, (y, row)| {
-            low.fill(0.0);
-            for (j, &kj) in k.iter().enumerate() {
-                let yy = mirror(y as isize + j as isize - r as isize, h);
-                for (o, &s) in low.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
-                    *o += kj * s;
+    let blur = |s: &[f32], d: &mut [f32]| {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above)
+            return unsafe { gauss_row_avx2(&k, r, s, d) };
+        }
+        gauss_row(&k, r, s, d)
+    };
+    // the shared rows: within r of an interior band boundary, blurred first
+    let mut slot = vec![usize::MAX; h];
+    let mut shared_rows = Vec::new();
+    for y0 in (PASS_BAND..h).step_by(PASS_BAND) {
+        for y in y0.saturating_sub(r)..(y0 + r).min(h) {
+            if slot[y] == usize::MAX {
+                slot[y] = shared_rows.len();
+                shared_rows.push(y);
+            }
+        }
+    }
+    let mut shared = vec![0.0f32; shared_rows.len() * w];
+    shared
+        .par_chunks_mut(w)
+        .zip(&shared_rows)
+        .for_each(|(d, &y)| blur(&buf[y * w..(y + 1) * w], d));
+    buf.par_chunks_mut(PASS_BAND * w).enumerate().for_each_init(
+        || (vec![0.0f32; PASS_BAND * w], vec![0.0f32; w]),
+        |(own, low), (b, band)| {
+            let y0 = b * PASS_BAND;
+            for (i, row) in band.chunks_exact(w).enumerate() {
+                if slot[y0 + i] == usize::MAX {
+                    blur(row, &mut own[i * w..(i + 1) * w]);
                 }
             }
-            for (v, &l) in row.iter_mut().zip(low.iter()) {
-                *v -= l;
+            let blurred = |yy: usize| match slot[yy] {
+                usize::MAX => &own[(yy - y0) * w..][..w],
+                s => &shared[s * w..][..w],
+            };
+            for (i, row) in band.chunks_exact_mut(w).enumerate() {
+                #[cfg(target_arch = "x86_64")]
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: the CPU supports AVX2 (checked just above)
+                    unsafe { low_removed_avx2(&k, r, &blurred, (y0 + i, h), row, low) };
+                    continue;
+                }
+                low_removed(&k, r, &blurred, (y0 + i, h), row, low)
             }
         },
     );
+}
+
+/// Row `y` of [`high_pass`] (of `h` rows): the vertical Gaussian of the horizontally blurred
+/// rows (`blurred(row index)`) into `low`, subtracted from `row`.
+#[inline(always)]
+fn low_removed<'a>(
+    k: &[f32],
+    r: usize,
+    blurred: &impl Fn(usize) -> &'a [f32],
+    (y, h): (usize, usize),
+    row: &mut [f32],
+    low: &mut [f32],
+) {
+    low.fill(0.0);
+    for (j, &kj) in k.iter().enumerate() {
+        let yy = mirror(y as isize + j as isize - r as isize, h);
+        for (o, &s) in low.iter_mut().zip(blurred(yy)) {
+            *o += kj * s;
+        }
+    }
+    for (v, &l) in row.iter_mut().zip(low.iter()) {
+        *v -= l;
+    }
+}
+
+/// [`low_removed`] compiled for AVX2 (no FMA: the same results).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn low_removed_avx2<'a>(
+    k: &[f32],
+    r: usize,
+    blurred: &impl Fn(usize) -> &'a [f32],
+    at: (usize, usize),
+    row: &mut [f32],
+    low: &mut [f32],
+) {
+    low_removed(k, r, blurred, at, row, low)
+}
+
+/// [`gauss_row`] compiled for AVX2 (no FMA: the same results).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gauss_row_avx2(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
+    gauss_row(k, r, src, dst)
 }
 
 /// The cell size of the min-max normalisation for an `n` px window: 3 x 3 cells span about

@@ -233,7 +233,15 @@ fn min_max_output_is_the_bilinear_envelope_normalisation() {
 #[test]
 fn hot_pixels_match_the_plain_rule() {
     // spikes, zeros and negatives (a high-passed frame), edges and corners
-    for (w, h) in [(17usize, 11usize), (1, 5), (6, 1), (2, 2)] {
+    for (w, h) in [
+        (17usize, 11usize),
+        (1, 5),
+        (6, 1),
+        (2, 2),
+        (9, 150),
+        (3, 129),
+        (5, 64),
+    ] {
         let img = Array2::from_shape_fn((h, w), |(y, x)| {
             let v = ((x * 7919 + y * 104729) % 53) as f32 - 10.0;
             if (x + 3 * y) % 7 == 0 {
@@ -325,4 +333,49 @@ fn bad_input() {
     let bg = Array2::from_elem((4, 4), 1.0f32);
     let e = condition(img.view_mut(), &Conditioning::default(), Some(bg.view())).unwrap_err();
     assert!(e.to_string().contains("NaN"), "{e}");
+}
+
+#[test]
+fn banded_high_pass_equals_the_whole_frame_blur() {
+    // the frame blurred horizontally as a whole, then vertically row by row (the sums of
+    // `high_pass` in their order), on frames of one band, several, a short last band, and
+    // kernels wider than a band's share
+    for (w, h, sigma) in [
+        (23usize, 300usize, 2.0f32),
+        (19, 129, 4.0),
+        (40, 7, 2.0),
+        (11, 257, 50.0),
+        (8, 1, 1.0),
+    ] {
+        let img = Array2::from_shape_fn((h, w), |(y, x)| {
+            ((x * 7919 + y * 104729) % 4093) as f32 * 0.37 - 300.0
+        });
+        let (k, r) = gaussian_taps(sigma);
+        let src = img.as_slice().unwrap();
+        let mut tmp = vec![0.0f32; w * h];
+        for (s, d) in src.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+            gauss_row(&k, r, s, d);
+        }
+        let mut want = src.to_vec();
+        for (y, row) in want.chunks_exact_mut(w).enumerate() {
+            let mut low = vec![0.0f32; w];
+            for (j, &kj) in k.iter().enumerate() {
+                let yy = mirror(y as isize + j as isize - r as isize, h);
+                for (o, &s) in low.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                    *o += kj * s;
+                }
+            }
+            for (v, &l) in row.iter_mut().zip(&low) {
+                *v -= l;
+            }
+        }
+        let mut got = src.to_vec();
+        high_pass(&mut got, w, h, sigma);
+        assert!(
+            got.iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits()),
+            "{w}x{h} sigma {sigma}"
+        );
+    }
 }
