@@ -350,6 +350,12 @@ unsafe fn hot_row_avx2(
 
 /// One row of [`remove_hot_pixels`]: `rows` the original rows above and below `row` (`None`
 /// beyond the frame), `m` scratch, `keep` receives `row` as it was.
+///
+/// `m[x]`, the brightest of the 8 neighbours inside the frame, is taken in one fixed order:
+/// the row above (its pixels at `x`, `x - 1`, `x + 1`), the row below likewise, then the row's
+/// own `x - 1` and `x + 1` (`gt` keeps its second argument on ties and NaN, so the order is
+/// part of the result). Every value is stored unconditionally: written as in-place updates
+/// (`m[x] = gt(m[x], v)`), the loops compiled to masked stores, slow on AMD cores.
 #[inline(always)]
 fn hot_row(
     (rows, factor): ([Option<&[f32]>; 2], f32),
@@ -358,29 +364,65 @@ fn hot_row(
     keep: &mut [f32],
 ) {
     let gt = |a: f32, b: f32| if a > b { a } else { b };
-    // m[x]: the brightest of the 8 neighbours (those inside the frame)
-    m.fill(f32::NEG_INFINITY);
-    for nb in rows.into_iter().flatten() {
-        for (o, &v) in m.iter_mut().zip(nb) {
-            *o = gt(*o, v);
-        }
-        for (o, &v) in m[1..].iter_mut().zip(nb) {
-            *o = gt(*o, v);
-        }
-        for (o, &v) in m.iter_mut().zip(&nb[1..]) {
-            *o = gt(*o, v);
-        }
-    }
-    for (o, &v) in m[1..].iter_mut().zip(&*row) {
-        *o = gt(*o, v);
-    }
-    for (o, &v) in m.iter_mut().zip(&row[1..]) {
-        *o = gt(*o, v);
-    }
+    let w = row.len();
     keep.copy_from_slice(row);
-    for (v, &m) in row.iter_mut().zip(m.iter()) {
-        let hot = *v > 0.0 && m > f32::NEG_INFINITY && *v > factor * gt(m, 0.0);
-        *v = if hot { m } else { *v };
+    let mid = &*keep;
+    let (n, r0, r1): (usize, &[f32], &[f32]) = match rows {
+        [Some(a), Some(b)] => (2, a, b),
+        [Some(a), None] | [None, Some(a)] => (1, a, a),
+        [None, None] => (0, mid, mid),
+    };
+    // the general rule (edges): `gt(-inf, v) = v`, so a row's first term starts the maximum
+    let at = |x: usize| {
+        let mut acc = f32::NEG_INFINITY;
+        for nb in [r0, r1].into_iter().take(n) {
+            acc = gt(acc, nb[x]);
+            if x > 0 {
+                acc = gt(acc, nb[x - 1]);
+            }
+            if x + 1 < w {
+                acc = gt(acc, nb[x + 1]);
+            }
+        }
+        if x > 0 {
+            acc = gt(acc, mid[x - 1]);
+        }
+        if x + 1 < w {
+            acc = gt(acc, mid[x + 1]);
+        }
+        acc
+    };
+    if w > 2 {
+        let k = w - 2;
+        let (l, c, r) = (&mid[..k], &mid[2..], &mut m[1..w - 1]);
+        let (a0, a1, a2) = (&r0[..k], &r0[1..k + 1], &r0[2..]);
+        let (b0, b1, b2) = (&r1[..k], &r1[1..k + 1], &r1[2..]);
+        match n {
+            2 => {
+                for i in 0..k {
+                    let t = gt(gt(a1[i], a0[i]), a2[i]);
+                    let t = gt(gt(gt(t, b1[i]), b0[i]), b2[i]);
+                    r[i] = gt(gt(t, l[i]), c[i]);
+                }
+            }
+            1 => {
+                for i in 0..k {
+                    let t = gt(gt(a1[i], a0[i]), a2[i]);
+                    r[i] = gt(gt(t, l[i]), c[i]);
+                }
+            }
+            _ => {
+                for i in 0..k {
+                    r[i] = gt(gt(f32::NEG_INFINITY, l[i]), c[i]);
+                }
+            }
+        }
+    }
+    m[0] = at(0);
+    m[w - 1] = at(w - 1);
+    for ((v, &m), &k) in row.iter_mut().zip(m.iter()).zip(mid) {
+        let hot = k > 0.0 && m > f32::NEG_INFINITY && k > factor * gt(m, 0.0);
+        *v = if hot { m } else { k };
     }
 }
 
@@ -400,21 +442,39 @@ fn gaussian_taps(sigma: f32) -> (Vec<f32>, usize) {
     (k.iter().map(|v| v / norm).collect(), r as usize)
 }
 
-/// Horizontal Gaussian of one row (mirror boundaries): the interior as `2r + 1` passes of
-/// `dst += k_j * shifted src` (vectorised), the `r` samples at each end with mirrored taps.
+/// Outputs summed at a time in registers by [`gauss_row`] and [`low_removed`].
+const LANES: usize = 16;
+
+/// Horizontal Gaussian of one row (mirror boundaries): the interior [`LANES`] outputs at a
+/// time, each the sum `0 + k_0 s_0 + k_1 s_1 + ...` in tap order in registers (one pass over
+/// the row), the `r` samples at each end with mirrored taps.
 #[inline(always)]
 fn gauss_row(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
     let n = src.len();
-    dst.fill(0.0);
     if n > 2 * r {
         let m = n - 2 * r;
-        for (j, &kj) in k.iter().enumerate() {
-            dst[r..r + m]
-                .iter_mut()
-                .zip(&src[j..j + m])
-                .for_each(|(d, &s)| *d += kj * s);
+        let mut chunks = dst[r..r + m].chunks_exact_mut(LANES);
+        let mut i0 = 0;
+        for o in &mut chunks {
+            let mut acc = [0.0f32; LANES];
+            for (j, &kj) in k.iter().enumerate() {
+                let s = &src[i0 + j..i0 + j + LANES];
+                for (a, &v) in acc.iter_mut().zip(s) {
+                    *a += kj * v;
+                }
+            }
+            o.copy_from_slice(&acc);
+            i0 += LANES;
+        }
+        for (l, o) in chunks.into_remainder().iter_mut().enumerate() {
+            let mut acc = 0.0f32;
+            for (j, &kj) in k.iter().enumerate() {
+                acc += kj * src[i0 + l + j];
+            }
+            *o = acc;
         }
     }
+    // every sample not written above is within r of an end
     for i in (0..n).filter(|&i| i < r || i + r >= n) {
         let mut acc = 0.0f32;
         for (j, &kj) in k.iter().enumerate() {
@@ -485,8 +545,14 @@ fn high_pass(buf: &mut [f32], w: usize, h: usize, sigma: f32) {
     );
 }
 
+/// Most taps [`low_removed`] sums in registers (sigma up to 10 px); wider kernels sum row
+/// by row into `low`.
+const MAX_TAPS: usize = 63;
+
 /// Row `y` of [`high_pass`] (of `h` rows): the vertical Gaussian of the horizontally blurred
-/// rows (`blurred(row index)`) into `low`, subtracted from `row`.
+/// rows (`blurred(row index)`), `0 + k_0 b_0 + k_1 b_1 + ...` in tap order, subtracted from
+/// `row`: [`LANES`] columns at a time in registers, or (more than [`MAX_TAPS`] taps) tap by
+/// tap into `low`; the same sums either way.
 #[inline(always)]
 fn low_removed<'a>(
     k: &[f32],
@@ -496,15 +562,44 @@ fn low_removed<'a>(
     row: &mut [f32],
     low: &mut [f32],
 ) {
-    low.fill(0.0);
-    for (j, &kj) in k.iter().enumerate() {
-        let yy = mirror(y as isize + j as isize - r as isize, h);
-        for (o, &s) in low.iter_mut().zip(blurred(yy)) {
-            *o += kj * s;
+    let tap = |j: usize| blurred(mirror(y as isize + j as isize - r as isize, h));
+    if k.len() > MAX_TAPS {
+        low.fill(0.0);
+        for (j, &kj) in k.iter().enumerate() {
+            for (o, &s) in low.iter_mut().zip(tap(j)) {
+                *o += kj * s;
+            }
         }
+        for (v, &l) in row.iter_mut().zip(low.iter()) {
+            *v -= l;
+        }
+        return;
     }
-    for (v, &l) in row.iter_mut().zip(low.iter()) {
-        *v -= l;
+    let mut src: [&[f32]; MAX_TAPS] = [&[]; MAX_TAPS];
+    for (j, s) in src.iter_mut().enumerate().take(k.len()) {
+        *s = tap(j);
+    }
+    let src = &src[..k.len()];
+    let mut chunks = row.chunks_exact_mut(LANES);
+    let mut x0 = 0;
+    for o in &mut chunks {
+        let mut acc = [0.0f32; LANES];
+        for (&kj, s) in k.iter().zip(src) {
+            for (a, &v) in acc.iter_mut().zip(&s[x0..x0 + LANES]) {
+                *a += kj * v;
+            }
+        }
+        for (v, a) in o.iter_mut().zip(acc) {
+            *v -= a;
+        }
+        x0 += LANES;
+    }
+    for (l, v) in chunks.into_remainder().iter_mut().enumerate() {
+        let mut acc = 0.0f32;
+        for (&kj, s) in k.iter().zip(src) {
+            acc += kj * s[x0 + l];
+        }
+        *v -= acc;
     }
 }
 
