@@ -329,8 +329,9 @@ pub(crate) fn blank_blocks(
 /// [`blank_blocks`] on one block row (rows `y0..y1`) of a window `w` px wide, `w` a multiple
 /// of 8, in blocks of 4 px: pushes each block's extremes to `ext` and returns the blocks that
 /// fail both range tests as bits (bit `bx`). The same extremes (the values are finite, so
-/// `min`/`max` do not depend on the order) and the same f64 tests as the scalar loop, 8
-/// columns (2 blocks) per register and the tests 4 blocks at a time.
+/// `min`/`max` give the same values in any order, up to the sign of a zero extreme, which no
+/// test sees) and the same f64 tests as the scalar loop, 8 columns (2 blocks) per register and
+/// the tests 4 blocks at a time.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn open_blocks4_avx2(
