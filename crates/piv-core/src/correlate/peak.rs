@@ -119,13 +119,7 @@ pub(super) fn find_peak_with(
         }
     }
     let second = top[0].0;
-    let ratio = if best <= 0.0 {
-        1.0
-    } else if second <= best * 1e-3 {
-        1000.0
-    } else {
-        (best / second) as f64
-    };
+    let ratio = peak_ratio(best, second);
     // a peak on the search border is kept only if it is a true local maximum (the plane has
     // one exact lag beyond the search range on every side)
     let on_border = (pr - 1..=pr + 1)
@@ -162,6 +156,19 @@ pub(super) fn find_peak_with(
         sigma: (f64::NAN, f64::NAN),
     };
     (peak, lags)
+}
+
+/// The peak ratio of a plane whose highest value is `best` and second-highest local maximum
+/// `second`: 1 when the peak is not positive, capped at 1000 (no second peak above a
+/// thousandth of the first), else `best / second`.
+pub(super) fn peak_ratio(best: f32, second: f32) -> f64 {
+    if best <= 0.0 {
+        1.0
+    } else if second <= best * 1e-3 {
+        1000.0
+    } else {
+        (best / second) as f64
+    }
 }
 
 /// Insert the local maximum `cand` = (value, column, row) into the two highest `top` (highest

@@ -1,4 +1,4 @@
-use super::peak::{gauss3_2, gauss9};
+use super::peak::{gauss3_2, gauss9, peak_ratio};
 use super::uncertainty::gauss3_slope;
 use super::*;
 use crate::weighting::Weighting;
@@ -282,13 +282,7 @@ fn find_peak_plain(corr: &[f32], cw: usize, ch: usize, sub: SubPixel) -> Peak {
     });
     let on_border = (pr - 1..=pr + 1)
         .any(|rr| (pc - 1..=pc + 1).any(|cc| (rr, cc) != (pr, pc) && at(cc, rr) > best));
-    let ratio = if best <= 0.0 {
-        1.0
-    } else if second <= best * 1e-3 {
-        1000.0
-    } else {
-        (best / second) as f64
-    };
+    let ratio = peak_ratio(best, second);
     // the windows are as large as the plane here
     let (hx, hy) = ((cw / 2) as f32, (ch / 2) as f32);
     let unbiased = |c: usize, r: usize| {
