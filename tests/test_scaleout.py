@@ -288,12 +288,53 @@ def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, m
     ev = _events(out)
     assert [e["pair_id"] for e in ev if e["event"] == "failed"] == [3]
     assert [e["pairs"] for e in ev if e["event"] == "chunk_split"] == [[2, 3]]
+    # retried once apart from the other suspects before being recorded
+    assert 3 in [e["pair_id"] for e in ev if e["event"] == "pair_retry"]
     # the statistics are one pass over the other pairs
     monkeypatch.undo()
     ctx = PairContext.from_dict(json.loads((local.out_dir / "context.json").read_text())["context"])
     pairs = [p for p in _camp(synth, out).pairs() if p.pair_id != 3]
     ref = scaleout.process_chunk(ctx, pairs)
     for run, acc in ref.accumulators.items():
+        assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)
+
+
+def test_pair_killed_beside_another_is_retried_not_failed(synth, local, tmp_path, monkeypatch):
+    """A single pair whose worker died once while it was only a bystander (Dask counts every
+    task on a dying worker as suspect) is retried on its own and merged, not recorded failed:
+    here pair 2's worker dies on its first two runs (its chunk's and its own) only."""
+    import dask
+
+    count = tmp_path / "deaths"
+    count.write_text("0")
+
+    def dies_twice(ctx, pairs):  # a local function: pickled by value to the workers
+        import os
+        import pathlib
+
+        from rspiv.campaign.executors.dask import process_chunk as real
+
+        f = pathlib.Path(str(count))
+        if any(p.pair_id == 2 for p in pairs):
+            n = int(f.read_text())
+            if n < 2:
+                f.write_text(str(n + 1))
+                os._exit(1)
+        return real(ctx, pairs)
+
+    monkeypatch.setattr(scaleout, "process_chunk", dies_twice)
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
+            with distributed.Client(cluster) as c:
+                res = run_dask(_camp(synth, out), c, chunk_size=2)
+    assert count.read_text() == "2"
+    assert not res.skipped and res.n_done == N_PAIRS
+    ev = _events(out)
+    assert not [e for e in ev if e["event"] == "failed"]
+    assert [e["pairs"] for e in ev if e["event"] == "chunk_split"] == [[2, 3]]
+    assert 2 in [e["pair_id"] for e in ev if e["event"] == "pair_retry"]
+    for run, acc in local.accumulators.items():
         assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)
 
 

@@ -24,8 +24,11 @@ Faults
     pair whose processing raises is recorded as *failed* (``event: "failed"`` in the run log,
     with the exception) and left out of the statistics. A worker that dies is replaced by
     Dask and its chunk recomputed elsewhere; a chunk that kills workers repeatedly
-    (:class:`distributed.KilledWorker`) is split into single pairs, and a single pair that still
-    kills its worker is recorded as failed. A killed client resumes from the last checkpoint:
+    (:class:`distributed.KilledWorker`) is split into single pairs. A single pair whose worker
+    died may have been only queued beside the pair that killed it (Dask counts every task on a
+    dying worker as suspect), so it is run once more, apart from the other suspects: such
+    retries are submitted one at a time (``event: "pair_retry"``), and a pair whose worker dies
+    on its retry is recorded as failed. A killed client resumes from the last checkpoint:
     the contiguous prefix is in the campaign's checkpoint, and the segments merged out of order
     beside it are saved in ``OUT/checkpoint/dask_segments*.pkl`` (keyed by their pair ids;
     reused by the next Dask run when they still fit, ignored by a local run), so no pair merged
@@ -554,6 +557,9 @@ class DaskExecutor:
         for sg in stored:
             covered.update(range(sg.lo, sg.hi))
         self.key_of: dict[Any, tuple[int, int]] = {}
+        # single pairs whose worker died, waiting to be run alone, one at a time
+        self.alone_queue: list[int] = []
+        self.alone_key: Any = None
         futures = []
         n_chunks = 0
         for lo, hi in _uncovered_chunks(len(todo), covered, chunk_size):
@@ -617,6 +623,14 @@ class DaskExecutor:
         self.key_of[f.key] = (lo, hi)
         return f
 
+    def _next_alone(self) -> None:
+        """Submit the next single pair waiting to run alone, unless one is running."""
+        if self.alone_key is None and self.alone_queue:
+            k = self.alone_queue.pop(0)
+            f = self._submit(k, k + 1)
+            self.alone_key = f.key
+            self.ac.add(f)
+
     def _checkpoint(self, force: bool = False) -> None:
         """The contiguous prefix in the campaign's checkpoint, the segments merged out of
         order beside it (``dask_segments*.pkl``), every ``checkpoint_every`` pairs."""
@@ -636,6 +650,9 @@ class DaskExecutor:
         st, prog, red = self.state, self.progress, self.red
         todo = st.todo
         lo, hi = self.key_of.pop(fut.key)
+        alone = fut.key == self.alone_key
+        if alone:
+            self.alone_key = None
         try:
             res: ChunkResult = fut.result()
         except KilledWorker as exc:
@@ -651,6 +668,12 @@ class DaskExecutor:
                     self.ac.add(self._submit(k, k + 1))
                 return
             p = todo[lo]
+            if not alone:
+                prog.log(f"pair {p.pair_id}: its worker died; retrying it on its own")
+                st.log.write("pair_retry", pair_id=p.pair_id, reason=str(exc))
+                self.alone_queue.append(lo)
+                self._next_alone()
+                return
             gx, _ = st.ctx.grid()
             res = ChunkResult(
                 {r.name: FieldAccumulator(gx.shape) for r in st.ctx.runs},
@@ -661,6 +684,7 @@ class DaskExecutor:
                 {},
                 {},
             )
+        self._next_alone()
         fut.release()
         self.workers_seen.add(res.worker)
         red.add_timings(res.timings)
