@@ -11,7 +11,7 @@
 use super::field::*;
 use super::sample::inside;
 use super::{Img, Pixel};
-use image_core::kernels::{floor_i, mirror};
+use image_core::kernels::mirror;
 use image_core::zeroed_frame;
 use ndarray::CowArray;
 use rayon::prelude::*;
@@ -135,6 +135,8 @@ struct Row {
     /// Half the field at this row, at every grid column.
     ur: Vec<f64>,
     vr: Vec<f64>,
+    /// The column indices as `f64` (`0, 1, .. w - 1`: the loops over them vectorise).
+    colx: Vec<f64>,
     /// Half the field at every pixel of the row.
     hu: Vec<f64>,
     hv: Vec<f64>,
@@ -155,6 +157,7 @@ impl Row {
         Row {
             ur: vec![0.0; nx],
             vr: vec![0.0; nx],
+            colx: (0..w).map(|x| x as f64).collect(),
             hu: vec![0.0; w],
             hv: vec![0.0; w],
             pos: vec![0.0; w],
@@ -211,15 +214,29 @@ fn deform_row<U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
     for (x, c) in job.cols.iter().enumerate() {
         (row.hu[x], row.hv[x]) = half(c);
     }
-    let half_v_at = |x: f64| half(&GridField::axis(x, g.x0, g.dx, g.nx)).1;
+    // GridField::axis without its branches: the grid coordinate clamped to [0, nx - 1] gives
+    // the same indices and weight inside, and at or beyond the ends the end value with the
+    // weight 0 on a neighbour (which can only change the sign of a zero, lost when added to
+    // the row's y below)
+    let last = (g.nx - 1) as f64;
+    let (x0, dx) = (g.x0, g.dx);
     // 1. every source column along y: frame A at y - f_y(i + f_x/2)/2, B at y + f_y(i - f_x/2)/2
     let sources = [
         (job.ia.slice(), -1.0, &mut row.ta),
         (job.ib.slice(), 1.0, &mut row.tb),
     ];
     for (s, sign, out) in sources {
-        for (i, p) in row.pos.iter_mut().enumerate() {
-            *p = yf + sign * half_v_at(i as f64 - sign * row.hu[i]);
+        // the grid coordinates first (a loop of divisions that vectorises), then the field
+        for ((p, &xi), &hu) in row.pos.iter_mut().zip(&row.colx).zip(&row.hu) {
+            *p = (xi - sign * hu - x0) / dx;
+        }
+        for p in row.pos.iter_mut() {
+            let t = p.max(0.0).min(last);
+            let i = t as i32; // t >= 0: the floor
+            let i0 = i as usize;
+            let i1 = (i0 + 1).min(g.nx - 1);
+            let tx = t - i as f64;
+            *p = yf + sign * (vr[i0] * (1.0 - tx) + vr[i1] * tx);
         }
         split(&row.pos, &mut row.base, &mut row.frac, N);
         weights_of(job.wf, &row.frac, &mut row.weights);
@@ -267,13 +284,13 @@ fn deform_row<U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
     }
     // 2. the row along x: frame A at x - f_x/2, B at x + f_x/2 (NaN outside the frame)
     for (t, sign, out) in [(&row.ta, -1.0, &mut *ra), (&row.tb, 1.0, &mut *rb)] {
-        for (x, p) in row.pos.iter_mut().enumerate() {
-            *p = x as f64 + sign * row.hu[x];
+        for ((p, &xi), &hu) in row.pos.iter_mut().zip(&row.colx).zip(&row.hu) {
+            *p = xi + sign * hu;
         }
         split(&row.pos, &mut row.base, &mut row.frac, N);
         weights_of(job.wf, &row.frac, &mut row.weights);
-        for (x, ok) in row.inside.iter_mut().enumerate() {
-            *ok = inside(row.pos[x], yf + sign * row.hv[x], w, h);
+        for ((ok, &p), &hv) in row.inside.iter_mut().zip(&row.pos).zip(&row.hv) {
+            *ok = inside(p, yf + sign * hv, w, h);
         }
         let (base, weights, ok) = (&row.base, &row.weights, &row.inside);
         let pixel = |x: usize| {
@@ -322,14 +339,16 @@ fn deform_row<U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
     }
 }
 
-/// First tap `floor(p) - (N/2 - 1)` and fraction `p - floor(p)` of every position.
+/// First tap `floor(p) - (N/2 - 1)` and fraction `p - floor(p)` of every position (the floor
+/// through `i32`, which vectorises: a position beyond +-2^31 px, far outside any frame,
+/// saturates there; NaN gives 0 and a NaN fraction, as `floor_i`).
 #[inline(always)]
 fn split(pos: &[f64], base: &mut [isize], frac: &mut [f32], n: usize) {
     let back = (n / 2 - 1) as isize;
     for ((p, b), t) in pos.iter().zip(base.iter_mut()).zip(frac.iter_mut()) {
-        let i = floor_i(*p);
-        *b = i - back;
-        *t = (*p - i as f64) as f32;
+        let f = p.floor();
+        *b = f as i32 as isize - back;
+        *t = (*p - f) as f32;
     }
 }
 

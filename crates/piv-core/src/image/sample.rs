@@ -35,10 +35,11 @@ pub(crate) const INSIDE_EPS: f64 = 1e-6;
 /// area of its pixels, README's convention)?
 #[inline(always)]
 pub fn inside(x: f64, y: f64, width: usize, height: usize) -> bool {
-    x >= -0.5 - INSIDE_EPS
-        && y >= -0.5 - INSIDE_EPS
-        && x <= width as f64 - 0.5 + INSIDE_EPS
-        && y <= height as f64 - 0.5 + INSIDE_EPS
+    // `&`, not `&&`: four comparisons without branches (vectorises in the deformation's loops)
+    (x >= -0.5 - INSIDE_EPS)
+        & (y >= -0.5 - INSIDE_EPS)
+        & (x <= width as f64 - 0.5 + INSIDE_EPS)
+        & (y <= height as f64 - 0.5 + INSIDE_EPS)
 }
 
 /// Sample the window pair into `wa`, `wb` (row-major, `h` rows of `w`). A pixel whose sample
