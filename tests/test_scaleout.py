@@ -262,10 +262,21 @@ def test_cli_process_dask_local(synth, local, tmp_path, capsys):
                 )
 
 
+def _run_killing_workers(synth, local, tmp_path):
+    """The campaign on a fresh 2-worker cluster in chunks of 2 pairs, a task failed at the first
+    death of its worker (``allowed-failures`` 0): ``(out_dir, result)``."""
+    import dask
+
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
+            with distributed.Client(cluster) as c:
+                return out, run_dask(_camp(synth, out), c, chunk_size=2)
+
+
 def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, monkeypatch):
     """A pair whose processing kills the worker process every time: its chunk is split into
     single pairs, the deadly pair is recorded as failed and left out, the others are merged."""
-    import dask
     from rspiv.campaign import PairContext
 
     def deadly(ctx, pairs):  # a local function: pickled by value to the workers
@@ -278,11 +289,7 @@ def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, m
         return real(ctx, pairs)
 
     monkeypatch.setattr(scaleout, "process_chunk", deadly)
-    out = prepared_copy(local.out_dir, tmp_path / "out")
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
-            with distributed.Client(cluster) as c:
-                res = run_dask(_camp(synth, out), c, chunk_size=2)
+    out, res = _run_killing_workers(synth, local, tmp_path)
     assert set(res.skipped) == {3} and "worker died" in res.skipped[3]
     assert res.info["dask"]["pairs_failed"] == 1 and res.n_done == N_PAIRS - 1
     ev = _events(out)
@@ -303,7 +310,6 @@ def test_pair_killed_beside_another_is_retried_not_failed(synth, local, tmp_path
     """A single pair whose worker died once while it was only a bystander (Dask counts every
     task on a dying worker as suspect) is retried on its own and merged, not recorded failed:
     here pair 2's worker dies on its first two runs (its chunk's and its own) only."""
-    import dask
 
     count = tmp_path / "deaths"
     count.write_text("0")
@@ -323,11 +329,7 @@ def test_pair_killed_beside_another_is_retried_not_failed(synth, local, tmp_path
         return real(ctx, pairs)
 
     monkeypatch.setattr(scaleout, "process_chunk", dies_twice)
-    out = prepared_copy(local.out_dir, tmp_path / "out")
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        with scaleout.local_cluster(n_workers=2, rayon_threads=1) as cluster:
-            with distributed.Client(cluster) as c:
-                res = run_dask(_camp(synth, out), c, chunk_size=2)
+    out, res = _run_killing_workers(synth, local, tmp_path)
     assert count.read_text() == "2"
     assert not res.skipped and res.n_done == N_PAIRS
     ev = _events(out)
