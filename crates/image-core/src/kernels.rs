@@ -91,6 +91,21 @@ pub fn floor_i(x: f64) -> isize {
     }
 }
 
+/// The whole number `f` (a floor, say) as `isize`, exactly for `|f| <= 2^50`; beyond, and for
+/// NaN, clamped to +-2^50. By the bits of `f + 1.5 * 2^52`, whose mantissa then holds `f`: an
+/// add and an integer subtract that vectorise, where AVX2 has no packed f64 -> i64 conversion
+/// (a saturating `as`, and [`floor_i`], go lane by lane).
+#[inline(always)]
+pub fn int_of_whole(f: f64) -> isize {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52: ulp 1 over 2^52 +- 2^51
+    const LIM: f64 = 1_125_899_906_842_624.0; // 2^50
+
+    // not `clamp`: that keeps a NaN, whose bits would give an arbitrary integer
+    #[allow(clippy::manual_clamp)]
+    let c = f.max(-LIM).min(LIM);
+    ((c + MAGIC).to_bits() as i64 - MAGIC.to_bits() as i64) as isize
+}
+
 /// Whole-sample symmetric index into `n` samples: ... 2 1 | 0 1 .. n-1 | n-2 n-3 ...
 #[inline(always)]
 pub fn mirror(i: isize, n: usize) -> usize {
@@ -109,6 +124,28 @@ pub fn mirror(i: isize, n: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn int_of_whole_is_the_integer_within_its_range_and_clamps_beyond() {
+        let lim = (1i64 << 50) as f64;
+        for f in [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            7.0,
+            -8.0,
+            123_456_789.0,
+            -lim,
+            lim,
+            lim - 1.0,
+        ] {
+            assert_eq!(int_of_whole(f), f as isize, "{f}");
+        }
+        assert_eq!(int_of_whole(1e300), 1isize << 50);
+        assert_eq!(int_of_whole(-1e300), -(1isize << 50));
+        assert_eq!(int_of_whole(f64::NAN).abs(), 1isize << 50);
+    }
 
     #[test]
     fn keys_weights_match_kernel_and_partition_unity() {

@@ -11,7 +11,7 @@
 use super::field::*;
 use super::sample::inside;
 use super::{Img, Pixel};
-use image_core::kernels::mirror;
+use image_core::kernels::{int_of_whole, mirror};
 use image_core::zeroed_frame;
 use ndarray::CowArray;
 use rayon::prelude::*;
@@ -233,7 +233,7 @@ fn deform_row<U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
         for p in row.pos.iter_mut() {
             let t = p.max(0.0).min(last);
             let f = t.floor();
-            let i0 = int_of(f) as usize; // 0 ..= nx - 1
+            let i0 = int_of_whole(f) as usize; // 0 ..= nx - 1
             let i1 = (i0 + 1).min(g.nx - 1);
             let tx = t - f;
             *p = yf + sign * (vr[i0] * (1.0 - tx) + vr[i1] * tx);
@@ -340,30 +340,16 @@ fn deform_row<U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usize>(
 }
 
 /// First tap `floor(p) - (N/2 - 1)` and fraction `p - floor(p)` of every position (the floor
-/// through [`int_of`], which vectorises; a NaN position gives a NaN fraction, hence NaN
+/// through [`int_of_whole`], which vectorises; a NaN position gives a NaN fraction, hence NaN
 /// weights and a NaN sample, whatever its tap).
 #[inline(always)]
 fn split(pos: &[f64], base: &mut [isize], frac: &mut [f32], n: usize) {
     let back = (n / 2 - 1) as isize;
     for ((p, b), t) in pos.iter().zip(base.iter_mut()).zip(frac.iter_mut()) {
         let f = p.floor();
-        *b = int_of(f) - back;
+        *b = int_of_whole(f) - back;
         *t = (*p - f) as f32;
     }
-}
-
-/// The integer `f` (a whole number) as `isize`, exactly for `|f| <= 2^50` (px: far beyond any
-/// frame); beyond, and for NaN, clamped to +-2^50. By the bits of `f + 1.5 * 2^52`, whose
-/// mantissa then holds `f`: an add and an integer subtract that vectorise, where AVX2 has no
-/// packed f64 -> i64 conversion (a saturating `as` is converted lane by lane).
-#[inline(always)]
-fn int_of(f: f64) -> isize {
-    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 * 2^52: ulp 1 over 2^52 +- 2^51
-    const LIM: f64 = 1_125_899_906_842_624.0; // 2^50
-                                              // not `clamp`: that keeps a NaN, whose bits would give an arbitrary integer
-    #[allow(clippy::manual_clamp)]
-    let c = f.max(-LIM).min(LIM);
-    ((c + MAGIC).to_bits() as i64 - MAGIC.to_bits() as i64) as isize
 }
 
 /// The kernel's `N` weights of every fraction, stored `weights[k * len + i]` (one array per
@@ -377,30 +363,5 @@ fn weights_of<W: Fn(f32) -> [f32; N], const N: usize>(wf: W, frac: &[f32], weigh
         for k in 0..N {
             weights[k * len + i] = wv[k];
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn int_of_is_the_integer_within_its_range_and_clamps_beyond() {
-        let lim = (1i64 << 50) as f64;
-        for f in [
-            0.0,
-            -0.0,
-            1.0,
-            -1.0,
-            7.0,
-            -8.0,
-            123_456_789.0,
-            -lim,
-            lim,
-            lim - 1.0,
-        ] {
-            assert_eq!(super::int_of(f), f as isize, "{f}");
-        }
-        assert_eq!(super::int_of(1e300), 1isize << 50);
-        assert_eq!(super::int_of(-1e300), -(1isize << 50));
-        assert_eq!(super::int_of(f64::NAN).abs(), 1isize << 50);
     }
 }
