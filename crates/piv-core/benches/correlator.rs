@@ -1,8 +1,9 @@
-//! Correlator throughput (window pairs per second) per window shape, and the multipass engine
-//! on a 1024 x 1024 synthetic pair. Run: `cargo bench -p piv-core --bench correlator`.
+//! Correlator throughput (window pairs per second) per window shape, its plane and its peak
+//! search apart, and the multipass engine on a 1024 x 1024 synthetic pair. Run: `cargo bench -p piv-core --bench correlator`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use ndarray::Array2;
+use piv_core::correlate::find_peak;
 use piv_core::{piv, render_particles, Correlator, Mode, Pass, PivSettings, SubPixel};
 use rand::{Rng, SeedableRng};
 use std::hint::black_box;
@@ -23,6 +24,18 @@ fn pair(h: usize, w: usize, u: f64, v: f64) -> (Array2<u16>, Array2<u16>) {
     )
 }
 
+/// A correlator for `w` x `h` windows holding the windows of `a` and `b` at (10, 10).
+fn window_pair(a: &Array2<u16>, b: &Array2<u16>, w: usize, h: usize) -> Correlator {
+    let mut cor = Correlator::new(w, h);
+    for r in 0..h {
+        for c in 0..w {
+            cor.wa[r * w + c] = a[[r + 10, c + 10]] as f32;
+            cor.wb[r * w + c] = b[[r + 10, c + 10]] as f32;
+        }
+    }
+    cor
+}
+
 fn correlator(c: &mut Criterion) {
     let (a, b) = pair(256, 256, 1.3, -0.6);
     let mut g = c.benchmark_group("correlate_window_pair");
@@ -39,19 +52,28 @@ fn correlator(c: &mut Criterion) {
             BenchmarkId::from_parameter(name),
             &(w, h),
             |bch, &(w, h)| {
-                let mut cor = Correlator::new(w, h);
+                let mut cor = window_pair(&a, &b, w, h);
                 if sigma {
                     cor.uncertainty = piv_core::Uncertainty::Peak;
-                }
-                for r in 0..h {
-                    for c in 0..w {
-                        cor.wa[r * w + c] = a[[r + 10, c + 10]] as f32;
-                        cor.wb[r * w + c] = b[[r + 10, c + 10]] as f32;
-                    }
                 }
                 bch.iter(|| black_box(cor.correlate(SubPixel::Gauss3)));
             },
         );
+    }
+    // the two halves of a correlation: the normalised plane (FFTs, spectrum) and the peak
+    // search on it (highest peak, second and third, sub-pixel fits)
+    for (w, h) in [(32usize, 8usize), (32, 32), (64, 64)] {
+        g.bench_function(format!("{w}x{h}plane"), |bch| {
+            let mut cor = window_pair(&a, &b, w, h);
+            bch.iter(|| black_box(cor.correlate_plane()));
+        });
+        g.bench_function(format!("{w}x{h}peak"), |bch| {
+            let mut cor = window_pair(&a, &b, w, h);
+            cor.correlate_plane();
+            let (pl, cw, ch) = cor.plane();
+            let pl = pl.to_vec();
+            bch.iter(|| black_box(find_peak(&pl, cw, ch, w, h, SubPixel::Gauss3)));
+        });
     }
     g.finish();
 }

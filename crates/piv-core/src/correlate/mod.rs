@@ -165,7 +165,7 @@ pub struct Correlator {
     /// Window of frame B.
     pub wb: Vec<f32>,
     corr: Vec<f32>,
-    /// Scratch plane of the peak search.
+    /// Scratch plane of the peak search (`cw * (ch + 1)` values).
     hm: Vec<f32>,
     cw: usize,
     ch: usize,

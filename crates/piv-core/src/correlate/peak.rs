@@ -10,7 +10,7 @@ use super::{AltPeak, Peak, SubPixel};
 /// (Westerweel 1997); the integer peak, its height and the peak ratio use the plane itself.
 /// Allocates a scratch plane: [`super::Correlator::correlate`] uses its own instead.
 pub fn find_peak(corr: &[f32], cw: usize, ch: usize, w: usize, h: usize, sub: SubPixel) -> Peak {
-    let mut hm = vec![0.0f32; cw * ch];
+    let mut hm = vec![0.0f32; cw * (ch + 1)];
     find_peak_with(corr, &mut hm, cw, ch, w, h, None, sub).0
 }
 
@@ -24,21 +24,105 @@ pub(super) fn gt_max(a: f32, b: f32) -> f32 {
     }
 }
 
-/// The maximum of `x` (NaN skipped; -inf if empty), with 8 independent lanes.
+/// The maximum of `x` (NaN skipped; -inf if empty), with 8 independent lanes; from 8 values
+/// on, the last chunk overlaps the one before it (no scalar remainder).
 #[inline(always)]
 pub(super) fn max8(x: &[f32]) -> f32 {
+    if x.len() < 8 {
+        return x.iter().fold(f32::NEG_INFINITY, |m, &a| gt_max(a, m));
+    }
     let mut acc = [f32::NEG_INFINITY; 8];
-    let mut it = x.chunks_exact(8);
-    for c in &mut it {
+    for s in chunks8(x.len()) {
+        let c: &[f32; 8] = x[s..s + 8].try_into().unwrap();
         for k in 0..8 {
             acc[k] = gt_max(c[k], acc[k]);
         }
     }
-    let m = acc.iter().fold(f32::NEG_INFINITY, |m, &a| gt_max(a, m));
-    it.remainder().iter().fold(m, |m, &a| gt_max(a, m))
+    lanes_max(acc)
 }
 
-/// [`find_peak`] with a scratch plane `hm` of `cw * ch` values; also returns the plane
+/// The maximum of 8 lanes holding no NaN, by halves (three steps instead of a chain of
+/// eight).
+#[inline(always)]
+fn lanes_max(mut a: [f32; 8]) -> f32 {
+    for k in 0..4 {
+        a[k] = gt_max(a[k + 4], a[k]);
+    }
+    for k in 0..2 {
+        a[k] = gt_max(a[k + 2], a[k]);
+    }
+    gt_max(a[1], a[0])
+}
+
+/// The starts `s` of the 8-value chunks `s .. s + 8` covering `0 .. n` (`n >= 8`): `0, 8,
+/// ...` and, where `n` is not a multiple of 8, a last chunk `n - 8 ..` overlapping the one
+/// before (for work that gives the same result when done twice).
+#[inline(always)]
+fn chunks8(n: usize) -> impl Iterator<Item = usize> {
+    (0..n).step_by(8).map(move |s| s.min(n - 8))
+}
+
+/// `o[i] = max(row[i], row[i + 1], row[i + 2])` for `i < o.len()` (the horizontal maxima of
+/// the 3 x 3 neighbourhoods, centred on `i + 1`); returns 8 lanes whose maximum is that of
+/// `row[1 ..= o.len()]` (the row's search region).
+#[inline(always)]
+fn row_max3(row: &[f32], o: &mut [f32]) -> [f32; 8] {
+    let n = o.len();
+    let row = &row[..n + 2];
+    if n < 8 {
+        for (i, o) in o.iter_mut().enumerate() {
+            *o = gt_max(gt_max(row[i], row[i + 1]), row[i + 2]);
+        }
+        let mut acc = [f32::NEG_INFINITY; 8];
+        acc[0] = max8(&row[1..n + 1]);
+        return acc;
+    }
+    let mut acc = [f32::NEG_INFINITY; 8];
+    for s in chunks8(n) {
+        let a: &[f32; 8] = row[s..s + 8].try_into().unwrap();
+        let b: &[f32; 8] = row[s + 1..s + 9].try_into().unwrap();
+        let c: &[f32; 8] = row[s + 2..s + 10].try_into().unwrap();
+        let o: &mut [f32; 8] = (&mut o[s..s + 8]).try_into().unwrap();
+        for k in 0..8 {
+            o[k] = gt_max(gt_max(a[k], b[k]), c[k]);
+            acc[k] = gt_max(b[k], acc[k]);
+        }
+    }
+    acc
+}
+
+/// The local maxima of one row: `o[i] = v[i]` where `v[i]` is at least the maximum of the
+/// three horizontal maxima `up[i]`, `mid[i]`, `dn[i]` (its 3 x 3 neighbourhood), else -inf.
+#[inline(always)]
+fn local_max_row(up: &[f32], mid: &[f32], dn: &[f32], v: &[f32], o: &mut [f32]) {
+    let n = o.len();
+    let pick = |u: f32, m: f32, d: f32, x: f32| {
+        let mx = gt_max(gt_max(u, m), d);
+        if x >= mx {
+            x
+        } else {
+            f32::NEG_INFINITY
+        }
+    };
+    if n < 8 {
+        for i in 0..n {
+            o[i] = pick(up[i], mid[i], dn[i], v[i]);
+        }
+        return;
+    }
+    for s in chunks8(n) {
+        let u: &[f32; 8] = up[s..s + 8].try_into().unwrap();
+        let m: &[f32; 8] = mid[s..s + 8].try_into().unwrap();
+        let d: &[f32; 8] = dn[s..s + 8].try_into().unwrap();
+        let x: &[f32; 8] = v[s..s + 8].try_into().unwrap();
+        let o: &mut [f32; 8] = (&mut o[s..s + 8]).try_into().unwrap();
+        for k in 0..8 {
+            o[k] = pick(u[k], m[k], d[k], x[k]);
+        }
+    }
+}
+
+/// [`find_peak`] with a scratch plane `hm` of `cw * (ch + 1)` values; also returns the plane
 /// positions `(column, row)` of the peak and of its two alternatives.
 #[inline(always)]
 pub(super) fn find_peak_with(
@@ -52,66 +136,55 @@ pub(super) fn find_peak_with(
     sub: SubPixel,
 ) -> (Peak, [(usize, usize); 3]) {
     let corr = &corr[..cw * ch];
-    let hm = &mut hm[..cw * ch];
+    let (hm, lm) = hm[..cw * (ch + 1)].split_at_mut(cw * ch);
     let at = |c: usize, r: usize| corr[r * cw + c];
-    let (hx, hy) = ((cw / 2) as f32, (ch / 2) as f32);
-    let (fw, fh) = (w as f32, h as f32);
-    // the windows' overlap at each lag: given (weighted windows) or the top-hat's
-    let unbiased = |c: usize, r: usize| match overlap {
-        Some((ox, oy)) => corr[r * cw + c] / (ox[c] * oy[r]),
-        None => {
-            let ox = 1.0 - (c as f32 - hx).abs() / fw;
-            let oy = 1.0 - (r as f32 - hy).abs() / fh;
-            corr[r * cw + c] / (ox * oy)
-        }
+    let ub = Unbiased {
+        corr,
+        cw,
+        hx: (cw / 2) as f32,
+        hy: (ch / 2) as f32,
+        fw: w as f32,
+        fh: h as f32,
+        overlap,
     };
+    let unbiased = |c: usize, r: usize| ub.at(c, r);
     let n = cw - 2;
-    // primary peak inside the border (the first of equal values in row-major order)
+    let lm = &mut lm[..n];
+    // one pass over the rows: the maxima of the 3 x 3 neighbourhoods along x (hm[r cw + i]
+    // for column i + 1), and the primary peak inside the border (the first of equal values in
+    // row-major order)
     let (mut pc, mut pr, mut best) = (1usize, 1usize, f32::NEG_INFINITY);
-    for (r, row) in corr.chunks_exact(cw).enumerate().take(ch - 1).skip(1) {
-        let inner = &row[1..cw - 1];
-        let m = max8(inner);
-        if m > best {
+    for (r, (o, row)) in hm
+        .chunks_exact_mut(cw)
+        .zip(corr.chunks_exact(cw))
+        .enumerate()
+    {
+        let lanes = row_max3(row, &mut o[..n]);
+        if r >= 1 && r < ch - 1 && lanes_max(lanes) > best {
+            let m = lanes_max(lanes);
             best = m;
             pr = r;
-            pc = 1 + inner.iter().position(|&v| v == m).unwrap_or(0);
+            pc = 1 + row[1..cw - 1].iter().position(|&v| v == m).unwrap_or(0);
         }
     }
     if !best.is_finite() {
         return (Peak::FAILED, [(0, 0); 3]);
     }
-    // second-highest local maximum outside the peak's 3 x 3 neighbourhood: maximum of the
-    // 3 x 3 neighbourhoods, separably (rows first: hm[r cw + i] for column i + 1)
-    for (o, row) in hm.chunks_exact_mut(cw).zip(corr.chunks_exact(cw)) {
-        for (((o, &a), &b), &c) in o[..n]
-            .iter_mut()
-            .zip(&row[..n])
-            .zip(&row[1..n + 1])
-            .zip(&row[2..])
-        {
-            *o = gt_max(gt_max(a, b), c);
-        }
-    }
-    // then along y, in place into the first n values of row r - 1 (rows r - 1, r, r + 1 are
-    // still the horizontal maxima when row r is reached), keeping the value where it is a
-    // local maximum (at least its neighbourhood's maximum) and -inf elsewhere; the two highest
-    // local maxima (not adjacent to each other: a plateau counts once) are kept with their lags
+    // second-highest local maximum outside the peak's 3 x 3 neighbourhood: each row's local
+    // maxima (its values at least their neighbourhood's maximum, -inf elsewhere) into lm; the
+    // two highest (not adjacent to each other: a plateau counts once) are kept with their lags
     let mut top = [(f32::NEG_INFINITY, 0usize, 0usize); 2];
     for r in 1..ch - 1 {
-        let (up, rest) = hm[(r - 1) * cw..].split_at_mut(cw);
-        let (mid, dn) = rest.split_at(cw);
-        let v = &corr[r * cw + 1..r * cw + 1 + n];
-        let up = &mut up[..n];
-        for (((u, &m), &d), &x) in up.iter_mut().zip(&mid[..n]).zip(&dn[..n]).zip(v) {
-            let mx = gt_max(gt_max(*u, m), d);
-            *u = if x >= mx { x } else { f32::NEG_INFINITY };
-        }
+        let up = &hm[(r - 1) * cw..][..n];
+        let mid = &hm[r * cw..][..n];
+        let dn = &hm[(r + 1) * cw..][..n];
+        local_max_row(up, mid, dn, &corr[r * cw + 1..][..n], lm);
         if r.abs_diff(pr) <= 1 {
             // not the peak's own neighbourhood: columns pc-1 ..= pc+1 (indices pc-2 ..= pc)
-            up[pc.saturating_sub(2)..(pc + 1).min(n)].fill(f32::NEG_INFINITY);
+            lm[pc.saturating_sub(2)..(pc + 1).min(n)].fill(f32::NEG_INFINITY);
         }
-        if max8(up) > top[1].0 {
-            for (i, &x) in up.iter().enumerate() {
+        if max8(lm) > top[1].0 {
+            for (i, &x) in lm.iter().enumerate() {
                 if x > top[1].0 {
                     keep_top2(&mut top, (x, i + 1, r));
                 }
@@ -122,8 +195,12 @@ pub(super) fn find_peak_with(
     let ratio = peak_ratio(best, second);
     // a peak on the search border is kept only if it is a true local maximum (the plane has
     // one exact lag beyond the search range on every side)
-    let on_border = (pr - 1..=pr + 1)
-        .any(|rr| (pc - 1..=pc + 1).any(|cc| (rr, cc) != (pr, pc) && at(cc, rr) > best));
+    let mut on_border = false;
+    for rr in pr - 1..=pr + 1 {
+        for cc in pc - 1..=pc + 1 {
+            on_border |= (rr, cc) != (pr, pc) && at(cc, rr) > best;
+        }
+    }
     let (ox, oy) = match sub {
         SubPixel::Gauss3 => gauss3_2(&unbiased, pc, pr),
         SubPixel::Gauss2d => {
@@ -156,6 +233,36 @@ pub(super) fn find_peak_with(
         sigma: (f64::NAN, f64::NAN),
     };
     (peak, lags)
+}
+
+/// A correlation plane divided by the windows' overlap at each lag: the values the sub-pixel
+/// fits use ([`find_peak`]).
+struct Unbiased<'a> {
+    corr: &'a [f32],
+    cw: usize,
+    /// The plane's centre (lag 0).
+    hx: f32,
+    hy: f32,
+    /// The window size.
+    fw: f32,
+    fh: f32,
+    /// The weighted windows' overlap per lag along x and y; the top-hat's where `None`.
+    overlap: Option<(&'a [f32], &'a [f32])>,
+}
+
+impl Unbiased<'_> {
+    #[inline(always)]
+    fn at(&self, c: usize, r: usize) -> f32 {
+        let v = self.corr[r * self.cw + c];
+        match self.overlap {
+            Some((ox, oy)) => v / (ox[c] * oy[r]),
+            None => {
+                let ox = 1.0 - (c as f32 - self.hx).abs() / self.fw;
+                let oy = 1.0 - (r as f32 - self.hy).abs() / self.fh;
+                v / (ox * oy)
+            }
+        }
+    }
 }
 
 /// The peak ratio of a plane whose highest value is `best` and second-highest local maximum
@@ -202,9 +309,15 @@ pub(super) fn keep_top2(top: &mut [(f32, usize, usize); 2], cand: (f32, usize, u
 /// 3-point estimator along one axis; Gaussian when all values are positive, else parabolic.
 #[inline]
 pub fn gauss3(m: f32, c: f32, p: f32) -> f64 {
+    gauss3_lc(m, c, p, (c as f64).ln())
+}
+
+/// [`gauss3`] given `lc = ln(c)` (used only where `c > 0`).
+#[inline(always)]
+fn gauss3_lc(m: f32, c: f32, p: f32, lc: f64) -> f64 {
     let (m, c, p) = (m as f64, c as f64, p as f64);
     let off = if m > 0.0 && c > 0.0 && p > 0.0 {
-        let (lm, lc, lp) = (m.ln(), c.ln(), p.ln());
+        let (lm, lp) = (m.ln(), p.ln());
         let den = 2.0 * (lm - 2.0 * lc + lp);
         if den < 0.0 {
             (lm - lp) / den
@@ -222,10 +335,14 @@ pub fn gauss3(m: f32, c: f32, p: f32) -> f64 {
     off.clamp(-0.5, 0.5)
 }
 
+/// [`gauss3`] along x and y at plane position `(c, r)` of `at`, the centre's logarithm once.
+#[inline(always)]
 pub(super) fn gauss3_2(at: &impl Fn(usize, usize) -> f32, c: usize, r: usize) -> (f64, f64) {
+    let v = at(c, r);
+    let lc = (v as f64).ln();
     (
-        gauss3(at(c - 1, r), at(c, r), at(c + 1, r)),
-        gauss3(at(c, r - 1), at(c, r), at(c, r + 1)),
+        gauss3_lc(at(c - 1, r), v, at(c + 1, r), lc),
+        gauss3_lc(at(c, r - 1), v, at(c, r + 1), lc),
     )
 }
 

@@ -75,7 +75,7 @@ impl Correlator {
             wa: vec![0.0; w * h],
             wb: vec![0.0; w * h],
             corr: vec![0.0; cw * ch],
-            hm: vec![0.0; cw * ch],
+            hm: vec![0.0; cw * (ch + 1)],
             cw,
             ch,
             min_var: 0.0,
