@@ -159,9 +159,8 @@ pub(super) fn find_peak_with(
         .zip(corr.chunks_exact(cw))
         .enumerate()
     {
-        let lanes = row_max3(row, &mut o[..n]);
-        if r >= 1 && r < ch - 1 && lanes_max(lanes) > best {
-            let m = lanes_max(lanes);
+        let m = lanes_max(row_max3(row, &mut o[..n]));
+        if r >= 1 && r < ch - 1 && m > best {
             best = m;
             pr = r;
             pc = 1 + row[1..cw - 1].iter().position(|&v| v == m).unwrap_or(0);
