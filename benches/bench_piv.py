@@ -13,6 +13,10 @@
    (square windows only) with its Rust backend in another child (``--no-full-peer`` skips it).
 4. Bias and RMS error against the true uniform displacement 0..1 px (32 x 32 final windows).
 
+Times on the 4096 x 2048 pair are the best of two runs, for rspiv and for every peer alike (the
+machines are noisy; a first run also pays its tool's warm-up); the full-sensor cases run once
+each, in fresh processes.
+
 Synthetic pairs: particles 2.5 px, 0.03 per px, 5 % noise, 12 bit (``rspiv.synth``); the
 displacement is a smooth field of a few px.
 """
@@ -68,7 +72,7 @@ def single_pass(a, b, rows):
                 # openpiv's centres count from the pixel corner: ours = theirs - 0.5
                 return x - 0.5, y - 0.5, u, v
 
-            t, (x, y, u, v) = best_of(run, 1)
+            t, (x, y, u, v) = best_of(run)
             rows.append((f"openpiv {backend}", t, u.size, rms(x, y, u, v)))
         except Exception as exc:  # peer missing or failing: report, do not hide
             rows.append((f"openpiv {backend} (failed: {exc})", np.nan, 0, np.nan))
@@ -81,7 +85,7 @@ def single_pass(a, b, rows):
             return x, y, u, v
 
         run_ff()  # numba compilation
-        t, (x, y, u, v) = best_of(run_ff, 1)
+        t, (x, y, u, v) = best_of(run_ff)
         xx, yy = np.meshgrid(x, y) if np.ndim(x) == 1 else (x, y)
         rows.append(("ffpiv", t, u.size, rms(xx, yy, u, v)))
     except Exception as exc:
@@ -89,9 +93,9 @@ def single_pass(a, b, rows):
 
 
 def multipass(a, b, rows):
-    t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)]), 1)
+    t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)]))
     rows.append(("rspiv 64->32 symmetric deformation", t, f.u.size, rms(f.x, f.y, f.u, f.v)))
-    t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)], iterations=[1, 2]), 1)
+    t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)], iterations=[1, 2]))
     rows.append(("rspiv 64->32 (x2 iterations)", t, f.u.size, rms(f.x, f.y, f.u, f.v)))
     from openpiv import tools, windef
 
@@ -100,9 +104,8 @@ def multipass(a, b, rows):
     s.overlap = (32, 16)
     s.num_iterations = 2
     s.show_plot = False
-    t0 = time.perf_counter()
-    x, y, u, v, _ = windef.simple_multipass(a.astype(np.float64), b.astype(np.float64), s)
-    t = time.perf_counter() - t0
+    af, bf = a.astype(np.float64), b.astype(np.float64)
+    t, (x, y, u, v, _) = best_of(lambda: windef.simple_multipass(af, bf, s))
     x, y, u, v = tools.transform_coordinates(x, y, u, v)
     x, y = x - 0.5, y - 0.5
     rows.append(("openpiv.windef 64->32", t, u.size, rms(x, y, u, v)))
