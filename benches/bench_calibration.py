@@ -135,9 +135,11 @@ def main() -> None:
         best = min(best, time.perf_counter() - t)
     s = det["size_px"]
     print(f"rspiv detect_markers 47 MP: {best:.3f} s ({len(det['image_px'])} markers)")
-    t = time.perf_counter()
-    sp = scipy_detect(tg.image, s)
-    t_sp = time.perf_counter() - t
+    t_sp = np.inf
+    for _ in range(2):  # best of two, as rspiv's (a first run also pays the peer's warm-up)
+        t = time.perf_counter()
+        sp = scipy_detect(tg.image, s)
+        t_sp = min(t_sp, time.perf_counter() - t)
     print(f"scipy detection 47 MP: {t_sp:.3f} s ({len(sp)} markers); ratio {t_sp / best:.1f}x")
     t = time.perf_counter()
     cal = rspiv.calibrate(tg.image, 19.51, model="p3", compare=False)
