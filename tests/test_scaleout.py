@@ -294,7 +294,10 @@ def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, m
     assert res.info["dask"]["pairs_failed"] == 1 and res.n_done == N_PAIRS - 1
     ev = _events(out)
     assert [e["pair_id"] for e in ev if e["event"] == "failed"] == [3]
-    assert [e["pairs"] for e in ev if e["event"] == "chunk_split"] == [[2, 3]]
+    # the deadly pair's chunk is split; a bystander chunk queued on a dying worker may be too
+    # (which one is the scheduler's choice): its pairs are then merged like the others
+    splits = [e["pairs"] for e in ev if e["event"] == "chunk_split"]
+    assert [c for c in splits if 3 in c] == [[2, 3]], splits
     # retried once apart from the other suspects before being recorded
     assert 3 in [e["pair_id"] for e in ev if e["event"] == "pair_retry"]
     # the statistics are one pass over the other pairs
@@ -334,7 +337,10 @@ def test_pair_killed_beside_another_is_retried_not_failed(synth, local, tmp_path
     assert not res.skipped and res.n_done == N_PAIRS
     ev = _events(out)
     assert not [e for e in ev if e["event"] == "failed"]
-    assert [e["pairs"] for e in ev if e["event"] == "chunk_split"] == [[2, 3]]
+    # pair 2's chunk is split (and a bystander chunk queued on a dying worker may be: the
+    # scheduler's choice; the CI saw [4, 5] split beside it, its pairs merged)
+    splits = [e["pairs"] for e in ev if e["event"] == "chunk_split"]
+    assert [c for c in splits if 2 in c] == [[2, 3]], splits
     assert 2 in [e["pair_id"] for e in ev if e["event"] == "pair_retry"]
     for run, acc in local.accumulators.items():
         assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)
