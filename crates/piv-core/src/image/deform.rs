@@ -10,7 +10,7 @@
 
 use super::field::*;
 use super::sample::inside;
-use super::{Img, Pixel};
+use super::{Img, Pixel, LANES};
 use image_core::kernels::{int_of_whole, mirror};
 use image_core::zeroed_frame;
 use ndarray::CowArray;
@@ -116,9 +116,6 @@ fn simd_available() -> bool {
         false
     }
 }
-
-/// Pixels handled together by the vector paths (8 f32 lanes of AVX2).
-const LANES: usize = 8;
 
 /// What one output row needs (shared by the rows).
 struct RowJob<'j, 'a, 'b, U: Pixel, W, const N: usize> {

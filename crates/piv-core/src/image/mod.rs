@@ -184,6 +184,10 @@ pub fn bspline5_coeffs<T: Pixel>(img: &Img<'_, T>) -> Img<'static, f32> {
     spline_coeffs(img, SplineOrder::Quintic)
 }
 
+/// Pixels handled together by the vector loops of the deformation and of the window offset's
+/// sampler (8 f32 lanes of AVX2).
+const LANES: usize = 8;
+
 mod deform;
 mod field;
 mod sample;

@@ -2,7 +2,7 @@
 //! window pair, and the deformation of a whole frame pair.
 
 use super::field::*;
-use super::{Img, Pixel};
+use super::{Img, Pixel, LANES};
 use image_core::kernels::{floor_i, mirror};
 
 /// How a window pair is sampled: top-left pixel position of the window (may be fractional), the
@@ -275,9 +275,6 @@ pub(crate) fn sample_shift<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N], const N: 
         shift_per_pixel(interp, &wx, &wy, w, h, ix, iy, out);
     }
 }
-
-/// Columns summed together in registers by [`shift_separable`] (8 f32 lanes of AVX2).
-const LANES: usize = 8;
 
 /// Longest window row (px) of [`shift_separable`] (its ring of `N` rows is on the stack).
 pub(crate) const SHIFT_LINE: usize = 128;
