@@ -214,6 +214,10 @@ pub struct EnsemblePeak {
     pub cross: (f64, f64, f64),
     /// Covariance of the auto-correlation peak (NaN without auto planes), px^2.
     pub auto: (f64, f64, f64),
+    /// Centre `(x, y)` of the auto-correlation peak relative to the zero lag, px (NaN without
+    /// auto planes): 0 where the particles are spread evenly about the window or row; next to a
+    /// wall, the mean offset of the particles it sees (those beyond the wall are missing).
+    pub auto_centre: (f64, f64),
     /// Height of the mean normalised cross plane at its integer maximum.
     pub coef: f64,
     /// Planes summed (cross, auto).
@@ -229,6 +233,7 @@ impl EnsemblePeak {
         dy: f64::NAN,
         cross: (f64::NAN, f64::NAN, f64::NAN),
         auto: (f64::NAN, f64::NAN, f64::NAN),
+        auto_centre: (f64::NAN, f64::NAN),
         coef: 0.0,
         count: (0.0, 0.0),
         ok: false,
@@ -289,24 +294,37 @@ fn fit_row(row: &[f64], lay: Layout, w: usize, h: usize) -> EnsemblePeak {
             ..EnsemblePeak::FAILED
         };
     };
-    let auto = if na > 0.0 {
+    let (auto_centre, auto) = if na > 0.0 {
         let plane = &row[np..2 * np];
         let centre = (cw / 2, ch / 2);
-        baseline_fit(|c, r| unbiased(plane, na, c, r), cw, ch, centre, true)
-            .map(|(_, _, cv)| cv)
-            .unwrap_or((f64::NAN, f64::NAN, f64::NAN))
+        split_fit(baseline_fit(
+            |c, r| unbiased(plane, na, c, r),
+            cw,
+            ch,
+            centre,
+            true,
+        ))
     } else {
-        (f64::NAN, f64::NAN, f64::NAN)
+        split_fit(None)
     };
     EnsemblePeak {
         dx: pc as f64 - hx + mx,
         dy: pr as f64 - hy + my,
         cross: cov,
         auto,
+        auto_centre,
         coef,
         count: (nc, na),
         ok: true,
     }
+}
+
+/// A peak fit's centre and covariance apart, NaN for a failed fit.
+pub(crate) fn split_fit(fit: Option<(f64, f64, (f64, f64, f64))>) -> ((f64, f64), (f64, f64, f64)) {
+    fit.map_or(
+        ((f64::NAN, f64::NAN), (f64::NAN, f64::NAN, f64::NAN)),
+        |(x, y, cv)| ((x, y), cv),
+    )
 }
 
 /// Weighted least-squares fit of `ln R = c0 + c1 x + c2 y + c3 x^2 + c4 x y + c5 y^2` over the

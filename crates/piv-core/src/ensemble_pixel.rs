@@ -32,7 +32,7 @@
 //! C_auto` the displacement covariance at that row (px^2), with no window to spread the mean
 //! gradient over (the particle image's own height does, and is in both peaks).
 
-use crate::ensemble::{baseline_fit, EnsemblePeak};
+use crate::ensemble::{baseline_fit, split_fit, EnsemblePeak};
 use crate::error::{PivError, Result};
 use crate::image::{inside, Pixel};
 use crate::multipass::{check_mask, check_pair, excluded_point, Frames, Interpolation};
@@ -239,6 +239,7 @@ fn fit_row(row: &[f64], cw: usize, ch: usize) -> EnsemblePeak {
         dy: f64::NAN,
         cross: (f64::NAN, f64::NAN, f64::NAN),
         auto: (f64::NAN, f64::NAN, f64::NAN),
+        auto_centre: (f64::NAN, f64::NAN),
         coef: 0.0,
         count: (nc, na),
         ok: false,
@@ -260,7 +261,7 @@ fn fit_row(row: &[f64], cw: usize, ch: usize) -> EnsemblePeak {
     else {
         return EnsemblePeak { coef, ..failed };
     };
-    let auto = if na > 0.0 {
+    let (auto_centre, auto) = split_fit(if na > 0.0 {
         let plane = &row[np..2 * np];
         baseline_fit(
             |c, r| plane[r * cw + c] / na,
@@ -269,16 +270,15 @@ fn fit_row(row: &[f64], cw: usize, ch: usize) -> EnsemblePeak {
             (cw / 2, ch / 2),
             true,
         )
-        .map(|(_, _, cv)| cv)
-        .unwrap_or((f64::NAN, f64::NAN, f64::NAN))
     } else {
-        (f64::NAN, f64::NAN, f64::NAN)
-    };
+        None
+    });
     EnsemblePeak {
         dx: pc as f64 - (cw / 2) as f64 + mx,
         dy: pr as f64 - (ch / 2) as f64 + my,
         cross: cov,
         auto,
+        auto_centre,
         coef,
         count: (nc, na),
         ok: true,

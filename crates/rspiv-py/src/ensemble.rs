@@ -97,6 +97,8 @@ fn peaks_dict<'py>(py: Python<'py>, res: &[EnsemblePeak]) -> PyResult<Bound<'py,
     d.set_item("axx", col(&|p| p.auto.0).into_pyarray(py))?;
     d.set_item("ayy", col(&|p| p.auto.1).into_pyarray(py))?;
     d.set_item("axy", col(&|p| p.auto.2).into_pyarray(py))?;
+    d.set_item("adx", col(&|p| p.auto_centre.0).into_pyarray(py))?;
+    d.set_item("ady", col(&|p| p.auto_centre.1).into_pyarray(py))?;
     d.set_item("coef", col(&|p| p.coef).into_pyarray(py))?;
     d.set_item("count", col(&|p| p.count.0).into_pyarray(py))?;
     d.set_item("count_auto", col(&|p| p.count.1).into_pyarray(py))?;

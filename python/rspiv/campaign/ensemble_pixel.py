@@ -19,11 +19,14 @@ Frames per run
     (``spec["pixel"]["bend_px"]``, reported in the profile's metadata).
 
 Result (:func:`pixel_profile`)
-    Per row: the mean displacement and the stresses (px per pair, pixel axes of the run's frame),
-    the row's distance from the wall the final analysis found, the segments summed and
-    ``near_wall``: the rows within two particle-image widths of the wall, which the wall biases
-    (:class:`rspiv.ensemble.PixelAccumulator`, Notes: +15 % at 0.75 px on the synthetic layer).
-    Units as the window profile (SI, wall units) when the analysis has them.
+    Per row: the mean displacement (the Gaussian fit's bias removed) and the stresses (px per
+    pair, pixel axes of the run's frame), the distance from the wall the final analysis found at
+    which the row measures (``dist_px``: the row's own distance ``dist_row_px`` moved by the mean
+    offset of the particles it sees; next to the wall they lie farther out, see
+    :mod:`rspiv.ensemble_pixel_model`), the segments summed and ``near_wall``: the rows within
+    two particle-image widths of the wall, whose effective distance differs from their own and
+    whose fit bias is the nearest modelled row's. Units as the window profile (SI, wall units)
+    when the analysis has them.
 """
 
 from __future__ import annotations
@@ -278,7 +281,8 @@ def to_object(ctx: PairContext, lay: dict, u, v, uu, vv, uv) -> tuple:
 
 
 def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any) -> dict:
-    """The single-pixel profile of ``run`` (module docstring): ``dist_px``, ``U``, ``V``,
+    """The single-pixel profile of ``run`` (module docstring): ``dist_px`` (where the row
+    measures), ``dist_row_px``, ``U``, ``V``,
     ``uu``, ``vv``, ``uv``, ``segments``, ``saturated`` (mean fraction of the row's pixels
     saturated in the raw frames), the flags ``near_wall`` and ``clipped`` (more than
     :data:`SATURATED_MAX` saturated) per row, ``pairs``."""
@@ -293,9 +297,17 @@ def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any
         dist = np.mean(sign * (an.wall.line(X) - Y), axis=1)
     else:
         dist = lay["dist"]
+    # where the row measures (rspiv.ensemble_pixel_model): its offset from the row, in the
+    # accumulator's px, to the run's frame (Method II: object px, by the mapping's local scale)
+    shift = np.nan_to_num(res["dist_eff"] - res["dist"])
+    if run.method == "II":
+        pts = np.column_stack([X.ravel(), Y.ravel()])
+        J = ctx.mapping.forward_jacobian(pts).reshape(X.shape + (2, 2)).mean(axis=1)
+        shift = shift / np.sqrt(np.abs(np.linalg.det(J)))
     keep = res["ok"] & np.isfinite(u) & np.isfinite(v)
     return {
-        "dist_px": dist[keep],
+        "dist_px": (dist + shift)[keep],
+        "dist_row_px": dist[keep],
         "U": u[keep],
         "V": v[keep],
         "uu": uu[keep],
