@@ -305,6 +305,7 @@ def test_single_pixel_rows_at_the_wall(processed, scenes):
         # away from the wall no particle image is clipped here (next to it a particle and its
         # mirror image can add up to saturation)
         assert not prof["clipped"][~near].any() and np.all(prof["saturated"][~near] < 0.001)
+        assert prof["corrected"].all()
         errs[run.name] = (yp, err)
         if run.method == "none":
             continue
@@ -320,7 +321,9 @@ def test_single_pixel_rows_at_the_wall(processed, scenes):
     # written with the flag and a warning for the flagged rows
     out = camp.out_dir
     text = (out / "profile_pixel_method_II.csv").read_text()
-    assert "near_wall" in text and "reported there" in text
+    assert "near_wall" in text and "reported there" in text and "dist_row_px" in text
+    assert "corrected" in text
+    assert "keep the peak fit's bias" not in text
     import xarray as xr
 
     with xr.open_dataset(out / "profile_pixel_method_II.nc") as ds:

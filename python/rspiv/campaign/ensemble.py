@@ -423,6 +423,7 @@ def ensemble_dataset(prof: dict[str, Any], attrs: dict[str, Any] | None = None):
             "1",
         ),
         "saturated": ("mean fraction of the row's pixels saturated in the raw frames", "1"),
+        "corrected": ("1: the single-pixel row's peak-fit bias was modelled and removed", "1"),
         "clipped": ("1: more of the row's pixels saturated than SATURATED_MAX", "1"),
         "y_m": ("wall distance", "m"),
         "U_si": ("mean streamwise velocity", "m s-1"),
@@ -517,6 +518,12 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
             f"{clipped} row(s) have more than {100 * SATURATED_MAX:g} % of their pixels "
             "saturated in the raw frames (glare?) and read wrong (clipped = 1)"
         )
+    if "corrected" in prof and not np.all(prof["corrected"]):
+        said.append(
+            f"{int(np.count_nonzero(~np.asarray(prof['corrected'], dtype=bool)))} row(s) keep "
+            "the peak fit's bias (1-3.5 % low on the synthetic layer): no row two image widths "
+            "out to model it from, or its model failed (corrected = 0)"
+        )
     out: dict[str, Any] = {"clipped_rows": clipped, "warning": "; ".join(said)}
     if "near_wall" in prof:
         out["near_wall_rows"] = near
@@ -538,7 +545,7 @@ def _write(camp, res, run, prof: dict, meta: dict, kind: str, title: str) -> Non
     says (flags as 0/1)."""
     if np.size(prof["dist_px"]) == 0:
         raise InvalidInputError(f"no row of the {kind} band gave a peak, nothing written")
-    flags = ("near_wall", "clipped")
+    flags = ("near_wall", "clipped", "corrected")
     cols = {k: (np.asarray(v).astype(int) if k in flags else v) for k, v in prof.items()}
     cols.pop("pairs")
     out = camp.out_dir / f"profile_{kind}_{run.name}"

@@ -284,7 +284,8 @@ def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any
     """The single-pixel profile of ``run`` (module docstring): ``dist_px`` (where the row
     measures), ``dist_row_px``, ``U``, ``V``,
     ``uu``, ``vv``, ``uv``, ``segments``, ``saturated`` (mean fraction of the row's pixels
-    saturated in the raw frames), the flags ``near_wall`` and ``clipped`` (more than
+    saturated in the raw frames), the flags ``near_wall``, ``corrected`` (the fit's bias
+    removed) and ``clipped`` (more than
     :data:`SATURATED_MAX` saturated) per row, ``pairs``."""
     lay = pixel_layout(ctx, run)
     res = acc.result()
@@ -316,6 +317,7 @@ def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any
         "segments": np.asarray(res["count"])[keep],
         "saturated": np.asarray(res["saturated"])[keep],
         "near_wall": np.asarray(res["near_wall"])[keep],
+        "corrected": np.asarray(res["corrected"])[keep],
         "clipped": np.asarray(res["saturated"])[keep] > SATURATED_MAX,
         "pairs": int(acc.pairs),
     }
