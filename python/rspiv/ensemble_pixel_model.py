@@ -31,8 +31,8 @@ intensity at the row. Two things follow.
 
 Measured (``tests/test_ensemble.py``, the synthetic layer at scale 0.1: viscous length 1.49 px,
 2.5 px images, reflection 0.5): against the realisations' exact mean at ``d_eff``, 400 pairs
-read within 1.1-2.1 % for 0.5 <= y+ <= 5 (before: -4.5 % to +17 % at ``d``); with 40 pairs the
-random error of a row is itself 2-4 %.
+read within 1.35 % for 0.5 <= y+ <= 5 (before: -4.5 % to +17 % at ``d``), four sets of 160
+pairs within 1.2-2.6 %; with 40 pairs the random error of a row is itself 2-4 %.
 
 Units: px (distances and displacements per pair), px^2 (stresses). Distance coordinates: ``d``
 into the flow from the wall; a positive pixel lag ``sy`` is toward the wall when the flow is
@@ -97,7 +97,9 @@ def model_planes(
     """Expected single-pixel accumulator rows (:func:`rspiv._rspiv.pixel_stride` values each)
     for rows at distances ``d`` with predictors ``du``: Gaussian particle images of variances
     ``s2 = (sx^2, sy^2)``, particles uniform in ``t > 0``, moving with the ``profile``
-    (``y``, ``u``, ``uu``, ``vv``, ``uv`` sampled at increasing ``y``, linear in between)."""
+    (``y``, ``u``, ``uu``, ``vv``, ``uv`` sampled at increasing ``y``, linear in between; ``v``
+    into the flow). The planes are laid out as for a flow "above" the wall (a positive lag
+    toward it); only their fits are used, each against its own model."""
     rx, ry = lags
     lx, ly = np.arange(-rx, rx + 1.0), np.arange(-ry, ry + 1.0)
     npl = lx.size * ly.size
@@ -146,7 +148,8 @@ def fit_bias(
     """The Gaussian fit's bias on each row's ``u`` (px; subtract it), see the module docs.
 
     ``dist``/``d_eff``: the rows' distances and effective distances (px), ``du``: their mean
-    predictors, ``u``: the fitted displacements, ``stresses``: ``(uu, vv, uv)`` (px^2),
+    predictors, ``u``: the fitted displacements, ``stresses``: ``(uu, vv, uv)`` (px^2, ``v``
+    into the flow: the pixel frame's ``-uv`` for a flow "above" the wall),
     ``auto``: the auto peaks' ``(xx, yy, xy)`` covariances, ``ok``: the rows to use. NaN for
     the rows it cannot model (failed fits, no row beyond two image widths)."""
     bias = np.full(dist.shape, np.nan)
