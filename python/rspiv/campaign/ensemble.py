@@ -510,8 +510,8 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
     if near:
         said.append(
             f"{near} row(s) lie within two particle-image widths of the wall: they measure "
-            "farther out than they lie, and are reported there; those within half a width read "
-            "up to 4 % high even there (near_wall = 1)"
+            "farther out than they lie and are reported there, but only to within about 7 % "
+            "(it depends on where the wall falls within its pixel) (near_wall = 1)"
         )
     if clipped:
         said.append(
@@ -576,7 +576,7 @@ def report_section(camp: Any, res: Any) -> Any:
         runs[f"{run.label} (ensemble)"] = _series(prof, an.result.re_tau, ~prof["clipped"])
         pix = getattr(res, "pixel_profiles", {}).get(run.name)
         if pix is not None and "y_plus" in pix:
-            bad = np.asarray(pix["clipped"], dtype=bool)
+            bad = np.asarray(pix["near_wall"], dtype=bool) | np.asarray(pix["clipped"], bool)
             if not pixel_rows:
                 pixel_rows = _table(pix, "segments", flagged=bad)
             if not bad.all():
@@ -613,7 +613,9 @@ def report_section(camp: Any, res: Any) -> Any:
             " Single-pixel rows: one pixel row of frame A against the rows of frame B, summed "
             "along the wall, the reflection beyond the wall masked, each row reported at the "
             "distance where it measures (next to the wall, farther out than it lies: the mean "
-            "offset of the particle images it sees) and the peak fit's bias removed."
+            "offset of the particle images it sees) and the peak fit's bias removed; the rows "
+            "within two particle-image widths of the wall (their accuracy depends on where the "
+            "wall falls within its pixel) are flagged and left out of the figures."
         )
         tables.append(ReportTable("Single-pixel profile at the wall (main run)", pixel_rows))
     return ReportSection(
