@@ -223,6 +223,12 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
     assert not got["corrected"].any() and np.isnan(got["fit_bias"]).all()
     np.testing.assert_array_equal(got["u"], got["u_fit"])
     assert np.all(got["dist_eff"][:2] - got["dist"][:2] > 0.1) and got["near_wall"][:3].all()
+    # no flow (frame A twice): nothing to model, so nothing corrected and no row moved off 0
+    still = PixelAccumulator(y, 64, x0, (0.0, 0.0), lags=(8, 3), wall=(wall, "above"))
+    for a, _, _ in tbl_pairs[:10]:
+        still.add(a, a)
+    got = still.result()
+    assert not got["corrected"].any() and np.max(np.abs(got["u"])) < 0.02
     # the same pairs upside down, the flow below the wall: the same rows, moved and corrected
     # alike (the covariance's sign follows the wall-normal axis)
     flip = H - 1.0 - wall

@@ -56,6 +56,9 @@ __all__ = ["effective_distance", "fit_bias", "smooth"]
 _NODES_U, _NODES_V = 9, 5
 #: Quadrature step over particle heights (px) and reach (image widths) on each side of a row.
 _DT, _REACH = 0.05, 4.0
+#: The model's regime: a modelled row's mean displacement of at least 0.1 px, and a bias of at
+#: most 10 % of it (the synthetic layer's is 0.5-4 %); other rows are left as fitted.
+_MIN_U, _MAX_REL = 0.1, 0.10
 
 
 def effective_distance(dist: np.ndarray, auto_dy: np.ndarray, flow_side: str) -> np.ndarray:
@@ -156,7 +159,8 @@ def fit_bias(
     predictors, ``u``: the fitted displacements, ``stresses``: ``(uu, vv, uv)`` (px^2, ``v``
     into the flow: the pixel frame's ``-uv`` for a flow "above" the wall),
     ``auto``: the auto peaks' ``(xx, yy, xy)`` covariances, ``ok``: the rows to use. NaN for
-    the rows it cannot model (failed fits, no row beyond two image widths)."""
+    the rows it cannot model (failed fits, no row beyond two image widths, a mean under 0.1 px
+    or a modelled bias over 10 % at the row or the nearest modelled one)."""
     bias = np.full(dist.shape, np.nan)
     ok = ok & np.isfinite(u) & np.isfinite(d_eff) & np.all(np.isfinite(auto[:, :2]), axis=1)
     if ok.sum() < 3:
@@ -196,7 +200,10 @@ def fit_bias(
         want = np.interp(dist[use] - np.asarray(pk["ady"]), profile["y"], profile["u"])
         with np.errstate(invalid="ignore", divide="ignore"):
             r = model_u / want - 1.0
-        r = np.where(np.asarray(pk["ok"], dtype=bool) & (np.abs(want) > 0), r, np.nan)
+        # outside the model's regime (a shear flow along the wall: a resolved mean, a bias of
+        # a few per cent) the row is left as fitted
+        fits = np.asarray(pk["ok"], dtype=bool) & (np.abs(want) >= _MIN_U) & (np.abs(r) <= _MAX_REL)
+        r = np.where(fits, r, np.nan)
         good = np.isfinite(r)
         if good.sum() >= 2:
             r[good] = smooth(dist[use][good], r[good], h)
