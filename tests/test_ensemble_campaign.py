@@ -331,6 +331,7 @@ def test_single_pixel_rows_at_the_wall(processed, scenes):
         assert int(ds["near_wall"].sum()) == 2 and ds["U_plus"].size == 16
     summary = json.loads((out / "summary.json").read_text())
     assert summary["runs"]["method_II"]["single_pixel"]["near_wall_rows"] == 2
+    assert summary["runs"]["method_II"]["single_pixel"]["weak_rows"] == 0
     report = (out / "report" / "report.md").read_text()
     assert "Single-pixel profile at the wall" in report
 

@@ -403,6 +403,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 for flag in ("near_wall", "clipped"):
                     if flag in prof:
                         rs[key][f"{flag}_rows"] = int(np.count_nonzero(prof[flag]))
+                if "weak_rows" in prof:
+                    rs[key]["weak_rows"] = int(prof["weak_rows"])
         summary["runs"][run.name] = rs
     summary["wall_deviation_px"] = res.wall_deviation
     summary["timings_s"] = res.timings

@@ -518,6 +518,11 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
             f"{clipped} row(s) have more than {100 * SATURATED_MAX:g} % of their pixels "
             "saturated in the raw frames (glare?) and read wrong (clipped = 1)"
         )
+    if prof.get("weak_rows"):
+        said.append(
+            f"{prof['weak_rows']} row(s) left out: their summed peak does not stand out of the "
+            "correlation noise (too few pairs, or no particles there)"
+        )
     if "corrected" in prof and not np.all(prof["corrected"]):
         said.append(
             f"{int(np.count_nonzero(~np.asarray(prof['corrected'], dtype=bool)))} row(s) keep "
@@ -527,6 +532,8 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
     out: dict[str, Any] = {"clipped_rows": clipped, "warning": "; ".join(said)}
     if "near_wall" in prof:
         out["near_wall_rows"] = near
+    if "weak_rows" in prof:
+        out["weak_rows"] = int(prof["weak_rows"])
     if said:
         camp.say(f"{run.label}: {what}: {out['warning']}")
     return out
@@ -548,6 +555,7 @@ def _write(camp, res, run, prof: dict, meta: dict, kind: str, title: str) -> Non
     flags = ("near_wall", "clipped", "corrected")
     cols = {k: (np.asarray(v).astype(int) if k in flags else v) for k, v in prof.items()}
     cols.pop("pairs")
+    cols.pop("weak_rows", None)
     out = camp.out_dir / f"profile_{kind}_{run.name}"
     cfg = camp.config
     if cfg.output.csv:
