@@ -97,6 +97,25 @@ def test_halves_merge_to_the_whole(pairs):
     np.testing.assert_allclose(ra.u, rw.u, rtol=1e-9)
 
 
+def test_noise_gives_no_window(pairs):
+    """Frames of noise alone: the Gaussian fits succeed on the noise, but no summed peak
+    stands out of it (peak ratio under 3), so no window and no row is ok; the particle
+    pairs' windows all stand far above (23 or more)."""
+    rng = np.random.default_rng(5)
+    window = (64, 4)
+    x, y = ensemble_grid(SHAPE, window, (32, 2))
+    acc = EnsembleAccumulator(x, y, window, offset=(1.0, 0.0))
+    for _ in range(20):
+        acc.add(*(rng.normal(100.0, 5.0, SHAPE).astype(np.float32) for _ in range(2)))
+    for res in (acc.result(), acc.result(rows=True)):
+        assert not res.ok.any() and np.isnan(res.u).all()
+        assert np.nanmax(res.peak_ratio[np.isfinite(res.peak_ratio)]) < 3.0
+    real = EnsembleAccumulator(x, y, window, offset=(profile(y), 0.0))
+    real.add_all(pairs, auto_pairs=30)
+    got = real.result()
+    assert np.all(got.peak_ratio[got.count > 0] > 20.0)
+
+
 def test_bad_input_is_one_line(pairs):
     fa, fb = pairs[0]
     with pytest.raises(rspiv.InvalidInputError, match="thinner than 2 px"):

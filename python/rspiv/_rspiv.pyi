@@ -260,6 +260,7 @@ def conditioned(
     (piv_core::conditioned: the conversion fused with the first steps)."""
 
 def ensemble_stride(w: int, h: int) -> int: ...
+def ensemble_plane_shape(w: int, h: int) -> tuple[int, int]: ...
 def ensemble_add(
     frame_a: npt.NDArray[np.generic],
     frame_b: npt.NDArray[np.generic],

@@ -18,6 +18,13 @@ fn ensemble_stride(w: usize, h: usize) -> usize {
     Layout::new(w, h).stride()
 }
 
+/// The shape `(columns, rows)` of a `w` x `h` window's correlation plane in the accumulator.
+#[pyfunction]
+fn ensemble_plane_shape(w: usize, h: usize) -> (usize, usize) {
+    let lay = Layout::new(w, h);
+    (lay.cw, lay.ch)
+}
+
 /// Add one frame pair to `acc` (n x stride, float64, C-contiguous) in place, the windows offset
 /// by (du, dv) and deformed by the grid field (field_grid, field_u, field_v) when given; returns
 /// the number of windows added.
@@ -218,6 +225,7 @@ fn grid_field_window_mean<'py>(
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(grid_field_window_mean, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_stride, m)?)?;
+    m.add_function(wrap_pyfunction!(ensemble_plane_shape, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_add, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_peaks, m)?)?;
     m.add_function(wrap_pyfunction!(pixel_stride, m)?)?;
