@@ -259,8 +259,9 @@ def conditioned(
     """A new conditioned float32 copy of a uint8/uint16/float32/float64 frame
     (piv_core::conditioned: the conversion fused with the first steps)."""
 
+ENSEMBLE_MIN_PEAK_RATIO: float
+
 def ensemble_stride(w: int, h: int) -> int: ...
-def ensemble_plane_shape(w: int, h: int) -> tuple[int, int]: ...
 def ensemble_add(
     frame_a: npt.NDArray[np.generic],
     frame_b: npt.NDArray[np.generic],

@@ -50,14 +50,7 @@ from typing import Any
 import numpy as np
 
 from rspiv import _rspiv
-from rspiv.ensemble_pixel import (
-    MIN_PEAK_RATIO,
-    PixelAccumulator,
-    SaturationTally,
-    _wall_y,
-    peak_ratio,
-    pixel_band,
-)
+from rspiv.ensemble_pixel import PixelAccumulator, SaturationTally, _wall_y, pixel_band
 from rspiv.errors import InvalidInputError
 from rspiv.settings import INTERPOLATIONS, parse_choice
 
@@ -260,13 +253,13 @@ class EnsembleField:
     coef : ndarray
         Height of the mean normalised cross plane.
     ok : ndarray of bool
-        The fit succeeded and the summed peak is clear (``peak_ratio`` at least
-        :data:`rspiv.ensemble_pixel.MIN_PEAK_RATIO`).
+        The fit succeeded and the summed peak is clear (``peak_ratio`` at least 3,
+        ``piv_core::ensemble::MIN_PEAK_RATIO``).
     peak_ratio : ndarray
         The summed cross plane's highest local maximum over its next highest, both less the
-        plane's median (:func:`rspiv.ensemble_pixel.peak_ratio`): 23 or more for 64 x 4 px
-        windows of 60 synthetic pairs (3.1 or more for 32 x 8 px of 2 pairs), at most 2.3 for
-        frames of noise.
+        plane's median (``piv_core::ensemble::peak_ratio``; NaN where nothing was summed): 23
+        or more for 64 x 4 px windows of 60 synthetic pairs (3.1 or more for 32 x 8 px of 2
+        pairs), at most 2.3 for frames of noise.
     """
 
     x: np.ndarray
@@ -493,10 +486,7 @@ class EnsembleAccumulator:
         def shaped(k: str) -> np.ndarray:
             return np.asarray(d[k]).reshape(shape)
 
-        cw, ch = _rspiv.ensemble_plane_shape(*self.window)
-        ratio = peak_ratio(acc.reshape(-1, acc.shape[-1])[:, : cw * ch].reshape(-1, ch, cw))
-        ratio = ratio.reshape(shape)
-        ok = shaped("ok") & (ratio >= MIN_PEAK_RATIO)
+        ok = shaped("ok")
         u = np.where(ok, du + mu + shaped("dx"), np.nan)
         v = np.where(ok, dv + mv + shaped("dy"), np.nan)
         cross = np.stack([shaped("cxx"), shaped("cyy"), shaped("cxy")], axis=-1)
@@ -535,5 +525,5 @@ class EnsembleAccumulator:
             count=shaped("count"),
             coef=shaped("coef"),
             ok=ok,
-            peak_ratio=ratio,
+            peak_ratio=shaped("peak_ratio"),
         )

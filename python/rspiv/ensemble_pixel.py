@@ -17,29 +17,12 @@ from rspiv.ensemble_pixel_model import effective_distance, fit_bias
 from rspiv.errors import InvalidInputError
 from rspiv.settings import INTERPOLATIONS, parse_choice
 
-__all__ = ["PixelAccumulator", "SaturationTally", "peak_ratio", "pixel_band", "segment_centres"]
+#: A row's summed cross peak must stand this many times above its plane's next local maximum
+#: (3, ``piv_core::ensemble::MIN_PEAK_RATIO``, which the fit applies): on the synthetic layer
+#: 21 or more with 40 pairs (2 with a single pair), for frames of noise 1.9 at most.
+MIN_PEAK_RATIO: float = _rspiv.ENSEMBLE_MIN_PEAK_RATIO
 
-#: A row's summed cross peak must stand this many times above the plane's next local maximum
-#: (both over the plane's median): on the synthetic layer 21 or more with 40 pairs (2 with a
-#: single pair), for frames of noise 1.9 at most (1-100 pairs, 39 rows).
-MIN_PEAK_RATIO = 3.0
-
-
-def peak_ratio(planes: np.ndarray) -> np.ndarray:
-    """Per plane (shape (n, rows, columns)): the highest local maximum over the next highest,
-    both less the plane's median (the primary peak ratio; inf with a single local maximum)."""
-    c = np.asarray(planes, dtype=np.float64)
-    n, h, w = c.shape
-    pad = np.pad(c, ((0, 0), (1, 1), (1, 1)), constant_values=-np.inf)
-    peak = np.ones(c.shape, dtype=bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy or dx:
-                peak &= c > pad[:, 1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-    above = c - np.median(c.reshape(n, -1), axis=1)[:, None, None]
-    top = np.sort(np.where(peak, above, -np.inf).reshape(n, -1), axis=1)[:, -2:]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(top[:, 0] > 0, top[:, 1] / top[:, 0], np.inf)
+__all__ = ["PixelAccumulator", "SaturationTally", "pixel_band", "segment_centres"]
 
 
 def segment_centres(x0: float, seg: int, nseg: int) -> np.ndarray:
@@ -164,7 +147,8 @@ class PixelAccumulator:
       the row ``weak``); masking the pixels beyond the wall removes all but the mirror
       images' tails. Nothing is moved or corrected then.
     - A row whose summed cross peak does not stand :data:`MIN_PEAK_RATIO` times above the
-      plane's next local maximum is ``weak`` and not ``ok``: frames of noise alone give no
+      plane's next local maximum (``piv_core::ensemble::peak_ratio``) is ``weak`` and not
+      ``ok``: frames of noise alone give no
       row (their ratio 1.9 at most), the synthetic layer 21 or more with 40 pairs.
 
     The wall-normal variance next to the wall (within about 2 px) comes out negative or too
@@ -347,8 +331,8 @@ class PixelAccumulator:
         fitted covariances ``(xx, yy, xy)``), ``auto_centre`` (the auto peak's centre, px lags),
         ``count`` (segments summed), ``coef`` (the mean normalised cross plane's maximum:
         0.75-0.86 on the synthetic layer, 0.03 for frames of noise alone), ``peak_ratio``
-        (:func:`peak_ratio` of the summed cross plane), ``weak`` (a fitted peak under
-        :data:`MIN_PEAK_RATIO`: no clear peak, left out of ``ok`` and its values NaN), ``ok``;
+        (of the summed cross plane, ``piv_core::ensemble::peak_ratio``), ``weak`` (a peak
+        under :data:`MIN_PEAK_RATIO`: no clear peak, not ``ok``, its values NaN), ``ok``;
         with a ``wall``, ``dist`` (the row's mean distance
         from it, px), ``dist_eff`` (where the row measures, px; see Notes), ``u`` less
         ``fit_bias`` (``u_fit``: before; ``corrected``: the rows the model reached) and
@@ -372,11 +356,9 @@ class PixelAccumulator:
         value is within +-16 %): the fitted peak's width does not grow by the whole second
         moment there. ``uv`` from -0.3 to -0.4 px^2 (truth 0.00 to +0.08) to -0.09 to +0.03."""
         d = _rspiv.pixel_peaks(self.acc, self.lags)
-        rx, ry = self.lags
-        npl = (2 * rx + 1) * (2 * ry + 1)
-        ratio = peak_ratio(self.acc[:, :npl].reshape(-1, 2 * ry + 1, 2 * rx + 1))
-        weak = np.asarray(d["ok"], dtype=bool) & ~(ratio >= MIN_PEAK_RATIO)
-        ok = np.asarray(d["ok"], dtype=bool) & ~weak
+        ok = np.asarray(d["ok"], dtype=bool)
+        ratio = np.asarray(d["peak_ratio"])
+        weak = ratio < MIN_PEAK_RATIO  # NaN (no segment summed) is not weak
         cross = np.stack([d["cxx"], d["cyy"], d["cxy"]], axis=-1)
         auto = np.stack([d["axx"], d["ayy"], d["axy"]], axis=-1)
         cov = cross - auto

@@ -32,7 +32,7 @@
 //! C_auto` the displacement covariance at that row (px^2), with no window to spread the mean
 //! gradient over (the particle image's own height does, and is in both peaks).
 
-use crate::ensemble::{baseline_fit, split_fit, EnsemblePeak};
+use crate::ensemble::{baseline_fit, peak_ratio, split_fit, EnsemblePeak, MIN_PEAK_RATIO};
 use crate::error::{PivError, Result};
 use crate::image::{inside, Pixel};
 use crate::multipass::{check_mask, check_pair, excluded_point, Frames, Interpolation};
@@ -241,6 +241,7 @@ fn fit_row(row: &[f64], cw: usize, ch: usize) -> EnsemblePeak {
         auto: (f64::NAN, f64::NAN, f64::NAN),
         auto_centre: (f64::NAN, f64::NAN),
         coef: 0.0,
+        peak_ratio: f64::NAN,
         count: (nc, na),
         ok: false,
     };
@@ -257,9 +258,18 @@ fn fit_row(row: &[f64], cw: usize, ch: usize) -> EnsemblePeak {
         }
     }
     let coef = best / nc;
+    let ratio = peak_ratio(cross, cw);
+    let failed = EnsemblePeak {
+        coef,
+        peak_ratio: ratio,
+        ..failed
+    };
+    if ratio.is_nan() || ratio < MIN_PEAK_RATIO {
+        return failed;
+    }
     let Some((mx, my, cov)) = baseline_fit(|c, r| cross[r * cw + c] / nc, cw, ch, (pc, pr), true)
     else {
-        return EnsemblePeak { coef, ..failed };
+        return failed;
     };
     let (auto_centre, auto) = split_fit(if na > 0.0 {
         let plane = &row[np..2 * np];
@@ -280,6 +290,7 @@ fn fit_row(row: &[f64], cw: usize, ch: usize) -> EnsemblePeak {
         auto,
         auto_centre,
         coef,
+        peak_ratio: ratio,
         count: (nc, na),
         ok: true,
     }

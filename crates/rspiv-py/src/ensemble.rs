@@ -18,13 +18,6 @@ fn ensemble_stride(w: usize, h: usize) -> usize {
     Layout::new(w, h).stride()
 }
 
-/// The shape `(columns, rows)` of a `w` x `h` window's correlation plane in the accumulator.
-#[pyfunction]
-fn ensemble_plane_shape(w: usize, h: usize) -> (usize, usize) {
-    let lay = Layout::new(w, h);
-    (lay.cw, lay.ch)
-}
-
 /// Add one frame pair to `acc` (n x stride, float64, C-contiguous) in place, the windows offset
 /// by (du, dv) and deformed by the grid field (field_grid, field_u, field_v) when given; returns
 /// the number of windows added.
@@ -107,6 +100,7 @@ fn peaks_dict<'py>(py: Python<'py>, res: &[EnsemblePeak]) -> PyResult<Bound<'py,
     d.set_item("adx", col(&|p| p.auto_centre.0).into_pyarray(py))?;
     d.set_item("ady", col(&|p| p.auto_centre.1).into_pyarray(py))?;
     d.set_item("coef", col(&|p| p.coef).into_pyarray(py))?;
+    d.set_item("peak_ratio", col(&|p| p.peak_ratio).into_pyarray(py))?;
     d.set_item("count", col(&|p| p.count.0).into_pyarray(py))?;
     d.set_item("count_auto", col(&|p| p.count.1).into_pyarray(py))?;
     d.set_item(
@@ -224,8 +218,11 @@ fn grid_field_window_mean<'py>(
 
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(grid_field_window_mean, m)?)?;
+    m.add(
+        "ENSEMBLE_MIN_PEAK_RATIO",
+        piv_core::ensemble::MIN_PEAK_RATIO,
+    )?;
     m.add_function(wrap_pyfunction!(ensemble_stride, m)?)?;
-    m.add_function(wrap_pyfunction!(ensemble_plane_shape, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_add, m)?)?;
     m.add_function(wrap_pyfunction!(ensemble_peaks, m)?)?;
     m.add_function(wrap_pyfunction!(pixel_stride, m)?)?;
