@@ -510,8 +510,9 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
     if near:
         said.append(
             f"{near} row(s) lie within two particle-image widths of the wall: they measure "
-            "farther out than they lie and are reported there, but only to within about 7 % "
-            "(it depends on where the wall falls within its pixel) (near_wall = 1)"
+            "farther out than they lie and are reported there, modelled on the pixel grid at "
+            "the found wall (a wall 0.24 px off left the row measuring at y+ 0.4 9 % high) "
+            "(near_wall = 1)"
         )
     if clipped:
         said.append(
