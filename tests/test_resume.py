@@ -160,3 +160,24 @@ def test_resumed_run_counts_the_checkpoint(case, tmp_path):
             np.testing.assert_array_equal(
                 getattr(res.accumulators[run], name), getattr(acc, name), err_msg=name
             )
+
+
+def test_checkpoint_of_another_version_is_refused(tmp_path):
+    """A checkpoint written by another checkpoint version (its accumulators' sums would not
+    add to this version's: the single-pixel planes' normalisation changed in version 3) is
+    refused in one line naming the file, before anything is added to it."""
+    from rspiv.campaign.checkpoint import load_checkpoint
+    from rspiv.campaign.spec import CHECKPOINT_FORMAT, CHECKPOINT_VERSION
+    from rspiv.errors import InvalidInputError
+
+    class Context:
+        def fingerprint(self) -> str:
+            return "same"
+
+    path = tmp_path / "checkpoint.pkl"
+    state = {"format": CHECKPOINT_FORMAT, "fingerprint": "same", "accumulators": {}}
+    path.write_bytes(pickle.dumps({**state, "version": CHECKPOINT_VERSION - 1}))
+    with pytest.raises(InvalidInputError, match=r"checkpoint\.pkl: checkpoint of version 2, "):
+        load_checkpoint(path, Context())
+    path.write_bytes(pickle.dumps({**state, "version": CHECKPOINT_VERSION}))
+    assert load_checkpoint(path, Context())["accumulators"] == {}

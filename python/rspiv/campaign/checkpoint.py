@@ -79,7 +79,8 @@ def load_checkpoint(path: pathlib.Path, ctx: PairContext) -> dict[str, Any] | No
     Raises
     ------
     InvalidInputError
-        The checkpoint is corrupt or belongs to another configuration.
+        The checkpoint is corrupt, of another checkpoint version or belongs to another
+        configuration.
     """
     if not path.is_file():
         return None
@@ -91,6 +92,12 @@ def load_checkpoint(path: pathlib.Path, ctx: PairContext) -> dict[str, Any] | No
         raise InvalidInputError(
             f"{path}: corrupt checkpoint ({exc}); delete it to start the campaign afresh"
         ) from None
+    if state.get("version") != CHECKPOINT_VERSION:
+        raise InvalidInputError(
+            f"{path}: checkpoint of version {state.get('version')}, this rspiv writes version "
+            f"{CHECKPOINT_VERSION} (its sums do not add to the old ones); delete the checkpoint "
+            "folder or choose another output folder"
+        )
     if state.get("fingerprint") != ctx.fingerprint():
         raise InvalidInputError(
             f"{path}: checkpoint of a different configuration (calibration, PIV or runs "

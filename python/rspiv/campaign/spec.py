@@ -36,7 +36,9 @@ __all__ = [
 
 CHECKPOINT_FORMAT = "rspiv-checkpoint"
 #: 2: the context holds one PivSettings (was loose passes/overlap/... fields)
-CHECKPOINT_VERSION = 2
+#: 3: the single-pixel rows' planes are normalised per row and pair (were per segment): their
+#: sums do not add to version 2's
+CHECKPOINT_VERSION = 3
 #: Stages timed per pair (s), in the run log and the report.
 STAGES = ("read", "dewarp", "piv", "statistics", "ensemble")
 
