@@ -294,18 +294,16 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
         PixelAccumulator(y, 64, x0, (du, 0.0), wall=(wall, "left"))
 
 
-def test_single_pixel_down_to_y_plus_half_with_160_pairs():
-    """160 pairs streamed (the fixture's 40 and 120 more): every row from y+ 0.5 to 5 lies
-    within 2 % of the truth where it measures (measured: max 1.35 %, mean |error| 0.54 %;
-    another set 1.3 %, and with the wall 0.08 px into a masked pixel two sets 1.9 and 2.2 %).
-    The mean |error| was 0.37 % with the planes normalised segment by segment (before the
-    wall model, which needs them linear in the particles); the bound on it was 0.5 %."""
+def _pixel_rows_160(wall_y0_px: float | None = None):
+    """Single-pixel rows every 0.25 px from 0.5 px over 160 pairs of the layer (the wall at
+    ``wall_y0_px`` when given): ``(result, error against the pairs' exact mean where each row
+    measures, rows measuring at 0.5 <= y+ <= 5, dist_eff, viscous length)``."""
     from rspiv.ensemble import PixelAccumulator, pixel_band
 
     fine = np.arange(0.0, 12.001, 0.05)
     acc, truth = None, []
     for k in range(160):
-        a, b, t = _tbl_pair(k)
+        a, b, t = _tbl_pair(k, wall_y0_px=wall_y0_px)
         if acc is None:
             wall, lv = t.wall_y0_px, t.viscous_length_px
             y, x0, d = pixel_band(a.shape, 64, np.arange(0.5, 10.01, 0.25), wall, margin_x=16)
@@ -318,7 +316,16 @@ def test_single_pixel_down_to_y_plus_half_with_160_pairs():
     res = acc.result()
     d_eff = res["dist_eff"]
     err = res["u"] / np.interp(d_eff, fine, np.mean(truth, axis=0)) - 1
-    sel = (d_eff / lv >= 0.5) & (d_eff / lv <= 5.0)
+    return res, err, (d_eff / lv >= 0.5) & (d_eff / lv <= 5.0), d_eff, lv
+
+
+def test_single_pixel_down_to_y_plus_half_with_160_pairs():
+    """160 pairs streamed (the fixture's 40 and 120 more): every row from y+ 0.5 to 5 lies
+    within 2 % of the truth where it measures (measured: max 1.35 %, mean |error| 0.54 %;
+    another set 1.3 %, and with the wall 0.08 px into a masked pixel two sets 1.9 and 2.2 %).
+    The mean |error| was 0.37 % with the planes normalised segment by segment (before the
+    wall model, which needs them linear in the particles); the bound on it was 0.5 %."""
+    res, err, sel, d_eff, lv = _pixel_rows_160()
     assert sel.sum() >= 27 and d_eff[sel].min() / lv < 0.55
     assert np.max(np.abs(err[sel])) < 0.02, np.c_[d_eff / lv, 100 * err][sel]
     assert np.mean(np.abs(err[sel])) < 0.006
@@ -333,25 +340,7 @@ def test_single_pixel_rows_wherever_the_wall_falls_in_its_pixel():
     this geometry that row reads +1.9 to +3.3 %, the residual of the model and of its
     reflection, calibrated 0.53-0.57 for a truth of 0.5). Before the wall model, with the
     planes normalised segment by segment: -6.8 % at y+ 0.7 with 40 pairs, -5.9 % with 80."""
-    from rspiv.ensemble import PixelAccumulator, pixel_band
-
-    fine = np.arange(0.0, 12.001, 0.05)
-    acc, truth = None, []
-    for k in range(160):
-        a, b, t = _tbl_pair(k, wall_y0_px=496.58)
-        if acc is None:
-            wall, lv = t.wall_y0_px, t.viscous_length_px
-            y, x0, d = pixel_band(a.shape, 64, np.arange(0.5, 10.01, 0.25), wall, margin_x=16)
-            du = t.mean_displacement_px(wall - y)
-            acc = PixelAccumulator(y, 64, x0, (du, 0.0), lags=(8, 3), wall=(wall, "above"))
-            xs = np.tile(np.arange(x0, x0 + 64 * y.shape[1]), (fine.size, 1))
-        acc.add(a, b)
-        u, _ = t.displacement(xs.ravel(), np.repeat(wall - fine, xs.shape[1]))
-        truth.append(u.reshape(fine.size, -1).mean(axis=1))
-    res = acc.result()
-    d_eff = res["dist_eff"]
-    err = res["u"] / np.interp(d_eff, fine, np.mean(truth, axis=0)) - 1
-    sel = (d_eff / lv >= 0.5) & (d_eff / lv <= 5.0)
+    res, err, sel, d_eff, lv = _pixel_rows_160(wall_y0_px=496.58)
     assert res["corrected"].all()
     assert sel.sum() >= 27 and d_eff[sel].min() / lv < 0.65
     assert np.max(np.abs(err[sel])) < 0.035, np.c_[d_eff / lv, 100 * err][sel]

@@ -124,6 +124,27 @@ def _gauss_hermite(n: int) -> tuple[np.ndarray, np.ndarray]:
     return x, w / w.sum()
 
 
+def _particles(
+    t: np.ndarray, wt: np.ndarray, profile: dict[str, np.ndarray], du: float
+) -> tuple[np.ndarray, ...]:
+    """The particles at heights ``t`` (weights ``wt``) over the Gauss-Hermite nodes of their
+    fluctuations (``u' = su g1``, ``v' = l21 g1 + l22 g2``, the Cholesky factor of the
+    ``profile``'s stresses): flat arrays of their x lag from the predictor ``du``, height,
+    wall-normal motion and weight."""
+    g1, w1 = _gauss_hermite(_NODES_U)
+    g2, w2 = _gauss_hermite(_NODES_V)
+    yp = profile["y"]
+    mean = np.interp(t, yp, profile["u"])
+    su = np.sqrt(np.maximum(np.interp(t, yp, profile["uu"]), 0.0))
+    l21 = np.interp(t, yp, profile["uv"]) / np.where(su > 0, su, 1.0) * (su > 0)
+    l22 = np.sqrt(np.maximum(np.interp(t, yp, profile["vv"]) - l21**2, 0.0))
+    shape = (t.size, g1.size, g2.size)
+    cx = mean[:, None, None] + su[:, None, None] * g1[None, :, None] - du
+    v = l21[:, None, None] * g1[None, :, None] + l22[:, None, None] * g2[None, None, :]
+    w = wt[:, None, None] * w1[None, :, None] * w2[None, None, :]
+    return tuple(np.broadcast_to(q, shape).ravel() for q in (cx, t[:, None, None], v, w))
+
+
 def model_planes(
     d: np.ndarray,
     du: np.ndarray,
@@ -140,26 +161,15 @@ def model_planes(
     rx, ry = lags
     lx, ly = np.arange(-rx, rx + 1.0), np.arange(-ry, ry + 1.0)
     npl = lx.size * ly.size
-    g1, w1 = _gauss_hermite(_NODES_U)
-    g2, w2 = _gauss_hermite(_NODES_V)
     sx2, sy2 = s2
     sy = np.sqrt(sy2)
-    yp = profile["y"]
     out = np.zeros((d.size, 2 * npl + 2))
     exa = np.exp(-(lx**2) / (4 * sx2))
     for k in range(d.size):  # rows of a profile (tens to hundreds), each vectorised
         t = np.arange(max(_DT / 2, d[k] - _REACH * sy), d[k] + _REACH * sy, _DT)
         wt = np.exp(-((d[k] - t) ** 2) / (2 * sy2))  # the A row's share of each height
-        mean = np.interp(t, yp, profile["u"])
-        su = np.sqrt(np.maximum(np.interp(t, yp, profile["uu"]), 0.0))
-        l21 = np.interp(t, yp, profile["uv"]) / np.where(su > 0, su, 1.0) * (su > 0)
-        l22 = np.sqrt(np.maximum(np.interp(t, yp, profile["vv"]) - l21**2, 0.0))
-        shape = (t.size, g1.size, g2.size)
-        cx = mean[:, None, None] + su[:, None, None] * g1[None, :, None] - du[k]
-        v = l21[:, None, None] * g1[None, :, None] + l22[:, None, None] * g2[None, None, :]
-        cy = d[k] - t[:, None, None] - v  # the B image's lag: its distance is d - sy
-        w = wt[:, None, None] * w1[None, :, None] * w2[None, None, :]
-        cx, cy, w = (np.broadcast_to(a, shape).ravel() for a in (cx, cy, w))
+        cx, tt, v, w = _particles(t, wt, profile, du[k])
+        cy = d[k] - tt - v  # the B image's lag: its distance is d - sy
         ex = np.exp(-((lx[None, :] - cx[:, None]) ** 2) / (4 * sx2))
         ey = np.exp(-((ly[None, :] - cy[:, None]) ** 2) / (2 * sy2))
         cross = np.einsum("n,nr,nc->rc", w, ey, ex)
@@ -267,8 +277,6 @@ def model_planes_wall(
     rx, ry = lags
     lx, ly = np.arange(-rx, rx + 1.0), np.arange(-ry, ry + 1.0)
     npl = lx.size * ly.size
-    g1, w1 = _gauss_hermite(_NODES_U)
-    g2, w2 = _gauss_hermite(_NODES_V)
     sigma, rho = image
     reach = _REACH * np.sqrt(sigma**2 + 1.0 / 12.0) + ry
     exa = np.exp(-(lx**2) / (4 * sx2))
@@ -282,16 +290,8 @@ def model_planes_wall(
             auto += np.outer(wall_response(d - ly, t, sigma, rho, ph, eta) @ a, exa)
             if profile is None:
                 continue
-            mean = np.interp(t, profile["y"], profile["u"])
-            su = np.sqrt(np.maximum(np.interp(t, profile["y"], profile["uu"]), 0.0))
-            l21 = np.interp(t, profile["y"], profile["uv"]) / np.where(su > 0, su, 1.0) * (su > 0)
-            l22 = np.sqrt(np.maximum(np.interp(t, profile["y"], profile["vv"]) - l21**2, 0.0))
-            shape = (t.size, g1.size, g2.size)
-            cx = mean[:, None, None] + su[:, None, None] * g1[None, :, None] - du[k]
-            v = l21[:, None, None] * g1[None, :, None] + l22[:, None, None] * g2[None, None, :]
-            tb = np.maximum(t[:, None, None] + v, 0.0)  # frame B's particle (a crossing: at it)
-            w = a[:, None, None] * w1[None, :, None] * w2[None, None, :]
-            cx, tb, w = (np.broadcast_to(q, shape).ravel() for q in (cx, tb, w))
+            cx, tt, v, w = _particles(t, a, profile, du[k])
+            tb = np.maximum(tt + v, 0.0)  # frame B's particle (a crossing: at the wall)
             b = wall_response(d - ly, tb, sigma, rho, ph, eta)  # the B strip's rows
             ex = np.exp(-((lx[None, :] - cx[:, None]) ** 2) / (4 * sx2))
             cross += np.einsum("n,rn,nc->rc", w, b, ex)
