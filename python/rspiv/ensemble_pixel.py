@@ -122,16 +122,18 @@ class PixelAccumulator:
     (``tests/test_ensemble.py``: 2.5 px particles, reflection 0.5, viscous length 1.49 px, the
     exact wall and profile as predictor) against the realisations' exact mean at ``dist_eff``:
 
-    - 160 pairs: within 1.35 % from y+ 0.5 to 5 (mean |error| 0.54 %; another set 1.3 %);
-      40 pairs: 1.6-4.6 % over eight sets (the random error of the rows next to the wall).
+    - 160 pairs: within 1.62 % from y+ 0.5 to 5 (mean |error| 0.58 %; three other sets
+      1.26-1.58 %); 40 pairs: 1.1-4.9 % over eight sets (the random error of the rows next to
+      the wall).
     - Next to the wall (within three image widths) the planes depend on where the wall falls
       within its pixel; those rows are modelled on the pixel grid (masked pixels, mirror
       images, the interpolation across the cut; the image width and the reflection
       calibrated from the data, ``wall_image``). With the wall 0.32 px past the centre of the
       pixel it crosses (the figures above) or 0.08 px into a masked one (two sets of 160
-      pairs: within 1.9 and 2.2 %; before that model -6.8 % at y+ 0.7) alike. The model
+      to 320 pairs: within 1.7-2.1 % over five sets; before that model -6.8 % at y+ 0.7)
+      alike. The model
       assumes the wall where ``wall`` says: a wall found 0.24 px off left the row 0.25 px
-      out, measuring at y+ 0.39, 8.7 % high in the campaign's test (the rows from y+ 0.5
+      out, measuring at y+ 0.39, 8.9 % high in the campaign's test (the rows from y+ 0.5
       within 3 %). ``near_wall`` flags the rows within two image widths.
     - Before the correction, at each row's own distance: +22 % at 0.5 px (the particle images
       cut by the wall: the slow particles next to it are missing), -1 to -3.5 % from 1 to 8 px

@@ -31,6 +31,7 @@ intensity at the row. Three things follow.
    their expected planes on the pixel grid itself: pixel-integrated Gaussian images of the
    particles (uniform in ``t > 0``) and of their mirror images, the pixels beyond the wall
    constant, the rows interpolated by the accumulator's own interpolant (:func:`cardinal`),
+   the images' correlation along the row that of pixel-integrated Gaussians (:func:`along_row`),
    at the columns' wall phases (:class:`WallGeometry`; a tilted wall's are sampled). Its two
    parameters come from the data: the image's standard deviation from the far rows' auto
    peak width (the same fit on model and data), the reflection from the near rows' auto
@@ -42,11 +43,11 @@ intensity at the row. Three things follow.
 
 Measured (``tests/test_ensemble.py``, the synthetic layer at scale 0.1: viscous length 1.49 px,
 2.5 px images, reflection 0.5): against the realisations' exact mean at ``d_eff``, 160 pairs
-read within 1.35 % for 0.5 <= y+ <= 5 (mean |error| 0.54 %), another set of 160 within 1.3 %;
-with the wall 0.08 px into a pixel (masked) instead of 0.32 px past the centre of one (kept),
-two sets of 160 pairs within 1.9 and 2.2 % (before the wall model: -6.8 % at y+ 0.7 with 40
-pairs); with 40 pairs the rows next to the wall carry 2-5 % of random error (eight sets:
-1.6-4.6 %). See :class:`rspiv.ensemble.PixelAccumulator`.
+read within 1.62 % for 0.5 <= y+ <= 5 (mean |error| 0.58 %), three other sets of 160 within
+1.26-1.58 %; with the wall 0.08 px into a pixel (masked) instead of 0.32 px past the centre of
+one (kept), five sets of 160-320 pairs within 1.7-2.1 % (before the wall model: -6.8 % at y+
+0.7 with 40 pairs); with 40 pairs the rows next to the wall carry 2-5 % of random error (eight
+sets: 1.1-4.9 %). See :class:`rspiv.ensemble.PixelAccumulator`.
 
 Units: px (distances and displacements per pair), px^2 (stresses). Distance coordinates: ``d``
 into the flow from the wall; a positive pixel lag ``sy`` is toward the wall when the flow is
@@ -67,6 +68,7 @@ from rspiv import _rspiv
 
 __all__ = [
     "WallGeometry",
+    "along_row",
     "cardinal",
     "effective_distance",
     "fit_bias",
@@ -88,6 +90,25 @@ _WALL_REACH = 3.0
 #: Pixels on each side of a row that the interpolant's response reaches (its weights fall as
 #: 0.43^k for the quintic B-spline, 0.27^k for the cubic).
 _PIX_REACH = 10
+
+
+def along_row(r: np.ndarray, sigma: float) -> np.ndarray:
+    """The correlation along a row of two pixel-integrated Gaussian images (standard deviation
+    ``sigma``, px) whose centres are ``r`` px apart, averaged over their position within the
+    pixel: the Gaussian of standard deviation ``sqrt(2) sigma`` convolved with the triangle of
+    half-width 1 px (the pixel's box correlated with itself); closed form (peak ~1 at 0)."""
+    tau = np.sqrt(2.0) * sigma
+    r = np.asarray(r, dtype=np.float64)
+
+    def cdf(x: np.ndarray) -> np.ndarray:
+        return ndtr(x / tau)
+
+    def pdf(x: np.ndarray) -> np.ndarray:
+        return np.exp(-0.5 * (x / tau) ** 2) / (tau * np.sqrt(2.0 * np.pi))
+
+    right = (1.0 - r) * (cdf(r) - cdf(r - 1.0)) - tau**2 * (pdf(r) - pdf(r - 1.0))
+    left = (1.0 + r) * (cdf(r + 1.0) - cdf(r)) + tau**2 * (pdf(r + 1.0) - pdf(r))
+    return right + left
 
 
 def effective_distance(dist: np.ndarray, auto_dy: np.ndarray, flow_side: str) -> np.ndarray:
@@ -260,7 +281,6 @@ def model_planes_wall(
     geom: tuple[np.ndarray, np.ndarray],
     du: np.ndarray,
     profile: dict[str, np.ndarray] | None,
-    sx2: float,
     image: tuple[float, float],
     lags: tuple[int, int],
     eta: Callable,
@@ -272,14 +292,15 @@ def model_planes_wall(
     (``eta``) as the accumulator interpolates them, the planes normalised over the row as the
     accumulator's (linear in the particles: their expectation is the sum of each particle's).
     ``geom = (dist, phase)`` of shape ``(rows, k)``: the planes are averaged over the ``k``
-    columns. Across the row the image is Gaussian of variance ``sx2`` (measured). Without a
-    ``profile`` only the auto planes (also in the cross planes' place: for calibration)."""
+    columns. Along the row the images are the same pixel-integrated Gaussians (their
+    correlation :func:`along_row`). Without a ``profile`` only the auto planes (also in the
+    cross planes' place: for calibration)."""
     rx, ry = lags
     lx, ly = np.arange(-rx, rx + 1.0), np.arange(-ry, ry + 1.0)
     npl = lx.size * ly.size
     sigma, rho = image
     reach = _REACH * np.sqrt(sigma**2 + 1.0 / 12.0) + ry
-    exa = np.exp(-(lx**2) / (4 * sx2))
+    exa = along_row(lx, sigma)
     dist, phase = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in geom)
     out = np.zeros((dist.shape[0], 2 * npl + 2))
     for k in range(dist.shape[0]):  # rows near the wall (ten or so), each vectorised
@@ -293,7 +314,7 @@ def model_planes_wall(
             cx, tt, v, w = _particles(t, a, profile, du[k])
             tb = np.maximum(tt + v, 0.0)  # frame B's particle (a crossing: at the wall)
             b = wall_response(d - ly, tb, sigma, rho, ph, eta)  # the B strip's rows
-            ex = np.exp(-((lx[None, :] - cx[:, None]) ** 2) / (4 * sx2))
+            ex = along_row(lx[None, :] - cx[:, None], sigma)
             cross += np.einsum("n,rn,nc->rc", w, b, ex)
         cross = auto if profile is None else cross
         out[k, :npl] = (cross / cross.max()).ravel()
@@ -303,7 +324,7 @@ def model_planes_wall(
 
 
 def _calibrate(
-    wall: WallGeometry, rows: np.ndarray, far: np.ndarray, auto_yy: float, sx2: float,
+    wall: WallGeometry, rows: np.ndarray, far: np.ndarray, auto_yy: float,
     lags: tuple[int, int], eta: Callable,
 ) -> tuple[float, float] | None:  # fmt: skip
     """The particle image's standard deviation and the reflection for the wall model, from the
@@ -315,7 +336,7 @@ def _calibrate(
     geom = (wall.dist[pick], wall.phase[pick])
 
     def width(sigma: float) -> float:
-        planes = model_planes_wall(geom, np.zeros(pick.size), None, sx2, (sigma, 0.5), lags, eta)
+        planes = model_planes_wall(geom, np.zeros(pick.size), None, (sigma, 0.5), lags, eta)
         pk = _rspiv.pixel_peaks(np.ascontiguousarray(planes), lags)
         return float(np.nanmedian(np.asarray(pk["ayy"])))
 
@@ -394,7 +415,7 @@ def fit_bias(
         eta = cardinal(wall.interpolation)
         image = _calibrate(
             wall, np.flatnonzero(near), np.flatnonzero(clear), float(np.median(auto[clear, 1])),
-            s2[0], lags, eta,
+            lags, eta,
         )  # fmt: skip
     order = np.argsort(d_eff[ok])
     y = d_eff[ok][order]
@@ -442,7 +463,7 @@ def fit_bias(
             assert wall is not None
             rows = np.flatnonzero(near)
             geom = (wall.dist[rows], wall.phase[rows])
-            planes = model_planes_wall(geom, du[rows], profile, s2[0], image, lags, eta)
+            planes = model_planes_wall(geom, du[rows], profile, image, lags, eta)
             rel[rows] = relative(planes, rows, 3.0 * _MAX_REL)
         else:
             rel[near] = rel[nearest]
