@@ -400,3 +400,30 @@ def test_saturation_is_counted_only_on_a_plateau():
         with pytest.raises(rspiv.InvalidInputError, match="2 rows, each in 0..1"):
             tally.add(bad)
 
+
+
+def test_single_pixel_rows_with_keys_interpolation_say_so(tbl_pairs):
+    """The wall model leaves out Keys' sub-pixel shift bias (with it the rows next to the wall
+    read +14 % at y+ 0.5 on 60 pairs of the layer): a band along a wall with Keys
+    interpolation warns when it is made, and its near rows take the nearest row's relative
+    bias instead (-6 to +7 % there), the wall model unused (``wall_image`` NaN)."""
+    from rspiv.ensemble import PixelAccumulator, pixel_band
+
+    a0, _, t0 = tbl_pairs[0]
+    wall = t0.wall_y0_px
+    y, x0, _ = pixel_band(a0.shape, 64, np.arange(0.5, 10.01, 0.25), wall, margin_x=16)
+    du = t0.mean_displacement_px(wall - y)
+    with pytest.warns(UserWarning, match="Keys interpolation: its sub-pixel shift bias"):
+        acc = PixelAccumulator(
+            y, 64, x0, (du, 0.0), lags=(8, 3), interpolation="keys", wall=(wall, "above")
+        )
+    for a, b, _ in tbl_pairs[:10]:
+        acc.add(a, b)
+    res = acc.result()
+    assert np.isnan(res["wall_image"]).all() and res["corrected"].all()
+    # restored from its arrays (a shard, a checkpoint) it does not warn again
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        PixelAccumulator.from_arrays(acc.to_arrays())

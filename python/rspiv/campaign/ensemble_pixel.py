@@ -259,7 +259,9 @@ def new_pixel_accumulator(ctx: PairContext, run: RunSpec) -> PixelAccumulator:
         lay["x0"],
         (lay["du"], lay["dv"]),
         lags=lay["lags"],
-        interpolation=ctx.piv.interpolation,
+        # the rows next to the wall are modelled for the B-spline interpolants only (Keys'
+        # sub-pixel shift bias is not: rspiv.ensemble_pixel_model): Keys PIV gets quintic rows
+        interpolation="bspline" if ctx.piv.interpolation == "keys" else ctx.piv.interpolation,
         wall=(lay["wall"], lay["side"]),
     )
 
