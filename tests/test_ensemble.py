@@ -427,3 +427,35 @@ def test_single_pixel_rows_with_keys_interpolation_say_so(tbl_pairs):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         PixelAccumulator.from_arrays(acc.to_arrays())
+
+
+def test_wall_model_helpers_against_exact_answers():
+    """The wall model's pieces (``rspiv.ensemble_pixel_model``): each interpolant's response to
+    one pixel is 1 at it and 0 at the others (interpolating); the correlation along a row of
+    two pixel-integrated Gaussian images in closed form matches a fine numerical integral;
+    a row on a kept pixel's centre, far from the wall, reads that pixel's integrated image
+    exactly; bad parameters give one-line errors."""
+    from rspiv.ensemble_pixel_model import along_row, cardinal, wall_response
+    from scipy.special import ndtr
+
+    k = np.arange(-4.0, 5.0)
+    for kind in ("bspline", "bspline3", "keys"):
+        np.testing.assert_allclose(cardinal(kind)(k), (k == 0).astype(float), atol=1e-9)
+    sig = 0.625
+    x = np.linspace(-12.0, 12.0, 24001)
+    f = ndtr((x + 0.5) / sig) - ndtr((x - 0.5) / sig)
+    for r in (0.0, 0.5, 1.3, 2.7):
+        n = int(round(r / (x[1] - x[0])))
+        num = (f[: f.size - n] * f[n:]).sum() * (x[1] - x[0])
+        np.testing.assert_allclose(along_row(np.array(r), sig), num, rtol=1e-6)
+    t = np.linspace(14.0, 16.0, 9)
+    z = 0.32 + 15.0  # a kept pixel's centre, 15 px from the wall
+    want = ndtr((z - t + 0.5) / sig) - ndtr((z - t - 0.5) / sig)
+    got = wall_response(z, t, sig, 0.5, 0.32, cardinal("bspline"))[0]
+    np.testing.assert_allclose(got, want, atol=1e-9)  # mirror images 30 px away: nothing
+    with pytest.raises(rspiv.InvalidInputError, match="interpolation must be one of"):
+        cardinal("linear")
+    with pytest.raises(rspiv.InvalidInputError, match="image standard deviation 0.0 px"):
+        wall_response(1.0, t, 0.0, 0.5, 0.3, cardinal("keys"))
+    with pytest.raises(rspiv.InvalidInputError, match="reflection 1.5"):
+        wall_response(1.0, t, 0.6, 1.5, 0.3, cardinal("keys"))

@@ -129,10 +129,9 @@ class PixelAccumulator:
     - Next to the wall (within three image widths) the planes depend on where the wall falls
       within its pixel; those rows are modelled on the pixel grid (masked pixels, mirror
       images, the interpolation across the cut; the image width and the reflection
-      calibrated from the data, ``wall_image``). With the wall 0.32 px past the centre of the
-      pixel it crosses (the figures above) or 0.08 px into a masked one (two sets of 160
-      to 320 pairs: within 1.7-2.1 % over five sets; before that model -6.8 % at y+ 0.7)
-      alike. The model
+      calibrated from the data, ``wall_image``), alike with the wall 0.32 px past the centre
+      of the pixel it crosses (the figures above) or 0.08 px into a masked one (five sets of
+      160-320 pairs: within 1.7-2.1 %; before that model -6.8 % at y+ 0.7). The model
       assumes the wall where ``wall`` says: a wall found 0.24 px off left the row 0.25 px
       out, measuring at y+ 0.39, 8.9 % high in the campaign's test (the rows from y+ 0.5
       within 3 %). ``near_wall`` flags the rows within two image widths. The model is

@@ -65,6 +65,8 @@ from scipy.optimize import minimize_scalar
 from scipy.special import ndtr
 
 from rspiv import _rspiv
+from rspiv.errors import InvalidInputError
+from rspiv.settings import INTERPOLATIONS, parse_choice
 
 __all__ = [
     "WallGeometry",
@@ -94,25 +96,6 @@ _PIX_REACH = 10
 #: px, periodic in the shift: 5-15 % of the displacement next to the wall) is not modelled:
 #: with it the wall model read +14 % at y+ 0.5 (60 pairs), the fallback -6 to +7 %.
 _MODELLED = ("bspline", "bspline3")
-
-
-def along_row(r: np.ndarray, sigma: float) -> np.ndarray:
-    """The correlation along a row of two pixel-integrated Gaussian images (standard deviation
-    ``sigma``, px) whose centres are ``r`` px apart, averaged over their position within the
-    pixel: the Gaussian of standard deviation ``sqrt(2) sigma`` convolved with the triangle of
-    half-width 1 px (the pixel's box correlated with itself); closed form (peak ~1 at 0)."""
-    tau = np.sqrt(2.0) * sigma
-    r = np.asarray(r, dtype=np.float64)
-
-    def cdf(x: np.ndarray) -> np.ndarray:
-        return ndtr(x / tau)
-
-    def pdf(x: np.ndarray) -> np.ndarray:
-        return np.exp(-0.5 * (x / tau) ** 2) / (tau * np.sqrt(2.0 * np.pi))
-
-    right = (1.0 - r) * (cdf(r) - cdf(r - 1.0)) - tau**2 * (pdf(r) - pdf(r - 1.0))
-    left = (1.0 + r) * (cdf(r + 1.0) - cdf(r)) + tau**2 * (pdf(r + 1.0) - pdf(r))
-    return right + left
 
 
 def effective_distance(dist: np.ndarray, auto_dy: np.ndarray, flow_side: str) -> np.ndarray:
@@ -223,6 +206,7 @@ def cardinal(interpolation: str) -> Callable[[np.ndarray], np.ndarray]:
     frame's value between pixels is ``sum_k eta(x - k) p_k``. The cardinal quintic or cubic
     B-spline (``"bspline"``, ``"bspline3"``: the B-spline weights of the prefilter's impulse
     response, which falls as 0.43^k / 0.27^k) or the Keys kernel (``"keys"``, a = -0.5)."""
+    interpolation = parse_choice(interpolation, INTERPOLATIONS, "interpolation")
     if interpolation == "keys":
 
         def keys(x: np.ndarray) -> np.ndarray:
@@ -261,6 +245,16 @@ class WallGeometry:
     auto: np.ndarray
 
 
+def _check_image(sigma: float, rho: float) -> None:
+    """InvalidInputError unless the image's standard deviation is positive and finite and the
+    reflection within 0-1."""
+    if not (np.isfinite(sigma) and sigma > 0 and 0.0 <= rho <= 1.0):
+        raise InvalidInputError(
+            f"wall model: image standard deviation {sigma!r} px (must be > 0) or reflection "
+            f"{rho!r} (must be within 0-1)"
+        )
+
+
 def wall_response(
     z: np.ndarray, t: np.ndarray, sigma: float, rho: float, phase: float, eta: Callable
 ) -> np.ndarray:
@@ -269,6 +263,7 @@ def wall_response(
     ``rho``): Gaussian images of standard deviation ``sigma`` integrated over the pixels, the
     pixels at ``phase + m`` (m >= 0) kept, those beyond the wall constant (they add nothing to
     a row less its mean), interpolated by ``eta`` (:func:`cardinal`)."""
+    _check_image(sigma, rho)
     z = np.atleast_1d(np.asarray(z, dtype=np.float64))
     t = np.atleast_1d(np.asarray(t, dtype=np.float64))
     m0 = max(0, int(np.floor(z.min() - phase)) - _PIX_REACH)
@@ -279,6 +274,26 @@ def wall_response(
 
     pk = pixel(zk[:, None] - t[None, :]) + rho * pixel(zk[:, None] + t[None, :])
     return eta(z[:, None] - zk[None, :]) @ pk
+
+
+def along_row(r: np.ndarray, sigma: float) -> np.ndarray:
+    """The correlation along a row of two pixel-integrated Gaussian images (standard deviation
+    ``sigma``, px) whose centres are ``r`` px apart, averaged over their position within the
+    pixel: the Gaussian of standard deviation ``sqrt(2) sigma`` convolved with the triangle of
+    half-width 1 px (the pixel's box correlated with itself); closed form (peak ~1 at 0)."""
+    _check_image(sigma, 0.0)
+    tau = np.sqrt(2.0) * sigma
+    r = np.asarray(r, dtype=np.float64)
+
+    def cdf(x: np.ndarray) -> np.ndarray:
+        return ndtr(x / tau)
+
+    def pdf(x: np.ndarray) -> np.ndarray:
+        return np.exp(-0.5 * (x / tau) ** 2) / (tau * np.sqrt(2.0 * np.pi))
+
+    right = (1.0 - r) * (cdf(r) - cdf(r - 1.0)) - tau**2 * (pdf(r) - pdf(r - 1.0))
+    left = (1.0 + r) * (cdf(r + 1.0) - cdf(r)) + tau**2 * (pdf(r + 1.0) - pdf(r))
+    return right + left
 
 
 def model_planes_wall(
