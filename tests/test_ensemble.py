@@ -242,7 +242,7 @@ def test_single_pixel_rows_resolve_the_buffer_layer(tbl_pairs):
     assert not raw["corrected"].any() and np.isnan(raw["dist_eff"]).all()
     # each quarter-pixel row its own value: the profile rises row by row
     assert np.all(np.diff(res["u"][d >= 1.0]) > 0)
-    # a band of rows all within two image widths of the wall: moved to where they measure, but
+    # a band of rows all within three image widths of the wall: moved to where they measure, but
     # no row out there to model the fit's bias from: left uncorrected, and said so
     inner = PixelAccumulator(y[:4], 64, x0, (du[:4], 0.0), lags=(8, 3), wall=(wall, "above"))
     for a, b, _ in tbl_pairs[:10]:

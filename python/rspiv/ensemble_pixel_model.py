@@ -370,20 +370,15 @@ def _calibrate(
     sigma = float(np.sqrt(s2[1]))
     rx, ry = lags
     data = 0.5 * (wall.auto[rows, :, rx - 1] + wall.auto[rows, :, rx + 1])
-    ly = np.arange(-ry, ry + 1.0)
+    near = (wall.dist[rows], wall.phase[rows])
 
     def misfit(rho: float) -> float:
-        e = 0.0
-        for i, k in enumerate(rows):
-            m = np.zeros(ly.size)
-            for d, ph in zip(wall.dist[k], wall.phase[k], strict=True):
-                t = np.arange(_DT / 2, d + _REACH * sigma + ry + 1.0, _DT)
-                a = wall_response(d, t, sigma, rho, ph, eta)[0]
-                m += wall_response(d - ly, t, sigma, rho, ph, eta) @ a
-            y = data[i]
-            c = (m @ y) / (m @ m)
-            e += float(((y - c * m) ** 2).sum() / (y @ y))
-        return e
+        planes = model_planes_wall(near, np.zeros(rows.size), None, (sigma, rho), lags, eta)
+        npl = (2 * rx + 1) * (2 * ry + 1)
+        auto = planes[:, npl : 2 * npl].reshape(rows.size, 2 * ry + 1, 2 * rx + 1)
+        m = auto[:, :, rx + 1]  # the model's columns +-1 are alike
+        c = np.sum(m * data, axis=1) / np.sum(m * m, axis=1)  # each row's amplitude
+        return float(np.sum(np.sum((data - c[:, None] * m) ** 2, axis=1) / np.sum(data**2, axis=1)))
 
     if rows.size == 0:
         return sigma, 0.0

@@ -511,8 +511,8 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
         said.append(
             f"{near} row(s) lie within two particle-image widths of the wall: they measure "
             "farther out than they lie and are reported there, modelled on the pixel grid at "
-            "the found wall (a wall 0.24 px off left the row measuring at y+ 0.4 9 % high) "
-            "(near_wall = 1)"
+            "the found wall (with a wall found 0.24 px off, the row measuring at y+ 0.4 read "
+            "9 % high) (near_wall = 1)"
         )
     if clipped:
         said.append(
@@ -527,7 +527,7 @@ def _flags(camp: Any, run: RunSpec, prof: dict, what: str) -> dict[str, Any]:
     if "corrected" in prof and not np.all(prof["corrected"]):
         said.append(
             f"{int(np.count_nonzero(~np.asarray(prof['corrected'], dtype=bool)))} row(s) keep "
-            "the peak fit's bias (1-3.5 % low on the synthetic layer): no row two image widths "
+            "the peak fit's bias (1-3.5 % low on the synthetic layer): no row three image widths "
             "out to model it from, or its model failed (corrected = 0)"
         )
     out: dict[str, Any] = {"clipped_rows": clipped, "warning": "; ".join(said)}
@@ -622,9 +622,9 @@ def report_section(camp: Any, res: Any) -> Any:
             " Single-pixel rows: one pixel row of frame A against the rows of frame B, summed "
             "along the wall, the reflection beyond the wall masked, each row reported at the "
             "distance where it measures (next to the wall, farther out than it lies: the mean "
-            "offset of the particle images it sees) and the peak fit's bias removed; the rows "
-            "within two particle-image widths of the wall (their accuracy depends on where the "
-            "wall falls within its pixel) are flagged and left out of the figures."
+            "offset of the particle images it sees) and the peak fit's bias removed (next to the "
+            "wall modelled on the pixel grid); the rows within two particle-image widths of the "
+            "wall, moved the most, are flagged and left out of the figures."
         )
         tables.append(ReportTable("Single-pixel profile at the wall (main run)", pixel_rows))
     return ReportSection(

@@ -322,6 +322,6 @@ def pixel_profile(ctx: PairContext, run: RunSpec, acc: PixelAccumulator, an: Any
         "corrected": np.asarray(res["corrected"])[keep],
         "clipped": np.asarray(res["saturated"])[keep] > SATURATED_MAX,
         "pairs": int(acc.pairs),
-        # rows left out: a summed peak no higher than MIN_PEAK_RATIO times the plane's next
+        # rows left out: a summed peak under MIN_PEAK_RATIO times the plane's next local maximum
         "weak_rows": int(np.count_nonzero(res["weak"])),
     }
