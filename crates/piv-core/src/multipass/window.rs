@@ -240,7 +240,9 @@ impl FillScratch {
 /// `range^2 / 4`, else summed) is under the limit. Which blocks pass the range tests follows
 /// the particles, so the tests run on every block without a branch (a data-dependent branch
 /// per block mispredicted about as often as not and cost more than the tests); only the
-/// blocks that fail them are looked at further.
+/// blocks that fail them are looked at further. The vector path branches once per row of
+/// blocks: when every block passes its first row's test (camera noise alone does), the row's
+/// other pixel rows are not read.
 pub(crate) fn blank_blocks(
     win: &[f32],
     (w, h): (usize, usize),
@@ -327,8 +329,9 @@ pub(crate) fn blank_blocks(
 }
 
 /// [`blank_blocks`] on one block row (rows `y0..y1`) of a window `w` px wide, `w` a multiple
-/// of 8, in blocks of 4 px: pushes each block's extremes to `ext` and returns the blocks that
-/// fail both range tests as bits (bit `bx`). The same extremes (the values are finite, so
+/// of 8, in blocks of 4 px: pushes each block's extremes to `ext` (those of its first row
+/// when every block passes the first row's test: none is then open, and the other rows are not
+/// read) and returns the blocks that fail both range tests as bits (bit `bx`). The same extremes (the values are finite, so
 /// `min`/`max` give the same values in any order, up to the sign of a zero extreme, which no
 /// test sees) and the same f64 tests as the scalar loop, 8 columns (2 blocks) per register and
 /// the tests 4 blocks at a time.
@@ -370,20 +373,13 @@ unsafe fn open_blocks4_avx2(
         // SAFETY: `s` holds 4 values
         unsafe { _mm_loadu_ps(s.as_ptr()) }
     };
+    // the first row's extremes and test first: where every block of the row passes it (a
+    // particle image with camera noise), no block is blank and the other rows are not read
     for c in 0..w / 8 {
         let f = load8(rows, 8 * c);
-        let (mut lo, mut hi) = (f, f);
-        for r in 1..y1 - y0 {
-            let v = load8(rows, r * w + 8 * c);
-            lo = _mm256_min_ps(lo, v);
-            hi = _mm256_max_ps(hi, v);
-        }
         groups!(f, _mm256_min_ps, lf, c);
         groups!(f, _mm256_max_ps, hf, c);
-        groups!(lo, _mm256_min_ps, la, c);
-        groups!(hi, _mm256_max_ps, ha, c);
     }
-    ext.extend((0..nbx).map(|b| [la[b], ha[b]]));
     // range^2 > 2 m (floor + 1e-8 top^2 + 1e-12), top = max(|lo|, |hi|), as `blank_blocks`
     let twice_m = _mm256_set1_pd(2.0 * (4 * (y1 - y0)) as f64);
     let (fl, tiny, eps) = (
@@ -407,12 +403,33 @@ unsafe fn open_blocks4_avx2(
             _mm256_cmp_pd::<_CMP_GT_OQ>(_mm256_mul_pd(range, range), _mm256_mul_pd(twice_m, lim))
         }};
     }
+    let all = (1u32 << nbx) - 1;
+    let mut first = 0u32;
+    for i in (0..nbx).step_by(4) {
+        first |= ((_mm256_movemask_pd(wide!(lf, hf, i)) & 0xf) as u32) << i;
+    }
+    if first & all == all {
+        // only the open blocks' extremes are read (`blank_blocks`): none here
+        ext.extend((0..nbx).map(|b| [lf[b], hf[b]]));
+        return 0;
+    }
+    for c in 0..w / 8 {
+        let mut lo = load8(rows, 8 * c);
+        let mut hi = lo;
+        for r in 1..y1 - y0 {
+            let v = load8(rows, r * w + 8 * c);
+            lo = _mm256_min_ps(lo, v);
+            hi = _mm256_max_ps(hi, v);
+        }
+        groups!(lo, _mm256_min_ps, la, c);
+        groups!(hi, _mm256_max_ps, ha, c);
+    }
+    ext.extend((0..nbx).map(|b| [la[b], ha[b]]));
     let mut bits = 0u32;
     for i in (0..nbx).step_by(4) {
-        let either = _mm256_or_pd(wide!(lf, hf, i), wide!(la, ha, i));
-        bits |= ((!_mm256_movemask_pd(either) & 0xf) as u32) << i;
+        bits |= ((!_mm256_movemask_pd(wide!(la, ha, i)) & 0xf) as u32) << i;
     }
-    bits & ((1u32 << nbx) - 1)
+    bits & !first & all
 }
 
 /// Whether the block `x0..x1` x `y0..y1` of a `w`-wide window, of extremes `lo < hi`, has a
