@@ -104,6 +104,55 @@ def test_weighting_flag_in_both_clis(pair_files, tmp_path, engine):
     assert json.loads(ds.attrs["piv_settings"])["weighting"] == "gaussian"
 
 
+def test_jpeg_frames_are_read_with_a_warning(pair_files, tmp_path, engine):
+    """JPEG frames (OpenPIV's ``test3``, phone and webcam PIV) are read by the API, ``rspiv
+    piv`` and the engine binary, each warning once that the compression adds error; the
+    displacement measured on them is the exact one to within the compression's error. A
+    campaign file may list them."""
+    from PIL import Image
+
+    d, a, b = pair_files
+    a8, b8 = ((f >> 4).astype(np.uint8) for f in (a, b))
+    for name, f in (("a.jpg", a8), ("b.jpeg", b8)):
+        Image.fromarray(f).save(tmp_path / name, quality=95)
+    Image.fromarray(np.stack([a8] * 3, axis=-1)).save(tmp_path / "rgb.jpg", quality=95)
+    with pytest.warns(UserWarning, match="JPEG is lossy"):
+        ja, jb = read_pair(tmp_path / "a.jpg", tmp_path / "b.jpeg")
+    assert ja.dtype == np.uint8 and ja.shape == a.shape
+    # quality 95: the decoded counts are the recorded ones up to the compression's error (1.7
+    # counts RMS here against the particle images' 29; not rescaled)
+    assert np.sqrt(np.mean((ja.astype(float) - a8) ** 2)) < 2.5
+    with pytest.warns(UserWarning, match="JPEG is lossy"):
+        grey = read_image(tmp_path / "rgb.jpg")
+    assert grey.dtype == np.float32 and np.sqrt(np.mean((grey - a8) ** 2)) < 2.5
+    f = rspiv.piv(ja, jb, passes=[(64, 64), (32, 32)])
+    assert np.median(np.abs(f.u - 2.5)) < 0.05 and np.median(np.abs(f.v + 1.0)) < 0.05
+    out = tmp_path / "j.nc"
+    args = [str(tmp_path / "a.jpg"), str(tmp_path / "b.jpeg")]
+    with pytest.warns(UserWarning, match="JPEG is lossy"):
+        assert main(["piv", *args, "-o", str(out), "--passes", "64x64,32x32"]) == 0
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    np.testing.assert_array_equal(ds.u.values, f.u)
+    csv = tmp_path / "j.csv"
+    r = subprocess.run([engine, "piv", *args, "-o", str(csv), "--passes", "64x64,32x32"],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert "JPEG is lossy" in r.stderr and "a.jpg" in r.stderr, r.stderr
+    data = np.genfromtxt(csv, delimiter=",", names=True)
+    # another decoder (zune-jpeg, not libjpeg): the same field to within its rounding
+    assert np.median(np.abs(data["u"] - 2.5)) < 0.05
+    assert np.median(np.abs(data["u"] - f.u.ravel())) < 0.01
+    from rspiv.campaign_config import load_campaign_config
+
+    toml = tmp_path / "c.toml"
+    toml.write_text('[images]\npairs = [["a.jpg", "b.jpeg"]]\n[correction]\nmethod = "none"\n')
+    pairs = load_campaign_config(toml).images.pair_files()
+    assert [(p.name, q.name) for p, q in pairs] == [("a.jpg", "b.jpeg")]
+    (tmp_path / "bad.jpg").write_bytes(b"not a jpeg")
+    with pytest.raises(rspiv.InvalidInputError, match="bad.jpg"):
+        read_image(tmp_path / "bad.jpg")
+
+
 def test_read_image_checks_arrays_by_the_file_rules():
     """One reader: arrays pass through the same rules as files."""
     img = read_image(np.arange(12, dtype=np.int32).reshape(3, 4))

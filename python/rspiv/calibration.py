@@ -410,7 +410,7 @@ def calibrate(
     Parameters
     ----------
     image : array_like or path
-        The target image (2D; uint8/uint16/float), or a TIFF/PNG/BMP file.
+        The target image (2D; uint8/uint16/float), or a TIFF/PNG/BMP/JPEG file.
     pitch_mm : float
         Marker pitch (mm), > 0.
     model : {"auto", "r1", "r2", "p3"}

@@ -20,7 +20,7 @@ from rspiv.settings import (
     parse_method,
 )
 
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".im7", ".imx", ".ims")
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg", ".im7", ".imx", ".ims")
 
 
 class Ctx:

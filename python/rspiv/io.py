@@ -1,7 +1,7 @@
 """Reading images: the one reader of rspiv (PIV frames, calibration targets, masks).
 
-TIFF (single or multi-frame, via tifffile), PNG and BMP (via Pillow) and LaVision DaVis buffers
-(``.im7``, ``.imx``, ``.ims``, through LaVision's ``lvpyio``, the optional extra
+TIFF (single or multi-frame, via tifffile), PNG, BMP and JPEG (via Pillow) and LaVision DaVis
+buffers (``.im7``, ``.imx``, ``.ims``, through LaVision's ``lvpyio``, the optional extra
 ``pip install 'rspiv[davis]'``; never bundled) are read as C-contiguous 2D arrays
 ``image[y, x]``. A DaVis buffer's images are numbered in file order over its frames and their
 planes: a double-frame PIV recording holds frame A at 0 and frame B at 1 (the raw counts, bit
@@ -10,7 +10,8 @@ uint8, uint16, float32 and float64 keep their dtype (not rescaled); other dtypes
 colour images become grey (0.299 R + 0.587 G + 0.114 B, float32). Arrays pass through the same
 rules, so every entry point accepts a file or an array alike. Errors raise
 :class:`rspiv.InvalidInputError` naming the file: missing, unreadable or truncated files, a frame
-out of range, images that are not 2D, float images with NaN or inf.
+out of range, images that are not 2D, float images with NaN or inf. JPEG is read with a
+:class:`UserWarning` (:data:`JPEG_LOSSY`, once per calling line): its compression adds error.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import warnings
 from typing import Any
 
 import numpy as np
@@ -28,6 +30,7 @@ from rspiv.errors import InvalidInputError
 
 __all__ = [
     "DAVIS_SUFFIXES",
+    "JPEG_LOSSY",
     "davis_info",
     "frame_count",
     "read_image",
@@ -36,7 +39,13 @@ __all__ = [
 ]
 
 _TIFF = {".tif", ".tiff"}
-_PIL = {".png", ".bmp"}
+_JPEG = {".jpg", ".jpeg"}
+_PIL = {".png", ".bmp"} | _JPEG
+#: The warning for JPEG frames (also the Rust engine's): lossy compression on 8 x 8 px blocks.
+JPEG_LOSSY = (
+    "JPEG is lossy: its 8 x 8 px block artefacts add error to sub-pixel displacements and "
+    "marker centres; record TIFF or PNG where you can"
+)
 #: DaVis buffer files (read through lvpyio).
 DAVIS_SUFFIXES = (".im7", ".imx", ".ims")
 _NATIVE = (np.uint8, np.uint16, np.float32, np.float64)
@@ -80,13 +89,17 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
             with Image.open(p) as im:
                 im.load()
-                return np.asarray(im)
+                img = np.asarray(im)
+            if ext in _JPEG:
+                # one message for every file: shown once per calling line, not once per pair
+                warnings.warn(JPEG_LOSSY, UserWarning, stacklevel=3)
+            return img
     except InvalidInputError:
         raise
     except Exception as exc:  # corrupt, truncated or foreign file
         raise InvalidInputError(f"{name}: cannot read image: {exc}") from exc
     raise InvalidInputError(
-        f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP, DaVis .im7/.imx/.ims)"
+        f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP, JPEG, DaVis .im7/.imx/.ims)"
     )
 
 
@@ -167,7 +180,7 @@ def davis_info(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def frame_count(path: str | os.PathLike) -> int:
-    """Number of frames (images) a file holds: TIFF pages, DaVis images, 1 for PNG/BMP."""
+    """Number of frames (images) a file holds: TIFF pages, DaVis images, 1 for PNG/BMP/JPEG."""
     p = pathlib.Path(path)
     if not p.is_file():
         raise InvalidInputError(f"{p}: no such file")
@@ -191,7 +204,8 @@ def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
     Parameters
     ----------
     source : str, path-like or array_like
-        A ``.tif``/``.tiff``, ``.png`` or ``.bmp`` file, or an image array.
+        A ``.tif``/``.tiff``, ``.png``, ``.bmp``, ``.jpg``/``.jpeg`` or DaVis file, or an
+        image array.
     frame : int
         Page of a multi-frame TIFF (0-based); must be 0 for other formats and arrays.
 

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 /// Arguments of `calibrate`.
 #[derive(clap::Args, Debug)]
 pub struct CalibrateArgs {
-    /// Target image (TIFF, PNG or BMP; grey).
+    /// Target image (TIFF, PNG, BMP or JPEG; grey).
     pub target: PathBuf,
     /// Marker pitch (mm).
     #[arg(long)]

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 pub struct DewarpArgs {
     /// Calibration JSON (rspiv calibrate) or mapping JSON (fit-mapping / Mapping.save).
     pub calibration: PathBuf,
-    /// Images to dewarp (TIFF, PNG, BMP; 8 or 16 bit grey).
+    /// Images to dewarp (TIFF, PNG, BMP, JPEG; 8 or 16 bit grey).
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
     /// Output directory (must exist); each output is `<stem>.tif`.

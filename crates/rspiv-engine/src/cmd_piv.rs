@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 /// Arguments of `piv`.
 #[derive(clap::Args, Debug)]
 pub struct PivArgs {
-    /// First frame (TIFF, PNG or BMP).
+    /// First frame (TIFF, PNG, BMP or JPEG).
     pub frame_a: PathBuf,
     /// Second frame.
     pub frame_b: PathBuf,

@@ -33,7 +33,7 @@ enum Command {
     Map(cmd_mapping::MapArgs),
     /// Calibrate from a target image: markers, grid, mapping -> calibration JSON.
     Calibrate(cmd_calibrate::CalibrateArgs),
-    /// Multipass PIV of an image pair (TIFF/PNG/BMP), plain or corrected (--calibration,
+    /// Multipass PIV of an image pair (TIFF/PNG/BMP/JPEG), plain or corrected (--calibration,
     /// --method I|II) -> CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice,sigma_u,sigma_v.
     Piv(cmd_piv::PivArgs),
     /// Dewarp images through a calibration (Method I, Keys bicubic) -> 16-bit TIFF.

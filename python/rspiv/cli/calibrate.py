@@ -165,7 +165,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Detect the target's markers, index the grid, fit the mapping model and "
         "write the calibration (JSON); or fit marker positions given in a CSV file (--points).",
     )
-    p.add_argument("target", nargs="?", default=None, help="target image (TIFF, PNG or BMP)")
+    p.add_argument("target", nargs="?", default=None, help="target image (TIFF, PNG, BMP or JPEG)")
     p.add_argument(
         "--points",
         default=None,

@@ -42,7 +42,7 @@ def _dewarp(args: argparse.Namespace) -> int:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("dewarp", help="dewarp images through a calibration (Method I)")
     p.add_argument("calibration", help="calibration JSON written by `rspiv calibrate`")
-    p.add_argument("images", nargs="+", help="images to dewarp (TIFF, PNG, BMP)")
+    p.add_argument("images", nargs="+", help="images to dewarp (TIFF, PNG, BMP, JPEG)")
     p.add_argument("-o", "--output", required=True, help="output directory (must exist)")
     p.add_argument("--rotation", type=float, default=0.0,
                    help="extra rotation (degrees), e.g. the angle from `rspiv wall`")  # fmt: skip

@@ -168,7 +168,7 @@ def register(sub) -> None:
     )
     p.add_argument(
         "frame_a",
-        help="first frame (TIFF/PNG/BMP/DaVis .im7), or a two-frame TIFF or DaVis buffer",
+        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), or a two-frame TIFF or DaVis buffer",
     )
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
     p.add_argument(
