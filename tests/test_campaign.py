@@ -269,6 +269,7 @@ def test_bad_pairs_are_skipped_and_reported(synth, tmp_path):
         (tmp_path / "missing_a.tif", files[3]),  # missing frame
         (files[2], small),  # size mismatch
         (files[4], files[5]),
+        (files[0], files[3]),  # a wrong pairing: frames that do not correlate
     ]
     cfg.correction.method = "none"
     cfg.correction.compare_uncorrected = False
@@ -276,14 +277,15 @@ def test_bad_pairs_are_skipped_and_reported(synth, tmp_path):
     cfg.output.report = False
     res = Campaign(cfg, progress=False, out_dir=tmp_path / "out").run()
     assert res.n_done == 2
-    assert set(res.skipped) == {1, 2}
+    assert set(res.skipped) == {1, 2, 4}
     assert "missing_a.tif" in res.skipped[1] and "no such file" in res.skipped[1]
     assert "80 x 64 px" in res.skipped[2]
+    assert "uncorrected: the frames do not correlate: the median peak ratio" in res.skipped[4]
     acc = res.accumulators["uncorrected"]
     assert acc.pair_ids == {0, 3} and acc.n_fields == 2
     log = [json.loads(x) for x in (tmp_path / "out" / "run_log.jsonl").read_text().splitlines()]
     skipped = {r["pair_id"]: r["reason"] for r in log if r["event"] == "skipped"}
-    assert set(skipped) == {1, 2}
+    assert set(skipped) == {1, 2, 4}
     assert res.result("uncorrected") is not None  # the good pairs are analysed
 
 

@@ -151,7 +151,7 @@ def test_builtin_writer_escapes_strings():
             '[images]\nglob="a*.tif"\n[correction]\nmethod = "III"\n',
             "[correction].method: expected one of 'I', 'II', 'none', got 'III'",
         ),
-        ('[images]\nglob="a*.jpg"\n', "[images].glob: expected an image file"),
+        ('[images]\nglob="a*.gif"\n', "[images].glob: expected an image file"),
         ('[images]\nglob="a*.tif"\nmultiframe="m.tif"\n', "[images]: expected exactly one of"),
         ("[piv]\noverlap = 0.5\n", "[images]: expected exactly one of glob, pairs, multiframe"),
         (

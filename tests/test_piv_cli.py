@@ -153,6 +153,68 @@ def test_jpeg_frames_are_read_with_a_warning(pair_files, tmp_path, engine):
         read_image(tmp_path / "bad.jpg")
 
 
+def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, capsys):
+    """Frames that do not correlate give random vectors of which the median test keeps about
+    60 % as valid; the field's median peak ratio gives them away (1.1-1.2 against about 3
+    for particle images): rspiv.piv warns (CorrelationWarning), ``rspiv piv`` says so in one
+    line and in the file, the engine binary says so. Particle images, and frame A given twice,
+    are not warned about."""
+    import warnings
+
+    d, a, b = pair_files
+    rng = np.random.default_rng(7)
+    other = particle_pair(a.shape, (2.5, -1.0), seed=22)[1]  # another recording's frame B
+    cases = {
+        "noise": (rng.integers(0, 4000, a.shape).astype(np.uint16),
+                  rng.integers(0, 4000, a.shape).astype(np.uint16)),
+        "wrong pairing": (a, other),
+        "dark frame B": (a, rng.normal(30.0, 3.0, a.shape).clip(0).astype(np.uint16)),
+        "frame B shuffled": (a, rng.permutation(b.ravel()).reshape(b.shape)),
+    }  # fmt: skip
+    for name, (fa, fb) in cases.items():
+        with pytest.warns(rspiv.CorrelationWarning, match="the frames do not correlate") as rec:
+            f = rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)])
+        median = float(str(rec[0].message).split(" is ")[1].split()[0])
+        assert 1.0 <= median < 1.3, (name, median)
+        assert f.warning() == str(rec[0].message)
+        # what the warning is about: the median test kept random vectors
+        assert f.valid.mean() > 0.3, (name, f.valid.mean())
+    with pytest.warns(rspiv.CorrelationWarning, match="no window could be correlated"):
+        rspiv.piv(np.zeros(a.shape), np.zeros(a.shape), passes=[(64, 64), (32, 32)])
+    with pytest.warns(rspiv.CorrelationWarning, match="the frames do not correlate"):
+        gx, gy = np.meshgrid(np.arange(32.0, 161.0, 16.0), np.arange(32.0, 97.0, 16.0))
+        rspiv.piv_at(*cases["noise"], np.stack([gx, gy], axis=-1), (32, 32))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rspiv.CorrelationWarning)
+        for fa, fb in ((a, b), (a, a)):
+            assert rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)]).warning() is None
+    # the command line: one line on stderr and the file's attribute; the engine binary
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "n1.tif", cases["noise"][0])
+    tifffile.imwrite(tmp_path / "n2.tif", cases["noise"][1])
+    args = [str(tmp_path / "n1.tif"), str(tmp_path / "n2.tif")]
+    out = tmp_path / "n.nc"
+    capsys.readouterr()
+    assert main(["piv", *args, "-o", str(out), "--passes", "64x64,32x32"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("rspiv piv: warning: the frames do not correlate") == 1, err
+    assert "CorrelationWarning" not in err
+    assert "the frames do not correlate" in xr.load_dataset(out, engine="h5netcdf").attrs["warning"]
+    assert "warning" not in xr.load_dataset(_good_nc(d, tmp_path), engine="h5netcdf").attrs
+    r = subprocess.run([engine, "piv", *args, "-o", str(tmp_path / "n.csv"), "--passes",
+                        "64x64,32x32"], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and "warning: " in r.stderr and "do not correlate" in r.stderr
+
+
+def _good_nc(d, tmp_path):
+    """The NetCDF of ``rspiv piv`` on the good pair."""
+    out = tmp_path / "good.nc"
+    assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(out), "--passes",
+                 "64x64,32x32"]) == 0  # fmt: skip
+    return out
+
+
 def test_read_image_checks_arrays_by_the_file_rules():
     """One reader: arrays pass through the same rules as files."""
     img = read_image(np.arange(12, dtype=np.int32).reshape(3, 4))

@@ -14,7 +14,7 @@ from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
 from rspiv.ensemble import EnsembleAccumulator, EnsembleField
-from rspiv.errors import ConvergenceError, InvalidInputError, RspivError
+from rspiv.errors import ConvergenceError, CorrelationWarning, InvalidInputError, RspivError
 from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
@@ -27,6 +27,7 @@ from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
 
 __all__ = ["__version__", "RspivError", "InvalidInputError", "ConvergenceError"]
+__all__ += ["CorrelationWarning"]
 __all__ += ["FieldAccumulator", "CampaignConfig", "load_campaign_config", "analyse_profile"]
 __all__ += ["BoundaryLayerResult", "load_dns"]
 __all__ += ["Mapping", "fit_mapping"]

@@ -248,6 +248,13 @@ def window_response(weighting: str, n: int, wavelength: float) -> float:
     """Amplitude ratio of a sine displacement of ``wavelength`` px returned by an ``n`` px
     window weighted by ``weighting`` ("tophat", "gaussian", "blackman")."""
 
+MIN_MEDIAN_PEAK_RATIO: float
+
+def correlation_warning(peak_ratio: npt.NDArray[np.float64]) -> str | None:
+    """The one-line warning for a field whose frames do not correlate (the median peak ratio
+    of its correlated windows, ``peak_ratio > 0``, under ``MIN_MEDIAN_PEAK_RATIO``, or no
+    window correlated); None when they do."""
+
 def conditioned(
     frame: npt.NDArray[np.generic],
     hot_pixels: float | None = None,

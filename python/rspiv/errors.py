@@ -1,4 +1,4 @@
-"""Exceptions raised by rspiv.
+"""Exceptions and warnings raised by rspiv.
 
 Every error derives from :class:`RspivError`.
 
@@ -6,6 +6,9 @@ Every error derives from :class:`RspivError`.
   shape, NaN or inf, too few points, degenerate geometry, a corrupt or foreign file.
 - :class:`ConvergenceError` (also an :class:`ArithmeticError`): an iterative method (the inverse
   map, a fit) did not converge where the caller required it to.
+
+- :class:`CorrelationWarning` (a :class:`UserWarning`): a PIV field whose frames do not
+  correlate (:meth:`rspiv.PivField.warning`); its vectors are no measurement.
 
 The native module raises these very classes (it looks them up here), so ``except
 rspiv.InvalidInputError`` catches errors from Rust and from Python alike.
@@ -26,4 +29,10 @@ class ConvergenceError(RspivError, ArithmeticError):
     """An iterative method did not converge; the message says where."""
 
 
-__all__ = ["RspivError", "InvalidInputError", "ConvergenceError"]
+class CorrelationWarning(UserWarning):
+    """A PIV field whose frames do not correlate (wrong pairing, missing laser pulse, noise):
+    :meth:`rspiv.PivField.warning` says what was seen. ``warnings.simplefilter("error",
+    rspiv.CorrelationWarning)`` turns it into an error."""
+
+
+__all__ = ["RspivError", "InvalidInputError", "ConvergenceError", "CorrelationWarning"]

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rspiv import _rspiv
+
 __all__ = ["PivField"]
 
 
@@ -93,6 +95,23 @@ class PivField:
             "interpolated": int(np.count_nonzero(self.replaced[live])),
         }
 
+    def warning(self) -> str | None:
+        """The one-line warning for a field whose frames do not correlate, else None.
+
+        Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise)
+        still give a highest peak in every window, and about 60 % of their random vectors pass
+        the median test among neighbours as random. What gives them away is the peak ratio:
+        the median over the correlated windows (``peak_ratio > 0``) is 1.1-1.2 for them and
+        about 3 or more for particle images (1.37 for a recording lit on a third of the frame;
+        ``piv_core::validate::correlation_warning``, the measurements of
+        ``benches/correlation_check.py`` in ``benches/RESULTS.md``); under
+        ``_rspiv.MIN_MEDIAN_PEAK_RATIO`` (1.3),
+        or with no window correlated, this says what was seen. :func:`rspiv.piv` and
+        :func:`rspiv.piv_at` raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv``
+        prints it and writes it to the file, a campaign leaves the pair out with it.
+        """
+        return _rspiv.correlation_warning(np.asarray(self.peak_ratio, dtype=np.float64))
+
     @property
     def shape(self) -> tuple[int, ...]:
         """Shape of the vector arrays."""
@@ -106,6 +125,7 @@ class PivField:
         ``masked``, ``peak_choice``; dims ``(y, x)``. For a grid field the coordinates ``x``,
         ``y`` are the window centres in px; for a field at arbitrary points (:func:`piv_at`) the
         dims are indexed 0..n-1 and the positions are the 2D coordinates ``x_px``, ``y_px``.
+        The attribute ``warning`` holds :meth:`warning` when the frames do not correlate.
         """
         import xarray as xr
 
@@ -155,4 +175,7 @@ class PivField:
                 "conventions": "pixel frame: x right, y down, origin at the top-left pixel centre",
             }
         )
+        warning = self.warning()
+        if warning is not None:
+            ds.attrs["warning"] = warning
         return ds

@@ -15,6 +15,7 @@ The keyword arguments are a thin shim over :class:`rspiv.PivSettings`; the nativ
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -22,7 +23,7 @@ import numpy as np
 
 from rspiv import _rspiv
 from rspiv.correction import correct
-from rspiv.errors import InvalidInputError
+from rspiv.errors import CorrelationWarning, InvalidInputError
 from rspiv.field import PivField
 from rspiv.multipass import run_grid, run_points
 from rspiv.preprocess import Preprocess, condition_pair
@@ -184,6 +185,12 @@ def piv(
         Frames not 2D, of different shapes, with NaN/inf, windows larger than the image, bad
         settings; ``method`` without ``calibration`` (or the reverse), an unknown ``method`` or
         ``mapping``; frames whose shape differs from a Calibration's ``image_shape``.
+
+    Warns
+    -----
+    CorrelationWarning
+        The frames do not correlate, or no window could be correlated
+        (:meth:`PivField.warning`): the field is returned, but its vectors are no measurement.
     """
     options = {k: v for k, v in locals().items() if k in OPTION_KEYS}
     mapping = parse_mapping_mode(mapping)
@@ -203,8 +210,19 @@ def piv(
             raise InvalidInputError(f'method must be "images" or "vectors", got {method!r}')
         if calibration is None:
             raise InvalidInputError(f"method={method!r} needs a calibration")
-        return correct(frame_a, frame_b, calibration, which, settings, mapping=mapping, mask=mask)
-    return run_grid(frame_a, frame_b, settings, mask)
+        field = correct(frame_a, frame_b, calibration, which, settings, mapping=mapping, mask=mask)
+    else:
+        field = run_grid(frame_a, frame_b, settings, mask)
+    return _warned(field)
+
+
+def _warned(field: PivField) -> PivField:
+    """``field``, raising its :meth:`PivField.warning` (frames that do not correlate) as a
+    :class:`rspiv.CorrelationWarning` at the caller's line."""
+    w = field.warning()
+    if w is not None:
+        warnings.warn(w, CorrelationWarning, stacklevel=3)
+    return field
 
 
 def piv_at(
@@ -267,6 +285,11 @@ def piv_at(
         blank (zero variance, e.g. zero fill), are not correlated: ``valid`` False, ``coef``
         and ``peak_ratio`` 0, their value interpolated from the valid neighbours and
         ``replaced`` True.
+
+    Warns
+    -----
+    CorrelationWarning
+        As for :func:`piv`.
     """
     windows = [window] if np.ndim(window) == 1 else list(window)
     settings = PivSettings(
@@ -280,7 +303,7 @@ def piv_at(
         peak_candidates=peak_candidates,
         uncertainty=uncertainty,
     )
-    return run_points(
+    field = run_points(
         frame_a,
         frame_b,
         points,
@@ -291,3 +314,4 @@ def piv_at(
         validate=validate,
         mask=mask,
     )
+    return _warned(field)

@@ -191,6 +191,54 @@ pub fn replace(u: &mut Array2<f64>, v: &mut Array2<f64>, good: &Array2<bool>) {
     }
 }
 
+/// A field whose correlated windows have a median peak ratio below this is not taken for a
+/// measurement ([`correlation_warning`]).
+pub const MIN_MEDIAN_PEAK_RATIO: f64 = 1.3;
+
+/// The one-line warning for a field whose frames do not correlate, from the peak ratios of
+/// its windows (`0` or NaN: a window not correlated, being blank, masked or reaching outside
+/// the frame); `None` when they correlate.
+///
+/// Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise)
+/// still give a highest peak in every window, and their random vectors, among neighbours as
+/// random, pass the normalised median test about 60 % of the time. Their peak ratios are low
+/// all over. Measured with the paper's passes (`python benches/correlation_check.py`, table in
+/// `benches/RESULTS.md`), the median over the correlated windows: 1.12-1.20 for camera noise,
+/// a dark frame B, frame B shuffled and OpenPIV's `test2` paired wrongly; 2.97-6.53 for
+/// OpenPIV's real recordings `test1`, `test2`, `test4`, `test5`, 1.37 for its `test3` (lit on
+/// a third of the frame, the rest dark), 2.99-4.80 for synthetic particle images from one
+/// particle per 32 x 8 px window to a noise of 0.3 of the particles' peak. The warning is
+/// also given where the noise swamps the particles (1.14-1.20 at a noise of 0.45-0.6 of the
+/// peak, where the median error of the 32 x 8 px vectors kept as valid is 0.6-1.6 px). With
+/// no correlated window at all the frames are blank (or constant) wherever there are windows.
+pub fn correlation_warning(peak_ratio: impl IntoIterator<Item = f64>) -> Option<String> {
+    let mut r: Vec<f64> = peak_ratio
+        .into_iter()
+        .filter(|p| p.is_finite() && *p > 0.0)
+        .collect();
+    if r.is_empty() {
+        return Some(
+            "no window could be correlated: the frames are blank or constant wherever the \
+             windows are"
+                .into(),
+        );
+    }
+    let n = r.len();
+    let (low, &mut hi, _) = r.select_nth_unstable_by(n / 2, f64::total_cmp);
+    let median = if n % 2 == 1 {
+        hi
+    } else {
+        0.5 * (hi + low.iter().copied().fold(f64::NEG_INFINITY, f64::max))
+    };
+    (median < MIN_MEDIAN_PEAK_RATIO).then(|| {
+        format!(
+            "the frames do not correlate: the median peak ratio of the {n} correlated windows \
+             is {median:.2} (frames that do not correlate give 1.1-1.2, particle images about \
+             3 or more): a wrong pairing, a missing laser pulse or frames of noise?"
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -229,6 +277,24 @@ mod tests {
         let good = bad.mapv(|b| !b);
         replace(&mut u, &mut v, &good);
         assert!((u[[2, 3]] - (0.3 + 0.1)).abs() < 1e-12, "{}", u[[2, 3]]);
+    }
+
+    #[test]
+    fn correlation_warning_reads_the_median_peak_ratio() {
+        // no window correlated (0: blank; NaN: masked)
+        let w = correlation_warning([0.0, f64::NAN, 0.0]).unwrap();
+        assert!(w.starts_with("no window could be correlated"), "{w}");
+        // the median of the correlated windows only: 1.1, 1.2, 1.25 -> 1.2
+        let w = correlation_warning([0.0, 1.25, 1.1, f64::NAN, 1.2]).unwrap();
+        assert!(w.contains("of the 3 correlated windows is 1.20"), "{w}");
+        assert!(!w.contains('\n'));
+        // an even count: the mean of the middle two, 1.28 and 1.34 -> 1.31, above the limit
+        assert_eq!(correlation_warning([1.1, 1.28, 1.34, 4.0]), None);
+        // 1.1, 1.2, 1.3, 1.35 -> 1.25: warned
+        assert!(correlation_warning([1.35, 1.3, 1.1, 1.2]).is_some());
+        // particle images, the capped ratio of identical frames
+        assert_eq!(correlation_warning([3.0, 1000.0, 1.05, 2.5, 0.0]), None);
+        assert_eq!(correlation_warning([MIN_MEDIAN_PEAK_RATIO]), None);
     }
 
     #[test]

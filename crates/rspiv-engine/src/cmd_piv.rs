@@ -230,6 +230,9 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
         f.masked.iter().filter(|&&r| r).count(),
         args.output.display()
     );
+    if let Some(w) = piv_core::validate::correlation_warning(f.peak_ratio.iter().copied()) {
+        eprintln!("rspiv-engine piv: warning: {pair}: {w}");
+    }
     Ok(())
 }
 

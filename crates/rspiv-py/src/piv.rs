@@ -7,7 +7,7 @@
 use crate::errors::{invalid, PyRspivErr};
 use crate::frames::{frames, with_frames};
 use ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
 use piv_core::{Grid, GridField, PivError, PivField, PivSettings, Predictor};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -232,8 +232,21 @@ fn window_response(weighting: &str, n: usize, wavelength: f64) -> PyResult<f64> 
     Ok(wt.response(n, wavelength))
 }
 
+/// The one-line warning for a field whose frames do not correlate, from its peak ratios (any
+/// shape); None when they do (`piv_core::validate::correlation_warning`).
+#[pyfunction]
+fn correlation_warning(py: Python<'_>, peak_ratio: PyReadonlyArrayDyn<'_, f64>) -> Option<String> {
+    let r = peak_ratio.as_array();
+    py.detach(|| piv_core::validate::correlation_warning(r.iter().copied()))
+}
+
 /// Register the PIV functions in the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(correlation_warning, m)?)?;
+    m.add(
+        "MIN_MEDIAN_PEAK_RATIO",
+        piv_core::validate::MIN_MEDIAN_PEAK_RATIO,
+    )?;
     m.add_function(wrap_pyfunction!(piv, m)?)?;
     m.add_function(wrap_pyfunction!(piv_at, m)?)?;
     m.add_function(wrap_pyfunction!(piv_final_points, m)?)?;

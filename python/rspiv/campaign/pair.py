@@ -126,7 +126,8 @@ def process_pair(
     else the caller's wait, see :class:`rspiv.campaign.executors.local.LocalExecutor`).
 
     Bad data (missing or unreadable frame, frames of different sizes or not of the campaign's
-    size) gives ``PairResult(ok=False, reason=...)``; programming errors propagate.
+    size, frames that do not correlate: :meth:`rspiv.PivField.warning`) gives
+    ``PairResult(ok=False, reason=...)``; programming errors propagate.
     """
     t = {k: 0.0 for k in (*STAGES[:3], "ensemble")}
     t0 = time.perf_counter()
@@ -149,6 +150,7 @@ def process_pair(
     mask = context.mask()
     settings = context.piv
     fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    piv_fields: dict[str, Any] = {}
     ens_frames: dict[str, tuple[Any, Any, Any]] = {}
     ensembles = ensembles or {}
     raw = None
@@ -159,6 +161,7 @@ def process_pair(
             if run.method == "none":
                 raw = run_grid(a, b, settings, mask)
                 t["piv"] += time.perf_counter() - t0
+                piv_fields[run.name] = raw
                 fields[run.name] = _field_arrays(raw, context, False)
                 ens_frames[run.name] = (ens_a, ens_b, mask)
             elif run.method == "I":
@@ -172,6 +175,7 @@ def process_pair(
                 t0 = time.perf_counter()
                 f = run_grid(da, db, settings, dmask)
                 t["piv"] += time.perf_counter() - t0
+                piv_fields[run.name] = f
                 fields[run.name] = _field_arrays(f, context, True)
                 if ensembles.get(run.name) is not None and ens_pre is not None:
                     t0 = time.perf_counter()
@@ -187,12 +191,20 @@ def process_pair(
                     object_shape=context.object_shape, predictor=raw, mask=mask,
                 )  # fmt: skip
                 t["piv"] += time.perf_counter() - t0
+                piv_fields[run.name] = f
                 fields[run.name] = _field_arrays(f, context, True)
                 ens_frames[run.name] = (ens_a, ens_b, mask)
             else:
                 raise InvalidInputError(f"run {run.name}: unknown method {run.method!r}")
     except InvalidInputError as exc:  # e.g. frames with NaN: bad data, not a bug
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
+    # frames that do not correlate (a missing laser pulse, a wrong pairing) give random vectors
+    # that pass the median test: no measurement, the pair is left out
+    for name, f in piv_fields.items():
+        warning = f.warning()
+        if warning is not None:
+            reason = f"{pair.describe()}: {name}: {warning}"
+            return PairResult(pair.pair_id, False, reason, timings=t)
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
     raw = None

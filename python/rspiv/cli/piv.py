@@ -11,12 +11,14 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import sys
+import warnings
 from typing import Any
 
 import rspiv
 from rspiv.calibration import Calibration
 from rspiv.correction import correct
-from rspiv.errors import InvalidInputError
+from rspiv.errors import CorrelationWarning, InvalidInputError
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
 from rspiv.io import DAVIS_SUFFIXES, davis_info, read_pair
 from rspiv.outputs import write_netcdf
@@ -84,6 +86,7 @@ def settings_from_args(args: argparse.Namespace) -> PivSettings:
 
 #: The run's attributes also written into a Tecplot file.
 _TECPLOT_AUX = (
+    "warning",
     "frame_a",
     "frame_b",
     "piv_settings",
@@ -118,17 +121,20 @@ def run(args: argparse.Namespace) -> int:
     )
     if pre.enabled:
         a, b = condition_pair(a, b, pre)
-    if args.calibration is not None:
-        method = parse_method(args.method or "II")
-        if method == "none":
-            field = rspiv.piv(a, b, settings=settings)
+    with warnings.catch_warnings():
+        # said once below, as one line of this command, and written to the file
+        warnings.simplefilter("ignore", CorrelationWarning)
+        if args.calibration is not None:
+            method = parse_method(args.method or "II")
+            if method == "none":
+                field = rspiv.piv(a, b, settings=settings)
+            else:
+                cal = Calibration.load(args.calibration)
+                field = correct(a, b, cal, method, settings, mapping=args.mapping)
+        elif args.method is not None and parse_method(args.method) != "none":
+            raise InvalidInputError(f"--method {args.method} needs --calibration")
         else:
-            cal = Calibration.load(args.calibration)
-            field = correct(a, b, cal, method, settings, mapping=args.mapping)
-    elif args.method is not None and parse_method(args.method) != "none":
-        raise InvalidInputError(f"--method {args.method} needs --calibration")
-    else:
-        field = rspiv.piv(a, b, settings=settings)
+            field = rspiv.piv(a, b, settings=settings)
     ds = field.to_xarray()
     ds.attrs["frame_a"] = str(args.frame_a)
     ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
@@ -155,6 +161,8 @@ def run(args: argparse.Namespace) -> int:
         f"{c['second']} from the second correlation peak, {c['third']} from the third, "
         f"{c['interpolated']} interpolated -> {out}"
     )
+    if "warning" in ds.attrs:
+        print(f"rspiv piv: warning: {ds.attrs['warning']}", file=sys.stderr)
     return 0
 
 
