@@ -101,6 +101,35 @@ def test_outlier_station_is_rejected():
     assert w_all.position_px[7] == pytest.approx(130.0, abs=0.05)
 
 
+def test_no_wall_is_refused_and_stations_without_one_left_out(rng):
+    """Profiles that do not mirror (a boundary layer without its reflection, a linear shear,
+    noise) are no wall: find_wall refuses in one line. Stations whose profile does not match
+    its mirror image are left out (NaN) when at least half the stations see the wall."""
+    x = np.arange(20) * 50.0
+    y = np.arange(0.0, 200.0, 2.0)
+    one_sided = np.repeat((18.0 * np.tanh(y / 5.0) + 6.0 * np.tanh(y / 40.0))[:, None], 20, 1)
+    shear = np.repeat((3.0 + 0.05 * y)[:, None], 20, 1)
+    noise = rng.standard_normal((len(y), 20))
+    for u in (one_sided, shear, noise):
+        with pytest.raises(InvalidInputError, match="no wall reflection seen") as e:
+            find_wall(u, y=y, x=x, band=None)
+        assert "\n" not in str(e.value)
+    # the automatic band, centred on the slowest row, already finds too few rows beside it
+    with pytest.raises(InvalidInputError, match="rows in the band"):
+        find_wall(one_sided, y=y, x=x)
+    wall = 100.3 + 0.002 * x
+    u = _mirrored(y, x, wall)
+    u[:, 3:9] = noise[:, 3:9]  # six stations of noise beside fourteen that see the wall
+    w = find_wall(u, y=y, x=x, reject=None)
+    assert np.all(np.isnan(w.position_px[3:9]))
+    ok = np.r_[0:3, 9:20]
+    assert np.max(np.abs(w.position_px[ok] - wall[ok])) < 0.05
+    assert abs(w.slope - 0.002) < 1e-5
+    u[:, 9:14] = noise[:, 9:14]  # eleven of twenty: fewer than half see it
+    with pytest.raises(InvalidInputError, match=r"at [0-9]+ of 20 stations"):
+        find_wall(u, y=y, x=x)
+
+
 def test_mirror_shift_positions_index_units():
     n = 101
     idx = np.arange(n, dtype=float)

@@ -52,7 +52,9 @@ class PivField:
         variance, ``p = 0.8 exp(-3 (peak_ratio - 1))`` and ``d`` the distance to the median of
         the valid neighbours or, weighted by ``p`` once more, to the second peak
         (``piv_core::multipass::ambiguity_variance``); NaN where the vector is not valid
-        (replaced, masked).
+        (replaced, masked), and for the few valid ones whose correlation peak leaves the
+        estimate undefined (a 3-point fit without a maximum: of the 59,380 valid vectors of
+        OpenPIV's ``test4``, 81 for ``sigma_u`` and 246 for ``sigma_v``).
     window : tuple of int
         Final window ``(w, h)`` in px (w along x).
     grid : tuple of float or None

@@ -51,11 +51,17 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["Wall", "auto_band", "find_wall", "mirror_shift_positions"]
+__all__ = ["MIN_MIRROR_CORRELATION", "Wall", "auto_band", "find_wall", "mirror_shift_positions"]
 
 #: Above this many columns ``stations="auto"`` averages them into ``AUTO_STATIONS`` stations.
 AUTO_STATION_COLUMNS = 64
 AUTO_STATIONS = 32
+#: A station's profile must match its mirror image at least this well (``peak_correlation``):
+#: a wall's reflection gives 0.998 or more (the synthetic layer, one pair or four); flows
+#: without a wall gave medians of 0.36-0.85 (OpenPIV's recordings ``test2``, ``test4``,
+#: ``test5``, whose mirror positions then scattered over 200 px). Fewer than half the stations
+#: above it is no wall: :func:`find_wall` refuses.
+MIN_MIRROR_CORRELATION = 0.9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -376,8 +382,10 @@ def find_wall(
     Raises
     ------
     InvalidInputError
-        Unequally spaced ``y``, too few rows (fewer than 5 with data), or no station with a
-        usable profile.
+        Unequally spaced ``y``, too few rows (fewer than 5 with data), no station with a
+        usable profile, or no wall seen: fewer than half the stations' profiles match their
+        mirror image with a correlation of :data:`MIN_MIRROR_CORRELATION` (a station below it
+        is left out, NaN, as an outlier is).
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices give NaN: handled
@@ -450,10 +458,15 @@ def _find_wall(
     w_idx, r = mirror_shift_positions(ug, iterations=iterations)
     pos[good] = yy[0] + w_idx * dy[0]
     rho[good] = r
-    ok = np.isfinite(pos)
-    if ok.sum() < 2:
-        raise InvalidInputError("find_wall: fewer than 2 stations with a mirrored profile")
-    ok = _robust_inliers(xx, pos, ok, reject)
+    seen = np.isfinite(pos) & (rho >= MIN_MIRROR_CORRELATION)
+    n = int(good.sum())
+    if seen.sum() < max(2, (n + 1) // 2):
+        raise InvalidInputError(
+            f"find_wall: no wall reflection seen: the mean profile matches its mirror image "
+            f"(correlation >= {MIN_MIRROR_CORRELATION}) at {seen.sum()} of {n} stations "
+            f"(median {np.median(rho[good]):.2f}; a wall's reflection gives 0.99 or more)"
+        )
+    ok = _robust_inliers(xx, pos, seen, reject)
     pos = np.where(ok, pos, np.nan)
     slope, intercept = np.polyfit(xx[ok], pos[ok], 1)
     resid = pos[ok] - (intercept + slope * xx[ok])
