@@ -106,7 +106,7 @@ class PivField:
         the median over the correlated windows (``peak_ratio > 0``) is 1.1-1.2 for them and
         about 3 or more for particle images (1.37 for a recording lit on a third of the frame;
         ``piv_core::validate::correlation_warning``, the measurements of
-        ``benches/correlation_check.py`` in ``benches/RESULTS.md``); under
+        ``benches/real_data_checks.py`` in ``benches/RESULTS.md``); under
         ``_rspiv.MIN_MEDIAN_PEAK_RATIO`` (1.3),
         or with no window correlated, this says what was seen. :func:`rspiv.piv` and
         :func:`rspiv.piv_at` raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv``

@@ -58,9 +58,11 @@ AUTO_STATION_COLUMNS = 64
 AUTO_STATIONS = 32
 #: A station's profile must match its mirror image at least this well (``peak_correlation``):
 #: a wall's reflection gives 0.998 or more (the synthetic layer, one pair or four); flows
-#: without a wall gave medians of 0.36-0.85 (OpenPIV's recordings ``test2``, ``test4``,
-#: ``test5``, whose mirror positions then scattered over 200 px). Fewer than half the stations
-#: above it is no wall: :func:`find_wall` refuses.
+#: without a wall gave medians of 0.36-0.81 (OpenPIV's recordings ``test2``, ``test4``,
+#: ``test5``, whose mirror positions then scattered over 200 px; ``python
+#: benches/real_data_checks.py``). Fewer than half the stations above it is no wall:
+#: :func:`find_wall` refuses. A smooth extremum of the profile (a jet, a wake) mirrors itself
+#: too and is not told from a wall.
 MIN_MIRROR_CORRELATION = 0.9
 
 

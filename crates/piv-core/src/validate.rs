@@ -202,7 +202,7 @@ pub const MIN_MEDIAN_PEAK_RATIO: f64 = 1.3;
 /// Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise)
 /// still give a highest peak in every window, and their random vectors, among neighbours as
 /// random, pass the normalised median test about 60 % of the time. Their peak ratios are low
-/// all over. Measured with the paper's passes (`python benches/correlation_check.py`, table in
+/// all over. Measured with the paper's passes (`python benches/real_data_checks.py`, table in
 /// `benches/RESULTS.md`), the median over the correlated windows: 1.12-1.20 for camera noise,
 /// a dark frame B, frame B shuffled and OpenPIV's `test2` paired wrongly; 2.97-6.53 for
 /// OpenPIV's real recordings `test1`, `test2`, `test4`, `test5`, 1.37 for its `test3` (lit on
