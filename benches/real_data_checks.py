@@ -66,6 +66,8 @@ def main() -> None:
     row("test1, frame B shuffled", t1[0], rng.permutation(t1[1].ravel()).reshape(t1[1].shape))
     noise = [rng.integers(0, 4000, (512, 512)).astype(np.uint16) for _ in range(2)]
     row("camera noise only", *noise)
+    a, b = particle_pair((512, 512), (40.0, 0.0), seed=5)[:2]
+    row("synthetic, 40 px shift (64 px first windows)", a, b)
     for dens, noise_level in ((0.02, 0.05), (0.005, 0.05), (0.05, 0.3), (0.02, 0.45), (0.02, 0.6)):
         a, b = particle_pair((512, 512), (4.0, -2.0), seed=5, density=dens, noise=noise_level)[:2]
         row(f"synthetic, {dens} particles/px, noise {noise_level}", a, b)

@@ -179,6 +179,10 @@ def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, 
         assert f.warning() == str(rec[0].message)
         # what the warning is about: the median test kept random vectors
         assert f.valid.mean() > 0.3, (name, f.valid.mean())
+    # a displacement beyond the first pass's search (32 px for 64 x 64 px windows) looks the same
+    fa, fb = particle_pair((256, 256), (40.0, 0.0), seed=23)[:2]
+    with pytest.warns(rspiv.CorrelationWarning, match="beyond the first pass's search"):
+        rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)])
     with pytest.warns(rspiv.CorrelationWarning, match="no window could be correlated"):
         rspiv.piv(np.zeros(a.shape), np.zeros(a.shape), passes=[(64, 64), (32, 32)])
     with pytest.warns(rspiv.CorrelationWarning, match="the frames do not correlate"):

@@ -100,8 +100,9 @@ class PivField:
     def warning(self) -> str | None:
         """The one-line warning for a field whose frames do not correlate, else None.
 
-        Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise)
-        still give a highest peak in every window, and about 60 % of their random vectors pass
+        Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise,
+        or a displacement beyond the first pass's search, half its window) still give a
+        highest peak in every window, and about 60 % of their random vectors pass
         the median test among neighbours as random. What gives them away is the peak ratio:
         the median over the correlated windows (``peak_ratio > 0``) is 1.1-1.2 for them and
         about 3 or more for particle images (1.37 for a recording lit on a third of the frame;

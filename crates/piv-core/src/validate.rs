@@ -211,6 +211,8 @@ pub const MIN_MEDIAN_PEAK_RATIO: f64 = 1.3;
 /// also given where the noise swamps the particles (1.14-1.20 at a noise of 0.45-0.6 of the
 /// peak, where the median error of the 32 x 8 px vectors kept as valid is 0.6-1.6 px). With
 /// no correlated window at all the frames are blank (or constant) wherever there are windows.
+/// A displacement beyond the first pass's search range (half its window: 40 px with 64 x 64
+/// px windows) looks the same to the correlation (median 1.24), and is warned about too.
 pub fn correlation_warning(peak_ratio: impl IntoIterator<Item = f64>) -> Option<String> {
     let mut r: Vec<f64> = peak_ratio
         .into_iter()
@@ -234,7 +236,8 @@ pub fn correlation_warning(peak_ratio: impl IntoIterator<Item = f64>) -> Option<
         format!(
             "the frames do not correlate: the median peak ratio of the {n} correlated windows \
              is {median:.2} (frames that do not correlate give 1.1-1.2, particle images about \
-             3 or more): a wrong pairing, a missing laser pulse or frames of noise?"
+             3 or more): a wrong pairing, a missing laser pulse, frames of noise, or a \
+             displacement beyond the first pass's search (half its window)?"
         )
     })
 }
