@@ -291,7 +291,7 @@ def test_bad_pairs_are_skipped_and_reported(synth, tmp_path):
 
 def test_a_pilot_without_one_usable_pair_says_why(synth, tmp_path):
     """When every pilot pair fails, the refusal quotes the first pair's reason (not only "no
-    readable image pair": a setting every pair fails on is not an unreadable file)."""
+    usable image pair": a setting every pair fails on is not an unreadable file)."""
     import tifffile
 
     files = sorted((synth / "raw").glob("*.tif"))
@@ -307,7 +307,7 @@ def test_a_pilot_without_one_usable_pair_says_why(synth, tmp_path):
     with pytest.raises(rspiv.InvalidInputError) as e:
         Campaign(cfg, progress=False, out_dir=tmp_path / "out").run()
     msg = str(e.value)
-    assert msg.startswith("no readable image pair for the wall alignment pilot (pair 0: "), msg
+    assert msg.startswith("no usable image pair for the wall alignment pilot (pair 0: "), msg
     assert "80 x 64 px" in msg and "\n" not in msg, msg
 
 

@@ -179,7 +179,7 @@ def _pilot(
         used.append(p.pair_id)
     if not used:
         why = f" ({first_reason})" if first_reason else ""
-        raise InvalidInputError(f"no readable image pair for {what}{why}")
+        raise InvalidInputError(f"no usable image pair for {what}{why}")
     return accs, used
 
 
