@@ -157,8 +157,9 @@ def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, 
     """Frames that do not correlate give random vectors of which the median test keeps about
     60 % as valid; the field's median peak ratio gives them away (1.1-1.2 against about 3
     for particle images): rspiv.piv warns (CorrelationWarning), ``rspiv piv`` says so in one
-    line and in the file, the engine binary says so. Particle images, and frame A given twice,
-    are not warned about."""
+    line and in the file, the engine binary says so. A part of the frames without particle
+    images is said so too (the field stays a measurement). Particle images, and frame A given
+    twice, are not warned about."""
     import warnings
 
     d, a, b = pair_files
@@ -176,9 +177,17 @@ def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, 
             f = rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)])
         median = float(str(rec[0].message).split(" is ")[1].split()[0])
         assert 1.0 <= median < 1.3, (name, median)
-        assert f.warning() == str(rec[0].message)
+        assert f.warning() == str(rec[0].message) and f.uncorrelated()
         # what the warning is about: the median test kept random vectors
         assert f.valid.mean() > 0.3, (name, f.valid.mean())
+    # a part of the frames without particle images: its random vectors are said so, the field
+    # is still a measurement elsewhere
+    fa, fb = particle_pair((256, 384), (2.5, -1.0), seed=21)[:2]
+    for f in (fa, fb):
+        f[:, 230:] = rng.normal(40.0, 8.0, f[:, 230:].shape).clip(0)
+    with pytest.warns(rspiv.CorrelationWarning, match="lie where the frames do not correlate"):
+        f = rspiv.piv(fa, fb, passes=[(64, 64), (32, 32), (32, 8)])
+    assert not f.uncorrelated()
     # a displacement beyond the first pass's search (32 px for 64 x 64 px windows) looks the same
     fa, fb = particle_pair((256, 256), (40.0, 0.0), seed=23)[:2]
     with pytest.warns(rspiv.CorrelationWarning, match="beyond the first pass's search"):
@@ -191,7 +200,8 @@ def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, 
     with warnings.catch_warnings():
         warnings.simplefilter("error", rspiv.CorrelationWarning)
         for fa, fb in ((a, b), (a, a)):
-            assert rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)]).warning() is None
+            f = rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)])
+            assert f.warning() is None and not f.uncorrelated()
     # the command line: one line on stderr and the file's attribute; the engine binary
     import tifffile
 

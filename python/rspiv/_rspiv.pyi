@@ -250,10 +250,14 @@ def window_response(weighting: str, n: int, wavelength: float) -> float:
 
 MIN_MEDIAN_PEAK_RATIO: float
 
-def correlation_warning(peak_ratio: npt.NDArray[np.float64]) -> str | None:
-    """The one-line warning for a field whose frames do not correlate (the median peak ratio
-    of its correlated windows, ``peak_ratio > 0``, under ``MIN_MEDIAN_PEAK_RATIO``, or no
-    window correlated); None when they do."""
+def correlation_check(
+    peak_ratio: npt.NDArray[np.float64], valid: npt.NDArray[np.bool_], local: bool
+) -> tuple[bool, str | None]:
+    """``(uncorrelated, message)``: whether a field's frames do not correlate (the median peak
+    ratio of its correlated windows, ``peak_ratio > 0``, under ``MIN_MEDIAN_PEAK_RATIO``, or
+    no window correlated: no measurement), and the one-line warning, also for a field that
+    correlates only in part (``local``: on a grid, more than 10 % of the valid vectors in 5 x 5
+    neighbourhoods mostly under the limit); None when the frames correlate."""
 
 def conditioned(
     frame: npt.NDArray[np.generic],

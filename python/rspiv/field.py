@@ -98,22 +98,37 @@ class PivField:
         }
 
     def warning(self) -> str | None:
-        """The one-line warning for a field whose frames do not correlate, else None.
+        """The one-line warning for a field whose frames do not correlate, in whole or in part;
+        None when they correlate.
 
         Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise,
         or a displacement beyond the first pass's search, half its window) still give a
-        highest peak in every window, and about 60 % of their random vectors pass
-        the median test among neighbours as random. What gives them away is the peak ratio:
-        the median over the correlated windows (``peak_ratio > 0``) is 1.1-1.2 for them and
-        about 3 or more for particle images (1.37 for a recording lit on a third of the frame;
-        ``piv_core::validate::correlation_warning``, the measurements of
-        ``benches/real_data_checks.py`` in ``benches/RESULTS.md``); under
-        ``_rspiv.MIN_MEDIAN_PEAK_RATIO`` (1.3),
-        or with no window correlated, this says what was seen. :func:`rspiv.piv` and
-        :func:`rspiv.piv_at` raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv``
-        prints it and writes it to the file, a campaign leaves the pair out with it.
+        highest peak in every window, and about 60 % of their random vectors pass the median
+        test among neighbours as random. What gives them away is the peak ratio: the median
+        over the correlated windows (``peak_ratio > 0``) is 1.1-1.25 for them and about 3 or
+        more for particle images (1.37 for a recording lit on a third of the frame). Under
+        ``_rspiv.MIN_MEDIAN_PEAK_RATIO`` (1.3), or with no window correlated, the field is no
+        measurement (:meth:`uncorrelated`). On a grid, a part of the frames without particle
+        images (unlit, outside the light sheet, a shadow) is found the same way locally: more
+        than 10 % of the valid vectors with most of their 5 x 5 neighbourhood's windows under
+        1.3 (0-2.6 % for real recordings, 25.7-32.6 % with a third or more unlit). The
+        measurements are ``benches/real_data_checks.py``'s, in ``benches/RESULTS.md``;
+        ``piv_core::validate::correlation_check``. :func:`rspiv.piv` and :func:`rspiv.piv_at`
+        raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv`` prints it and writes it
+        to the file; a campaign leaves out a pair whose frames do not correlate.
         """
-        return _rspiv.correlation_warning(np.asarray(self.peak_ratio, dtype=np.float64))
+        return self._correlation()[1]
+
+    def uncorrelated(self) -> bool:
+        """True when the frames do not correlate as a whole, or no window could be correlated:
+        the field is no measurement (:meth:`warning` says what was seen)."""
+        return self._correlation()[0]
+
+    def _correlation(self) -> tuple[bool, str | None]:
+        pr = np.asarray(self.peak_ratio, dtype=np.float64)
+        valid = np.asarray(self.valid, dtype=bool)
+        local = self.grid is not None and pr.ndim == 2
+        return _rspiv.correlation_check(np.atleast_2d(pr), np.atleast_2d(valid), local)
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -128,7 +143,8 @@ class PivField:
         ``masked``, ``peak_choice``; dims ``(y, x)``. For a grid field the coordinates ``x``,
         ``y`` are the window centres in px; for a field at arbitrary points (:func:`piv_at`) the
         dims are indexed 0..n-1 and the positions are the 2D coordinates ``x_px``, ``y_px``.
-        The attribute ``warning`` holds :meth:`warning` when the frames do not correlate.
+        The attribute ``warning`` holds :meth:`warning` when the frames do not correlate (in
+        whole or in part).
         """
         import xarray as xr
 

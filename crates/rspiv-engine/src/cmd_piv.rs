@@ -230,7 +230,8 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
         f.masked.iter().filter(|&&r| r).count(),
         args.output.display()
     );
-    if let Some(w) = piv_core::validate::correlation_warning(f.peak_ratio.iter().copied()) {
+    let check = piv_core::validate::correlation_check(f.peak_ratio.view(), f.valid.view(), true);
+    if let Some(w) = check.message() {
         eprintln!("rspiv-engine piv: warning: {pair}: {w}");
     }
     Ok(())

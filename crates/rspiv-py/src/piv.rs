@@ -7,7 +7,7 @@
 use crate::errors::{invalid, PyRspivErr};
 use crate::frames::{frames, with_frames};
 use ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use piv_core::{Grid, GridField, PivError, PivField, PivSettings, Predictor};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -232,17 +232,33 @@ fn window_response(weighting: &str, n: usize, wavelength: f64) -> PyResult<f64> 
     Ok(wt.response(n, wavelength))
 }
 
-/// The one-line warning for a field whose frames do not correlate, from its peak ratios (any
-/// shape); None when they do (`piv_core::validate::correlation_warning`).
+/// Whether a field's frames correlate (`piv_core::validate::correlation_check`): `(uncorrelated,
+/// message)`, `uncorrelated` true when the field is no measurement, `message` the one-line
+/// warning (also for a field that correlates only in part) or None. `local`: the grid's local
+/// test too (a field on a grid, rows along axis 0).
 #[pyfunction]
-fn correlation_warning(py: Python<'_>, peak_ratio: PyReadonlyArrayDyn<'_, f64>) -> Option<String> {
-    let r = peak_ratio.as_array();
-    py.detach(|| piv_core::validate::correlation_warning(r.iter().copied()))
+fn correlation_check(
+    py: Python<'_>,
+    peak_ratio: PyReadonlyArray2<'_, f64>,
+    valid: PyReadonlyArray2<'_, bool>,
+    local: bool,
+) -> PyResult<(bool, Option<String>)> {
+    let (r, v) = (peak_ratio.as_array(), valid.as_array());
+    if r.dim() != v.dim() {
+        return Err(invalid(format!(
+            "correlation_check: peak_ratio {:?} and valid {:?} differ in shape",
+            r.dim(),
+            v.dim()
+        )));
+    }
+    let c = py.detach(|| piv_core::validate::correlation_check(r, v, local));
+    let gone = matches!(c, piv_core::validate::Correlation::Uncorrelated(_));
+    Ok((gone, c.message().map(str::to_string)))
 }
 
 /// Register the PIV functions in the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(correlation_warning, m)?)?;
+    m.add_function(wrap_pyfunction!(correlation_check, m)?)?;
     m.add(
         "MIN_MEDIAN_PEAK_RATIO",
         piv_core::validate::MIN_MEDIAN_PEAK_RATIO,

@@ -126,7 +126,7 @@ def process_pair(
     else the caller's wait, see :class:`rspiv.campaign.executors.local.LocalExecutor`).
 
     Bad data (missing or unreadable frame, frames of different sizes or not of the campaign's
-    size, frames that do not correlate: :meth:`rspiv.PivField.warning`) gives
+    size, frames that do not correlate: :meth:`rspiv.PivField.uncorrelated`) gives
     ``PairResult(ok=False, reason=...)``; programming errors propagate.
     """
     t = {k: 0.0 for k in (*STAGES[:3], "ensemble")}
@@ -201,9 +201,8 @@ def process_pair(
     # frames that do not correlate (a missing laser pulse, a wrong pairing) give random vectors
     # that pass the median test: no measurement, the pair is left out
     for name, f in piv_fields.items():
-        warning = f.warning()
-        if warning is not None:
-            reason = f"{pair.describe()}: {name}: {warning}"
+        if f.uncorrelated():
+            reason = f"{pair.describe()}: {name}: {f.warning()}"
             return PairResult(pair.pair_id, False, reason, timings=t)
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
