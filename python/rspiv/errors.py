@@ -8,7 +8,8 @@ Every error derives from :class:`RspivError`.
   map, a fit) did not converge where the caller required it to.
 
 - :class:`CorrelationWarning` (a :class:`UserWarning`): a PIV field whose frames do not
-  correlate (:meth:`rspiv.PivField.warning`); its vectors are no measurement.
+  correlate (:meth:`rspiv.PivField.warning`): as a whole (its vectors are no measurement,
+  :meth:`rspiv.PivField.uncorrelated`) or in a part of the frames without particle images.
 
 The native module raises these very classes (it looks them up here), so ``except
 rspiv.InvalidInputError`` catches errors from Rust and from Python alike.
@@ -30,9 +31,10 @@ class ConvergenceError(RspivError, ArithmeticError):
 
 
 class CorrelationWarning(UserWarning):
-    """A PIV field whose frames do not correlate (wrong pairing, missing laser pulse, noise):
-    :meth:`rspiv.PivField.warning` says what was seen. ``warnings.simplefilter("error",
-    rspiv.CorrelationWarning)`` turns it into an error."""
+    """A PIV field whose frames do not correlate, as a whole (wrong pairing, missing laser
+    pulse, noise) or in a part without particle images: :meth:`rspiv.PivField.warning` says
+    what was seen. ``warnings.simplefilter("error", rspiv.CorrelationWarning)`` turns it into
+    an error."""
 
 
 __all__ = ["RspivError", "InvalidInputError", "ConvergenceError", "CorrelationWarning"]
