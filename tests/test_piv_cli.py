@@ -192,6 +192,8 @@ def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, 
     fa, fb = particle_pair((256, 256), (40.0, 0.0), seed=23)[:2]
     with pytest.warns(rspiv.CorrelationWarning, match="beyond the first pass's search"):
         rspiv.piv(fa, fb, passes=[(64, 64), (32, 32)])
+    with pytest.raises(rspiv.InvalidInputError, match="differ in shape"):
+        rspiv._rspiv.correlation_check(np.ones((2, 3)), np.ones((3, 2), bool), True)
     with pytest.warns(rspiv.CorrelationWarning, match="no window could be correlated"):
         rspiv.piv(np.zeros(a.shape), np.zeros(a.shape), passes=[(64, 64), (32, 32)])
     with pytest.warns(rspiv.CorrelationWarning, match="the frames do not correlate"):

@@ -93,10 +93,13 @@ pub fn neighbour_median(
     (k >= 3).then(|| (median(&mut nu[..k]), median(&mut nv[..k])))
 }
 
-/// The median of `x` (finite values), which it sorts. A full 3 x 3 neighbourhood (8 values,
+/// The median of `x` (finite values, at least one), which it reorders. A full 3 x 3
+/// neighbourhood (8 values,
 /// the common case) goes through a sorting network (the 19 compare-exchanges of Knuth, TAOCP
 /// 3, 5.3.4, optimal for 8) in registers, each a min and a max without a branch, where a
-/// comparison sort mispredicts about every other comparison; the values only change places.
+/// comparison sort mispredicts about every other comparison; the values only change places
+/// (and end sorted). Other lengths (a field's peak ratios, [`correlation_check`]) go through a
+/// selection, linear in `n`.
 fn median(x: &mut [f64]) -> f64 {
     if let Ok(v) = <&mut [f64; 8]>::try_from(&mut *x) {
         let [mut a0, mut a1, mut a2, mut a3, mut a4, mut a5, mut a6, mut a7] = *v;
@@ -129,12 +132,12 @@ fn median(x: &mut [f64]) -> f64 {
         *v = [a0, a1, a2, a3, a4, a5, a6, a7];
         return 0.5 * (a3 + a4);
     }
-    x.sort_unstable_by(|a, b| a.total_cmp(b));
     let n = x.len();
+    let (low, &mut mid, _) = x.select_nth_unstable_by(n / 2, f64::total_cmp);
     if n % 2 == 1 {
-        x[n / 2]
+        mid
     } else {
-        0.5 * (x[n / 2 - 1] + x[n / 2])
+        0.5 * (low.iter().copied().fold(f64::NEG_INFINITY, f64::max) + mid)
     }
 }
 
@@ -271,12 +274,7 @@ pub fn correlation_check(
         );
     }
     let n = r.len();
-    let (low, &mut hi, _) = r.select_nth_unstable_by(n / 2, f64::total_cmp);
-    let median = if n % 2 == 1 {
-        hi
-    } else {
-        0.5 * (hi + low.iter().copied().fold(f64::NEG_INFINITY, f64::max))
-    };
+    let median = median(&mut r);
     if median < MIN_MEDIAN_PEAK_RATIO {
         return Correlation::Uncorrelated(format!(
             "the frames do not correlate: the median peak ratio of the {n} correlated windows \
