@@ -9,7 +9,7 @@ Every error derives from :class:`RspivError`.
 
 - :class:`CorrelationWarning` (a :class:`UserWarning`): a PIV field whose frames do not
   correlate (:meth:`rspiv.PivField.warning`): as a whole (its vectors are no measurement,
-  :meth:`rspiv.PivField.uncorrelated`) or in a part of the frames without particle images.
+  :meth:`rspiv.PivField.uncorrelated`) or in a part where they hardly do.
 
 The native module raises these very classes (it looks them up here), so ``except
 rspiv.InvalidInputError`` catches errors from Rust and from Python alike.
@@ -32,7 +32,7 @@ class ConvergenceError(RspivError, ArithmeticError):
 
 class CorrelationWarning(UserWarning):
     """A PIV field whose frames do not correlate, as a whole (wrong pairing, missing laser
-    pulse, noise) or in a part without particle images: :meth:`rspiv.PivField.warning` says
+    pulse, noise) or in a part where they hardly do: :meth:`rspiv.PivField.warning` says
     what was seen. ``warnings.simplefilter("error", rspiv.CorrelationWarning)`` turns it into
     an error."""
 

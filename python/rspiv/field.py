@@ -109,9 +109,11 @@ class PivField:
         more for particle images (1.37 for a recording lit on a third of the frame). Under
         ``_rspiv.MIN_MEDIAN_PEAK_RATIO`` (1.3), or with no window correlated, the field is no
         measurement (:meth:`uncorrelated`). On a grid, a part of the frames without particle
-        images (unlit, outside the light sheet, a shadow) is found the same way locally: more
-        than 10 % of the valid vectors with most of their 5 x 5 neighbourhood's windows under
-        1.3 (0-2.6 % for real recordings, 25.7-32.6 % with a third or more unlit). The
+        images (unlit, outside the light sheet, a shadow) or with too few per window is found
+        the same way locally: more than 10 % of the valid vectors with most of their 5 x 5
+        neighbourhood's windows under 1.3 (0-2.6 % for real recordings that correlate, 25.7 %
+        for a pair 40 % unlit, 32.6 % for OpenPIV's ``test3``, whose lit part hardly
+        correlates at 32 x 8 px either). The
         measurements are ``benches/real_data_checks.py``'s, in ``benches/RESULTS.md``;
         ``piv_core::validate::correlation_check``. :func:`rspiv.piv` and :func:`rspiv.piv_at`
         raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv`` prints it and writes it
