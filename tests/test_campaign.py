@@ -289,6 +289,65 @@ def test_bad_pairs_are_skipped_and_reported(synth, tmp_path):
     assert res.result("uncorrected") is not None  # the good pairs are analysed
 
 
+def test_pairs_that_correlate_in_part_are_reported(synth, tmp_path, capsys):
+    """A pair whose frames hold camera noise only in their right 40 % (unlit, outside the
+    light sheet) correlates in part: it stays in the statistics (its lit part is a
+    measurement), and the run says so wherever its results go: ``res.warned``, the run log's
+    ``warning`` event, ``summary.json``, the statistics file's ``warning`` attribute and
+    ``rspiv process``'s stderr; a resumed run (every pair finished) still reports it, and the
+    good pairs are not warned."""
+    import tifffile
+    import xarray as xr
+
+    files = sorted((synth / "raw").glob("*.tif"))
+    rng = np.random.default_rng(0)
+    part = []
+    for f in files[4:6]:
+        img = tifffile.imread(f)
+        c = int(0.6 * img.shape[1])
+        med = float(np.median(img))
+        img[:, c:] = np.clip(rng.normal(med, 0.05 * med + 10, img[:, c:].shape), 0, None)
+        part.append(tmp_path / f"dark_{f.name}")
+        tifffile.imwrite(part[-1], img)
+    cfg = load_campaign_config(synth / "campaign.toml")
+    cfg.images.glob = None
+    cfg.images.pairs = [(files[0], files[1]), (part[0], part[1]), (files[2], files[3])]
+    cfg.correction.method = "none"
+    cfg.correction.compare_uncorrected = False
+    cfg.calibration.monte_carlo_samples = 0
+    cfg.output.report = False
+    out = tmp_path / "out"
+    res = Campaign(cfg, progress=False, out_dir=out).run()
+    assert res.n_done == 3 and not res.skipped
+    assert list(res.warned) == [1], res.warned
+    assert res.warned[1].startswith("uncorrected: ") and "hardly correlate" in res.warned[1]
+    pct = float(res.warned[1].split("uncorrected: ")[1].split(" %")[0])
+    assert 15 <= pct <= 45, res.warned[1]  # about the 40 % of the frame without particles
+    assert res.accumulators["uncorrected"].pair_ids == {0, 1, 2}
+    log = [json.loads(x) for x in (out / "run_log.jsonl").read_text().splitlines()]
+    ev = [r for r in log if r["event"] == "warning"]
+    assert [r["pair_id"] for r in ev] == [1] and "dark_pair_00002_a.tif" in ev[0]["files"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert list(summary["partly_correlated"]) == ["1"]
+    assert summary["warning"].startswith("1 of the 3 pair(s) in the statistics correlate only")
+    with xr.open_dataset(out / "statistics_uncorrected.nc") as ds:
+        assert ds.attrs["warning"] == summary["warning"]
+    # the resumed run (nothing left to do) reports it from the log, and so does the CLI
+    toml = tmp_path / "campaign.toml"
+    cfg.save(toml)
+    capsys.readouterr()
+    assert main(["process", str(toml), "-q", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("warning: 1 of the 3 pair(s)") and "(pairs 1)" in err, err
+    # a warning logged under another configuration (another fingerprint) is not this one's;
+    # a line cut short by a crash is passed over
+    with open(out / "run_log.jsonl", "a", encoding="utf-8") as f:
+        f.write(json.dumps({**ev[0], "pair_id": 0, "fingerprint": "0" * 16}) + "\n")
+        f.write('{"event": "warning", "pair_id": 2, "rea\n')
+    res2 = Campaign(cfg, progress=False, out_dir=out).run()
+    assert res2.n_resumed == 3 and list(res2.warned) == [1]
+
+
 def test_a_pilot_without_one_usable_pair_says_why(synth, tmp_path):
     """When every pilot pair fails, the refusal quotes the first pair's reason (not only "no
     usable image pair": a setting every pair fails on is not an unreadable file)."""

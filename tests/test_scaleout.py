@@ -180,11 +180,21 @@ def test_worker_killed_mid_campaign(synth, local, tmp_path):
 
 def test_bad_pair_is_skipped_and_logged_under_dask(synth, local, client, tmp_path):
     """A truncated frame: skipped, logged with its reason, absent from the statistics, which
-    equal the local run of the same broken campaign."""
+    equal the local run of the same broken campaign. A pair whose frames hold camera noise
+    only in their right 40 % stays in and is reported as correlating in part, by the Dask run
+    as by the local one."""
+    import tifffile
+
     d = tmp_path / "broken"
     shutil.copytree(synth, d, ignore=shutil.ignore_patterns("out"))
     bad = d / "raw" / "pair_00002_b.tif"
     bad.write_bytes(bad.read_bytes()[:300])
+    rng = np.random.default_rng(0)
+    for f in (d / "raw" / "pair_00004_a.tif", d / "raw" / "pair_00004_b.tif"):
+        img = tifffile.imread(f)
+        c, med = int(0.6 * img.shape[1]), float(np.median(img))
+        img[:, c:] = np.clip(rng.normal(med, 0.05 * med + 10, img[:, c:].shape), 0, None)
+        tifffile.imwrite(f, img)
     ref = Campaign.load(
         d / "campaign.toml", progress=False, out_dir=prepared_copy(local.out_dir, d / "ref")
     ).run()
@@ -193,6 +203,9 @@ def test_bad_pair_is_skipped_and_logged_under_dask(synth, local, client, tmp_pat
     assert set(res.skipped) == set(ref.skipped) == {2}
     ev = [e for e in _events(out) if e["event"] == "skipped"]
     assert len(ev) == 1 and ev[0]["pair_id"] == 2 and "pair_00002_b.tif" in ev[0]["reason"]
+    assert list(ref.warned) == list(res.warned) == [4] and ref.warned == res.warned
+    ev = [e for e in _events(out) if e["event"] == "warning"]
+    assert [e["pair_id"] for e in ev] == [4] and "pair_00004_a.tif" in ev[0]["files"]
     for run, acc in ref.accumulators.items():
         assert 2 not in res.accumulators[run].pair_ids
         assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)

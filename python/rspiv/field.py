@@ -117,20 +117,26 @@ class PivField:
         measurements are ``benches/real_data_checks.py``'s, in ``benches/RESULTS.md``;
         ``piv_core::validate::correlation_check``. :func:`rspiv.piv` and :func:`rspiv.piv_at`
         raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv`` prints it and writes it
-        to the file; a campaign leaves out a pair whose frames do not correlate.
+        to the file; a campaign leaves out a pair whose frames do not correlate and reports
+        those that correlate in part (:attr:`rspiv.campaign.CampaignResult.warned`).
         """
-        return self._correlation(local=self.grid is not None)[1]
+        return self.correlation()[1]
 
     def uncorrelated(self) -> bool:
         """True when the frames do not correlate as a whole, or no window could be correlated:
         the field is no measurement (:meth:`warning` says what was seen). The median test
-        alone (7 ms for the 730,000 vectors of a 47 MP pair's last pass)."""
-        return self._correlation(local=False)[0]
+        alone (3 ms for the 730,513 vectors of a 47 MP pair's last pass)."""
+        return self.correlation(local=False)[0]
 
-    def _correlation(self, local: bool) -> tuple[bool, str | None]:
+    def correlation(self, local: bool = True) -> tuple[bool, str | None]:
+        """Both answers of the correlation check at once: ``(uncorrelated, warning)`` as
+        :meth:`uncorrelated` and :meth:`warning` give them; ``local=False`` skips the local test
+        (the warning is then only the whole field's; a field at points, :func:`rspiv.piv_at`,
+        has no local test). 7 ms with the local test, 3 ms without, for a 47 MP pair's last pass
+        (730,513 vectors)."""
         pr = np.asarray(self.peak_ratio, dtype=np.float64)
         valid = np.asarray(self.valid, dtype=bool)
-        local = local and pr.ndim == 2
+        local = local and self.grid is not None and pr.ndim == 2
         return _rspiv.correlation_check(np.atleast_2d(pr), np.atleast_2d(valid), local)
 
     @property

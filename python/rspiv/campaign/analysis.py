@@ -43,6 +43,7 @@ __all__ = [
     "analyse_run",
     "calibration_table",
     "find_run_wall",
+    "partial_correlation_note",
     "scaled_accumulator",
     "wall_dict",
     "wall_figure",
@@ -267,6 +268,23 @@ def wall_figure(path: pathlib.Path, res: CampaignResult, pilot: dict | None) -> 
     return path
 
 
+def partial_correlation_note(res: CampaignResult) -> str:
+    """One line on the pairs in the statistics whose frames correlate only in part
+    (``res.warned``), for the run's outputs (the statistics files' ``warning`` attribute,
+    ``summary.json``, the report, ``rspiv process``); empty when there are none."""
+    if not res.warned:
+        return ""
+    ids = sorted(res.warned)
+    shown = ", ".join(str(i) for i in ids[:8]) + (", ..." if len(ids) > 8 else "")
+    return (
+        f"{len(ids)} of the {res.n_done} pair(s) in the statistics correlate only in part "
+        f"(pairs {shown}): a region unlit, outside the light sheet or too sparsely seeded gives "
+        "random vectors that pass the median test, and theirs are in these statistics; mask "
+        "the region or use larger windows (the pairs' warnings: run_log.jsonl, event "
+        '"warning")'
+    )
+
+
 def write_shard(camp: Any, res: CampaignResult) -> None:
     """Write the accumulators of a sharded run of ``camp``, one NetCDF file per run.
 
@@ -320,6 +338,11 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         "processed": res.n_done,
         "skipped": res.skipped,
     }
+    note = partial_correlation_note(res)
+    if note:
+        summary["partly_correlated"] = res.warned
+        summary["warning"] = note
+        camp.say(f"warning: {note}")
     for run in ctx.runs:
         acc = res.accumulators[run.name]
         try:
@@ -356,6 +379,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 "campaign": cfg.name,
                 "n_pairs": int(acc.n_fields),
                 "frame": "object" if run.method != "none" else "raw image",
+                **({"warning": note} if note else {}),
             },
         )
         if an.wall is not None:
@@ -465,6 +489,20 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
                 ],
             )
         )
+    note = partial_correlation_note(res)
+    if note:
+        extra.append(
+            ReportSection(
+                "Pairs whose frames correlate only in part",
+                text=f"Warning: {note}.",
+                tables=[
+                    ReportTable(
+                        "Pairs whose frames correlate only in part",
+                        [{"pair": k, "warning": v} for k, v in sorted(res.warned.items())],
+                    )
+                ],
+            )
+        )
     t = res.timings
     n = max(res.n_done - res.n_resumed, 1)
     extra.append(
@@ -497,6 +535,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             "rspiv": __version__,
             "pairs processed": res.n_done,
             "pairs skipped": len(res.skipped),
+            "pairs correlating only in part": len(res.warned),
             "runs": ", ".join(r.label for r in ctx.runs),
         },
         title=f"rspiv campaign report: {camp.config.name}",

@@ -127,7 +127,9 @@ def process_pair(
 
     Bad data (missing or unreadable frame, frames of different sizes or not of the campaign's
     size, frames that do not correlate: :meth:`rspiv.PivField.uncorrelated`) gives
-    ``PairResult(ok=False, reason=...)``; programming errors propagate.
+    ``PairResult(ok=False, reason=...)``; frames that correlate only in part are processed
+    and carry :meth:`rspiv.PivField.warning` in ``PairResult.warning``; programming errors
+    propagate.
     """
     t = {k: 0.0 for k in (*STAGES[:3], "ensemble")}
     t0 = time.perf_counter()
@@ -199,12 +201,17 @@ def process_pair(
     except InvalidInputError as exc:  # e.g. frames with NaN: bad data, not a bug
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
     # frames that do not correlate (a missing laser pulse, a wrong pairing) give random vectors
-    # that pass the median test: no measurement, the pair is left out (every run has the same
-    # frames: the first run's field tells)
+    # that pass the median test: no measurement, the pair is left out; frames that correlate
+    # in part only (a region unlit or too sparsely seeded) stay in, with the warning, for the
+    # run to report (every run has the same frames: the first run's field tells)
+    warning = ""
     for name, first in list(piv_fields.items())[:1]:
-        if first.uncorrelated():
-            reason = f"{pair.describe()}: {name}: {first.warning()}"
+        uncorrelated, said = first.correlation()
+        if uncorrelated:
+            reason = f"{pair.describe()}: {name}: {said}"
             return PairResult(pair.pair_id, False, reason, timings=t)
+        if said:
+            warning = f"{name}: {said}"
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
     raw = None
@@ -216,4 +223,4 @@ def process_pair(
             fa, fb, fm = ens_frames[run.name]
             ensemble_work.accumulate(context, run, band, fa, fb, fm, raw=raw)
     t["ensemble"] = time.perf_counter() - t0
-    return PairResult(pair.pair_id, True, "", fields, t)
+    return PairResult(pair.pair_id, True, "", fields, t, warning)

@@ -3,7 +3,8 @@
 Whatever runs the per-pair work (:mod:`rspiv.campaign.executors`: a local loop, Dask workers),
 its results come back to the client and go through a :class:`RunReducer`: timings summed, the
 fields added to the run's accumulators (:func:`add_fields`), the pair recorded in the run log
-(``pair``, ``skipped``, ``failed``), and a checkpoint written every ``checkpoint_every`` pairs.
+(``pair``, ``skipped``, ``failed``, ``warning``), and a checkpoint written every
+``checkpoint_every`` pairs.
 """
 
 from __future__ import annotations
@@ -12,10 +13,10 @@ import time
 from typing import Any
 
 from rspiv.campaign.spec import PairResult
-from rspiv.campaign.state import RunState
+from rspiv.campaign.state import RunLog, RunState
 from rspiv.stats import FieldAccumulator
 
-__all__ = ["RunReducer", "add_fields"]
+__all__ = ["RunReducer", "add_fields", "logged_warnings"]
 
 
 def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
@@ -25,6 +26,19 @@ def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
     for name, (u, v, valid, su, sv) in result.fields.items():
         accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
     return time.perf_counter() - t0
+
+
+def logged_warnings(log: RunLog, fingerprint: str, pair_ids: set[int]) -> dict[int, str]:
+    """Pair id -> the ``warning`` event's text, for the pairs of ``pair_ids`` warned in the run
+    log under the context ``fingerprint`` (any run of the output folder: a pair finished before
+    an interruption, by a Dask chunk or by a shard keeps its warning; an unreadable line is
+    passed over)."""
+    out: dict[int, str] = {}
+    for rec in log.events("warning"):
+        pid = rec.get("pair_id")
+        if rec.get("fingerprint") == fingerprint and pid in pair_ids:
+            out[int(pid)] = str(rec.get("reason", ""))
+    return dict(sorted(out.items()))
 
 
 class RunReducer:
@@ -47,6 +61,8 @@ class RunReducer:
         self.progress = progress
         self.skipped: dict[int, str] = {}
         self.failed: dict[int, str] = {}
+        #: pairs in the statistics whose frames correlate only in part, with the warning
+        self.warned: dict[int, str] = {}
         self.n_ok = 0
         self.since = 0
 
@@ -60,6 +76,20 @@ class RunReducer:
         """Record a pair added to the statistics (``pair`` event)."""
         self.state.log.write("pair", pair_id=pair_id, timings=timings, **extra)
         self.n_ok += 1
+
+    def warn(self, pair_id: int, files: str, warning: str) -> None:
+        """Record a pair added to the statistics whose frames correlate only in part
+        (``warning`` event, with the context's fingerprint: :func:`logged_warnings` reads it
+        back for the end of the run, over resumed runs, Dask chunks and shards alike)."""
+        self.warned[pair_id] = warning
+        self.state.log.write(
+            "warning",
+            pair_id=pair_id,
+            files=files,
+            reason=warning,
+            fingerprint=self.state.ctx.fingerprint(),
+        )
+        self.progress.log(f"pair {pair_id}: {warning}")
 
     def skip(self, pair_id: int, files: str, reason: str) -> None:
         """Record a pair that could not be read (``skipped`` event, left out of the

@@ -19,6 +19,7 @@ from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
 from rspiv.campaign.prepare import prepare_context
+from rspiv.campaign.reduce import logged_warnings
 from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_shard, shard_slice
 from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
@@ -301,7 +302,8 @@ class Campaign:
             No pair of an unsharded run could be processed.
         """
         all_skipped = {**skipped, **failed} if failed is not None else skipped
-        n_done = sum(1 for p in state.sel if p.pair_id in state.finished)
+        done_ids = {p.pair_id for p in state.sel if p.pair_id in state.finished}
+        n_done = len(done_ids)
         result = CampaignResult(
             out_dir=self.out_dir,
             context=state.ctx,
@@ -311,6 +313,7 @@ class Campaign:
             n_done=n_done,
             n_resumed=state.n_resumed,
             skipped=all_skipped,
+            warned=logged_warnings(state.log, state.ctx.fingerprint(), done_ids),
             timings={**state.timings, "prepare": state.t_prepare},
             files={},
             wall_deviation=dict(self.info.get("wall_deviation", {})),
@@ -362,6 +365,8 @@ class Campaign:
         if missing:
             raise InvalidInputError(f"accumulators: missing the run(s) {', '.join(missing)}")
         n = max(len(a.pair_ids) or a.n_fields for a in accumulators.values())
+        ids = set().union(*(a.pair_ids for a in accumulators.values()))
+        log = RunLog(self.out_dir / "run_log.jsonl")
         res = CampaignResult(
             out_dir=self.out_dir,
             context=ctx,
@@ -371,6 +376,7 @@ class Campaign:
             n_done=n,
             n_resumed=0,
             skipped=dict(skipped or {}),
+            warned=logged_warnings(log, ctx.fingerprint(), ids),
             timings={k: 0.0 for k in STAGES},
             files={},
             wall_deviation=dict(self.info.get("wall_deviation", {})),

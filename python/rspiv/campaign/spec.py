@@ -225,6 +225,10 @@ class PairResult:
         pair; the sigmas None when the PIV estimated none).
     timings : dict
         Seconds per stage (``read``, ``dewarp``, ``piv``).
+    warning : str
+        For a pair processed (``ok``) whose frames correlate only in part (a region unlit or
+        with too few particle images, :meth:`rspiv.PivField.warning`): the run and the
+        warning; its vectors are in the statistics, random ones among them. Empty otherwise.
     """
 
     pair_id: int
@@ -236,6 +240,7 @@ class PairResult:
         str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]
     ] = dataclasses.field(default_factory=dict)
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
+    warning: str = ""
 
 
 def parse_shard(text: str | tuple[int, int] | None) -> tuple[int, int]:

@@ -69,6 +69,23 @@ class RunLog:
         with open(self.path, "a", encoding="utf-8") as f:
             f.write(json.dumps(rec, default=json_default) + "\n")
 
+    def events(self, event: str) -> list[dict[str, Any]]:
+        """The records of kind ``event``, oldest first (none when the log does not exist; a
+        line that is not JSON, e.g. cut short by a crash, is passed over)."""
+        try:
+            lines = self.path.read_text(encoding="utf-8").splitlines()
+        except FileNotFoundError:
+            return []
+        out = []
+        for line in lines:
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(rec, dict) and rec.get("event") == event:
+                out.append(rec)
+        return out
+
 
 @dataclasses.dataclass
 class RunAnalysis:
@@ -98,6 +115,11 @@ class CampaignResult:
         Pairs in this shard; processed OK in total; already finished before this run.
     skipped : dict
         Pair id -> reason, for the pairs skipped in this run.
+    warned : dict
+        Pair id -> warning, for the pairs in the statistics whose frames correlate only in
+        part (:meth:`rspiv.PivField.warning`: a region unlit, outside the light sheet or too
+        sparsely seeded gives random vectors that pass the median test): from the run log,
+        over every run of the output folder with this configuration.
     timings : dict
         Seconds per stage summed over this run's pairs (``read``, ``dewarp``, ``piv``,
         ``statistics``) and ``prepare``, ``analysis``, ``total``.
@@ -124,6 +146,7 @@ class CampaignResult:
     files: dict[str, pathlib.Path]
     wall_deviation: dict[str, float]
     info: dict[str, Any] = dataclasses.field(default_factory=dict)
+    warned: dict[int, str] = dataclasses.field(default_factory=dict)
     #: run name -> the ensemble profile (:func:`rspiv.campaign.ensemble.ensemble_profile`)
     ensembles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> the single-pixel profile (:mod:`rspiv.campaign.ensemble_pixel`)

@@ -13,6 +13,7 @@ import argparse
 import sys
 
 from rspiv.campaign import Campaign
+from rspiv.campaign.analysis import partial_correlation_note
 from rspiv.campaign.executors.dask import run_dask
 from rspiv.settings import parse_method
 
@@ -80,6 +81,9 @@ def _process(args: argparse.Namespace) -> int:
             else ""
         )
     )
+    note = partial_correlation_note(res)
+    if note:
+        print(f"warning: {note}", file=sys.stderr)
     for a in res.analyses.values():
         if a.result is not None:
             s = a.result.summary()

@@ -104,6 +104,9 @@ class ChunkResult:
         Seconds per stage summed over the chunk.
     worker : str
         Host and pid of the worker process.
+    warned : dict
+        Pair id -> ``(files, warning)`` for pairs added whose frames correlate only in part
+        (:attr:`rspiv.campaign.PairResult.warning`).
     """
 
     accumulators: dict[str, FieldAccumulator]
@@ -114,6 +117,7 @@ class ChunkResult:
     pair_timings: dict[int, dict[str, float]]
     timings: dict[str, float]
     worker: str = ""
+    warned: dict[int, tuple[str, str]] = dataclasses.field(default_factory=dict)
 
 
 _CONTEXTS: dict[str, PairContext] = {}
@@ -135,6 +139,7 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
     done: list[int] = []
     skipped: dict[int, tuple[str, str]] = {}
     failed: dict[int, tuple[str, str]] = {}
+    warned: dict[int, tuple[str, str]] = {}
     pair_timings: dict[int, dict[str, float]] = {}
     timings = {k: 0.0 for k in STAGES}
     for p in pairs:
@@ -160,6 +165,8 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
         dt = time.perf_counter() - t0 + add_fields(accs, r)
         timings["statistics"] = timings.get("statistics", 0.0) + dt
         done.append(p.pair_id)
+        if r.warning:
+            warned[p.pair_id] = (p.describe(), r.warning)
     return ChunkResult(
         accs,
         first,
@@ -169,6 +176,7 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
         pair_timings,
         timings,
         f"{socket.gethostname()}:{os.getpid()}",
+        warned,
     )
 
 
@@ -690,6 +698,8 @@ class DaskExecutor:
         red.add_timings(res.timings)
         for pid in res.done:
             red.done(pid, res.pair_timings.get(pid, {}), worker=res.worker)
+        for pid, (files, warning) in res.warned.items():
+            red.warn(pid, files, warning)
         for pid, (files, reason) in res.skipped.items():
             red.skip(pid, files, reason)
         for pid, (files, reason) in res.failed.items():

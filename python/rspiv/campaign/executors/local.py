@@ -67,6 +67,8 @@ class LocalExecutor:
                 state.finished.add(p.pair_id)
                 consistent = True
                 red.done(p.pair_id, {k: round(v, 4) for k, v in r.timings.items()})
+                if r.warning:
+                    red.warn(p.pair_id, p.describe(), r.warning)
                 progress.advance()
                 if red.count():
                     red.checkpoint()
