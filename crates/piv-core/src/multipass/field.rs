@@ -7,7 +7,8 @@ use crate::grid::Grid;
 use crate::image::GridField;
 use crate::validate::{median_test, neighbour_median, replace, residual};
 use crate::weighting::Weighting;
-use ndarray::Array2;
+use ndarray::{Array2, Axis};
+use rayon::prelude::*;
 
 /// A vector field. All arrays have the same shape (ny, nx).
 #[derive(Debug, Clone)]
@@ -138,6 +139,21 @@ pub(crate) fn relax(new: &mut Array2<f64>, prev: &Array2<f64>) {
     new.zip_mut_with(prev, |a, &b| *a = b + RELAXATION * (*a - b));
 }
 
+/// `Array2::from_shape_fn(dim, f)` with the values computed in parallel (in the same places:
+/// `f(j, i)` at row `j`, column `i`); for the per-vector arrays of a field, which read the
+/// large `Peak` of every window (a 47 MP pair's last pass: 730,513 of them).
+pub(crate) fn par_grid<T: Send>(
+    dim: (usize, usize),
+    f: impl Fn(usize, usize) -> T + Sync + Send,
+) -> Array2<T> {
+    let nx = dim.1.max(1);
+    let v: Vec<T> = (0..dim.0 * dim.1)
+        .into_par_iter()
+        .map(|k| f(k / nx, k % nx))
+        .collect();
+    Array2::from_shape_vec(dim, v).expect("dim.0 * dim.1 values")
+}
+
 /// Validate (optionally), try the second and third peaks of rejected vectors, and replace the
 /// rest from their neighbours. `u`, `v` hold each vector's primary peak (predictor + residual).
 pub(crate) fn validate_replace(
@@ -148,14 +164,15 @@ pub(crate) fn validate_replace(
     s: &PivSettings,
 ) -> Validation {
     let dim = u.dim();
-    let usable = Array2::from_shape_fn(dim, |(j, i)| {
+    let (u0, v0) = (&*u, &*v);
+    let usable = par_grid(dim, |j, i| {
         let k = j * dim.1 + i;
         let p = &peaks[k];
         !skip[k]
             && p.ok
             && p.ratio >= s.min_peak_ratio
-            && u[[j, i]].is_finite()
-            && v[[j, i]].is_finite()
+            && u0[[j, i]].is_finite()
+            && v0[[j, i]].is_finite()
     });
     let mut peak_choice = usable.mapv(u8::from);
     let good = if s.validate {
@@ -214,7 +231,7 @@ pub(crate) fn validate_replace(
         usable
     };
     replace(u, v, &good);
-    let replaced = Array2::from_shape_fn(dim, |(j, i)| !good[[j, i]] && !skip[j * dim.1 + i]);
+    let replaced = par_grid(dim, |j, i| !good[[j, i]] && !skip[j * dim.1 + i]);
     for (c, g) in peak_choice.iter_mut().zip(good.iter()) {
         if !g {
             *c = 0;
@@ -309,17 +326,17 @@ pub(crate) fn finish(
     }: Validation,
 ) -> PivField {
     let dim = u.dim();
-    let masked = Array2::from_shape_fn(dim, |(j, i)| skip[j * dim.1 + i]);
+    let masked = par_grid(dim, |j, i| skip[j * dim.1 + i]);
     for ((uu, vv), &m) in u.iter_mut().zip(v.iter_mut()).zip(masked.iter()) {
         if m {
             *uu = f64::NAN;
             *vv = f64::NAN;
         }
     }
-    let peak_ratio = Array2::from_shape_fn(dim, |(j, i)| peaks[j * dim.1 + i].ratio);
-    let coef = Array2::from_shape_fn(dim, |(j, i)| peaks[j * dim.1 + i].coef);
+    let peak_ratio = par_grid(dim, |j, i| peaks[j * dim.1 + i].ratio);
+    let coef = par_grid(dim, |j, i| peaks[j * dim.1 + i].coef);
     let sigma = |axis: usize| {
-        Array2::from_shape_fn(dim, |(j, i)| {
+        par_grid(dim, |j, i| {
             let p = &peaks[j * dim.1 + i];
             let s = match (valid[[j, i]], peak_choice[[j, i]]) {
                 (true, 1) => p.sigma,
@@ -335,22 +352,30 @@ pub(crate) fn finish(
         })
     };
     let (mut sigma_u, mut sigma_v) = (pooled(&sigma(0)), pooled(&sigma(1)));
-    for ((j, i), su) in sigma_u.indexed_iter_mut() {
-        let sv = &mut sigma_v[[j, i]];
-        if !(su.is_finite() && sv.is_finite()) {
-            continue;
-        }
-        let p = &peaks[j * dim.1 + i];
-        let (du, dv) = neighbour_median(&u, &v, &valid, (j, i))
-            .map_or((0.0, 0.0), |(mu, mv)| (u[[j, i]] - mu, v[[j, i]] - mv));
-        let (au, av) = if peak_choice[[j, i]] == 1 && p.alt[0].exists() {
-            (p.alt[0].dx - p.dx, p.alt[0].dy - p.dy)
-        } else {
-            (0.0, 0.0)
-        };
-        *su = (*su * *su + ambiguity_variance(p.ratio, du, au)).sqrt();
-        *sv = (*sv * *sv + ambiguity_variance(p.ratio, dv, av)).sqrt();
-    }
+    // the wrong-peak variance, rows in parallel (each vector reads only the fields)
+    let (u_, v_) = (&u, &v);
+    sigma_u
+        .axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .zip(sigma_v.axis_iter_mut(Axis(0)))
+        .enumerate()
+        .for_each(|(j, (mut ru, mut rv))| {
+            for (i, (su, sv)) in ru.iter_mut().zip(rv.iter_mut()).enumerate() {
+                if !(su.is_finite() && sv.is_finite()) {
+                    continue;
+                }
+                let p = &peaks[j * dim.1 + i];
+                let (du, dv) = neighbour_median(u_, v_, &valid, (j, i))
+                    .map_or((0.0, 0.0), |(mu, mv)| (u_[[j, i]] - mu, v_[[j, i]] - mv));
+                let (au, av) = if peak_choice[[j, i]] == 1 && p.alt[0].exists() {
+                    (p.alt[0].dx - p.dx, p.alt[0].dy - p.dy)
+                } else {
+                    (0.0, 0.0)
+                };
+                *su = (*su * *su + ambiguity_variance(p.ratio, du, au)).sqrt();
+                *sv = (*sv * *sv + ambiguity_variance(p.ratio, dv, av)).sqrt();
+            }
+        });
     PivField {
         grid,
         x,
@@ -381,20 +406,28 @@ pub(crate) fn finish(
 /// is added after ([`ambiguity_variance`]), not pooled.
 fn pooled(sigma: &Array2<f64>) -> Array2<f64> {
     let (ny, nx) = sigma.dim();
-    Array2::from_shape_fn((ny, nx), |(j, i)| {
-        if !sigma[[j, i]].is_finite() {
-            return f64::NAN;
-        }
-        let (mut s2, mut n) = (0.0, 0usize);
-        for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
-            for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
-                let x = sigma[[jj, ii]];
-                if x.is_finite() {
-                    s2 += x * x;
-                    n += 1;
+    let mut out = Array2::from_elem((ny, nx), f64::NAN);
+    // rows in parallel: each value reads only `sigma`
+    out.axis_iter_mut(Axis(0))
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(j, mut row)| {
+            for (i, o) in row.iter_mut().enumerate() {
+                if !sigma[[j, i]].is_finite() {
+                    continue;
                 }
+                let (mut s2, mut n) = (0.0, 0usize);
+                for jj in j.saturating_sub(1)..=(j + 1).min(ny - 1) {
+                    for ii in i.saturating_sub(1)..=(i + 1).min(nx - 1) {
+                        let x = sigma[[jj, ii]];
+                        if x.is_finite() {
+                            s2 += x * x;
+                            n += 1;
+                        }
+                    }
+                }
+                *o = (s2 / n as f64).sqrt();
             }
-        }
-        (s2 / n as f64).sqrt()
-    })
+        });
+    out
 }

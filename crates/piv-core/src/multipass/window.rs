@@ -505,30 +505,34 @@ pub const CLEAN_BACKGROUND: f64 = 0.35;
 /// dewarped frame) does not make a noisy frame clean.
 pub(crate) fn clean_background<T: Pixel>(px: &[T], width: usize, height: usize) -> Option<f32> {
     let step = height.div_ceil(256).max(1);
+    // the sampled rows in parallel (each row's minimum and runs are its own; the minima
+    // combine in row order, so the first of equal minima wins as in one sequential scan)
     let rows = || {
         (0..height)
+            .into_par_iter()
             .step_by(step)
             .map(|r| &px[r * width..(r + 1) * width])
     };
+    let min = |m: f32, v: f32| if v < m { v } else { m };
     let level = rows()
-        .flatten()
-        .map(|p| p.to_f32())
-        .fold(f32::INFINITY, |m, v| if v < m { v } else { m });
-    let (mut n, mut inside) = (0usize, 0usize);
-    for row in rows() {
-        n += row.len();
-        let mut run = 0usize;
-        for v in row.iter().map(|p| Some(p.to_f32())).chain([None]) {
-            if v == Some(level) {
-                run += 1;
-            } else {
-                if (CLEAN_RUN.0..=CLEAN_RUN.1).contains(&run) {
-                    inside += run;
+        .map(|row| row.iter().map(|p| p.to_f32()).fold(f32::INFINITY, min))
+        .reduce(|| f32::INFINITY, min);
+    let (n, inside) = rows()
+        .map(|row| {
+            let (mut run, mut inside) = (0usize, 0usize);
+            for v in row.iter().map(|p| Some(p.to_f32())).chain([None]) {
+                if v == Some(level) {
+                    run += 1;
+                } else {
+                    if (CLEAN_RUN.0..=CLEAN_RUN.1).contains(&run) {
+                        inside += run;
+                    }
+                    run = 0;
                 }
-                run = 0;
             }
-        }
-    }
+            (row.len(), inside)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     (n > 0 && inside as f64 >= CLEAN_BACKGROUND * n as f64).then_some(level)
 }
 
