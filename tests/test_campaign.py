@@ -344,8 +344,11 @@ def test_pairs_that_correlate_in_part_are_reported(synth, tmp_path, capsys):
     with open(out / "run_log.jsonl", "a", encoding="utf-8") as f:
         f.write(json.dumps({**ev[0], "pair_id": 0, "fingerprint": "0" * 16}) + "\n")
         f.write('{"event": "warning", "pair_id": 2, "rea\n')
+    cfg.output.report = True  # not part of the per-pair results: still resumed
     res2 = Campaign(cfg, progress=False, out_dir=out).run()
     assert res2.n_resumed == 3 and list(res2.warned) == [1]
+    md = res2.files["report_md"].read_text()
+    assert "## Pairs whose frames correlate only in part" in md and "| 1 | uncorrected: " in md
 
 
 def test_a_pilot_without_one_usable_pair_says_why(synth, tmp_path):

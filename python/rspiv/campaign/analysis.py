@@ -476,33 +476,19 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:
             extra.insert(0, sec)
-    if res.skipped:
-        extra.append(
-            ReportSection(
-                "Skipped pairs",
-                text=f"{len(res.skipped)} pair(s) were skipped and left out of the statistics.",
-                tables=[
-                    ReportTable(
-                        "Skipped pairs",
-                        [{"pair": k, "reason": v} for k, v in sorted(res.skipped.items())],
-                    )
-                ],
-            )
-        )
     note = partial_correlation_note(res)
-    if note:
-        extra.append(
-            ReportSection(
-                "Pairs whose frames correlate only in part",
-                text=f"Warning: {note}.",
-                tables=[
-                    ReportTable(
-                        "Pairs whose frames correlate only in part",
-                        [{"pair": k, "warning": v} for k, v in sorted(res.warned.items())],
-                    )
-                ],
-            )
-        )
+    for title, text, column, pairs in (
+        (
+            "Skipped pairs",
+            f"{len(res.skipped)} pair(s) were skipped and left out of the statistics.",
+            "reason",
+            res.skipped,
+        ),
+        ("Pairs whose frames correlate only in part", f"Warning: {note}.", "warning", res.warned),
+    ):
+        if pairs:
+            rows = [{"pair": k, column: v} for k, v in sorted(pairs.items())]
+            extra.append(ReportSection(title, text=text, tables=[ReportTable(title, rows)]))
     t = res.timings
     n = max(res.n_done - res.n_resumed, 1)
     extra.append(
