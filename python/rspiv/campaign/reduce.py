@@ -36,8 +36,8 @@ def logged_warnings(log: RunLog, fingerprint: str, pair_ids: set[int]) -> dict[i
     out: dict[int, str] = {}
     for rec in log.events("warning"):
         pid = rec.get("pair_id")
-        if rec.get("fingerprint") == fingerprint and pid in pair_ids:
-            out[int(pid)] = str(rec.get("reason", ""))
+        if rec.get("fingerprint") == fingerprint and isinstance(pid, int) and pid in pair_ids:
+            out[pid] = str(rec.get("reason", ""))
     return dict(sorted(out.items()))
 
 
@@ -61,8 +61,6 @@ class RunReducer:
         self.progress = progress
         self.skipped: dict[int, str] = {}
         self.failed: dict[int, str] = {}
-        #: pairs in the statistics whose frames correlate only in part, with the warning
-        self.warned: dict[int, str] = {}
         self.n_ok = 0
         self.since = 0
 
@@ -81,7 +79,6 @@ class RunReducer:
         """Record a pair added to the statistics whose frames correlate only in part
         (``warning`` event, with the context's fingerprint: :func:`logged_warnings` reads it
         back for the end of the run, over resumed runs, Dask chunks and shards alike)."""
-        self.warned[pair_id] = warning
         self.state.log.write(
             "warning",
             pair_id=pair_id,

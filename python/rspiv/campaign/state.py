@@ -73,7 +73,7 @@ class RunLog:
         """The records of kind ``event``, oldest first (none when the log does not exist; a
         line that is not JSON, e.g. cut short by a crash, is passed over)."""
         try:
-            lines = self.path.read_text(encoding="utf-8").splitlines()
+            lines = self.path.read_text(encoding="utf-8", errors="replace").splitlines()
         except FileNotFoundError:
             return []
         out = []
