@@ -319,6 +319,7 @@ def test_pairs_that_correlate_in_part_are_reported(synth, tmp_path, capsys):
     out = tmp_path / "out"
     res = Campaign(cfg, progress=False, out_dir=out).run()
     assert res.n_done == 3 and not res.skipped
+    assert res.timings["condition"] > 0  # the frames' preprocessing is timed as its own stage
     assert list(res.warned) == [1], res.warned
     assert res.warned[1].startswith("uncorrected: ") and "hardly correlate" in res.warned[1]
     pct = float(res.warned[1].split("uncorrected: ")[1].split(" %")[0])

@@ -131,7 +131,7 @@ def process_pair(
     and carry :meth:`rspiv.PivField.warning` in ``PairResult.warning``; programming errors
     propagate.
     """
-    t = {k: 0.0 for k in (*STAGES[:3], "ensemble")}
+    t = {k: 0.0 for k in STAGES if k != "statistics"}
     t0 = time.perf_counter()
     if frames is None:
         frames = read_ahead(pair, context.image_shape)
@@ -139,6 +139,7 @@ def process_pair(
     if isinstance(frames, str):
         return PairResult(pair.pair_id, False, frames, timings=t)
     ens_pre = context.ensemble_preprocess() if ensembles else None
+    t0 = time.perf_counter()
     try:
         a, b = context.condition(*frames)
         # the frames the ensemble bands correlate (without the high-pass when it is on)
@@ -149,6 +150,7 @@ def process_pair(
         )
     except (RspivError, ValueError) as exc:
         return PairResult(pair.pair_id, False, f"{pair.describe()}: {exc}", timings=t)
+    t["condition"] = time.perf_counter() - t0
     mask = context.mask()
     settings = context.piv
     fields: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
@@ -205,8 +207,10 @@ def process_pair(
     # in part only (a region unlit or too sparsely seeded) stay in, with the warning, for the
     # run to report (every run has the same frames: the first run's field tells)
     warning = ""
+    t0 = time.perf_counter()
     for name, first in list(piv_fields.items())[:1]:
         uncorrelated, said = first.correlation()
+        t["piv"] += time.perf_counter() - t0
         if uncorrelated:
             reason = f"{pair.describe()}: {name}: {said}"
             return PairResult(pair.pair_id, False, reason, timings=t)

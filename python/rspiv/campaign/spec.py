@@ -39,8 +39,10 @@ CHECKPOINT_FORMAT = "rspiv-checkpoint"
 #: 3: the single-pixel rows' planes are normalised per row and pair (were per segment): their
 #: sums do not add to version 2's
 CHECKPOINT_VERSION = 3
-#: Stages timed per pair (s), in the run log and the report.
-STAGES = ("read", "dewarp", "piv", "statistics", "ensemble")
+#: Stages timed per pair (s), in the run log and the report: ``read`` (the wait for the frames
+#: when they are read ahead), ``condition`` (the frames' preprocessing), ``dewarp`` (Method I),
+#: ``piv`` (with Method II's mapping and the correlation check), ``statistics``, ``ensemble``.
+STAGES = ("read", "condition", "dewarp", "piv", "statistics", "ensemble")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -224,7 +226,7 @@ class PairResult:
         Run name -> ``(u, v, valid, sigma_u, sigma_v)`` arrays of the grid's shape (px per
         pair; the sigmas None when the PIV estimated none).
     timings : dict
-        Seconds per stage (``read``, ``dewarp``, ``piv``).
+        Seconds per stage (:data:`STAGES`; ``statistics`` is the caller's).
     warning : str
         For a pair processed (``ok``) whose frames correlate only in part (a region unlit or
         with too few particle images, :meth:`rspiv.PivField.warning`): the run and the

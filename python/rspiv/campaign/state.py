@@ -121,8 +121,8 @@ class CampaignResult:
         sparsely seeded gives random vectors that pass the median test): from the run log,
         over every run of the output folder with this configuration.
     timings : dict
-        Seconds per stage summed over this run's pairs (``read``, ``dewarp``, ``piv``,
-        ``statistics``) and ``prepare``, ``analysis``, ``total``.
+        Seconds per stage summed over this run's pairs (:data:`rspiv.campaign.STAGES`) and
+        ``prepare``, ``analysis``, ``total``.
     files : dict
         Output name -> path.
     wall_deviation : dict
