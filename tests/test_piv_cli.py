@@ -223,6 +223,59 @@ def test_frames_that_do_not_correlate_are_said_so(pair_files, tmp_path, engine, 
     assert r.returncode == 0 and "warning: " in r.stderr and "do not correlate" in r.stderr
 
 
+def test_a_mask_takes_a_region_out(tmp_path, engine, capsys):
+    """The partial-correlation warning says "mask it": ``rspiv piv --mask`` (an image or a JSON
+    of polygons) and ``rspiv-engine piv --mask`` (an image) do. A pair whose right part (x >=
+    230 px) is camera noise only: unmasked, one warning line; masked, no warning, exactly the
+    vectors whose centre lies on the mask are masked (NaN), the same by both readers and in
+    the engine's CSV. A mask of another size, or a JSON mask given to the engine: one line
+    naming the file, exit status 2."""
+    from PIL import Image
+
+    rng = np.random.default_rng(7)
+    fa, fb = particle_pair((256, 384), (2.5, -1.0), seed=21)[:2]
+    for f in (fa, fb):
+        f[:, 230:] = rng.normal(40.0, 8.0, f[:, 230:].shape).clip(0)
+    tifffile.imwrite(tmp_path / "a.tif", fa)
+    tifffile.imwrite(tmp_path / "b.tif", fb)
+    img = np.zeros(fa.shape, np.uint8)
+    img[:, 230:] = 255
+    Image.fromarray(img).save(tmp_path / "mask.png")
+    poly = {"polygons": [[[229.6, -5.0], [400.0, -5.0], [400.0, 300.0], [229.6, 300.0]]]}
+    (tmp_path / "mask.json").write_text(json.dumps(poly))
+    Image.fromarray(img[:, :200]).save(tmp_path / "small.png")
+    frames = [str(tmp_path / "a.tif"), str(tmp_path / "b.tif")]
+    capsys.readouterr()
+    assert main(["piv", *frames, "-o", str(tmp_path / "open.nc")]) == 0
+    assert "lie where the frames hardly correlate" in capsys.readouterr().err
+    for name in ("mask.png", "mask.json"):
+        out = tmp_path / f"{name}.nc"
+        assert main(["piv", *frames, "-o", str(out), "--mask", str(tmp_path / name)]) == 0
+        assert "warning" not in capsys.readouterr().err, name
+        ds = xr.load_dataset(out, engine="h5netcdf")
+        assert "warning" not in ds.attrs and ds.attrs["mask"] == str(tmp_path / name)
+        x = np.broadcast_to(ds["x"].values[None, :], ds["u"].shape)
+        masked = ds["chc"].values == -1
+        np.testing.assert_array_equal(masked, x >= 230)
+        assert np.all(np.isnan(ds["u"].values[masked])) and masked.sum() == 567
+    r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "m.csv"), "--mask",
+                        str(tmp_path / "mask.png")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+    rows = np.genfromtxt(tmp_path / "m.csv", delimiter=",", names=True)
+    np.testing.assert_array_equal(rows["masked"] == 1, rows["x"] >= 230)
+    for name, why in (("small.png", "mask is 200 x 256 px, the images are 384 x 256 px"),):
+        assert main(["piv", *frames, "-o", str(tmp_path / "x.nc"), "--mask",
+                     str(tmp_path / name)]) == 2  # fmt: skip
+        err = capsys.readouterr().err
+        assert why in err and err.count("\n") == 1, err
+    for name, why in (("small.png", "mask is 200 x 256 px, the frames are 384 x 256 px"),
+                      ("mask.json", "polygon masks (JSON) are read by `rspiv piv`")):  # fmt: skip
+        r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "x.csv"), "--mask",
+                            str(tmp_path / name)], capture_output=True, text=True)  # fmt: skip
+        assert r.returncode == 2 and why in r.stderr and str(tmp_path / name) in r.stderr, r
+    assert not (tmp_path / "x.nc").exists() and not (tmp_path / "x.csv").exists()
+
+
 def _good_nc(d, tmp_path):
     """The NetCDF of ``rspiv piv`` on the good pair."""
     out = tmp_path / "good.nc"

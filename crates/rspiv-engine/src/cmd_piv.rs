@@ -13,6 +13,7 @@ use crate::cmd_dewarp::load_mapping;
 use crate::csv::write_atomic;
 use crate::imageio::read_u16;
 use correction_core::{method_one, method_two, DisplacementMapping, Method, ZeroFill};
+use ndarray::Array2;
 use piv_core::{piv, Interpolation, Mode, Pass, PivField, PivSettings, SubPixel, Weighting};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -66,6 +67,38 @@ pub struct PivArgs {
     /// Method II's displacement mapping: full (exact inverse) or positions [default full].
     #[arg(long)]
     pub mapping: Option<String>,
+    /// Mask image of the frames' size (TIFF, PNG, BMP), non-zero = excluded: vectors whose
+    /// centre falls on it are masked (NaN). Polygon masks (JSON) are read by `rspiv piv`.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+}
+
+/// The mask image `path` (non-zero = excluded) of frames of `shape` (rows, columns), as
+/// `rspiv.io.read_mask` reads an image; a JSON polygon mask or an image of another size is
+/// refused in one line naming the file.
+fn read_mask(path: &Path, shape: (usize, usize)) -> Result<Array2<bool>, String> {
+    let json = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    if json {
+        return Err(format!(
+            "{}: polygon masks (JSON) are read by `rspiv piv`; give rspiv-engine an image \
+             (non-zero = excluded)",
+            path.display()
+        ));
+    }
+    let m = read_u16(path)?;
+    if m.dim() != shape {
+        return Err(format!(
+            "{}: mask is {} x {} px, the frames are {} x {} px",
+            path.display(),
+            m.ncols(),
+            m.nrows(),
+            shape.1,
+            shape.0
+        ));
+    }
+    Ok(m.mapv(|v| v > 0))
 }
 
 /// Parse "64x64,32x32,32x8" into (w, h) pairs.
@@ -194,6 +227,12 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
     let a = read_u16(&args.frame_a)?;
     let b = read_u16(&args.frame_b)?;
     let pair = format!("{} / {}", args.frame_a.display(), args.frame_b.display());
+    let mask = args
+        .mask
+        .as_deref()
+        .map(|m| read_mask(m, a.dim()))
+        .transpose()?;
+    let mask = mask.as_ref().map(|m| m.view());
     let f = match (&args.calibration, method) {
         (Some(cal), Method::One | Method::Two) => {
             let mapping = load_mapping(cal)?;
@@ -211,13 +250,13 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
                 }
             }
             let r = if method == Method::One {
-                method_one(a.view(), b.view(), &mapping, &s, None, None, ZeroFill::Mask)
+                method_one(a.view(), b.view(), &mapping, &s, None, mask, ZeroFill::Mask)
             } else {
-                method_two(a.view(), b.view(), &mapping, &s, mode, None, None)
+                method_two(a.view(), b.view(), &mapping, &s, mode, None, mask)
             };
             r.map_err(|e| format!("{pair}: {e}"))?
         }
-        _ => piv(a.view(), b.view(), None, &s).map_err(|e| format!("{pair}: {e}"))?,
+        _ => piv(a.view(), b.view(), mask, &s).map_err(|e| format!("{pair}: {e}"))?,
     };
     write_atomic(&args.output, field_csv(&f).as_bytes())?;
     let (_, second, third, interpolated) = f.peak_counts();

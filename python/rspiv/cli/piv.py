@@ -20,7 +20,7 @@ from rspiv.calibration import Calibration
 from rspiv.correction import correct
 from rspiv.errors import CorrelationWarning, InvalidInputError
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
-from rspiv.io import DAVIS_SUFFIXES, davis_info, read_pair
+from rspiv.io import DAVIS_SUFFIXES, davis_info, read_mask, read_pair
 from rspiv.outputs import write_netcdf
 from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import (
@@ -91,6 +91,7 @@ _TECPLOT_AUX = (
     "frame_b",
     "piv_settings",
     "preprocess",
+    "mask",
     "calibration",
     "method",
     "davis_x_scale",
@@ -116,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
                 f"rspiv piv: using images 0 and 1 ({cams[0] or '?'}, {cams[1] or '?'}) of "
                 f"{len(cams)} ({', '.join(c or '?' for c in cams)})"
             )
+    mask = read_mask(args.mask, a.shape) if args.mask is not None else None
     pre = Preprocess(
         hot_pixels=args.hot_pixels, high_pass=args.high_pass, cap=args.cap, min_max=args.min_max
     )
@@ -127,20 +129,22 @@ def run(args: argparse.Namespace) -> int:
         if args.calibration is not None:
             method = parse_method(args.method or "II")
             if method == "none":
-                field = rspiv.piv(a, b, settings=settings)
+                field = rspiv.piv(a, b, settings=settings, mask=mask)
             else:
                 cal = Calibration.load(args.calibration)
-                field = correct(a, b, cal, method, settings, mapping=args.mapping)
+                field = correct(a, b, cal, method, settings, mapping=args.mapping, mask=mask)
         elif args.method is not None and parse_method(args.method) != "none":
             raise InvalidInputError(f"--method {args.method} needs --calibration")
         else:
-            field = rspiv.piv(a, b, settings=settings)
+            field = rspiv.piv(a, b, settings=settings, mask=mask)
     ds = field.to_xarray()
     ds.attrs["frame_a"] = str(args.frame_a)
     ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
     ds.attrs["piv_settings"] = settings.to_json()
     if pre.enabled:
         ds.attrs["preprocess"] = json.dumps(pre.to_dict())
+    if args.mask is not None:
+        ds.attrs["mask"] = str(args.mask)
     if davis is not None:
         for axis in ("x", "y"):
             slope, offset, unit = davis[f"{axis}_scale"]
@@ -215,6 +219,12 @@ def register(sub) -> None:
         type=int,
         default=None,
         help="correlation peaks tried before interpolating a rejected vector: 1, 2, 3 [3]",
+    )
+    p.add_argument(
+        "--mask",
+        default=None,
+        help="mask of the frames: an image (non-zero = excluded) or a JSON of polygons "
+        "(rspiv.io.read_mask); vectors whose centre falls on it are masked (NaN)",
     )
     p.add_argument("--calibration", default=None, help="calibration JSON: correct the distortion")
     p.add_argument(
