@@ -35,7 +35,7 @@ enum Command {
     Calibrate(cmd_calibrate::CalibrateArgs),
     /// Multipass PIV of an image pair (TIFF/PNG/BMP/JPEG), plain or corrected (--calibration,
     /// --method I|II) -> CSV of x,y,u,v,valid,replaced,masked,peak_ratio,coef,peak_choice,sigma_u,sigma_v.
-    Piv(cmd_piv::PivArgs),
+    Piv(Box<cmd_piv::PivArgs>),
     /// Dewarp images through a calibration (Method I, Keys bicubic) -> 16-bit TIFF.
     Dewarp(cmd_dewarp::DewarpArgs),
 }
