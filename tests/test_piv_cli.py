@@ -284,6 +284,71 @@ def _good_nc(d, tmp_path):
     return out
 
 
+def test_palette_images_read_as_intensities(tmp_path, engine):
+    """An indexed-colour image holds palette indices, which are intensities only when the
+    palette is the identity grey ramp (OpenPIV's test2 TIFFs: 16-bit levels k * 257): a
+    reversed or shuffled grey palette, or a colour palette, must be read through the palette
+    (the indices read as they are would be another image). Grey with alpha reads as its grey
+    channel. The engine reads a palette PNG alike."""
+    from PIL import Image
+
+    rng = np.random.default_rng(3)
+    idx = rng.integers(0, 256, (40, 60)).astype(np.uint8)
+    ramp = np.arange(256)
+    cases = {
+        "identity": (np.repeat(ramp[:, None], 3, 1), idx),
+        "reversed": (np.repeat(255 - ramp[:, None], 3, 1), 255 - idx),
+        "shuffled": (np.repeat(rng.permutation(256)[:, None], 3, 1), None),
+        "colour": (rng.integers(0, 256, (256, 3)), None),
+    }
+    for name, (pal, want) in cases.items():
+        im = Image.fromarray(idx, mode="P")
+        im.putpalette(pal.astype(np.uint8).ravel().tolist())
+        im.save(tmp_path / f"{name}.png")
+        got = read_image(tmp_path / f"{name}.png")
+        if name == "colour":
+            rgb = pal[idx].astype(np.float32)
+            np.testing.assert_allclose(got, rgb @ np.float32([0.299, 0.587, 0.114]), rtol=1e-6)
+            assert got.dtype == np.float32
+        else:
+            want = pal[idx, 0].astype(np.uint8) if want is None else want
+            assert got.dtype == np.uint8 and np.array_equal(got, want), name
+        # a TIFF colour map holds 16-bit levels: k * 257 for 8-bit ones
+        cmap = (pal.T * 257).astype(np.uint16)
+        tifffile.imwrite(tmp_path / f"{name}.tif", idx, photometric="palette", colormap=cmap)
+        np.testing.assert_array_equal(read_image(tmp_path / f"{name}.tif"), got)
+    # 16-bit levels that are not 8-bit ones stay uint16
+    cmap = np.repeat((np.arange(256) * 100)[None, :], 3, 0).astype(np.uint16)
+    tifffile.imwrite(tmp_path / "deep.tif", idx, photometric="palette", colormap=cmap)
+    got = read_image(tmp_path / "deep.tif")
+    assert got.dtype == np.uint16 and np.array_equal(got, idx.astype(np.uint16) * 100)
+    # grey with alpha
+    la = np.stack([idx, np.full_like(idx, 200)], axis=-1)
+    Image.fromarray(la, mode="LA").save(tmp_path / "la.png")
+    np.testing.assert_array_equal(read_image(tmp_path / "la.png"), idx)
+    # the engine: the reversed palette PNG gives the field of the intensities (PIV of a pair
+    # whose frames are the same palette image: zero displacement either way, so compare the
+    # pair with a shift through the reversed palette against the grey files)
+    a, b = particle_pair((128, 192), (2.5, -1.0), seed=21)[:2]
+    a8, b8 = (np.clip(f >> 4, 0, 255).astype(np.uint8) for f in (a, b))
+    rev = np.repeat(255 - ramp[:, None], 3, 1).astype(np.uint8).ravel().tolist()
+    for f, nm in ((a8, "pa"), (b8, "pb")):
+        im = Image.fromarray((255 - f).astype(np.uint8), mode="P")
+        im.putpalette(rev)
+        im.save(tmp_path / f"{nm}.png")
+        Image.fromarray(f).save(tmp_path / f"{nm}_grey.png")
+        np.testing.assert_array_equal(read_image(tmp_path / f"{nm}.png"), f)
+    outs = []
+    for suffix in ("", "_grey"):
+        out = tmp_path / f"e{suffix}.csv"
+        r = subprocess.run([engine, "piv", str(tmp_path / f"pa{suffix}.png"),
+                            str(tmp_path / f"pb{suffix}.png"), "-o", str(out), "--passes",
+                            "64x64,32x32"], capture_output=True, text=True)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        outs.append(out.read_text())
+    assert outs[0] == outs[1]
+
+
 def test_read_image_checks_arrays_by_the_file_rules():
     """One reader: arrays pass through the same rules as files."""
     img = read_image(np.arange(12, dtype=np.int32).reshape(3, 4))

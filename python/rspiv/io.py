@@ -7,7 +7,9 @@ buffers (``.im7``, ``.imx``, ``.ims``, through LaVision's ``lvpyio``, the option
 planes: a double-frame PIV recording holds frame A at 0 and frame B at 1 (the raw counts, bit
 depth as stored: the buffer's intensity scale is reported by :func:`davis_info`, not applied).
 uint8, uint16, float32 and float64 keep their dtype (not rescaled); other dtypes become float64;
-colour images become grey (0.299 R + 0.587 G + 0.114 B, float32). Arrays pass through the same
+colour images become grey (0.299 R + 0.587 G + 0.114 B, float32); palette (indexed-colour)
+images are read through their palette (a grey one gives its levels), grey with alpha as its grey
+channel. Arrays pass through the same
 rules, so every entry point accepts a file or an array alike. Errors raise
 :class:`rspiv.InvalidInputError` naming the file: missing, unreadable or truncated files, a frame
 out of range, images that are not 2D, float images with NaN or inf. JPEG is read with a
@@ -76,7 +78,11 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
                 n = len(tf.pages)
                 if not 0 <= frame < n:
                     raise InvalidInputError(f"{name}: frame {frame} out of range ({n} frames)")
-                return tf.pages[frame].asarray()
+                page = tf.pages[frame]
+                img = page.asarray()
+                if page.photometric == tifffile.PHOTOMETRIC.PALETTE and page.colormap is not None:
+                    return _palette(img, page.colormap, name)
+                return img
         if ext in DAVIS_SUFFIXES:
             images = _davis_images(p)
             if not 0 <= frame < len(images):
@@ -89,7 +95,7 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
             with Image.open(p) as im:
                 im.load()
-                img = np.asarray(im)
+                img = _pil_array(im, name)
             if ext in _JPEG:
                 # one message for every file: shown once per calling line, not once per pair
                 warnings.warn(JPEG_LOSSY, UserWarning, stacklevel=3)
@@ -196,6 +202,40 @@ def frame_count(path: str | os.PathLike) -> int:
     if ext in _PIL:
         return 1
     raise InvalidInputError(f"{p}: unsupported image type {ext!r}")
+
+
+def _palette(idx: np.ndarray, cmap: Any, name: str) -> np.ndarray:
+    """The intensities of an indexed-colour image: each index through its colour map
+    (``cmap``: rows R, G, B). A grey map gives its levels (uint8, or uint16 beyond 255; a TIFF
+    colour map's 16-bit levels k * 257 are the 8-bit levels k), so a map that is not the
+    identity ramp (reversed, shuffled, a few levels) reads as the intensities, not the indices;
+    a colour map gives R, G, B for :func:`_grey`'s luma."""
+    cmap = np.asarray(cmap, dtype=np.int64)
+    if cmap.ndim != 2 or cmap.shape[0] != 3:
+        raise InvalidInputError(f"{name}: a colour map of shape {cmap.shape}, not (3, n)")
+    n = cmap.shape[1]
+    top = int(idx.max()) if idx.size else 0
+    if top >= n:
+        raise InvalidInputError(f"{name}: palette index {top} beyond its {n} colours")
+    if cmap.max() > 255 and np.all(cmap % 257 == 0):
+        cmap = cmap // 257
+    r, g, b = cmap
+    if np.array_equal(r, g) and np.array_equal(r, b):
+        return r.astype(np.uint8 if r.max() <= 255 else np.uint16)[idx]
+    return np.stack([r[idx], g[idx], b[idx]], axis=-1)
+
+
+def _pil_array(im: Any, name: str) -> np.ndarray:
+    """A Pillow image as an array: a palette image through its palette (:func:`_palette`:
+    indices are no intensities), grey with alpha as its grey channel, others as they are."""
+    if im.mode == "P":
+        pal = np.asarray(im.getpalette() or [0, 0, 0], dtype=np.int64).reshape(-1, 3)
+        return _palette(np.asarray(im), pal.T, name)
+    if im.mode in ("LA", "La", "PA"):
+        if im.mode == "PA":
+            return _pil_array(im.convert("RGBA"), name)
+        return np.asarray(im.getchannel(0))
+    return np.asarray(im)
 
 
 def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
