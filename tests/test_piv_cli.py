@@ -138,6 +138,14 @@ def test_jpeg_frames_are_read_with_a_warning(pair_files, tmp_path, engine):
                        capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "JPEG is lossy" in r.stderr and "a.jpg" in r.stderr, r.stderr
+    # on the terminal the warning is one line of the command (not Python's two lines)
+    import sys
+
+    r2 = subprocess.run([sys.executable, "-m", "rspiv", "piv", *args, "-o", str(tmp_path / "k.nc"),
+                         "--passes", "64x64,32x32"], capture_output=True, text=True)  # fmt: skip
+    assert r2.returncode == 0, r2.stderr
+    lines = r2.stderr.splitlines()
+    assert lines[0].startswith("rspiv piv: warning: JPEG is lossy") and len(lines) == 1, lines
     data = np.genfromtxt(csv, delimiter=",", names=True)
     # another decoder (zune-jpeg, not libjpeg): the same field to within its rounding
     assert np.median(np.abs(data["u"] - 2.5)) < 0.05

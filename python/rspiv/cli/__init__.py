@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from rspiv import __version__
 from rspiv.errors import RspivError
@@ -45,6 +46,12 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    # a warning shown on the terminal is one line of the command, as its errors (not Python's
+    # two lines with the source line that raised it); recorded warnings are not formatted
+    fmt = warnings.formatwarning
+    warnings.formatwarning = lambda message, *_a, **_k: (
+        f"rspiv {args.command}: warning: {message}\n"
+    )
     try:
         return int(args.func(args) or 0)
     except (RspivError, ValueError, OSError) as exc:
@@ -53,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"rspiv {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.formatwarning = fmt
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"rspiv piv: {n} vectors {field.shape[1]} x {field.shape[0]}, "
         f"{c['second']} from the second correlation peak, {c['third']} from the third, "
-        f"{c['interpolated']} interpolated -> {out}"
+        f"{c['interpolated']} interpolated, {int(field.masked.sum())} masked -> {out}"
     )
     if "warning" in ds.attrs:
         print(f"rspiv piv: warning: {ds.attrs['warning']}", file=sys.stderr)
