@@ -10,6 +10,7 @@ use crate::correlate::Uncertainty;
 use crate::error::{PivError, Result};
 use crate::image::{GridField, Pixel};
 use ndarray::{Array2, ArrayView2};
+use rayon::prelude::*;
 
 /// The predictor of [`piv_at`].
 #[derive(Debug, Clone, Copy)]
@@ -155,8 +156,13 @@ pub(crate) fn at_points<T: Pixel>(
     for (p, &(w, h)) in windows.iter().enumerate() {
         if let Some(f) = base {
             let mean = WindowMean::new(w, h, settings.weighting);
-            for k in 0..n {
-                let (mu, mv) = mean.at(f, xs[k], ys[k]);
+            // the window means at the points in parallel (each independent)
+            let means: Vec<(f64, f64)> = xs
+                .par_iter()
+                .zip(ys.par_iter())
+                .map(|(&x, &y)| mean.at(f, x, y))
+                .collect();
+            for (k, &(mu, mv)) in means.iter().enumerate() {
                 if p > 0 {
                     // a new window: the windows keep their displacement, the offset stays
                     // relative to the predictor's part
@@ -186,11 +192,11 @@ pub(crate) fn at_points<T: Pixel>(
                 _ => frames.sweep(w, h, xs, ys, du, dv, skip, base, sub, u),
             };
             let mut peaks = sweep(&xs, &ys, &du, &dv, &skip, unc);
-            let mut u = Array2::from_shape_fn(shape, |(j, i)| {
+            let mut u = par_grid(shape, |j, i| {
                 let k = j * shape.1 + i;
                 bu[k] + du[k] + peaks[k].dx
             });
-            let mut v = Array2::from_shape_fn(shape, |(j, i)| {
+            let mut v = par_grid(shape, |j, i| {
                 let k = j * shape.1 + i;
                 bv[k] + dv[k] + peaks[k].dy
             });
