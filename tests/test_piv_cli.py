@@ -122,8 +122,13 @@ def test_jpeg_frames_are_read_with_a_warning(pair_files, tmp_path, engine):
     # quality 95: the decoded counts are the recorded ones up to the compression's error (1.7
     # counts RMS here against the particle images' 29; not rescaled)
     assert np.sqrt(np.mean((ja.astype(float) - a8) ** 2)) < 2.5
-    with pytest.warns(UserWarning, match="JPEG is lossy"):
+    with pytest.warns(UserWarning, match="JPEG is lossy") as rec:
         grey = read_image(tmp_path / "rgb.jpg")
+    assert "(this file: quality about 95)" in str(rec[0].message)
+    # the file's quality, estimated from its quantisation table, and under 90 what it costs
+    Image.fromarray(a8).save(tmp_path / "q60.jpg", quality=60)
+    with pytest.warns(UserWarning, match="quality about 60; .* 0.27 px at 75"):
+        read_image(tmp_path / "q60.jpg")
     assert grey.dtype == np.float32 and np.sqrt(np.mean((grey - a8) ** 2)) < 2.5
     f = rspiv.piv(ja, jb, passes=[(64, 64), (32, 32)])
     assert np.median(np.abs(f.u - 2.5)) < 0.05 and np.median(np.abs(f.v + 1.0)) < 0.05
