@@ -175,3 +175,41 @@ def test_bad_options_are_one_line_errors():
     ):
         with pytest.raises(InvalidInputError, match=msg):
             calibration_target(scale=0.25, **kw)
+
+
+def test_a_checkerboard_is_refused_not_calibrated_along_its_diagonals():
+    """A checkerboard's dark squares are found as dark disc dots on the lattice of the
+    squares' diagonals, where neighbours touch at a corner; taken for one level, or split in
+    two "levels", that lattice's pitch is sqrt(2) or 2 x the square's side the user gives, and
+    the magnification would be wrong by that factor (PIVlab's ChArUco example board read 10.5
+    and 14.8 px/mm for about 7.1). Every way of asking is refused in one line; dot targets with
+    dots up to 0.7 of the pitch wide leave their gaps (27-53 % of the segment, limit 85 %) and
+    calibrate."""
+    from rspiv.calibration_fit import TOUCH_SHARE
+    from scipy.ndimage import gaussian_filter
+
+    h, w, side, ang = 500, 640, 40.0, np.deg2rad(8.0)
+    y, x = np.mgrid[0:h, 0:w].astype(float)
+    xr = (x - w / 2) * np.cos(ang) + (y - h / 2) * np.sin(ang)
+    yr = -(x - w / 2) * np.sin(ang) + (y - h / 2) * np.cos(ang)
+    board = (np.floor(xr / side) + np.floor(yr / side)) % 2
+    inside = (np.abs(xr) < 6 * side) & (np.abs(yr) < 5 * side)
+    img = np.where(inside, np.where(board > 0, 200.0, 30.0), 200.0)
+    img = gaussian_filter(img, 1.2) + np.random.default_rng(0).normal(0, 3, img.shape)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    for levels in (None, 1, 2):
+        with pytest.raises(InvalidInputError) as e:
+            calibrate(img, 8.0, levels=levels)
+        msg = str(e.value)
+        assert "the markers touch their lattice neighbours" in msg and "checkerboard" in msg, msg
+        share = float(msg.split("(")[1].split(" %")[0])
+        assert share > 100 * TOUCH_SHARE and "\n" not in msg
+    # kept only when asked, and then said so
+    cal = calibrate(img, 8.0, levels=1, accept_poor_fit=True)
+    assert any("touch their lattice neighbours" in m for m in cal.warnings)
+    pitch_px = 19.51 * 34.538 * 0.3
+    for frac in (0.5, 0.7):
+        t = calibration_target(scale=0.3, dot="disc", dot_diameter_px=frac * pitch_px, dark=True,
+                               seed=1)  # fmt: skip
+        cal = calibrate(t.image, 19.51, model="p3")
+        assert not any("touch" in m for m in cal.warnings)

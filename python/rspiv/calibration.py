@@ -42,6 +42,7 @@ from rspiv.calibration_fit import (
     fit_stats,
     lattice_outliers,
     magnification,
+    touching_dots,
 )
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_image
@@ -66,6 +67,9 @@ __all__ = [
     "calibrate_points",
     "compare_models",
 ]
+
+#: How a refused calibration is kept anyway (its problems then recorded as warnings).
+KEEP_IT = "pass accept_poor_fit=True (rspiv calibrate --accept-poor-fit) to keep it"
 
 FORMAT = "rspiv-calibration"
 VERSION = 1  # later additions (warnings, lattice, image_sigma_source) are optional keys
@@ -481,6 +485,11 @@ def calibrate(
         union = union_of_levels(pts, idx, found, a1, a2, centre_px)
         if union is not None:
             idx, found, a1, a2 = union
+    # a checkerboard's squares, indexed along their diagonals: refused before the levels
+    f = np.asarray(found, dtype=bool)
+    touch = touching_dots(img, np.asarray(idx)[f], pts[f], det["amplitude"][f], bool(det["dark"]))
+    if touch is not None and marker == "dot" and not accept_poor_fit:
+        raise InvalidInputError(f"calibration refused: {touch}; {KEEP_IT}")
     # A stepped target's other sections (the grid took the one at the centre: a lattice grown
     # from another could cross into its neighbours at another depth).
     others = [] if union is not None else other_lattices(pts, found, a1, a2, centre_px)
@@ -519,6 +528,8 @@ def calibrate(
     # Too few markers for the model is its own (more specific) error, raised by the fit.
     needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
     problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []
+    if touch is not None and marker == "dot":
+        problems.insert(0, touch)
     # Markers a sub-pixel fit cannot place (a wrong polarity or size, or no markers at all).
     cov = det["cov_px2"][keep]
     typical = float(np.sqrt(np.median(0.5 * (cov[:, 0, 0] + cov[:, 1, 1])))) if len(keep) else 0.0
@@ -529,10 +540,7 @@ def calibrate(
             "marker_size_px=)"
         )
     if problems and not accept_poor_fit:
-        raise InvalidInputError(
-            f"calibration refused: {problems[0]}; pass accept_poor_fit=True (rspiv calibrate "
-            "--accept-poor-fit) to keep it"
-        )
+        raise InvalidInputError(f"calibration refused: {problems[0]}; {KEEP_IT}")
     origin_of_points = _Origin(
         unit="markers", verb="indexed", marker=marker, size_px=size_px,
         n_detected=lattice["n_detected"], image_sigma_source=DETECTOR, lattice=lattice,
