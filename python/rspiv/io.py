@@ -217,9 +217,9 @@ _IJG_LUMA = np.array(
 
 def jpeg_quality(im: Any) -> int | None:
     """The IJG quality (1-100) whose luminance quantisation table is closest to that of the
-    JPEG image ``im`` (a Pillow image; least squares over the 64 entries: exact for files of
-    libjpeg, Pillow, OpenCV and most cameras, which scale the IJG table), or None when the file
-    carries no 8 x 8 luminance table."""
+    JPEG image ``im`` (a Pillow image; least squares over the 64 entries: exact for files
+    written by libjpeg, Pillow or OpenCV, which scale the IJG table; for a camera's own tables
+    the nearest IJG quality), or None when the file carries no 8 x 8 luminance table."""
     tables = getattr(im, "quantization", None) or {}
     t = np.asarray(tables.get(0, ()), dtype=np.float64)
     if t.size != 64:
