@@ -129,6 +129,14 @@ def test_jpeg_frames_are_read_with_a_warning(pair_files, tmp_path, engine):
     Image.fromarray(a8).save(tmp_path / "q60.jpg", quality=60)
     with pytest.warns(UserWarning, match="quality about 60; .* 0.27 px at 75"):
         read_image(tmp_path / "q60.jpg")
+    from rspiv.io import jpeg_quality
+
+    for q in (30, 60, 97):
+        Image.fromarray(a8).save(tmp_path / "q.jpg", quality=q)
+        with Image.open(tmp_path / "q.jpg") as im:
+            assert jpeg_quality(im) == q
+    with Image.open(d / "a.png") as im:
+        assert jpeg_quality(im) is None  # no quantisation table: not a JPEG
     assert grey.dtype == np.float32 and np.sqrt(np.mean((grey - a8) ** 2)) < 2.5
     f = rspiv.piv(ja, jb, passes=[(64, 64), (32, 32)])
     assert np.median(np.abs(f.u - 2.5)) < 0.05 and np.median(np.abs(f.v + 1.0)) < 0.05
