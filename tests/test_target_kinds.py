@@ -177,26 +177,36 @@ def test_bad_options_are_one_line_errors():
             calibration_target(scale=0.25, **kw)
 
 
-def test_a_checkerboard_is_refused_not_calibrated_along_its_diagonals():
-    """A checkerboard's dark squares are found as dark disc dots on the lattice of the
-    squares' diagonals, where neighbours touch at a corner; taken for one level, or split in
-    two "levels", that lattice's pitch is sqrt(2) or 2 x the square's side the user gives, and
-    the magnification would be wrong by that factor (PIVlab's ChArUco example board read 10.5
-    and 14.8 px/mm for about 7.1). Every way of asking is refused in one line; dot targets with
-    dots up to 0.7 of the pitch wide leave their gaps (27-53 % of the segment, limit 85 %) and
-    calibrate."""
-    from rspiv.calibration_fit import TOUCH_SHARE
+def _checkerboard(angle_deg: float, shape=(500, 640), side=40.0, half=(6, 5)) -> np.ndarray:
+    """A blurred checkerboard of ``side`` px squares (dark 30 on 200), turned by ``angle_deg``."""
     from scipy.ndimage import gaussian_filter
 
-    h, w, side, ang = 500, 640, 40.0, np.deg2rad(8.0)
+    h, w = shape
+    ang = np.deg2rad(angle_deg)
     y, x = np.mgrid[0:h, 0:w].astype(float)
     xr = (x - w / 2) * np.cos(ang) + (y - h / 2) * np.sin(ang)
     yr = -(x - w / 2) * np.sin(ang) + (y - h / 2) * np.cos(ang)
     board = (np.floor(xr / side) + np.floor(yr / side)) % 2
-    inside = (np.abs(xr) < 6 * side) & (np.abs(yr) < 5 * side)
+    inside = (np.abs(xr) < half[0] * side) & (np.abs(yr) < half[1] * side)
     img = np.where(inside, np.where(board > 0, 200.0, 30.0), 200.0)
     img = gaussian_filter(img, 1.2) + np.random.default_rng(0).normal(0, 3, img.shape)
-    img = np.clip(img, 0, 255).astype(np.uint8)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_a_checkerboard_is_refused_not_calibrated_along_its_diagonals(tmp_path, engine):
+    """A checkerboard's dark squares are found as dark disc dots on the lattice of the
+    squares' diagonals, where neighbours touch at a corner; taken for one level, or split in
+    two "levels", that lattice's pitch is sqrt(2) or 2 x the square's side the user gives, and
+    the magnification would be wrong by that factor (PIVlab's ChArUco example board read 10.5
+    and 14.8 px/mm for about 7.1; the engine read a board turned 47 degrees, whose diagonals
+    run along the axes, at 7.07 px/mm for 5.0). Every way of asking is refused in one line, by
+    both; dot targets with dots up to 0.7 of the pitch wide leave their gaps (27-53 % of the
+    segment, limit 85 %) and calibrate."""
+    import subprocess
+
+    from rspiv.calibration_fit import TOUCH_SHARE
+
+    img = _checkerboard(8.0)
     for levels in (None, 1, 2):
         with pytest.raises(InvalidInputError) as e:
             calibrate(img, 8.0, levels=levels)
@@ -207,6 +217,19 @@ def test_a_checkerboard_is_refused_not_calibrated_along_its_diagonals():
     # kept only when asked, and then said so
     cal = calibrate(img, 8.0, levels=1, accept_poor_fit=True)
     assert any("touch their lattice neighbours" in m for m in cal.warnings)
+    # the engine: a board whose diagonals run along the axes (its 45-degree refusal does not
+    # apply) was calibrated at sqrt(2) x the scale
+    turned = _checkerboard(47.0, shape=(600, 700), half=(6, 6))
+    tifffile.imwrite(tmp_path / "board.tif", turned)
+    with pytest.raises(InvalidInputError, match="touch their lattice neighbours"):
+        calibrate(turned, 8.0)
+    cmd = [engine, "calibrate", str(tmp_path / "board.tif"), "--pitch-mm", "8", "-o",
+           str(tmp_path / "board.json")]  # fmt: skip
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 2 and "touch their lattice neighbours" in r.stderr, r.stderr
+    assert "board.tif" in r.stderr and not (tmp_path / "board.json").exists()
+    with pytest.raises(InvalidInputError, match="index must be"):
+        _rspiv.touching_share(img, np.zeros((3, 2)), np.zeros((2, 2)), np.ones(3), True)
     pitch_px = 19.51 * 34.538 * 0.3
     for frac in (0.5, 0.7):
         t = calibration_target(scale=0.3, dot="disc", dot_diameter_px=frac * pitch_px, dark=True,

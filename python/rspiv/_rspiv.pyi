@@ -108,6 +108,21 @@ def index_grid(
 ]:
     """Grid index (N, 2), found mask (N,), origin row, grid steps a1 and a2 (px)."""
 
+TOUCH_SHARE: float
+
+def touching_share(
+    image: npt.NDArray[np.generic],
+    image_px: npt.NDArray[np.float64],
+    index: npt.NDArray[np.float64],
+    amplitude: npt.NDArray[np.float64],
+    dark: bool,
+) -> tuple[float, int] | None:
+    """Median share of the segments between lattice neighbours (``index`` (N, 2): each point's
+    site, NaN for none) as dark as the dots (``amplitude`` counts, ``dark`` polarity), and the
+    number of pairs; None under 8 pairs. Above ``TOUCH_SHARE`` the dots touch: a checkerboard's
+    squares (``dewarp_core::markers::touching_share``). InvalidInputError for mismatched shapes
+    or an image of another dtype."""
+
 def monte_carlo(
     object_px: npt.NDArray[np.float64],
     image_px: npt.NDArray[np.float64],

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from rspiv import _rspiv
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.mapping import MODELS, Mapping, fit_mapping
 
@@ -280,13 +281,10 @@ def lattice_outliers(index: npt.ArrayLike, image_px: npt.ArrayLike) -> tuple[np.
     return np.asarray(sorted(rows), dtype=np.int64), scale
 
 
-#: Share of the segment between two adjacent dots (its middle 70 %) on the dots' side of half
-#: their contrast above which the dots touch (median over the lattice's neighbour pairs). Dots
-#: with gaps between them leave the segment's middle at the background: 0 for a diameter of
-#: 0.3 pitch, 29 % for 0.5, 54 % for 0.68, 71 % for 0.8. A checkerboard's squares (a ChArUco
-#: board of PIVlab's example data) index as dots on the lattice of the squares' diagonals,
-#: where neighbours touch at a corner: the segment is dark but for the corner, 90 % or more.
-TOUCH_SHARE = 0.85
+#: Median share of the segments between lattice neighbours as dark as the dots above which the
+#: dots touch (``dewarp_core::markers::TOUCH_SHARE``: dot targets 0-53 % for diameters up to 0.7
+#: of the pitch, real ones 0-27 %; checkerboards 93 %).
+TOUCH_SHARE = float(_rspiv.TOUCH_SHARE)
 
 
 def touching_dots(
@@ -300,59 +298,24 @@ def touching_dots(
 
     A checkerboard's squares are found as dark dots (square, but their fitted discs are as
     good as a printed disc's), on the lattice of the squares' diagonals: the pitch the user
-    gives, the side of a square, is then not the lattice's (the diagonal, sqrt(2) x the side),
-    and the magnification would be wrong by that factor. What tells them apart: between two
-    adjacent dots of a dot target lies background; between two diagonal squares lies only the
-    corner where they touch. The image is sampled (bilinear) at 15 points of each segment
-    between lattice neighbours (its middle 70 %) and the share of samples nearer the dots'
-    level (the mean at the two centres) than the background's (that level plus the fitted
-    amplitudes' mean magnitude, brighter for ``dark`` dots) is compared with
-    :data:`TOUCH_SHARE`. Needs 8 pairs.
+    gives, the side of a square, is then not the lattice's (the diagonal, sqrt(2) x the side,
+    or 2 x the side when the two sublattices are taken for two levels), and the magnification
+    would be wrong by that factor. Between two adjacent dots of a dot target lies background;
+    between two diagonal squares only the corner where they touch. The test is the engine's
+    (``_rspiv.touching_share``, ``dewarp_core::markers::touching_share``: 15 bilinear samples
+    of each segment's middle 70 %, the share nearer the dots' level than the background's,
+    median over the pairs of neighbours), compared with :data:`TOUCH_SHARE`; no answer under 8
+    pairs. ``index`` (N, 2): the lattice sites of ``image_px``.
     """
-    uv = np.asarray(index, dtype=np.float64).reshape(-1, 2)
-    px = np.asarray(image_px, dtype=np.float64).reshape(-1, 2)
-    amp = np.abs(np.asarray(amplitude, dtype=np.float64).ravel())
-    img = np.asarray(image, dtype=np.float64)
-    if len(uv) < 3:
-        return None
-    ij = np.rint(uv - uv[0]).astype(np.int64)
-    ij -= ij.min(axis=0)
-    site = np.full(tuple(ij.max(axis=0) + 1), -1, dtype=np.int64)
-    site[ij[:, 0], ij[:, 1]] = np.arange(len(ij))
-    a = np.concatenate([site[:-1, :].ravel(), site[:, :-1].ravel()])
-    b = np.concatenate([site[1:, :].ravel(), site[:, 1:].ravel()])
-    ok = (a >= 0) & (b >= 0)
-    a, b = a[ok], b[ok]
-    if len(a) < 8:
-        return None
-    t = np.linspace(0.15, 0.85, 15)
-    xy = px[a, None, :] + t[None, :, None] * (px[b] - px[a])[:, None, :]
-    ends = np.stack([px[a], px[b]], axis=1)
-    level = _bilinear(img, ends).mean(axis=1)
-    contrast = 0.5 * (amp[a] + amp[b])
-    # the background lies the dots' amplitude away: brighter for dark dots
-    side = 1.0 if dark else -1.0
-    near = (_bilinear(img, xy) - level[:, None]) * side < 0.5 * contrast[:, None]
-    share = float(np.median(near.mean(axis=1)))
-    if share <= TOUCH_SHARE:
+    px = np.ascontiguousarray(image_px, dtype=np.float64).reshape(-1, 2)
+    idx = np.ascontiguousarray(index, dtype=np.float64).reshape(-1, 2)
+    amp = np.ascontiguousarray(amplitude, dtype=np.float64).ravel()
+    got = _rspiv.touching_share(np.ascontiguousarray(image), px, idx, amp, bool(dark))
+    if got is None or got[0] <= TOUCH_SHARE:
         return None
     return (
-        f"the markers touch their lattice neighbours ({100 * share:.0f} % of the segment "
+        f"the markers touch their lattice neighbours ({100 * got[0]:.0f} % of the segment "
         "between adjacent markers is as dark as the markers, where a dot target leaves a gap "
         "of background): the squares of a checkerboard, indexed along their diagonals, whose "
         "pitch is not the squares' side? rspiv calibrates dot and disc targets"
     )
-
-
-def _bilinear(img: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """``img`` at the points ``xy[..., (x, y)]`` (px), bilinear, clamped to the image."""
-    h, w = img.shape
-    x = np.clip(xy[..., 0], 0.0, w - 1.0)
-    y = np.clip(xy[..., 1], 0.0, h - 1.0)
-    x0 = np.minimum(np.floor(x).astype(np.int64), w - 2) if w > 1 else np.zeros_like(x, int)
-    y0 = np.minimum(np.floor(y).astype(np.int64), h - 2) if h > 1 else np.zeros_like(y, int)
-    fx, fy = x - x0, y - y0
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-    bot = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-    return top * (1 - fy) + bot * fy

@@ -5,7 +5,9 @@
 
 use crate::csv::write_atomic;
 use dewarp_core::grid::index_grid;
-use dewarp_core::markers::{detect_markers, DetectOptions, MarkerKind};
+use dewarp_core::markers::{
+    detect_markers, touching_share, DetectOptions, MarkerKind, TOUCH_SHARE,
+};
 use dewarp_core::{fit_mapping, FitOptions, Mapping, Model};
 use ndarray::{Array2, ArrayView2};
 use serde_json::{json, Value};
@@ -135,6 +137,23 @@ pub fn run_calibrate(args: &CalibrateArgs) -> Result<(), String> {
     let pts: Vec<[f64; 2]> = det.markers.iter().map(|m| [m.x, m.y]).collect();
     let centre_px = [0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0)];
     let g = index_grid(&pts, centre_px, 0.3).map_err(|e| format!("{name}: {e}"))?;
+    // A checkerboard's squares index as dots along their diagonals, where they touch: the
+    // lattice's pitch is then not the side given (`dewarp_core::markers::touching_share`).
+    if kind == MarkerKind::Dot {
+        let amp: Vec<f64> = det.markers.iter().map(|m| m.amplitude).collect();
+        if let Some((share, _)) = touching_share(view, &pts, &g.index, &amp, det.dark) {
+            if share > TOUCH_SHARE {
+                return Err(format!(
+                    "{name}: calibration refused: the markers touch their lattice neighbours \
+                     ({:.0} % of the segment between adjacent markers is as dark as the \
+                     markers, where a dot target leaves a gap of background): the squares of a \
+                     checkerboard, indexed along their diagonals, whose pitch is not the \
+                     squares' side? rspiv calibrates dot and disc targets",
+                    100.0 * share
+                ));
+            }
+        }
+    }
     // A lattice at 45 degrees may be the union of a two-level plate's levels: the engine
     // calibrates single-level plates only (the Python `rspiv calibrate` splits the levels).
     let angle = g.a1[1].atan2(g.a1[0]).to_degrees();

@@ -193,6 +193,59 @@ fn detect_markers<'py>(
     Ok(d)
 }
 
+/// `touching_share` on an image of element type `T`, or None when `a` is not one.
+fn touching<T: Pixel + numpy::Element>(
+    py: Python<'_>,
+    a: &Bound<'_, PyAny>,
+    pts: &[[f64; 2]],
+    idx: &[Option<(i32, i32)>],
+    amp: &[f64],
+    dark: bool,
+) -> Option<Option<(f64, usize)>> {
+    let arr = a.extract::<PyReadonlyArray2<'_, T>>().ok()?;
+    let v: ArrayView2<T> = arr.as_array();
+    Some(py.detach(|| dewarp_core::markers::touching_share(v, pts, idx, amp, dark)))
+}
+
+/// Median share of the segments between lattice neighbours as dark as the dots
+/// (`dewarp_core::markers::touching_share`): `(share, pairs)` or None under 8 pairs. `index`
+/// (N, 2): each point's lattice site (i, j), NaN for none.
+#[pyfunction]
+#[pyo3(signature = (image, image_px, index, amplitude, dark))]
+fn touching_share<'py>(
+    py: Python<'py>,
+    image: &Bound<'py, PyAny>,
+    image_px: PyReadonlyArray2<'py, f64>,
+    index: PyReadonlyArray2<'py, f64>,
+    amplitude: PyReadonlyArray1<'py, f64>,
+    dark: bool,
+) -> PyResult<Option<(f64, usize)>> {
+    let pts = points("image_px", &image_px)?;
+    let iv = index.as_array();
+    let amp = amplitude.as_array().to_vec();
+    if iv.dim() != (pts.len(), 2) || amp.len() != pts.len() {
+        return Err(invalid(format!(
+            "index must be ({n}, 2) and amplitude ({n},) for {n} points, got {:?} and {}",
+            iv.dim(),
+            amp.len(),
+            n = pts.len()
+        )));
+    }
+    let idx: Vec<Option<(i32, i32)>> = iv
+        .outer_iter()
+        .map(|r| {
+            (r[0].is_finite() && r[1].is_finite())
+                .then(|| (r[0].round() as i32, r[1].round() as i32))
+        })
+        .collect();
+    let (p, i, a) = (&pts[..], &idx[..], &amp[..]);
+    touching::<u16>(py, image, p, i, a, dark)
+        .or_else(|| touching::<u8>(py, image, p, i, a, dark))
+        .or_else(|| touching::<f32>(py, image, p, i, a, dark))
+        .or_else(|| touching::<f64>(py, image, p, i, a, dark))
+        .ok_or_else(|| invalid("image must be a 2D array of uint8, uint16, float32 or float64"))
+}
+
 fn points(name: &str, a: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 2]>> {
     let v = a.as_array();
     if v.ncols() != 2 {
@@ -317,6 +370,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_target, m)?)?;
     m.add_function(wrap_pyfunction!(detect_markers, m)?)?;
     m.add_function(wrap_pyfunction!(index_grid, m)?)?;
+    m.add_function(wrap_pyfunction!(touching_share, m)?)?;
+    m.add("TOUCH_SHARE", dewarp_core::markers::TOUCH_SHARE)?;
     m.add_function(wrap_pyfunction!(monte_carlo, m)?)?;
     Ok(())
 }

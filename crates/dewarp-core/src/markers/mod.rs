@@ -41,6 +41,7 @@ mod blob;
 mod coarse;
 pub(crate) mod disc;
 pub mod survey;
+mod touching;
 
 use crate::error::{DewarpError, Result};
 use blob::{fit_blob, BlobScratch, Profile};
@@ -49,6 +50,7 @@ pub use image_core::Pixel;
 use ndarray::ArrayView2;
 use rayon::prelude::*;
 pub use survey::{survey, Survey};
+pub use touching::{touching_share, TOUCH_SHARE};
 
 /// The shape of the markers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
