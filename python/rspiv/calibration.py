@@ -487,8 +487,12 @@ def calibrate(
             idx, found, a1, a2 = union
     # a checkerboard's squares, indexed along their diagonals: refused before the levels
     f = np.asarray(found, dtype=bool)
-    touch = touching_dots(img, np.asarray(idx)[f], pts[f], det["amplitude"][f], bool(det["dark"]))
-    if touch is not None and marker == "dot" and not accept_poor_fit:
+    touch = (
+        touching_dots(img, np.asarray(idx)[f], pts[f], det["amplitude"][f], bool(det["dark"]))
+        if marker == "dot"
+        else None
+    )
+    if touch is not None and not accept_poor_fit:
         raise InvalidInputError(f"calibration refused: {touch}; {KEEP_IT}")
     # A stepped target's other sections (the grid took the one at the centre: a lattice grown
     # from another could cross into its neighbours at another depth).
@@ -528,7 +532,7 @@ def calibrate(
     # Too few markers for the model is its own (more specific) error, raised by the fit.
     needed = min(MIN_POINTS.values()) if model == "auto" else MIN_POINTS[model]
     problems = lattice_problems(lattice, plate.index[keep]) if len(keep) >= needed else []
-    if touch is not None and marker == "dot":
+    if touch is not None:
         problems.insert(0, touch)
     # Markers a sub-pixel fit cannot place (a wrong polarity or size, or no markers at all).
     cov = det["cov_px2"][keep]
