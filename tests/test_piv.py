@@ -398,3 +398,82 @@ def test_second_and_third_peaks_recover_outliers_interpolation_misses():
     assert not np.any(f.peak_choice[f.replaced])
     with pytest.raises(rspiv.InvalidInputError, match="peak_candidates"):
         rspiv.PivSettings(peak_candidates=4)
+
+
+def test_restricted_search_keeps_the_vectors_and_the_correlation_check(tmp_path):
+    """``search_radius``: the passes after the first search 2 px about the predictor (direct
+    sums): the vectors of the whole search (where the residual lies within 2 px, everywhere on
+    a smooth flow), no less accurate, in both deformation modes and with Method II's points;
+    the reported peak ratio is the first pass's, so frames that do not correlate (in whole or
+    in part) are still said so. Refused with min_peak_ratio or beyond 4 px; one vocabulary
+    (API, settings file, ``rspiv piv --search-radius``, the campaign's [piv])."""
+    import warnings
+
+    from rspiv.campaign_config import parse_campaign_config
+    from rspiv.cli import main
+
+    a, b, disp = _uniform_ramp_pair(h=256, w=512)
+    passes = [(64, 64), (32, 32), (32, 8)]
+    for mode in ("symmetric", "offset"):
+        whole = rspiv.piv(a, b, passes=passes, deformation=mode)
+        rest = rspiv.piv(a, b, passes=passes, deformation=mode, search_radius=2)
+        same = np.abs(np.concatenate([(whole.u - rest.u).ravel(), (whole.v - rest.v).ravel()]))
+        assert np.mean(same < 1e-4) >= 0.995, (mode, np.mean(same < 1e-4))
+        tu, tv = disp(rest.x, rest.y)
+        err = [np.sqrt(np.mean((f.u - tu) ** 2 + (f.v - tv) ** 2)) for f in (whole, rest)]
+        assert err[1] <= 1.02 * err[0] + 1e-4, (mode, err)
+        np.testing.assert_array_equal(whole.valid, rest.valid)
+        # the reported ratio: the first pass's (64 x 64 windows), whole-range
+        assert np.median(rest.peak_ratio[rest.valid]) > 2.0
+        assert rest.warning() is None
+    # frames that do not correlate, in whole or in part: the same warnings
+    rng = np.random.default_rng(3)
+    noise = [rng.integers(0, 4000, a.shape).astype(np.uint16) for _ in range(2)]
+    with pytest.warns(rspiv.CorrelationWarning, match="the frames do not correlate"):
+        f = rspiv.piv(*noise, passes=passes, search_radius=2)
+    assert f.uncorrelated()
+    fa, fb = particle_pair((256, 384), (2.5, -1.0), seed=21)[:2]
+    for fr in (fa, fb):
+        fr[:, 230:] = rng.normal(40.0, 8.0, fr[:, 230:].shape).clip(0)
+    with pytest.warns(rspiv.CorrelationWarning, match="lie where the frames hardly correlate"):
+        f = rspiv.piv(fa, fb, passes=passes, search_radius=2)
+    assert not f.uncorrelated()
+    # at points (Method II): the later iterations follow the first
+    gx, gy = np.meshgrid(np.arange(40.0, 470.0, 16.0), np.arange(40.0, 220.0, 8.0))
+    pts = np.stack([gx, gy], axis=-1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rspiv.CorrelationWarning)
+        p_whole = rspiv.piv_at(a, b, pts, (32, 8), iterations=2)
+        p_rest = rspiv.piv_at(a, b, pts, (32, 8), iterations=2, search_radius=2)
+    np.testing.assert_allclose(p_rest.u, p_whole.u, atol=1e-4)
+    np.testing.assert_allclose(p_rest.v, p_whole.v, atol=1e-4)
+    # its reported ratio: the first iteration's (whole-range) at the same points
+    first = rspiv.piv_at(a, b, pts, (32, 8), iterations=1)
+    np.testing.assert_array_equal(p_rest.peak_ratio, first.peak_ratio)
+    # the settings: checked, one vocabulary
+    with pytest.raises(rspiv.InvalidInputError, match="search_radius must be None or 1 to 4"):
+        rspiv.PivSettings(search_radius=5)
+    with pytest.raises(rspiv.InvalidInputError, match="min_peak_ratio 1.2 needs the whole"):
+        rspiv.piv(a, b, passes=passes, search_radius=2, min_peak_ratio=1.2)
+    s = rspiv.PivSettings(passes=passes, search_radius=2)
+    assert rspiv.PivSettings.from_dict(s.to_dict()) == s
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "a.tif", a)
+    tifffile.imwrite(tmp_path / "b.tif", b)
+    out = tmp_path / "f.nc"
+    args = ["piv", str(tmp_path / "a.tif"), str(tmp_path / "b.tif"), "-o", str(out)]
+    assert main([*args, "--search-radius", "2"]) == 0
+    import xarray as xr
+
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    np.testing.assert_array_equal(ds.u.values, rspiv.piv(a, b, settings=s).u)
+    assert main([*args, "--search-radius", "9"]) == 2
+    def cfg(r):
+        data = {"images": {"glob": "*.tif"}, "correction": {"method": "none"},
+                "piv": {"search_radius": r}}  # fmt: skip
+        return parse_campaign_config(data, base=tmp_path).piv.settings()
+
+    assert cfg(2).search_radius == 2 and cfg(0).search_radius is None
+    with pytest.raises(rspiv.InvalidInputError, match=r"\[piv\].search_radius"):
+        cfg(7)

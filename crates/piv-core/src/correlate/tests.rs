@@ -564,3 +564,135 @@ fn blank_window_fails_cleanly() {
     c.wb.fill(1.0);
     assert!(!c.correlate(SubPixel::Gauss3).ok);
 }
+
+/// The restricted search's plane (direct sums) is the whole plane at its lags, and its peak
+/// the whole search's, for shapes whose width is and is not a multiple of 8, every radius,
+/// top-hat and tapered windows.
+#[test]
+fn restricted_plane_equals_the_whole_plane_at_its_lags() {
+    for (w, h) in [
+        (32usize, 32usize),
+        (32, 8),
+        (10, 6),
+        (17, 7),
+        (64, 64),
+        (16, 16),
+    ] {
+        for radius in 1..=4 {
+            for wt in [Weighting::TopHat, Weighting::Gaussian] {
+                let (a, b) = particle_windows(w, h, (0.6, -0.4), (w * h + radius) as u64);
+                let mut full = Correlator::new(w, h);
+                let mut rest = Correlator::restricted(w, h, radius);
+                for c in [&mut full, &mut rest] {
+                    c.set_weighting(wt);
+                    c.uncertainty = Uncertainty::AllPeaks;
+                    c.wa.copy_from_slice(&a);
+                    c.wb.copy_from_slice(&b);
+                }
+                let pf = full.correlate(SubPixel::Gauss3);
+                let pr = rest.correlate(SubPixel::Gauss3);
+                let ((fsx, fsy), (sx, sy)) = (full.search(), rest.search());
+                assert_eq!(
+                    (sx, sy),
+                    (radius.min(fsx), radius.min(fsy)),
+                    "{w}x{h} r{radius}"
+                );
+                let (fp, fcw, _) = full.plane();
+                let (rp, rcw, rch) = rest.plane();
+                assert_eq!((rcw, rch), (2 * sx + 3, 2 * sy + 3));
+                let mut worst = 0.0f32;
+                for j in 0..rch {
+                    for i in 0..rcw {
+                        let (fj, fi) = (j + fsy - sy, i + fsx - sx);
+                        worst = worst.max((rp[j * rcw + i] - fp[fj * fcw + fi]).abs());
+                    }
+                }
+                assert!(
+                    worst < 2e-6,
+                    "{w}x{h} r{radius} {wt:?}: plane differs by {worst}"
+                );
+                let tag = format!("{w}x{h} r{radius} {wt:?}: {pf:?} vs {pr:?}");
+                assert!(pf.ok && pr.ok, "{tag}");
+                assert!(
+                    (pf.dx - pr.dx).abs() < 1e-5 && (pf.dy - pr.dy).abs() < 1e-5,
+                    "{tag}"
+                );
+                assert!((pf.coef - pr.coef).abs() < 2e-6, "{tag}");
+                let rel = |x: f64, y: f64| (x - y).abs() <= 1e-4 * x.abs();
+                assert!(
+                    rel(pf.sigma.0, pr.sigma.0) && rel(pf.sigma.1, pr.sigma.1),
+                    "{tag}"
+                );
+            }
+        }
+    }
+}
+
+/// A displacement beyond the radius fails the window (the highest value of the region lies
+/// on its border, not a local maximum); within it the peak is found; blank windows fail.
+#[test]
+fn restricted_search_fails_beyond_its_radius() {
+    for (shift, radius, found) in [
+        ((1.6, 0.3), 2, true),
+        ((3.4, 0.2), 2, false),
+        ((0.2, -2.7), 2, false),
+        ((0.2, -2.7), 3, true),
+        ((0.8, 0.4), 1, true),
+    ] {
+        let (a, b) = particle_windows(32, 32, shift, 11);
+        let mut c = Correlator::restricted(32, 32, radius);
+        c.wa.copy_from_slice(&a);
+        c.wb.copy_from_slice(&b);
+        let p = c.correlate(SubPixel::Gauss3);
+        assert_eq!(p.ok, found, "{shift:?} r{radius}: {p:?}");
+        if found {
+            assert!(
+                (p.dx - shift.0).abs() < 0.05 && (p.dy - shift.1).abs() < 0.05,
+                "{p:?}"
+            );
+        }
+    }
+    let mut c = Correlator::restricted(16, 16, 2);
+    c.wa.fill(3.0);
+    c.wb.fill(1.0);
+    assert!(!c.correlate(SubPixel::Gauss3).ok);
+}
+
+/// The direct sums' AVX2 path and the portable one give the same values bit for bit.
+#[test]
+fn restricted_sums_portable_and_avx2_agree_exactly() {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use super::direct::{lag_rows, lag_rows_avx2};
+        use rand::{Rng, SeedableRng};
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for (wp, h, cw, ch) in [
+            (32usize, 8usize, 5usize, 5usize),
+            (16, 16, 7, 7),
+            (24, 6, 9, 9),
+            (32, 32, 11, 7),
+        ] {
+            let dw = wp + cw - 1;
+            let pa: Vec<f32> = (0..wp * h).map(|_| rng.random::<f32>() - 0.5).collect();
+            let pb: Vec<f32> = (0..dw * (h + ch - 1))
+                .map(|_| rng.random::<f32>() - 0.5)
+                .collect();
+            let mut one = vec![0.0f32; cw * ch];
+            let mut two = vec![0.0f32; cw * ch];
+            lag_rows(&pa, &pb, wp, dw, ch, cw, &mut one, 0.7);
+            // SAFETY: AVX2 checked above
+            unsafe {
+                match cw {
+                    5 => lag_rows_avx2::<5>(&pa, &pb, wp, dw, ch, &mut two, 0.7),
+                    7 => lag_rows_avx2::<7>(&pa, &pb, wp, dw, ch, &mut two, 0.7),
+                    9 => lag_rows_avx2::<9>(&pa, &pb, wp, dw, ch, &mut two, 0.7),
+                    _ => lag_rows_avx2::<11>(&pa, &pb, wp, dw, ch, &mut two, 0.7),
+                }
+            }
+            assert_eq!(one, two, "{wp}x{h} {cw}x{ch}");
+        }
+    }
+}
