@@ -37,10 +37,9 @@ CHILD = r"""
 import json, sys, time, pathlib
 from rspiv.campaign import STAGES, Campaign
 from rspiv.campaign_config import load_campaign_config
-toml, method, out, radius = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+toml, method, out = sys.argv[1], sys.argv[2], sys.argv[3]
 cfg = load_campaign_config(toml)
 cfg.correction.method = method
-cfg.piv.search_radius = radius
 cfg.correction.compare_uncorrected = False
 cfg.calibration.monte_carlo_samples = 0
 cfg.output.report = False
@@ -100,10 +99,6 @@ def main() -> int:
     ap.add_argument("--methods", nargs="+", default=["II", "I", "none"])
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--threads", type=int, nargs="+", default=[None])
-    ap.add_argument(
-        "--search-radius", type=int, default=0,
-        help="[piv] search_radius of the campaign, px (0: the whole range)",
-    )  # fmt: skip
     args = ap.parse_args()
 
     import dataclasses
@@ -139,8 +134,7 @@ def main() -> int:
                 if threads is not None:
                     env["RAYON_NUM_THREADS"] = str(threads)
                 r = subprocess.run(
-                    [sys.executable, "-c", CHILD, str(toml), method, str(out),
-                     str(args.search_radius)],  # fmt: skip
+                    [sys.executable, "-c", CHILD, str(toml), method, str(out)],
                     capture_output=True,
                     text=True,
                     env=env,

@@ -95,8 +95,6 @@ def single_pass(a, b, rows):
 def multipass(a, b, rows):
     t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)]))
     rows.append(("rspiv 64->32 symmetric deformation", t, f.u.size, rms(f.x, f.y, f.u, f.v)))
-    t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)], search_radius=2))
-    rows.append(("rspiv 64->32 search_radius 2", t, f.u.size, rms(f.x, f.y, f.u, f.v)))
     t, f = best_of(lambda: rspiv.piv(a, b, passes=[(64, 64), (32, 32)], iterations=[1, 2]))
     rows.append(("rspiv 64->32 (x2 iterations)", t, f.u.size, rms(f.x, f.y, f.u, f.v)))
     from openpiv import tools, windef
@@ -122,11 +120,9 @@ sys.path.insert(0, sys.argv[1])
 from bench_piv import field, rms
 a, b = particle_pair((5288, 8864), field, seed=5)
 out = {}
-paper = [(64, 64), (32, 32), (32, 8)]
-for key, passes, r in (("paper", paper, None), ("paper-r2", paper, 2),
-                       ("64-32", [(64, 64), (32, 32)], None)):
+for key, passes in (("paper", [(64, 64), (32, 32), (32, 8)]), ("64-32", [(64, 64), (32, 32)])):
     t = time.perf_counter()
-    f = rspiv.piv(a, b, passes=passes, overlap=0.5, search_radius=r)
+    f = rspiv.piv(a, b, passes=passes, overlap=0.5)
     out[key] = {"time": time.perf_counter() - t, "n": int(f.u.size),
                 "rms": rms(f.x, f.y, f.u, f.v)}
 # VmHWM: this process's own peak RSS (ru_maxrss would inherit the parent's across exec)
@@ -173,9 +169,7 @@ def full_size(rows, peer):
     openpiv.windef 64 -> 32 on the same pair, each in a child process of its own."""
     d = child(CHILD)
     mb = d["maxrss_mb"]
-    names = (("paper", "64->32->32x8"), ("paper-r2", "64->32->32x8 search_radius 2"),
-             ("64-32", "64->32"))  # fmt: skip
-    for key, name in names:
+    for key, name in (("paper", "64->32->32x8"), ("64-32", "64->32")):
         r = d[key]
         rows.append((f"rspiv 8864x5288 {name} (peak RSS {mb:.0f} MB)", r["time"], r["n"], r["rms"]))
     if peer:
@@ -228,14 +222,12 @@ def main():
         if peer in base and np.isfinite(base[peer][1]):
             ratio = (r[2] / r[1]) / (base[peer][2] / base[peer][1])
             print(f"single pass: rspiv / {peer} throughput = {ratio:.1f}x")
+    m = base["rspiv 64->32 symmetric deformation"]
     o = base["openpiv.windef 64->32"]
-    for key, what in (("rspiv 64->32 symmetric deformation", ""),
-                      ("rspiv 64->32 search_radius 2", ", search_radius 2")):  # fmt: skip
-        m = base[key]
-        print(
-            f"multipass{what}: windef time / rspiv time = {o[1] / m[1]:.1f}x "
-            f"(RMS {m[3]:.4f} vs {o[3]:.4f} px)"
-        )
+    print(
+        f"multipass: windef time / rspiv time = {o[1] / m[1]:.1f}x "
+        f"(RMS {m[3]:.4f} vs {o[3]:.4f} px)"
+    )
     full = [r for r in rows if r[0].startswith("rspiv 8864x5288 64->32 ")]
     peer = [r for r in rows if r[0].startswith("openpiv.windef rust 8864x5288")]
     if full and peer:

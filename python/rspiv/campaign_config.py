@@ -46,8 +46,6 @@ A complete file (every key optional except where noted; defaults shown)::
     min_peak_ratio = 0.0         # 0: off
     peak_candidates = 3          # correlation peaks tried before interpolating (1: off)
     uncertainty = true           # per-vector uncertainty (Wieneke 2015), sigma_u / sigma_v
-    search_radius = 0            # px, 1-4: restricted peak search after the first pass
-                                 # (rspiv.PivSettings.search_radius); 0: the whole range
     mask = ""                    # optional mask: an image (non-zero = excluded) or a JSON of
                                  # polygons in px (rspiv.io.read_mask); "" : none
 
@@ -223,7 +221,6 @@ class PIVConfig:
     min_peak_ratio: float = 0.0
     peak_candidates: int = 3
     uncertainty: bool = True
-    search_radius: int = 0
     mask: pathlib.Path | None = None
 
     def settings(self) -> PivSettings:
@@ -232,8 +229,7 @@ class PIVConfig:
             passes=tuple(tuple(p) for p in self.passes),
             overlap=self.overlap,
             iterations=self.iterations,
-            **{k: getattr(self, k) for k in OPTION_KEYS if k != "search_radius"},
-            search_radius=self.search_radius or None,
+            **{k: getattr(self, k) for k in OPTION_KEYS},
         )
 
 

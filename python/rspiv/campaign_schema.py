@@ -181,7 +181,6 @@ PARSERS: dict[str, dict[str, Any]] = {
         "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
         "peak_candidates": lambda c, w, v: _number(c, w, v, integer=True, minimum=1, maximum=3),
         "uncertainty": _boolean,
-        "search_radius": lambda c, w, v: _number(c, w, v, integer=True, minimum=0, maximum=4),
         "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
         "mask": lambda c, w, v: c.path(w, v, image=True, json_ok=True),
     },

@@ -455,7 +455,6 @@ def piv_vectors(
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
     uncertainty: bool = True,
-    search_radius: int | None = None,
 ) -> PivField:
     """Method II: PIV on the raw frames at ``F(object grid)``, vectors mapped to the object frame
     (keyword form of :func:`method_two`).
@@ -487,7 +486,7 @@ def piv_vectors(
         Correlation iterations of the final pass (1, as each pass of :func:`rspiv.piv`: a
         second iteration doubles the final pass's cost for an RMS gain of ~2 %).
     subpixel, interpolation, weighting, median_threshold, median_eps, mask, validate,
-    min_peak_ratio, peak_candidates, uncertainty, search_radius
+    min_peak_ratio, peak_candidates, uncertainty
         As for :func:`rspiv.piv` / :func:`rspiv.piv_at` (both the predictor and the final
         pass).
     predictor_overlap, predictor_iterations : float or sequence, int or sequence

@@ -86,7 +86,6 @@ def piv(
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
     uncertainty: bool = True,
-    search_radius: int | None = None,
     settings: PivSettings | None = None,
     preprocess: Preprocess | None = None,
     backgrounds: tuple[Any, Any] | None = None,
@@ -167,10 +166,6 @@ def piv(
     uncertainty : bool
         Estimate every valid vector's standard uncertainty (``PivField.sigma_u``,
         ``sigma_v``, px) from its last correlation (Wieneke 2015); True.
-    search_radius : int, optional
-        Restricted peak search (1 to 4 px) of every correlation after the first, about the
-        predictor, summed directly (:class:`rspiv.PivSettings`: faster; a residual beyond it
-        fails the vector; refused with ``min_peak_ratio``). None: the whole range.
     settings : PivSettings, optional
         All of the above PIV settings as one object (overrides the keywords).
     preprocess : rspiv.preprocess.Preprocess, optional
@@ -248,7 +243,6 @@ def piv_at(
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
     uncertainty: bool = True,
-    search_radius: int | None = None,
 ) -> PivField:
     """PIV at arbitrary image positions with given predictor displacements (Method II).
 
@@ -279,10 +273,8 @@ def piv_at(
         Normalised median test among grid neighbours; defaults to True for ``(ny, nx, 2)``
         points and False for a ``(N, 2)`` list.
     subpixel, interpolation, weighting, median_eps, median_threshold, min_peak_ratio,
-    peak_candidates, uncertainty, search_radius
-        As for :func:`piv`; with ``search_radius`` the first correlation (first window,
-        first iteration) searches the whole range, the later ones the restricted region about
-        the latest displacement.
+    peak_candidates, uncertainty
+        As for :func:`piv`.
 
     Returns
     -------
@@ -310,7 +302,6 @@ def piv_at(
         min_peak_ratio=min_peak_ratio,
         peak_candidates=peak_candidates,
         uncertainty=uncertainty,
-        search_radius=search_radius,
     )
     field = run_points(
         frame_a,

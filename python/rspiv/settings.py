@@ -21,7 +21,6 @@ median_threshold  float                       threshold of the normalised median
 min_peak_ratio    float                       reject vectors below this peak ratio (0: off)
 peak_candidates   int 1-3                     correlation peaks tried before interpolating
 uncertainty       bool                        per-vector uncertainty (``PivField.sigma_u``)
-search_radius     None or int 1-4             px, restricted peak search after the first pass
 ================  ==========================  ===============================================
 
 String values are case-insensitive on input and stored lowercase. The correction methods are
@@ -82,7 +81,6 @@ OPTION_KEYS = (
     "min_peak_ratio",
     "peak_candidates",
     "uncertainty",
-    "search_radius",
 )
 
 _METHOD_ALIASES = {"i": "I", "images": "I", "ii": "II", "vectors": "II", "none": "none"}
@@ -198,16 +196,6 @@ class PivSettings:
         Estimate every valid vector's standard uncertainty from its correlation statistics on
         the last iteration of the last pass (``PivField.sigma_u``, ``sigma_v``; Wieneke 2015),
         True. Off, they are NaN (saves 5-15 % of the last pass's correlation time).
-    search_radius : int or None
-        Restricted peak search, px (1 to 4), of every correlation whose windows follow a
-        predictor (every pass after the first and the first pass's extra iterations): the peak
-        is searched only at lags up to this far from the predictor, the plane summed directly
-        instead of through the FFT (2.6-4x faster per window at 2 px); the first correlation
-        searches the whole range. The vectors are the whole search's (to f32 rounding) wherever
-        the residual displacement lies within the radius; a peak beyond it fails the vector
-        (replaced from its neighbours). The peak ratio, the alternative peaks and the
-        uncertainty's wrong-peak term then see the search region only, so ``min_peak_ratio``
-        is refused with it. None (the default): the whole range (``|t| <= w/2 - 1``).
 
     Values are checked and normalised on construction (InvalidInputError naming the key).
     """
@@ -225,7 +213,6 @@ class PivSettings:
     min_peak_ratio: float = 0.0
     peak_candidates: int = 3
     uncertainty: bool = True
-    search_radius: int | None = None
 
     def __post_init__(self) -> None:
         passes = tuple(_window(p) for p in self.passes)
@@ -256,18 +243,6 @@ class PivSettings:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 3:
             raise InvalidInputError(f"peak_candidates must be 1, 2 or 3, got {n!r}")
         s(self, "peak_candidates", int(n))
-        r = self.search_radius
-        if r is not None:
-            if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or not 1 <= r <= 4:
-                raise InvalidInputError(
-                    f"search_radius must be None or 1 to 4 px, got {r!r}"
-                )
-            if self.min_peak_ratio > 0:
-                raise InvalidInputError(
-                    f"min_peak_ratio {self.min_peak_ratio:g} needs the whole search range: "
-                    f"with search_radius {r} the peak ratio is that of the search region only"
-                )
-            s(self, "search_radius", int(r))
 
     # -- per-pass views ------------------------------------------------------------------------
     @property

@@ -75,16 +75,6 @@ fn correlator(c: &mut Criterion) {
             bch.iter(|| black_box(find_peak(&pl, cw, ch, w, h, SubPixel::Gauss3)));
         });
     }
-    // the restricted search (direct sums at lags up to 2 px, Correlator::restricted)
-    for (w, h) in [(32usize, 8usize), (32, 32), (64, 64)] {
-        g.bench_function(format!("{w}x{h}r2"), |bch| {
-            let mut cor = Correlator::restricted(w, h, 2);
-            let full = window_pair(&a, &b, w, h);
-            cor.wa.copy_from_slice(&full.wa);
-            cor.wb.copy_from_slice(&full.wb);
-            bch.iter(|| black_box(cor.correlate(SubPixel::Gauss3)));
-        });
-    }
     g.finish();
 }
 

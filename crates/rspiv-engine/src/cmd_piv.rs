@@ -4,8 +4,7 @@
 //!
 //! Settings: `--settings FILE.json` holds the keys of the one vocabulary (`rspiv.PivSettings`,
 //! `piv_core::PivSettings::from_json`: passes, overlap, iterations, deformation, interpolation,
-//! subpixel, weighting, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates, uncertainty,
-//! search_radius); the flags given on the
+//! subpixel, weighting, validate, median_eps, median_threshold, min_peak_ratio, peak_candidates, uncertainty); the flags given on the
 //! command line override the file. Pixel frame: x right, y down, origin at the centre of the
 //! top-left pixel; px (object px with a calibration). Values are written to full precision
 //! (shortest round-trip decimal), NaN where a vector is masked.
@@ -58,10 +57,6 @@ pub struct PivArgs {
     /// [default 3].
     #[arg(long)]
     pub peak_candidates: Option<usize>,
-    /// Restricted peak search of the correlations after the first, px (1 to 4): the peak is
-    /// searched only this far from the predictor [default: the whole range].
-    #[arg(long)]
-    pub search_radius: Option<usize>,
     /// Calibration JSON (rspiv calibrate) or mapping JSON: correct the distortion.
     #[arg(long)]
     pub calibration: Option<PathBuf>,
@@ -178,9 +173,6 @@ pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
     }
     if let Some(n) = args.peak_candidates {
         s.peak_candidates = n;
-    }
-    if let Some(r) = args.search_radius {
-        s.search_radius = Some(r);
     }
     s.validate().map_err(|e| format!("settings: {e}"))?;
     Ok(s)

@@ -44,7 +44,6 @@ _SCALAR_KEYS = (
     "min_peak_ratio",
     "peak_candidates",
     "uncertainty",
-    "search_radius",
 )
 
 
@@ -220,13 +219,6 @@ def register(sub) -> None:
         type=int,
         default=None,
         help="correlation peaks tried before interpolating a rejected vector: 1, 2, 3 [3]",
-    )
-    p.add_argument(
-        "--search-radius",
-        dest="search_radius",
-        type=int,
-        default=None,
-        help="restricted peak search after the first pass, px (1-4; default: the whole range)",
     )
     p.add_argument(
         "--mask",

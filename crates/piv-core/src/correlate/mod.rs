@@ -17,19 +17,14 @@
 //! FFT plans are cached per padded shape and shared between threads ([`plans`]); each thread
 //! owns a [`Correlator`] (its scratch buffers), so correlating a window allocates nothing.
 //!
-//! [`Correlator::restricted`] searches only a few lags about zero (the passes whose windows
-//! follow a predictor, `PivSettings::search_radius`): its plane is summed directly over the
-//! windows' overlap at those lags, the FFT's values there to f32 rounding.
-//!
 //! The files: the plane (FFT plans, the correlator's transforms and normalisation) in
-//! `plane.rs`, the restricted plane's direct sums in `direct.rs`, the peak search and
-//! sub-pixel estimators in `peak.rs`, the per-vector uncertainty from the correlation
-//! statistics in `uncertainty.rs`; the outcome types and the correlator itself here.
+//! `plane.rs`, the peak search and sub-pixel estimators in `peak.rs`, the per-vector
+//! uncertainty from the correlation statistics in `uncertainty.rs`; the outcome types and
+//! the correlator itself here.
 
 use rustfft::num_complex::Complex32;
 use std::sync::Arc;
 
-mod direct;
 mod peak;
 mod plane;
 mod uncertainty;
@@ -191,12 +186,6 @@ pub struct Correlator {
     ovy: Vec<f64>,
     ovx32: Vec<f32>,
     ovy32: Vec<f32>,
-    /// The plane summed directly at few lags ([`Correlator::restricted`]) instead of through
-    /// the FFT; then `pa` holds A's window (mean removed, weighted) in rows padded to 8 values
-    /// and `pb` B's inside a zero border of the plane's half-ranges (`direct.rs`).
-    direct: bool,
-    pa: Vec<f32>,
-    pb: Vec<f32>,
 }
 
 #[cfg(test)]

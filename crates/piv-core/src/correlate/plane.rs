@@ -2,7 +2,6 @@
 //! the correlator's forward transform, cross-spectrum and partial inverse (module docs of
 //! [`super`]).
 
-use super::direct::direct_shape;
 use super::peak::find_peak_with;
 use super::{Correlator, Peak, SubPixel, Uncertainty};
 use crate::weighting::Weighting;
@@ -55,50 +54,24 @@ pub fn plans(pw: usize, ph: usize) -> Arc<Plans> {
 }
 
 impl Correlator {
-    /// A correlator for `w` x `h` windows (w along x). Requires `w, h >= 4`. The peak is
-    /// searched over the whole range the windows allow (`|tx| <= w/2 - 1`, `|ty| <= h/2 - 1`),
-    /// through the FFT.
+    /// A correlator for `w` x `h` windows (w along x). Requires `w, h >= 4`.
     pub fn new(w: usize, h: usize) -> Correlator {
         let sx = (w / 2).saturating_sub(1).max(1);
         let sy = (h / 2).saturating_sub(1).max(1);
-        Self::with_range(w, h, sx, sy, false)
-    }
-
-    /// A correlator for `w` x `h` windows whose peak is searched only at lags `|tx|, |ty| <=
-    /// radius` (and never beyond the whole range of [`Self::new`]): the plane is summed
-    /// directly over the windows' overlap at those lags (`direct.rs`), the same values as the
-    /// FFT's there, up to rounding. For the passes whose windows follow a predictor, where the
-    /// residual displacement is a fraction of a pixel; a peak beyond `radius` fails
-    /// ([`Peak::ok`] false: the highest value of the search region is not a local maximum).
-    /// The peak ratio and the alternative peaks are those of the search region only.
-    pub fn restricted(w: usize, h: usize, radius: usize) -> Correlator {
-        let sx = (w / 2).saturating_sub(1).max(1).min(radius.max(1));
-        let sy = (h / 2).saturating_sub(1).max(1).min(radius.max(1));
-        Self::with_range(w, h, sx, sy, true)
-    }
-
-    fn with_range(w: usize, h: usize, sx: usize, sy: usize, direct: bool) -> Correlator {
         let pw = fast_len(w + sx + 1);
         let ph = fast_len(h + sy + 1);
         let plans = plans(pw, ph);
         let cw = 2 * sx + 3;
         let ch = 2 * sy + 3;
-        let (fft_len, scratch_len) = if direct {
-            (0, 0)
-        } else {
-            (pw * ph, plans.scratch_len)
-        };
-        let (dw, dh) = direct_shape(w, h, sx, sy);
-        let pad_len = if direct { dw * dh } else { 0 };
         Correlator {
             w,
             h,
             sx,
             sy,
-            scratch: vec![Complex32::default(); scratch_len],
+            scratch: vec![Complex32::default(); plans.scratch_len],
             plans,
-            buf: vec![Complex32::default(); fft_len],
-            buf2: vec![Complex32::default(); fft_len],
+            buf: vec![Complex32::default(); pw * ph],
+            buf2: vec![Complex32::default(); pw * ph],
             wa: vec![0.0; w * h],
             wb: vec![0.0; w * h],
             corr: vec![0.0; cw * ch],
@@ -114,9 +87,6 @@ impl Correlator {
             ovy: Vec::new(),
             ovx32: Vec::new(),
             ovy32: Vec::new(),
-            direct,
-            pa: vec![0.0; if direct { w.next_multiple_of(8) * h } else { 0 }],
-            pb: vec![0.0; pad_len],
         }
     }
 
@@ -276,9 +246,6 @@ impl Correlator {
         };
         if blank(ea, ma) || blank(eb, mb) {
             return None;
-        }
-        if self.direct {
-            return Some(self.plane_direct(ma, mb, ea, eb));
         }
         let pl = &*self.plans;
         let (pw, ph) = (pl.pw, pl.ph);

@@ -21,11 +21,7 @@ pub struct PivField {
     /// Displacement along x (right) and y (down), px; NaN where `masked`.
     pub u: Array2<f64>,
     pub v: Array2<f64>,
-    /// Peak ratio of the last correlation (0 where not computed). Where that correlation
-    /// searched a restricted region ([`PivSettings::search_radius`]), the ratio of the last
-    /// whole-range correlation at or nearest the vector ([`WholeRatio`]): a region of a few
-    /// lags rarely holds a second peak, so its own ratio says nothing of whether the frames
-    /// correlate (the check of `crate::validate::correlation_check` reads this one).
+    /// Peak ratio of the last correlation (0 where not computed).
     pub peak_ratio: Array2<f64>,
     /// Correlation coefficient (normalised peak height) of the last correlation.
     pub coef: Array2<f64>,
@@ -434,52 +430,4 @@ fn pooled(sigma: &Array2<f64>) -> Array2<f64> {
             }
         });
     out
-}
-
-/// The peak ratios of the last whole-range correlation of an evaluation, reported for the
-/// vectors correlated after it with the restricted search ([`PivSettings::search_radius`];
-/// [`PivField::peak_ratio`]).
-#[derive(Debug, Clone)]
-pub(crate) enum WholeRatio {
-    /// On a regular grid (an earlier pass): the nearest of its vectors.
-    Grid(Grid, Vec<f64>),
-    /// At the same points, one per point.
-    Points(Vec<f64>),
-}
-
-impl WholeRatio {
-    /// The ratios of a sweep's peaks, on `grid` or at the sweep's own points.
-    pub(crate) fn of(grid: Option<Grid>, peaks: &[Peak]) -> WholeRatio {
-        let r = peaks.iter().map(|p| p.ratio).collect();
-        match grid {
-            Some(g) => WholeRatio::Grid(g, r),
-            None => WholeRatio::Points(r),
-        }
-    }
-
-    /// `field.peak_ratio` where a window was correlated (its own ratio > 0) replaced by the
-    /// whole-range ratio at (or nearest) it; 0 stays 0 (not correlated).
-    pub(crate) fn report(&self, field: &mut PivField) {
-        let (x, y) = (&field.x, &field.y);
-        let nearest = |j: usize, i: usize| match self {
-            WholeRatio::Points(r) => r[j * x.ncols() + i],
-            WholeRatio::Grid(g, r) => {
-                let at = |p: f64, p0: f64, d: f64, n: usize| {
-                    let k = ((p - p0) / d).round();
-                    if k.is_finite() {
-                        (k.max(0.0) as usize).min(n - 1)
-                    } else {
-                        0
-                    }
-                };
-                let (xx, yy) = (x[[j, i]], y[[j, i]]);
-                r[at(yy, g.y0, g.dy, g.ny) * g.nx + at(xx, g.x0, g.dx, g.nx)]
-            }
-        };
-        for ((j, i), pr) in field.peak_ratio.indexed_iter_mut() {
-            if *pr > 0.0 {
-                *pr = nearest(j, i);
-            }
-        }
-    }
 }

@@ -212,7 +212,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
         skip: &[bool],
         base: Option<&GridField>,
         est: (SubPixel, Weighting),
-        (uncertainty, search): (Uncertainty, Option<usize>),
+        uncertainty: Uncertainty,
     ) -> Vec<Peak> {
         // windows on integer positions are plain copies: no interpolation images needed
         let integer = base.is_none() && on_integers(w, h, (xs, ys), (du, dv), skip);
@@ -233,8 +233,7 @@ impl<'a, T: Pixel> Frames<'a, T> {
             base,
             est,
             uncertainty,
-            self.rule,
-            search
+            self.rule
         ))
     }
 

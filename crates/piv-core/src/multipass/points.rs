@@ -45,10 +45,6 @@ pub enum Predictor<'a> {
 /// `s.passes` and `s.mode` are ignored: `windows` gives the passes, and a `Field` predictor
 /// means deformation. Points whose centre lies outside the image or in the mask are not computed.
 /// Used by Method II (PIV on the raw frames at the images of an object grid).
-///
-/// With [`PivSettings::search_radius`], the correlations after the first (a later window or
-/// iteration) search the restricted region about the current displacement; the first searches
-/// the whole range (it gives the reported [`PivField::peak_ratio`]).
 pub fn piv_at<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -65,7 +61,7 @@ pub fn piv_at<T: Pixel>(
     let settings = check_at(dim, &x, &y, &predictor, &mask, windows, iterations, s)?;
     let frames = Frames::new(frame_a, frame_b, settings.interpolation)?;
     at_points(
-        &frames, dim, x, y, predictor, &mask, windows, iterations, &settings, None,
+        &frames, dim, x, y, predictor, &mask, windows, iterations, &settings,
     )
 }
 
@@ -132,7 +128,6 @@ pub(crate) fn at_points<T: Pixel>(
     windows: &[(usize, usize)],
     iterations: usize,
     settings: &PivSettings,
-    given: Option<WholeRatio>,
 ) -> Result<PivField> {
     let shape = x.dim();
     let n = x.len();
@@ -158,10 +153,6 @@ pub(crate) fn at_points<T: Pixel>(
     let mut last = None;
     // the pair deformed once by the field predictor (see `Predictor::Field`)
     let mut deformed: Option<Frames<'static, f32>> = None;
-    // the last whole-range correlation's ratios (`given`: the predictor's), reported where the
-    // restricted search follows (`PivSettings::search_radius`)
-    let mut whole = given;
-    let mut restricted = false;
     for (p, &(w, h)) in windows.iter().enumerate() {
         if let Some(f) = base {
             let mean = WindowMean::new(w, h, settings.weighting);
@@ -192,29 +183,15 @@ pub(crate) fn at_points<T: Pixel>(
                 deformed = base.map(|f| frames.deformed(f, None));
             }
             let sub = (settings.subpixel, settings.weighting);
-            // the windows follow a predictor (a field, offsets, an earlier window or
-            // iteration) after a whole-range correlation (this call's first, or the given
-            // predictor's): the restricted search about it (`PivSettings::search_radius`)
-            let follows = base.is_some() || !no_offset || p > 0 || it > 0;
-            let search = if follows && whole.is_some() {
-                settings.search_radius
-            } else {
-                None
-            };
-            let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| {
-                let how = (u, search);
-                match (base, &deformed) {
-                    (Some(_), Some(d)) if no_offset => {
-                        d.sweep(w, h, xs, ys, du, dv, skip, None, sub, how)
-                    }
-                    _ => frames.sweep(w, h, xs, ys, du, dv, skip, base, sub, how),
+            let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| match (
+                base, &deformed,
+            ) {
+                (Some(_), Some(d)) if no_offset => {
+                    d.sweep(w, h, xs, ys, du, dv, skip, None, sub, u)
                 }
+                _ => frames.sweep(w, h, xs, ys, du, dv, skip, base, sub, u),
             };
             let mut peaks = sweep(&xs, &ys, &du, &dv, &skip, unc);
-            restricted = search.is_some();
-            if settings.search_radius.is_some() && !restricted {
-                whole = Some(WholeRatio::of(None, &peaks));
-            }
             let mut u = par_grid(shape, |j, i| {
                 let k = j * shape.1 + i;
                 bu[k] + du[k] + peaks[k].dx
@@ -253,12 +230,16 @@ pub(crate) fn at_points<T: Pixel>(
         }
     }
     let (u, v, peaks, checked) = last.expect("at least one iteration");
-    let (x, y) = (x.to_owned(), y.to_owned());
-    let mut field = finish(None, x, y, u, v, &peaks, &skip, checked);
-    if let (true, Some(w)) = (restricted, &whole) {
-        w.report(&mut field);
-    }
-    Ok(field)
+    Ok(finish(
+        None,
+        x.to_owned(),
+        y.to_owned(),
+        u,
+        v,
+        &peaks,
+        &skip,
+        checked,
+    ))
 }
 
 /// Method II's PIV in one call on one prepared frame pair: the passes of `s` but the last run
@@ -311,15 +292,11 @@ pub fn piv_with_final_points<T: Pixel>(
             &windows,
             last.iterations,
             &settings_at,
-            None,
         )?;
         return Ok((None, f));
     }
-    let (pred, whole) = grid_passes(&frames, dim, &mask, &first, grids)?;
+    let pred = grid_passes(&frames, dim, &mask, &first, grids)?;
     let grid = pred.grid.expect("grid passes give a grid field");
-    // the predictor passes' whole-range correlation's ratios, for the final pass's restricted
-    // search
-    let given = || whole.clone();
     let fill = |a: &Array2<f64>| {
         let (sum, n) = a
             .iter()
@@ -344,7 +321,6 @@ pub fn piv_with_final_points<T: Pixel>(
             &windows,
             last.iterations,
             &settings_at,
-            given(),
         )?,
         Mode::Offset => {
             let finite = |p: f64| if p.is_finite() { p } else { 0.0 };
@@ -371,7 +347,6 @@ pub fn piv_with_final_points<T: Pixel>(
                 &windows,
                 last.iterations,
                 &settings_at,
-                given(),
             )?
         }
     };

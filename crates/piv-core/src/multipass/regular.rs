@@ -28,7 +28,7 @@ pub fn piv<T: Pixel>(
     check_mask(&mask, dim)?;
     let grids = grids_of(s, dim)?;
     let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
-    Ok(grid_passes(&frames, dim, &mask, s, grids)?.0)
+    grid_passes(&frames, dim, &mask, s, grids)
 }
 
 /// The grids of the passes of `s` on frames of shape `dim` (rows, columns).
@@ -39,21 +39,16 @@ pub(crate) fn grids_of(s: &PivSettings, dim: (usize, usize)) -> Result<Vec<Grid>
         .collect()
 }
 
-/// The passes of [`piv`] on prepared frames (inputs checked, `grids` from [`grids_of`]); with
-/// the field, the last whole-range correlation's peak ratios when `s.search_radius` is set
-/// (for a restricted search that follows the field).
+/// The passes of [`piv`] on prepared frames (inputs checked, `grids` from [`grids_of`]).
 pub(crate) fn grid_passes<T: Pixel>(
     frames: &Frames<'_, T>,
     dim: (usize, usize),
     mask: &Option<ArrayView2<'_, bool>>,
     s: &PivSettings,
     grids: Vec<Grid>,
-) -> Result<(PivField, Option<WholeRatio>)> {
+) -> Result<PivField> {
     let mut pred: Option<GridField> = None;
     let mut last = None;
-    // the last whole-range correlation's ratios, reported where the restricted search follows
-    let mut whole: Option<WholeRatio> = None;
-    let mut restricted = false;
     let mut spare = None;
     for (pass, grid) in s.passes.iter().zip(grids) {
         let n = grid.len();
@@ -104,22 +99,14 @@ pub(crate) fn grid_passes<T: Pixel>(
             // grid windows sit on integer positions: deform the whole pair once, then the
             // windows are plain copies (the deformed pair's buffers serve the next one)
             let deformed = base.map(|f| frames.deformed(f, spare.take()));
-            // the windows follow a predictor from the second correlation on: the restricted
-            // search (`PivSettings::search_radius`) about it
-            let search = cur.as_ref().and(s.search_radius);
             let sweep = |xs: &[f64], ys: &[f64], du: &[f64], dv: &[f64], skip: &[bool], u| {
                 let sub = (s.subpixel, s.weighting);
-                let how = (u, search);
                 match &deformed {
-                    Some(d) => d.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, how),
-                    None => frames.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, how),
+                    Some(d) => d.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, u),
+                    None => frames.sweep(pass.w, pass.h, xs, ys, du, dv, skip, None, sub, u),
                 }
             };
             let mut peaks = sweep(&xs, &ys, du, dv, &skip, unc);
-            restricted = search.is_some();
-            if s.search_radius.is_some() && !restricted {
-                whole = Some(WholeRatio::of(Some(grid), &peaks));
-            }
             let mut u = par_grid((grid.ny, grid.nx), |j, i| {
                 let k = j * grid.nx + i;
                 pu[k] + peaks[k].dx
@@ -156,11 +143,7 @@ pub(crate) fn grid_passes<T: Pixel>(
             if last_pass {
                 let x = Array2::from_shape_vec((grid.ny, grid.nx), xs).expect("shape");
                 let y = Array2::from_shape_vec((grid.ny, grid.nx), ys).expect("shape");
-                let mut field = finish(Some(grid), x, y, u, v, &peaks, &skip, checked);
-                if let (true, Some(w)) = (restricted, &whole) {
-                    w.report(&mut field);
-                }
-                return Ok((field, whole));
+                return Ok(finish(Some(grid), x, y, u, v, &peaks, &skip, checked));
             }
         }
     }

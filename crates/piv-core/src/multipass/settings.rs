@@ -19,19 +19,6 @@
 //! | min_peak_ratio   | number                     | reject below this peak ratio (0: off)          |
 //! | peak_candidates  | 1, 2 or 3                  | correlation peaks tried per vector (see below) |
 //! | uncertainty      | bool                       | per-vector uncertainty (`PivField::sigma_u`)   |
-//! | search_radius    | `null` or 1 to 4, px       | restricted peak search (see below); `null`     |
-//!
-//! `search_radius`: the correlations whose windows follow a predictor (every pass after the
-//! first, and the first pass's extra iterations) search their peak only at lags `|tx|, |ty| <=
-//! search_radius` px about it, summed directly rather than through the FFT
-//! ([`crate::correlate::Correlator::restricted`]: 2.6 to 4 times faster per window at 2 px);
-//! the first correlation always searches the whole range. The plane's values are the whole
-//! search's at those lags (to f32 rounding), so the vectors are the same wherever the residual
-//! displacement lies within the radius; a peak beyond it fails the vector (not a local
-//! maximum of the search region), which is then replaced from its neighbours. The peak ratio,
-//! the alternative peaks and the uncertainty's wrong-peak term are those of the search region
-//! (a second peak farther out is not seen), hence `min_peak_ratio` is refused with it. `null`
-//! (the default): the whole range (`|tx| <= w/2 - 1`, `|ty| <= h/2 - 1`) everywhere.
 //!
 //! `peak_candidates`: when a vector fails the median test (or its peak is rejected), its
 //! second and then third correlation peaks ([`crate::correlate::Peak::alt`]) are tried, up to
@@ -49,10 +36,6 @@ use crate::weighting::Weighting;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
-
-/// The largest restricted search ([`PivSettings::search_radius`]), px: beyond a few pixels the
-/// whole range's FFT costs less than the direct sums.
-pub const MAX_SEARCH_RADIUS: usize = 4;
 
 /// How the windows follow the predictor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -127,9 +110,6 @@ pub struct PivSettings {
     /// Estimate every vector's uncertainty on the last iteration of the last pass
     /// ([`crate::PivField::sigma_u`]); true. Off, the sigmas are NaN.
     pub uncertainty: bool,
-    /// The restricted peak search of the correlations that follow a predictor, px (module
-    /// docs); `None`, the whole range.
-    pub search_radius: Option<usize>,
 }
 
 impl Default for PivSettings {
@@ -146,7 +126,6 @@ impl Default for PivSettings {
             min_peak_ratio: 0.0,
             peak_candidates: 3,
             uncertainty: true,
-            search_radius: None,
         }
     }
 }
@@ -190,20 +169,6 @@ impl PivSettings {
                 "peak_candidates {} is outside 1 ..= 3",
                 self.peak_candidates
             )));
-        }
-        if let Some(r) = self.search_radius {
-            if !(1..=MAX_SEARCH_RADIUS).contains(&r) {
-                return Err(PivError::InvalidInput(format!(
-                    "search_radius {r} is outside 1 ..= {MAX_SEARCH_RADIUS} px (null: the whole range)"
-                )));
-            }
-            if self.min_peak_ratio > 0.0 {
-                return Err(PivError::InvalidInput(format!(
-                    "min_peak_ratio {} needs the whole search range: with search_radius {r} the \
-                     peak ratio is that of the search region only",
-                    self.min_peak_ratio
-                )));
-            }
         }
         Ok(())
     }
@@ -317,7 +282,6 @@ struct SettingsJson {
     min_peak_ratio: f64,
     peak_candidates: usize,
     uncertainty: bool,
-    search_radius: Option<usize>,
 }
 
 impl Default for SettingsJson {
@@ -342,7 +306,6 @@ impl From<&PivSettings> for SettingsJson {
             min_peak_ratio: s.min_peak_ratio,
             peak_candidates: s.peak_candidates,
             uncertainty: s.uncertainty,
-            search_radius: s.search_radius,
         }
     }
 }
@@ -380,7 +343,6 @@ impl PivSettings {
             min_peak_ratio: j.min_peak_ratio,
             peak_candidates: j.peak_candidates,
             uncertainty: j.uncertainty,
-            search_radius: j.search_radius,
         };
         s.validate()?;
         Ok(s)
@@ -474,19 +436,5 @@ mod vocabulary_tests {
         assert!(err(r#"{"iterations": 0}"#).contains("0 iterations"));
         assert!(err(r#"{"passes": []}"#).contains("passes is empty"));
         assert!(err("[1, 2]").contains("PIV settings"));
-        assert!(err(r#"{"search_radius": 0}"#).contains("search_radius 0 is outside 1 ..= 4"));
-        assert!(err(r#"{"search_radius": 5}"#).contains("search_radius 5 is outside"));
-        assert!(err(r#"{"search_radius": 2, "min_peak_ratio": 1.3}"#)
-            .contains("min_peak_ratio 1.3 needs the whole search range"));
-    }
-
-    #[test]
-    fn search_radius_reads_null_or_pixels() {
-        let s = PivSettings::from_json(r#"{"search_radius": 2}"#).unwrap();
-        assert_eq!(s.search_radius, Some(2));
-        assert_eq!(PivSettings::from_json(&s.to_json()).unwrap(), s);
-        let d = PivSettings::from_json(r#"{"search_radius": null}"#).unwrap();
-        assert_eq!(d, PivSettings::default());
-        assert!(d.to_json().contains("\"search_radius\": null"));
     }
 }

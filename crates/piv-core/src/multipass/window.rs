@@ -89,8 +89,7 @@ fn sample_usable<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy, const N: usi
 
 /// One correlation sweep over a list of points: `base` (deformation field) and per-point extra
 /// displacement `du`, `dv`. Returns the peaks (FAILED where `skip`), with the uncertainties
-/// that `uncertainty` asks for ([`Uncertainty`]); the peak is searched at lags up to
-/// `search` px ([`Correlator::restricted`]) or over the whole range (`None`).
+/// that `uncertainty` asks for ([`Uncertainty`]).
 pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, const N: usize>(
     src: &Source<'_, '_, '_, T, U, W>,
     w: usize,
@@ -104,7 +103,6 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
     (sub, weighting): (SubPixel, Weighting),
     uncertainty: Uncertainty,
     rule: BlankRule,
-    search: Option<usize>,
 ) -> Vec<Peak> {
     let hw = (w as f64 - 1.0) / 2.0;
     let hh = (h as f64 - 1.0) / 2.0;
@@ -112,10 +110,7 @@ pub(crate) fn sweep<T: Pixel, U: Pixel, W: Fn(f32) -> [f32; N] + Copy + Sync, co
         .into_par_iter()
         .map_init(
             || {
-                let mut c = match search {
-                    Some(r) => Correlator::restricted(w, h, r),
-                    None => Correlator::new(w, h),
-                };
+                let mut c = Correlator::new(w, h);
                 c.min_var = rule.floor;
                 c.uncertainty = uncertainty;
                 c.set_weighting(weighting);
