@@ -38,21 +38,31 @@ fn window_pair(a: &Array2<u16>, b: &Array2<u16>, w: usize, h: usize) -> Correlat
 
 fn correlator(c: &mut Criterion) {
     let (a, b) = pair(256, 256, 1.3, -0.6);
+    // a residual under half a pixel: the peak at lag 0, as after a deformation or a window
+    // offset (the uncertainty's own path for lag 0)
+    let (a0, b0) = pair(256, 256, 0.3, -0.2);
     let mut g = c.benchmark_group("correlate_window_pair");
     // "+sigma": with the per-vector uncertainty (Correlator::uncertainty), as on the last
     // iteration of a PIV
     let cases = [(128, 32), (64, 64), (32, 32), (32, 8), (16, 16)]
         .into_iter()
         .map(|s| (s, false))
-        .chain([((32, 32), true), ((32, 8), true), ((16, 16), true)]);
-    for ((w, h), sigma) in cases {
+        .chain([((32, 32), true), ((32, 8), true), ((16, 16), true)])
+        .map(|c| (c, false))
+        .chain([(((32, 32), true), true), (((32, 8), true), true)]);
+    for (((w, h), sigma), lag0) in cases {
         g.throughput(Throughput::Elements(1));
-        let name = format!("{w}x{h}{}", if sigma { "+sigma" } else { "" });
+        let name = format!(
+            "{w}x{h}{}{}",
+            if sigma { "+sigma" } else { "" },
+            if lag0 { "@lag0" } else { "" }
+        );
+        let (a, b) = if lag0 { (&a0, &b0) } else { (&a, &b) };
         g.bench_with_input(
             BenchmarkId::from_parameter(name),
             &(w, h),
             |bch, &(w, h)| {
-                let mut cor = window_pair(&a, &b, w, h);
+                let mut cor = window_pair(a, b, w, h);
                 if sigma {
                     cor.uncertainty = piv_core::Uncertainty::Peak;
                 }
