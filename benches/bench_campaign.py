@@ -2,7 +2,10 @@
 dewarp, PIV, statistics) of ``rspiv process`` on synthetic campaigns (rspiv.demo's scene), for
 Method II, Method I and the uncorrected processing, at the demo scale and on full 47 MP pairs.
 
-Pairs per minute are the pair loop's wall time (the run without its analysis and outputs);
+Pairs per minute are the pair loop's wall time (the run without its analysis and outputs), and
+after the first pair: from the first pair's end to the last's, the loop's steady state that a
+long campaign runs at (the first pair also pays the process's first touch of its whole-frame
+buffers, about 0.5 s at 47 MP on the development machine);
 before 2026-11-26 (eighth session) they were the sum of the read, dewarp, PIV and statistics
 stages, which left the frames' conditioning (about 0.4 s per 47 MP pair) out.
 
@@ -56,6 +59,17 @@ prepare_s = time.perf_counter() - t1
 prepare_peak = hwm_mb()
 with open("/proc/self/clear_refs", "w") as f:  # reset the peak RSS (VmHWM) for the loop
     f.write("5")
+# when each pair's processing ends: the loop's steady state is the time from the first pair's
+# end to the last's (the first pair also pays the process's first touch of its frame buffers,
+# the FFT plans and the thread pool)
+import rspiv.campaign.pair as _pair
+ends = []
+_process = _pair.process_pair
+def _timed(*a, **k):
+    r = _process(*a, **k)
+    ends.append(time.perf_counter())
+    return r
+_pair.process_pair = _timed
 t2 = time.perf_counter()
 res = camp.run()  # reuses the prepared context
 run_s = time.perf_counter() - t2
@@ -66,6 +80,7 @@ print(json.dumps({
     "pairs": n, "total_s": wall,
     # the pair loop's wall time: the run without its analysis and outputs
     "loop_s": run_s - t.get("analysis", 0.0),
+    "steady_s": (ends[-1] - ends[0]) / (len(ends) - 1) if len(ends) > 1 else float("nan"),
     "stages_s": sum(t.get(k, 0.0) for k in STAGES),
     **{k: t.get(k, 0.0) / n for k in STAGES},
     "prepare_s": prepare_s, "analysis_s": t.get("analysis", 0.0),
@@ -162,16 +177,17 @@ def main() -> int:
                 print(r.stderr, file=sys.stderr)
 
     print(
-        "| sensor | method | threads | pairs/min | read s | condition s | dewarp s | PIV s | "
-        "statistics s | prepare s | peak RSS MB, loop | peak RSS MB, prepare |"
+        "| sensor | method | threads | pairs/min | pairs/min after the first | read s | "
+        "condition s | dewarp s | PIV s | statistics s | prepare s | peak RSS MB, loop | "
+        "peak RSS MB, prepare |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for m in rows:
         label = {"II": "Method II", "I": "Method I", "none": "uncorrected"}[m["method"]]
         threads = "all" if m["threads"] is None else m["threads"]
         print(
             f"| {m['mp']:.1f} MP (scale {m['scale']:g}) | {label} | {threads} | "
-            f"{m['per_min']:.1f} | "
+            f"{m['per_min']:.1f} | {60.0 / m['steady_s']:.1f} | "
             f"{m['read']:.2f} | {m['condition']:.2f} | {m['dewarp']:.2f} | {m['piv']:.2f} | "
             f"{m['statistics']:.3f} | "
             f"{m['prepare_s']:.1f} | {m['peak_rss_mb']:.0f} | {m['prepare_peak_mb']:.0f} |"
