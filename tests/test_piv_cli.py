@@ -297,6 +297,65 @@ def test_a_mask_takes_a_region_out(tmp_path, engine, capsys):
     assert not (tmp_path / "x.nc").exists() and not (tmp_path / "x.csv").exists()
 
 
+def test_windows_too_blank_to_correlate_are_said_so(tmp_path, engine, capsys):
+    """More than a fifth of the windows (not masked) too blank to be correlated: their vectors
+    are only interpolated, and rspiv says so (CorrelationWarning, one line from ``rspiv piv``
+    and from the engine). A pair whose right part (x >= 250 px) holds no signal (zero in both
+    frames): warned unmasked (about a third of the windows), not once masked, the rest measured.
+    OpenPIV's real recording ``test6`` (sparse seeding, about one particle image per 16 x 16 px
+    window): warned at 16 x 16 px (about 31 % of the windows blank), not at 32 x 32 px. The
+    windows at the frame's edge that fail because their displaced half reaches outside the
+    frame (a small pair of the fixture: 35 % of its 77 windows at 32 x 32 px) are not counted."""
+    import os
+    import warnings
+
+    import openpiv
+
+    fa, fb = particle_pair((256, 384), (2.5, -1.0), seed=21)[:2]
+    for f in (fa, fb):
+        f[:, 250:] = 0
+    passes = [(64, 64), (32, 32), (32, 8)]
+    with pytest.warns(rspiv.CorrelationWarning, match="held too little signal") as rec:
+        f = rspiv.piv(fa, fb, passes=passes)
+    share = float(str(rec[0].message).split(" %")[0])
+    assert 25 <= share <= 45 and not f.uncorrelated(), str(rec[0].message)
+    mask = np.zeros(fa.shape, bool)
+    mask[:, 250:] = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rspiv.CorrelationWarning)
+        f = rspiv.piv(fa, fb, passes=passes, mask=mask)
+    assert f.warning() is None
+    ok = f.valid & ~f.masked
+    assert np.median(np.hypot(f.u[ok] - 2.5, f.v[ok] + 1.0)) < 0.1
+    # the command lines: one warning line each
+    tifffile.imwrite(tmp_path / "a.tif", fa)
+    tifffile.imwrite(tmp_path / "b.tif", fb)
+    frames = [str(tmp_path / "a.tif"), str(tmp_path / "b.tif")]
+    capsys.readouterr()
+    assert main(["piv", *frames, "-o", str(tmp_path / "z.nc"), "--passes", "64x64,32x32,32x8"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("rspiv piv: warning: ") == 1 and "too little signal" in err, err
+    r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
+                        "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and "too little signal" in r.stderr, r.stderr
+    # the windows failed at the frame's edge only: no warning
+    a, b = particle_pair((128, 192), (2.5, -1.0), seed=21)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rspiv.CorrelationWarning)
+        f = rspiv.piv(a, b, passes=[(64, 64), (32, 32)])
+    assert (f.peak_ratio == 0).mean() > 0.3 and (f.peak_ratio[2:-2, 2:-2] > 0).all()
+    # a real recording seeded sparsely for 16 x 16 px windows
+    d = os.path.join(os.path.dirname(openpiv.__file__), "data", "test6")
+    a = read_image(os.path.join(d, "Pattern_0001_A.tif"))
+    b = read_image(os.path.join(d, "Pattern_1001_B.tif"))
+    with pytest.warns(rspiv.CorrelationWarning, match="held too little signal") as rec:
+        rspiv.piv(a, b, passes=[(64, 64), (32, 32), (16, 16)])
+    assert 25 <= float(str(rec[0].message).split(" %")[0]) <= 40
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rspiv.CorrelationWarning)
+        rspiv.piv(a, b, passes=[(64, 64), (32, 32)])
+
+
 def _good_nc(d, tmp_path):
     """The NetCDF of ``rspiv piv`` on the good pair."""
     out = tmp_path / "good.nc"

@@ -264,15 +264,21 @@ def window_response(weighting: str, n: int, wavelength: float) -> float:
     window weighted by ``weighting`` ("tophat", "gaussian", "blackman")."""
 
 MIN_MEDIAN_PEAK_RATIO: float
+MAX_BLANK_FRACTION: float
 
 def correlation_check(
-    peak_ratio: npt.NDArray[np.float64], valid: npt.NDArray[np.bool_], local: bool
+    peak_ratio: npt.NDArray[np.float64],
+    valid: npt.NDArray[np.bool_],
+    local: bool,
+    masked: npt.NDArray[np.bool_] | None = None,
 ) -> tuple[bool, str | None]:
     """``(uncorrelated, message)``: whether a field's frames do not correlate (the median peak
     ratio of its correlated windows, ``peak_ratio > 0``, under ``MIN_MEDIAN_PEAK_RATIO``, or
     no window correlated: no measurement), and the one-line warning, also for a field that
     correlates only in part (``local``: on a grid, more than 10 % of the valid vectors in 5 x 5
-    neighbourhoods mostly under the limit); None when the frames correlate."""
+    neighbourhoods mostly under the limit; with or without it, more than
+    ``MAX_BLANK_FRACTION`` of the windows not ``masked`` too blank to be correlated); None when
+    the frames correlate. ValueError (InvalidInputError) when the arrays differ in shape."""
 
 def conditioned(
     frame: npt.NDArray[np.generic],

@@ -113,7 +113,12 @@ class PivField:
         the same way locally: more than 10 % of the valid vectors with most of their 5 x 5
         neighbourhood's windows under 1.3 (0-2.6 % for real recordings that correlate, 25.7 %
         for a pair 40 % unlit, 32.6 % for OpenPIV's ``test3``, whose lit part hardly
-        correlates at 32 x 8 px either). The
+        correlates at 32 x 8 px either). A field whose windows (those not masked) were too
+        blank to be correlated in more than ``_rspiv.MAX_BLANK_FRACTION`` (20 %) of the places
+        is warned the same way: their vectors are only interpolated from their neighbours
+        (0-0.4 % for OpenPIV's recordings with windows holding enough particle images, 29-31 %
+        for its ``test5`` and ``test6`` at 16 x 16 px; the grid's two outer rings, whose
+        windows also fail when they reach outside the frame, are not counted). The
         measurements are ``benches/real_data_checks.py``'s, in ``benches/RESULTS.md``;
         ``piv_core::validate::correlation_check``. :func:`rspiv.piv` and :func:`rspiv.piv_at`
         raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv`` prints it and writes it
@@ -136,8 +141,9 @@ class PivField:
         (730,513 vectors)."""
         pr = np.asarray(self.peak_ratio, dtype=np.float64)
         valid = np.asarray(self.valid, dtype=bool)
+        masked = np.atleast_2d(np.asarray(self.masked, dtype=bool))
         local = local and self.grid is not None and pr.ndim == 2
-        return _rspiv.correlation_check(np.atleast_2d(pr), np.atleast_2d(valid), local)
+        return _rspiv.correlation_check(np.atleast_2d(pr), np.atleast_2d(valid), local, masked)
 
     @property
     def shape(self) -> tuple[int, ...]:

@@ -206,6 +206,22 @@ pub const LOCAL_HALF_WIDTH: usize = 2;
 /// uncorrelated ([`correlation_check`]).
 pub const MAX_UNCORRELATED_FRACTION: f64 = 0.1;
 
+/// Above this fraction of its windows not masked held too little signal to be correlated (blank
+/// by the multipass's rule: no particle images, or too few in the window) a field is partly
+/// uncorrelated ([`correlation_check`]): their vectors are only interpolated from their
+/// neighbours. Measured with OpenPIV's recordings (`test1`, `test2`, `test4`-`test6`, passes
+/// 64 -> 32 -> 32 x 32, 32 x 8 or 16 x 16, inside the [`BLANK_EDGE`] outer rings): 0-0.4 %
+/// where the windows hold enough particle images, 29.2-31.2 % for `test5` and `test6` at 16 x
+/// 16 px (about one particle image per window); 0.4-0.5 % for the 47 MP boundary layer of
+/// `rspiv.demo`'s scene (uncorrected, Method I and II).
+pub const MAX_BLANK_FRACTION: f64 = 0.2;
+
+/// The outer rings of a grid that [`correlation_check`] leaves out of its count of windows too
+/// blank to correlate: a window there fails as well when its displaced half reaches outside
+/// the frame (measured on 256 x 320 px pairs: the outer ring for displacements up to a grid
+/// step, the two outer rings for 20 px with 16 x 16 px windows at a step of 8 px).
+pub const BLANK_EDGE: usize = 2;
+
 /// What the peak ratios of a field say about its frames' correlation ([`correlation_check`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Correlation {
@@ -231,8 +247,9 @@ impl Correlation {
 }
 
 /// Whether a field's frames correlate, from the peak ratios of its windows (`0` or NaN: a
-/// window not correlated, being blank, masked or reaching outside the frame) and its `valid`
-/// flags (same shape; rows of the grid along axis 0).
+/// window not correlated, being blank, masked or reaching outside the frame), its `valid`
+/// flags and its `masked` flags (same shape; rows of the grid along axis 0; `None`: nothing
+/// masked).
 ///
 /// Frames that do not correlate (a wrong pairing, a missing laser pulse, frames of noise)
 /// still give a highest peak in every window, and their random vectors, among neighbours as
@@ -258,12 +275,57 @@ impl Correlation {
 /// for a particle pair whose right 40 % is camera noise only, 32.6 % for `test3`, whose lit
 /// part hardly correlates either: its windows' median peak ratio is 1.24-1.56 region by region
 /// with 32 x 8 px windows, 1.5 with 32 x 32 px). Box counts over summed-area tables: linear in the vectors.
+///
+/// Last, with or without `local`: more than [`MAX_BLANK_FRACTION`] of the windows not masked
+/// not correlated (too little signal) is [`Correlation::Partly`] too (the local test's message
+/// first when both hold); the grid's [`BLANK_EDGE`] outer rings are left out of that count
+/// (a grid without an inside is not judged).
 pub fn correlation_check(
     peak_ratio: ArrayView2<'_, f64>,
     valid: ArrayView2<'_, bool>,
+    masked: Option<ArrayView2<'_, bool>>,
     local: bool,
 ) -> Correlation {
     let correlated = |p: f64| p.is_finite() && p > 0.0;
+    let check = uncorrelated_or_weak(peak_ratio, valid, local, correlated);
+    if check != Correlation::Fine {
+        return check;
+    }
+    // the windows not masked that could not be correlated (masks of another shape: none),
+    // inside the grid's BLANK_EDGE outer rings
+    let masked = masked.filter(|m| m.dim() == peak_ratio.dim());
+    let at = |k: (usize, usize)| masked.as_ref().is_some_and(|m| m[k]);
+    let (ny, nx) = peak_ratio.dim();
+    let e = BLANK_EDGE;
+    let (mut open, mut blank) = (0usize, 0usize);
+    for j in e..ny.saturating_sub(e) {
+        for i in e..nx.saturating_sub(e) {
+            if !at((j, i)) {
+                open += 1;
+                blank += !correlated(peak_ratio[[j, i]]) as usize;
+            }
+        }
+    }
+    let fraction = blank as f64 / open.max(1) as f64;
+    if fraction > MAX_BLANK_FRACTION {
+        return Correlation::Partly(format!(
+            "{:.0} % of the {open} windows (not masked) held too little signal to be correlated \
+             (no particle images, or too few per window) and their vectors are only \
+             interpolated from their neighbours: use larger windows, or mask where there is no \
+             signal",
+            100.0 * fraction
+        ));
+    }
+    Correlation::Fine
+}
+
+/// The whole field's test and the local one of [`correlation_check`].
+fn uncorrelated_or_weak(
+    peak_ratio: ArrayView2<'_, f64>,
+    valid: ArrayView2<'_, bool>,
+    local: bool,
+    correlated: impl Fn(f64) -> bool,
+) -> Correlation {
     let mut r: Vec<f64> = peak_ratio
         .iter()
         .copied()
@@ -272,7 +334,8 @@ pub fn correlation_check(
     if r.is_empty() {
         return Correlation::Uncorrelated(
             "no window could be correlated: the frames are blank or constant wherever the \
-             windows are"
+             windows are, or their particle images too sparse on a background without noise \
+             (under three quarters of each window carries signal)"
                 .into(),
         );
     }
@@ -383,7 +446,7 @@ mod tests {
         let whole = |pr: &[f64]| {
             let a = Array2::from_shape_vec((1, pr.len()), pr.to_vec()).unwrap();
             let v = Array2::from_elem(a.dim(), true);
-            correlation_check(a.view(), v.view(), false)
+            correlation_check(a.view(), v.view(), None, false)
         };
         // no window correlated (0: blank; NaN: masked)
         let c = whole(&[0.0, f64::NAN, 0.0]);
@@ -419,27 +482,92 @@ mod tests {
         // 6 columns of 20 (14-19): the 5 x 5 neighbourhood of column 14 holds columns 12-16,
         // 3 of 5 under the limit: a majority; 13 holds 2 of 5: not. Columns 14-19: 30 %
         let (pr, v) = field(6);
-        let c = correlation_check(pr.view(), v.view(), true);
+        let c = correlation_check(pr.view(), v.view(), None, true);
         let m = c.message().unwrap_or_default().to_string();
         assert!(matches!(c, Correlation::Partly(_)), "{c:?}");
         assert!(m.starts_with("30 % of the 200 valid vectors"), "{m}");
         // the same without the local test, or with the weak vectors flagged invalid
         assert_eq!(
-            correlation_check(pr.view(), v.view(), false),
+            correlation_check(pr.view(), v.view(), None, false),
             Correlation::Fine
         );
         let v2 = Array2::from_shape_fn((10, 20), |(_, i)| i < 14);
         assert_eq!(
-            correlation_check(pr.view(), v2.view(), true),
+            correlation_check(pr.view(), v2.view(), None, true),
             Correlation::Fine
         );
         // 2 columns of 20 (18, 19): column 19 holds 17-19, 2 of 3 under: a majority; 18 holds
         // 16-19, 2 of 4: not -> 5 %: fine
         let (pr, v) = field(2);
         assert_eq!(
-            correlation_check(pr.view(), v.view(), true),
+            correlation_check(pr.view(), v.view(), None, true),
             Correlation::Fine
         );
+    }
+
+    #[test]
+    fn correlation_check_counts_the_windows_too_blank_to_correlate() {
+        // a 12 x 12 grid of well correlated windows (ratio 3), its inside (the 8 x 8 windows
+        // past the two outer rings) with `n` blank ones (0) spread over it
+        let inside = |(j, i): (usize, usize)| (2..10).contains(&j) && (2..10).contains(&i);
+        let field = |n: usize| {
+            Array2::from_shape_fn((12, 12), |(j, i)| {
+                let k = (j.saturating_sub(2) * 8 + i.saturating_sub(2)) * 5 % 64;
+                if inside((j, i)) && k < n {
+                    0.0
+                } else {
+                    3.0
+                }
+            })
+        };
+        let check = |pr: &Array2<f64>, m: Option<&Array2<bool>>, local: bool| {
+            let valid = pr.mapv(|p| p > 0.0);
+            correlation_check(pr.view(), valid.view(), m.map(|m| m.view()), local)
+        };
+        let blank = |pr: &Array2<f64>| pr.iter().filter(|&&p| p == 0.0).count();
+        assert_eq!(blank(&field(12)), 12);
+        // 12 of 64 (19 %): fine; 14 (22 %): said so, with or without the local test
+        assert_eq!(check(&field(12), None, true), Correlation::Fine);
+        for local in [true, false] {
+            let c = check(&field(14), None, local);
+            assert!(matches!(c, Correlation::Partly(_)), "{c:?}");
+            let m = c.message().unwrap();
+            assert!(m.starts_with("22 % of the 64 windows (not masked)"), "{m}");
+            assert!(!m.contains('\n'));
+        }
+        // the outer rings are not counted (their windows may reach outside the frame)
+        let mut pr = field(12);
+        pr.indexed_iter_mut()
+            .filter(|(k, _)| !inside(*k))
+            .for_each(|(_, p)| *p = 0.0);
+        assert_eq!(blank(&pr), 12 + 144 - 64);
+        assert_eq!(check(&pr, None, true), Correlation::Fine);
+        // nor the masked windows: masking 8 inside windows that correlate leaves 12 of 56
+        let pr = field(12);
+        let mut n = 0;
+        let mask = Array2::from_shape_fn((12, 12), |(j, i)| {
+            let pick = inside((j, i)) && pr[[j, i]] > 0.0 && n < 8;
+            n += pick as usize;
+            pick
+        });
+        let c = check(&pr, Some(&mask), true);
+        let m = c.message().unwrap_or_default().to_string();
+        assert!(m.starts_with("21 % of the 56 windows (not masked)"), "{m}");
+        // a mask of the blank windows themselves: fine
+        let pr = field(30);
+        assert_eq!(
+            check(&pr, Some(&pr.mapv(|p| p == 0.0)), true),
+            Correlation::Fine
+        );
+        // a grid without an inside is not judged
+        let small = Array2::from_shape_fn((4, 12), |(j, _)| if j == 1 { 0.0 } else { 3.0 });
+        assert_eq!(check(&small, None, true), Correlation::Fine);
+        // the frames' own failure comes first: low peak ratios and many blank windows
+        let pr = field(30).mapv(|p| if p > 0.0 { 1.1 } else { 0.0 });
+        assert!(matches!(
+            check(&pr, None, true),
+            Correlation::Uncorrelated(_)
+        ));
     }
 
     #[test]

@@ -269,7 +269,12 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
         f.masked.iter().filter(|&&r| r).count(),
         args.output.display()
     );
-    let check = piv_core::validate::correlation_check(f.peak_ratio.view(), f.valid.view(), true);
+    let check = piv_core::validate::correlation_check(
+        f.peak_ratio.view(),
+        f.valid.view(),
+        Some(f.masked.view()),
+        true,
+    );
     if let Some(w) = check.message() {
         eprintln!("rspiv-engine piv: warning: {pair}: {w}");
     }

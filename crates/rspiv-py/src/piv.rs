@@ -235,23 +235,31 @@ fn window_response(weighting: &str, n: usize, wavelength: f64) -> PyResult<f64> 
 /// Whether a field's frames correlate (`piv_core::validate::correlation_check`): `(uncorrelated,
 /// message)`, `uncorrelated` true when the field is no measurement, `message` the one-line
 /// warning (also for a field that correlates only in part) or None. `local`: the grid's local
-/// test too (a field on a grid, rows along axis 0).
+/// test too (a field on a grid, rows along axis 0). `masked`: the windows masked (not counted
+/// among those too blank to correlate); None: nothing masked.
 #[pyfunction]
+#[pyo3(signature = (peak_ratio, valid, local, masked=None))]
 fn correlation_check(
     py: Python<'_>,
     peak_ratio: PyReadonlyArray2<'_, f64>,
     valid: PyReadonlyArray2<'_, bool>,
     local: bool,
+    masked: Option<PyReadonlyArray2<'_, bool>>,
 ) -> PyResult<(bool, Option<String>)> {
     let (r, v) = (peak_ratio.as_array(), valid.as_array());
-    if r.dim() != v.dim() {
-        return Err(invalid(format!(
-            "correlation_check: peak_ratio {:?} and valid {:?} differ in shape",
-            r.dim(),
-            v.dim()
-        )));
+    let m = masked.as_ref().map(|m| m.as_array());
+    for (name, dim) in [("valid", Some(v.dim())), ("masked", m.map(|m| m.dim()))] {
+        match dim {
+            Some(d) if d != r.dim() => {
+                return Err(invalid(format!(
+                    "correlation_check: peak_ratio {:?} and {name} {d:?} differ in shape",
+                    r.dim()
+                )))
+            }
+            _ => {}
+        }
     }
-    let c = py.detach(|| piv_core::validate::correlation_check(r, v, local));
+    let c = py.detach(|| piv_core::validate::correlation_check(r, v, m, local));
     let gone = matches!(c, piv_core::validate::Correlation::Uncorrelated(_));
     Ok((gone, c.message().map(str::to_string)))
 }
@@ -263,6 +271,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         "MIN_MEDIAN_PEAK_RATIO",
         piv_core::validate::MIN_MEDIAN_PEAK_RATIO,
     )?;
+    m.add("MAX_BLANK_FRACTION", piv_core::validate::MAX_BLANK_FRACTION)?;
     m.add_function(wrap_pyfunction!(piv, m)?)?;
     m.add_function(wrap_pyfunction!(piv_at, m)?)?;
     m.add_function(wrap_pyfunction!(piv_final_points, m)?)?;
