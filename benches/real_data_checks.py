@@ -12,6 +12,9 @@ recordings; they are read from its installation, not vendored). The paper's pass
 2. ``rspiv.find_wall``: the mirror correlation of the mean profile's stations for recordings
    without a wall (OpenPIV's) and with one (``rspiv.demo``'s synthetic layer), and whether a
    wall is found (``rspiv.wall.MIN_MIRROR_CORRELATION``).
+3. The windows too blank to be correlated (``correlation_check``'s count: not masked, inside
+   the grid's ``BLANK_EDGE`` outer rings) for OpenPIV's recordings with final windows of 32 x
+   32, 32 x 8 and 16 x 16 px, and whether rspiv says so (``_rspiv.MAX_BLANK_FRACTION``).
 """
 
 from __future__ import annotations
@@ -108,6 +111,39 @@ def main() -> None:
         ("rspiv.demo's layer, one pair", *demo_pair()),
     ):
         wall_row(name, a, b)
+    print()
+    finals = [(32, 32), (32, 8), (16, 16)]
+    print("| recording | " + " | ".join(f"{w} x {h}" for w, h in finals) + " |")
+    print("|---|" + "---|" * len(finals))
+    for name, a, b in (
+        ("OpenPIV test1", *t1),
+        ("OpenPIV test2, pair 0", *t2[0]),
+        ("OpenPIV test3", rd("test3/pair_4_frame_0.jpg"), rd("test3/pair_4_frame_1.jpg")),
+        ("OpenPIV test4", rd("test4/Camera1-0101.tif"), rd("test4/Camera1-0102.tif")),
+        ("OpenPIV test5, pattern 1", rd("test5/Pattern_1_A.tif"), rd("test5/Pattern_1_B.tif")),
+        ("OpenPIV test6, 0001 with 1001", rd("test6/Pattern_0001_A.tif"),
+         rd("test6/Pattern_1001_B.tif")),
+    ):  # fmt: skip
+        blank_row(name, a, b, finals)
+
+
+def blank_row(name: str, a: np.ndarray, b: np.ndarray, finals: list[tuple[int, int]]) -> None:
+    """The share of the windows too blank to be correlated as ``correlation_check`` counts it,
+    per final window (passes 64 x 64 -> 32 x 32 -> final), and what rspiv says."""
+    e = rspiv._rspiv.BLANK_EDGE
+    cells = []
+    for final in finals:
+        passes = [(64, 64), (32, 32)] + ([final] if final != (32, 32) else [])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            f = rspiv.piv(a, b, passes=passes)
+        pr = np.asarray(f.peak_ratio)[e:-e, e:-e]
+        open_ = ~np.asarray(f.masked)[e:-e, e:-e]
+        share = 100.0 * float(np.mean(~(np.isfinite(pr[open_]) & (pr[open_] > 0))))
+        said = f.warning() or ""
+        tag = " (said)" if "too little signal" in said else " (other warning)" if said else ""
+        cells.append(f"{share:.1f} %{tag}")
+    print(f"| {name} | " + " | ".join(cells) + " |")
 
 
 def wall_row(name: str, a: np.ndarray, b: np.ndarray) -> None:

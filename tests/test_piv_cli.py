@@ -338,6 +338,17 @@ def test_windows_too_blank_to_correlate_are_said_so(tmp_path, engine, capsys):
     r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
                         "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 0 and "too little signal" in r.stderr, r.stderr
+    # sparse particle images on a background without noise: nothing correlated inside the
+    # grid's outer rings (one stray window at its edge) is no measurement, said in one line
+    a, b = particle_pair((256, 384), (1.5, -0.7), density=0.004, noise=0.0, seed=31)[:2]
+    with pytest.warns(rspiv.CorrelationWarning, match="too sparse on a background without noise"):
+        f = rspiv.piv(a, b, passes=passes)
+    assert f.uncorrelated()
+    # the check's arrays must agree in shape, the mask too
+    with pytest.raises(rspiv.InvalidInputError, match=r"and masked \(3, 2\) differ in shape"):
+        rspiv._rspiv.correlation_check(
+            np.ones((2, 3)), np.ones((2, 3), bool), True, np.ones((3, 2), bool)
+        )
     # the windows failed at the frame's edge only: no warning
     a, b = particle_pair((128, 192), (2.5, -1.0), seed=21)
     with warnings.catch_warnings():

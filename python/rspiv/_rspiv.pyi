@@ -265,6 +265,7 @@ def window_response(weighting: str, n: int, wavelength: float) -> float:
 
 MIN_MEDIAN_PEAK_RATIO: float
 MAX_BLANK_FRACTION: float
+BLANK_EDGE: int
 
 def correlation_check(
     peak_ratio: npt.NDArray[np.float64],

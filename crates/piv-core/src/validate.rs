@@ -211,9 +211,10 @@ pub const MAX_UNCORRELATED_FRACTION: f64 = 0.1;
 /// uncorrelated ([`correlation_check`]): their vectors are only interpolated from their
 /// neighbours. Measured with OpenPIV's recordings (`test1`, `test2`, `test4`-`test6`, passes
 /// 64 -> 32 -> 32 x 32, 32 x 8 or 16 x 16, inside the [`BLANK_EDGE`] outer rings): 0-0.4 %
-/// where the windows hold enough particle images, 29.2-31.2 % for `test5` and `test6` at 16 x
-/// 16 px (about one particle image per window); 0.4-0.5 % for the 47 MP boundary layer of
-/// `rspiv.demo`'s scene (uncorrected, Method I and II).
+/// where the windows hold enough particle images, 29.2 % for `test5` and `test6` at 16 x 16
+/// px (31.2 % for `test5`'s pattern 10; about one particle image per window), `python
+/// benches/real_data_checks.py`; 0.4-0.5 % for the 47 MP boundary layer of `rspiv.demo`'s
+/// scene (uncorrected, Method I and II).
 pub const MAX_BLANK_FRACTION: f64 = 0.2;
 
 /// The outer rings of a grid that [`correlation_check`] leaves out of its count of windows too
@@ -279,7 +280,8 @@ impl Correlation {
 /// Last, with or without `local`: more than [`MAX_BLANK_FRACTION`] of the windows not masked
 /// not correlated (too little signal) is [`Correlation::Partly`] too (the local test's message
 /// first when both hold); the grid's [`BLANK_EDGE`] outer rings are left out of that count
-/// (a grid without an inside is not judged).
+/// (a grid without an inside is not judged). No window correlated inside them is
+/// [`Correlation::Uncorrelated`], whatever a stray window at the edge gave.
 pub fn correlation_check(
     peak_ratio: ArrayView2<'_, f64>,
     valid: ArrayView2<'_, bool>,
@@ -306,6 +308,10 @@ pub fn correlation_check(
             }
         }
     }
+    if open > 0 && blank == open {
+        // a stray window at the edge may correlate: still no measurement
+        return Correlation::Uncorrelated(NO_WINDOW.into());
+    }
     let fraction = blank as f64 / open.max(1) as f64;
     if fraction > MAX_BLANK_FRACTION {
         return Correlation::Partly(format!(
@@ -318,6 +324,12 @@ pub fn correlation_check(
     }
     Correlation::Fine
 }
+
+/// What [`correlation_check`] says when no window could be correlated (inside the grid's
+/// [`BLANK_EDGE`] outer rings, or at all).
+const NO_WINDOW: &str = "no window could be correlated: the frames are blank or constant \
+     wherever the windows are, or their particle images too sparse on a background without \
+     noise (under three quarters of each window carries signal)";
 
 /// The whole field's test and the local one of [`correlation_check`].
 fn uncorrelated_or_weak(
@@ -332,12 +344,7 @@ fn uncorrelated_or_weak(
         .filter(|&p| correlated(p))
         .collect();
     if r.is_empty() {
-        return Correlation::Uncorrelated(
-            "no window could be correlated: the frames are blank or constant wherever the \
-             windows are, or their particle images too sparse on a background without noise \
-             (under three quarters of each window carries signal)"
-                .into(),
-        );
+        return Correlation::Uncorrelated(NO_WINDOW.into());
     }
     let n = r.len();
     let median = median(&mut r);
@@ -559,6 +566,15 @@ mod tests {
             check(&pr, Some(&pr.mapv(|p| p == 0.0)), true),
             Correlation::Fine
         );
+        // nothing correlated inside, a stray window at the edge: no measurement
+        let mut pr = Array2::from_elem((12, 12), 0.0);
+        pr[[0, 5]] = 2.3;
+        let c = check(&pr, None, true);
+        assert!(matches!(c, Correlation::Uncorrelated(_)), "{c:?}");
+        assert!(c
+            .message()
+            .unwrap()
+            .starts_with("no window could be correlated"));
         // a grid without an inside is not judged
         let small = Array2::from_shape_fn((4, 12), |(j, _)| if j == 1 { 0.0 } else { 3.0 });
         assert_eq!(check(&small, None, true), Correlation::Fine);
