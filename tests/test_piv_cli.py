@@ -338,9 +338,11 @@ def test_windows_too_blank_to_correlate_are_said_so(tmp_path, engine, capsys):
     r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
                         "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
     assert r.returncode == 0 and "too little signal" in r.stderr, r.stderr
-    # sparse particle images on a background without noise: nothing correlated inside the
-    # grid's outer rings (one stray window at its edge) is no measurement, said in one line
-    a, b = particle_pair((256, 384), (1.5, -0.7), density=0.004, noise=0.0, seed=31)[:2]
+    # particle images too sparse for the windows (one per 64 x 64 px window, gaps between them
+    # too long to tell a clean background from fill: see
+    # test_sparse_particles_on_a_clean_background_are_correlated) on a background without
+    # noise: nothing correlated inside the grid's outer rings is no measurement, in one line
+    a, b = particle_pair((256, 384), (1.5, -0.7), density=0.0005, noise=0.0, seed=31)[:2]
     with pytest.warns(rspiv.CorrelationWarning, match="too sparse on a background without noise"):
         f = rspiv.piv(a, b, passes=passes)
     assert f.uncorrelated()

@@ -535,6 +535,59 @@ fn clean_background_of_a_frame() {
     assert_eq!(level(&noisy), None);
 }
 
+/// Sparse particle images on a noise-free background leave gaps longer than 48 px between
+/// them: the background is clean all the same (before, it was not, and every window of such a
+/// frame was blank). A noisy frame whose zero region lies inside its rows is not made clean by
+/// that region: the stretches of noise between its runs are long.
+#[test]
+fn sparse_particles_on_a_clean_background() {
+    let (h, w) = (128, 1024);
+    let render = |density: f64, noise: f64, seed: u64| {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let n = (density * (h * w) as f64) as usize;
+        let xs: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * w as f64).collect();
+        let ys: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * h as f64).collect();
+        let it = vec![2000.0; n];
+        render_particles(h, w, &xs, &ys, &it, &[2.5], noise, 4095, 1).unwrap()
+    };
+    let level = |img: &Array2<u16>| clean_background(img.as_slice().unwrap(), w, h);
+    // the share of the frame's pixels in runs at zero of 4-48 px, which alone decided before
+    let short_runs = |img: &Array2<u16>| {
+        let mut inside = 0usize;
+        for row in img.rows() {
+            let mut run = 0usize;
+            for v in row.iter().map(|&v| Some(v)).chain([None]) {
+                if v == Some(0) {
+                    run += 1;
+                } else {
+                    inside += if (4..=48).contains(&run) { run } else { 0 };
+                    run = 0;
+                }
+            }
+        }
+        inside as f64 / (h * w) as f64
+    };
+    for (density, seed) in [(0.002, 5), (0.004, 6), (0.008, 7)] {
+        let img = render(density, 0.0, seed);
+        assert_eq!(level(&img), Some(0.0), "{density}");
+        if density < 0.005 {
+            assert!(short_runs(&img) < CLEAN_BACKGROUND, "{density}");
+        }
+        // with a zero fill from the right edge over a third of the frame
+        let mut filled = img.clone();
+        filled.slice_mut(ndarray::s![.., 2 * w / 3..]).fill(0);
+        assert_eq!(level(&filled), Some(0.0), "{density} with fill");
+    }
+    // camera noise above the level of a zero region inside the rows (200 px wide, twice): not
+    // clean, however long the region's runs
+    let mut noisy = render(0.004, 40.0, 8);
+    noisy.mapv_inplace(|v| v + 200);
+    for x0 in [150, 600] {
+        noisy.slice_mut(ndarray::s![.., x0..x0 + 200]).fill(0);
+    }
+    assert_eq!(level(&noisy), None);
+}
+
 #[test]
 fn quintic_deformation_leaves_less_interpolation_bias_than_cubic() {
     // d/2 = 0.25 px: the worst case of the interpolation bias

@@ -491,18 +491,30 @@ impl BlankRule {
     }
 }
 
-/// Shortest and longest run of pixels at a frame's minimum counted by [`clean_background`].
+/// Shortest and longest run of pixels at a frame's minimum counted by [`clean_background`]
+/// wherever it lies.
 const CLEAN_RUN: (usize, usize) = (4, 48);
+/// Longest gap between sparse particle images counted by [`clean_background`] (runs longer
+/// than [`CLEAN_RUN`] that end on pixels above the level on both sides).
+const SPARSE_RUN: usize = 512;
 /// Fraction of a frame's pixels in such runs from which its background is clean.
 pub const CLEAN_BACKGROUND: f64 = 0.35;
 
 /// The level of a frame's noise-free background, if it has one: a noise-free render, a
 /// background subtracted and clipped hard at zero. Its minimum, when at least
-/// [`CLEAN_BACKGROUND`] of the pixels of (up to 256 evenly spaced) rows lie in runs of 4 to 48
-/// px at that level (the gaps between particle images). Camera noise breaks such runs: a
-/// background clipped at zero in half of its pixels has 16 % of them in runs of 4 or more,
-/// in 60 % of them 28 %. Longer runs are left out, so that a zero fill (the outside of a
-/// dewarped frame) does not make a noisy frame clean.
+/// [`CLEAN_BACKGROUND`] of the pixels of (up to 256 evenly spaced) rows lie in runs at that
+/// level between particle images:
+///
+/// - runs of 4 to 48 px anywhere (the gaps between particle images). Camera noise breaks such
+///   runs: a background clipped at zero in half of its pixels has 16 % of them in runs of 4 or
+///   more, in 60 % of them 28 %. Longer runs are not counted so, so that a zero fill (the
+///   outside of a dewarped frame) does not make a noisy frame clean;
+/// - and, when the stretches above the level are particle images (48 px long on average at
+///   most: camera noise that seldom reaches the level leaves long stretches), runs of 49 to
+///   512 px inside a row (the gaps between sparse particle images: 80-170 px on average at
+///   0.002-0.004 particles/px, which before this rule left every window of a noise-free
+///   render blank). A fill that reaches a row's end, or one wider than 512 px, is still
+///   not counted.
 pub(crate) fn clean_background<T: Pixel>(px: &[T], width: usize, height: usize) -> Option<f32> {
     let step = height.div_ceil(256).max(1);
     // the sampled rows in parallel (each row's minimum and runs are its own; the minima
@@ -517,23 +529,61 @@ pub(crate) fn clean_background<T: Pixel>(px: &[T], width: usize, height: usize) 
     let level = rows()
         .map(|row| row.iter().map(|p| p.to_f32()).fold(f32::INFINITY, min))
         .reduce(|| f32::INFINITY, min);
-    let (n, inside) = rows()
+    let runs = rows()
         .map(|row| {
-            let (mut run, mut inside) = (0usize, 0usize);
+            let mut r = LevelRuns::default();
+            // the run at the level so far, and whether it started at the row's start
+            let (mut run, mut from_start) = (0usize, true);
+            let mut above = false;
             for v in row.iter().map(|p| Some(p.to_f32())).chain([None]) {
                 if v == Some(level) {
                     run += 1;
-                } else {
-                    if (CLEAN_RUN.0..=CLEAN_RUN.1).contains(&run) {
-                        inside += run;
-                    }
-                    run = 0;
+                    above = false;
+                    continue;
+                }
+                if (CLEAN_RUN.0..=CLEAN_RUN.1).contains(&run) {
+                    r.short += run;
+                } else if run > CLEAN_RUN.1 && run <= SPARSE_RUN && !from_start && v.is_some() {
+                    r.long += run;
+                }
+                (run, from_start) = (0, false);
+                if v.is_some() {
+                    r.above += 1;
+                    r.stretches += usize::from(!above);
+                    above = true;
                 }
             }
-            (row.len(), inside)
+            r.n = row.len();
+            r
         })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    (n > 0 && inside as f64 >= CLEAN_BACKGROUND * n as f64).then_some(level)
+        .reduce(LevelRuns::default, LevelRuns::add);
+    let enough = |px: usize| runs.n > 0 && px as f64 >= CLEAN_BACKGROUND * runs.n as f64;
+    let particles = runs.above <= CLEAN_RUN.1 * runs.stretches;
+    (enough(runs.short) || (particles && enough(runs.short + runs.long))).then_some(level)
+}
+
+/// What [`clean_background`] counts in its rows: pixels, pixels in runs at the level of
+/// [`CLEAN_RUN`] length and in longer runs inside a row (up to [`SPARSE_RUN`]), pixels above
+/// the level and the stretches they form.
+#[derive(Default, Clone, Copy)]
+struct LevelRuns {
+    n: usize,
+    short: usize,
+    long: usize,
+    above: usize,
+    stretches: usize,
+}
+
+impl LevelRuns {
+    fn add(self, o: LevelRuns) -> LevelRuns {
+        LevelRuns {
+            n: self.n + o.n,
+            short: self.short + o.short,
+            long: self.long + o.long,
+            above: self.above + o.above,
+            stretches: self.stretches + o.stretches,
+        }
+    }
 }
 
 /// Clears the flags of the blank blocks of `win` (`w` px wide, blocks `(nbx, bw)` x `(nby,
