@@ -14,7 +14,9 @@ recordings; they are read from its installation, not vendored). The paper's pass
    wall is found (``rspiv.wall.MIN_MIRROR_CORRELATION``).
 3. The windows too blank to be correlated (``correlation_check``'s count: not masked, inside
    the grid's ``BLANK_EDGE`` outer rings) for OpenPIV's recordings with final windows of 32 x
-   32, 32 x 8 and 16 x 16 px, and whether rspiv says so (``_rspiv.MAX_BLANK_FRACTION``).
+   32, 32 x 8 and 16 x 16 px, and whether rspiv says so (``_rspiv.MAX_BLANK_FRACTION``); then
+   the share of the windows correlated there whose vectors the validation rejected, and
+   whether rspiv says so (``_rspiv.MAX_REPLACED_FRACTION``, on the two shares' sum).
 """
 
 from __future__ import annotations
@@ -113,14 +115,17 @@ def main() -> None:
         wall_row(name, a, b)
     print()
     finals = [(32, 32), (32, 8), (16, 16)]
-    print("| recording | " + " | ".join(f"{w} x {h}" for w, h in finals) + " |")
+    print("| recording | " + " | ".join(f"{w} x {h} blank / rejected" for w, h in finals) + " |")
     print("|---|" + "---|" * len(finals))
     for name, a, b in (
         ("OpenPIV test1", *t1),
         ("OpenPIV test2, pair 0", *t2[0]),
+        ("OpenPIV test2, pair 1", *t2[1]),
         ("OpenPIV test3", rd("test3/pair_4_frame_0.jpg"), rd("test3/pair_4_frame_1.jpg")),
         ("OpenPIV test4", rd("test4/Camera1-0101.tif"), rd("test4/Camera1-0102.tif")),
         ("OpenPIV test5, pattern 1", rd("test5/Pattern_1_A.tif"), rd("test5/Pattern_1_B.tif")),
+        ("OpenPIV test5, pattern 10", rd("test5/Pattern_10_A.tif"),
+         rd("test5/Pattern_10_B.tif")),
         ("OpenPIV test6, 0001 with 1001", rd("test6/Pattern_0001_A.tif"),
          rd("test6/Pattern_1001_B.tif")),
     ):  # fmt: skip
@@ -129,7 +134,8 @@ def main() -> None:
 
 def blank_row(name: str, a: np.ndarray, b: np.ndarray, finals: list[tuple[int, int]]) -> None:
     """The share of the windows too blank to be correlated as ``correlation_check`` counts it,
-    per final window (passes 64 x 64 -> 32 x 32 -> final), and what rspiv says."""
+    and that of the correlated ones whose vectors the validation rejected, per final window
+    (passes 64 x 64 -> 32 x 32 -> final), and what rspiv says."""
     e = rspiv._rspiv.BLANK_EDGE
     cells = []
     for final in finals:
@@ -139,10 +145,16 @@ def blank_row(name: str, a: np.ndarray, b: np.ndarray, finals: list[tuple[int, i
             f = rspiv.piv(a, b, passes=passes)
         pr = np.asarray(f.peak_ratio)[e:-e, e:-e]
         open_ = ~np.asarray(f.masked)[e:-e, e:-e]
-        share = 100.0 * float(np.mean(~(np.isfinite(pr[open_]) & (pr[open_] > 0))))
+        corr = open_ & np.isfinite(pr) & (pr > 0)
+        share = 100.0 * float(np.mean(~corr[open_]))
+        rejected = 100.0 * float(np.mean(~np.asarray(f.valid)[e:-e, e:-e][corr]))
         said = f.warning() or ""
-        tag = " (said)" if "too little signal" in said else " (other warning)" if said else ""
-        cells.append(f"{share:.1f} %{tag}")
+        tag = (
+            " (said: blank)" if "too little signal" in said
+            else " (said: interpolated)" if "only interpolated" in said
+            else " (other warning)" if said else ""
+        )  # fmt: skip
+        cells.append(f"{share:.1f} % / {rejected:.1f} %{tag}")
     print(f"| {name} | " + " | ".join(cells) + " |")
 
 

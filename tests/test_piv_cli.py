@@ -553,3 +553,52 @@ def test_polygon_mask_json(tmp_path, pair_files):
         read_mask(bad, (4, 6))
     with pytest.raises(rspiv.InvalidInputError, match="mask is 6 x 4 px"):
         read_mask(np.zeros((4, 6), bool), (5, 6))
+
+
+def test_fields_mostly_interpolated_are_said_so(tmp_path, engine, capsys):
+    """Too few particle images per window (about one per 32 x 8 px window: 0.004 particles/px
+    with 5 % noise): the median test rejects a quarter of the vectors, and the ones it keeps
+    are off by about 1 px RMS (0.05 px with enough particle images). rspiv says so in one line
+    (``rspiv.piv``, ``rspiv piv``, the engine); with 32 x 32 px windows over the same frames
+    (1.5 % rejected, 0.065 px RMS) and with enough particle images it says nothing. Noise-free,
+    1.0 particle per 32 x 32 px window: 18 % of the windows too blank and 4 % rejected, 0.63
+    px RMS: said too. Real recordings that correlate: 0.5-4.4 % only interpolated
+    (``benches/real_data_checks.py``)."""
+    import warnings
+
+    truth = (1.5, -0.7)
+    a, b = particle_pair((512, 1024), truth, density=0.004, noise=0.05, seed=31)[:2]
+    passes = [(64, 64), (32, 32), (32, 8)]
+    with pytest.warns(rspiv.CorrelationWarning, match="only interpolated from their") as rec:
+        f = rspiv.piv(a, b, passes=passes)
+    msg = str(rec[0].message)
+    share = float(msg.split(" %")[0])
+    assert "rejected by the validation, 0 from windows too blank" in msg, msg
+    inner = np.zeros(f.u.shape, bool)
+    inner[2:-2, 2:-2] = True
+    ok = f.valid & inner
+    rms = np.sqrt(np.mean((f.u[ok] - truth[0]) ** 2 + (f.v[ok] - truth[1]) ** 2))
+    # measured: 24 % rejected, 0.98 px RMS of the vectors kept
+    assert 15 <= share <= 40 and rms > 0.5 and not f.uncorrelated(), (share, rms)
+    c, d = particle_pair((512, 1024), truth, density=0.001, noise=0.0, seed=31)[:2]
+    with pytest.warns(rspiv.CorrelationWarning, match="only interpolated from their") as rec:
+        rspiv.piv(c, d, passes=passes[:2])
+    msg = str(rec[0].message)
+    assert 15 <= float(msg.split(" %")[0]) <= 30 and "from windows too blank" in msg, msg
+    for p, dens in ((passes[:2], 0.004), (passes, 0.03)):
+        c, d = particle_pair((512, 1024), truth, density=dens, noise=0.05, seed=31)[:2]
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", rspiv.CorrelationWarning)
+            g = rspiv.piv(c, d, passes=p)
+        assert g.warning() is None
+    # the command lines: one warning line each
+    tifffile.imwrite(tmp_path / "a.tif", a)
+    tifffile.imwrite(tmp_path / "b.tif", b)
+    frames = [str(tmp_path / "a.tif"), str(tmp_path / "b.tif")]
+    capsys.readouterr()
+    assert main(["piv", *frames, "-o", str(tmp_path / "z.nc"), "--passes", "64x64,32x32,32x8"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("rspiv piv: warning: ") == 1 and "only interpolated from their" in err, err
+    r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
+                        "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and "only interpolated from their" in r.stderr, r.stderr

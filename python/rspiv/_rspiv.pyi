@@ -265,6 +265,7 @@ def window_response(weighting: str, n: int, wavelength: float) -> float:
 
 MIN_MEDIAN_PEAK_RATIO: float
 MAX_BLANK_FRACTION: float
+MAX_REPLACED_FRACTION: float
 BLANK_EDGE: int
 
 def correlation_check(
@@ -278,8 +279,10 @@ def correlation_check(
     no window correlated: no measurement), and the one-line warning, also for a field that
     correlates only in part (``local``: on a grid, more than 10 % of the valid vectors in 5 x 5
     neighbourhoods mostly under the limit; with or without it, more than
-    ``MAX_BLANK_FRACTION`` of the windows not ``masked`` too blank to be correlated); None when
-    the frames correlate. ValueError (InvalidInputError) when the arrays differ in shape."""
+    ``MAX_BLANK_FRACTION`` of the windows not ``masked`` too blank to be correlated, or more
+    than ``MAX_REPLACED_FRACTION`` of their vectors only interpolated, rejected by the
+    validation or too blank, both inside the grid's ``BLANK_EDGE`` outer rings); None when the
+    frames correlate. ValueError (InvalidInputError) when the arrays differ in shape."""
 
 def conditioned(
     frame: npt.NDArray[np.generic],

@@ -118,7 +118,14 @@ class PivField:
         is warned the same way: their vectors are only interpolated from their neighbours
         (0-0.4 % for OpenPIV's recordings with windows holding enough particle images, 29-31 %
         for its ``test5`` and ``test6`` at 16 x 16 px; the grid's two outer rings, whose
-        windows also fail when they reach outside the frame, are not counted). The
+        windows also fail when they reach outside the frame, are not counted), and so is one
+        more than ``_rspiv.MAX_REPLACED_FRACTION`` (10 %) of whose vectors there are only
+        interpolated, rejected by the validation or too blank: where the median test rejects
+        that many (too few particle images per window, a displacement that varies too much
+        across one), the vectors it keeps are wrong as well (0.5-4.4 % for OpenPIV's recordings
+        with enough particle images per window, 0.5 % for the demo's boundary layer; 13.5-51 %
+        for synthetic particle images with too few per window, where the vectors kept are off
+        by 0.3-3.5 px RMS). The
         measurements are ``benches/real_data_checks.py``'s, in ``benches/RESULTS.md``;
         ``piv_core::validate::correlation_check``. :func:`rspiv.piv` and :func:`rspiv.piv_at`
         raise it as a :class:`rspiv.CorrelationWarning`, ``rspiv piv`` prints it and writes it

@@ -217,6 +217,21 @@ pub const MAX_UNCORRELATED_FRACTION: f64 = 0.1;
 /// scene (uncorrected, Method I and II).
 pub const MAX_BLANK_FRACTION: f64 = 0.2;
 
+/// Above this fraction of its vectors (not masked, inside the [`BLANK_EDGE`] outer rings) only
+/// interpolated from their neighbours, rejected by the validation or from windows too blank to
+/// correlate, a field is partly uncorrelated ([`correlation_check`]): where the median test
+/// rejects that many, the vectors it keeps are wrong as well, more often than their neighbours
+/// tell. Measured (passes 64 -> 32 -> 32 x 32, 32 x 8 or 16 x 16 px, `python
+/// benches/real_data_checks.py`): 0.5-4.4 % for OpenPIV's recordings where their windows hold
+/// enough particle images (`test1`, `test2` pairs 0 and 1, `test4`, `test5` patterns 1 and 10,
+/// `test6`), 0.4-0.5 % for the 47 MP boundary layer of `rspiv.demo`'s scene (uncorrected,
+/// symmetric, Method II); for synthetic particle images with too few per window (`python
+/// benches/bench_accuracy.py --only seeding`) 13.5-51 % where the RMS error of the vectors
+/// kept is 0.3-3.5 px (0.001-0.004 particles/px, against 0.01-0.05 px with enough particle
+/// images). A field a tenth to a fifth of whose windows are too blank (under
+/// [`MAX_BLANK_FRACTION`]) is said so by this count.
+pub const MAX_REPLACED_FRACTION: f64 = 0.1;
+
 /// The outer rings of a grid that [`correlation_check`] leaves out of its count of windows too
 /// blank to correlate: a window there fails as well when its displaced half reaches outside
 /// the frame (measured on 256 x 320 px pairs: the outer ring for displacements up to a grid
@@ -232,8 +247,9 @@ pub enum Correlation {
     /// measurement. The one-line message says what was seen.
     Uncorrelated(String),
     /// The frames correlate, but too many valid vectors lie where they hardly do (a part
-    /// without particle images, or with too few per window). The one-line message says what
-    /// was seen.
+    /// without particle images, or with too few per window), too many windows were too blank
+    /// to be correlated, or too many vectors are only interpolated. The one-line message
+    /// says what was seen.
     Partly(String),
 }
 
@@ -281,7 +297,11 @@ impl Correlation {
 /// not correlated (too little signal) is [`Correlation::Partly`] too (the local test's message
 /// first when both hold); the grid's [`BLANK_EDGE`] outer rings are left out of that count
 /// (a grid without an inside is not judged). No window correlated inside them is
-/// [`Correlation::Uncorrelated`], whatever a stray window at the edge gave.
+/// [`Correlation::Uncorrelated`], whatever a stray window at the edge gave. Then, inside the
+/// same rings, more than [`MAX_REPLACED_FRACTION`] of the vectors not masked only interpolated
+/// (the correlated ones the validation rejected, not `valid`, and those too blank to
+/// correlate) is [`Correlation::Partly`]: too few particle images per window, or a
+/// displacement that varies too much across one.
 pub fn correlation_check(
     peak_ratio: ArrayView2<'_, f64>,
     valid: ArrayView2<'_, bool>,
@@ -299,12 +319,18 @@ pub fn correlation_check(
     let at = |k: (usize, usize)| masked.as_ref().is_some_and(|m| m[k]);
     let (ny, nx) = peak_ratio.dim();
     let e = BLANK_EDGE;
-    let (mut open, mut blank) = (0usize, 0usize);
+    // valid flags of another shape: none rejected
+    let rejected_at = |k: (usize, usize)| valid.dim() == peak_ratio.dim() && !valid[k];
+    let (mut open, mut blank, mut rejected) = (0usize, 0usize, 0usize);
     for j in e..ny.saturating_sub(e) {
         for i in e..nx.saturating_sub(e) {
             if !at((j, i)) {
                 open += 1;
-                blank += !correlated(peak_ratio[[j, i]]) as usize;
+                if correlated(peak_ratio[[j, i]]) {
+                    rejected += rejected_at((j, i)) as usize;
+                } else {
+                    blank += 1;
+                }
             }
         }
     }
@@ -319,6 +345,18 @@ pub fn correlation_check(
              (no particle images, or too few per window) and their vectors are only \
              interpolated from their neighbours: use larger windows, or mask where there is no \
              signal",
+            100.0 * fraction
+        ));
+    }
+    let fraction = (rejected + blank) as f64 / open.max(1) as f64;
+    if fraction > MAX_REPLACED_FRACTION {
+        return Correlation::Partly(format!(
+            "{:.0} % of the {open} vectors (not masked) are only interpolated from their \
+             neighbours ({rejected} rejected by the validation, {blank} from windows too blank \
+             to correlate; real recordings that correlate: under 5 %): too few particle images \
+             per window, a part without signal, or a displacement that varies too much across \
+             a window, and the vectors kept are as suspect: use larger windows, or mask where \
+             there is no signal",
             100.0 * fraction
         ));
     }
@@ -493,15 +531,19 @@ mod tests {
         let m = c.message().unwrap_or_default().to_string();
         assert!(matches!(c, Correlation::Partly(_)), "{c:?}");
         assert!(m.starts_with("30 % of the 200 valid vectors"), "{m}");
-        // the same without the local test, or with the weak vectors flagged invalid
+        // the same without the local test; with the weak vectors flagged invalid the local
+        // test has nothing to say, the count of rejected vectors does (columns 14-17 of the
+        // inside's 2-17: 24 of 96)
         assert_eq!(
             correlation_check(pr.view(), v.view(), None, false),
             Correlation::Fine
         );
         let v2 = Array2::from_shape_fn((10, 20), |(_, i)| i < 14);
-        assert_eq!(
-            correlation_check(pr.view(), v2.view(), None, true),
-            Correlation::Fine
+        let c = correlation_check(pr.view(), v2.view(), None, true);
+        let m = c.message().unwrap_or_default().to_string();
+        assert!(
+            m.starts_with("25 % of the 96 vectors (not masked) are only interp"),
+            "{m}"
         );
         // 2 columns of 20 (18, 19): column 19 holds 17-19, 2 of 3 under: a majority; 18 holds
         // 16-19, 2 of 4: not -> 5 %: fine
@@ -533,8 +575,15 @@ mod tests {
         };
         let blank = |pr: &Array2<f64>| pr.iter().filter(|&&p| p == 0.0).count();
         assert_eq!(blank(&field(12)), 12);
-        // 12 of 64 (19 %): fine; 14 (22 %): said so, with or without the local test
-        assert_eq!(check(&field(12), None, true), Correlation::Fine);
+        // 6 of 64 (9 %): fine; 12 (19 %): their vectors are only interpolated, said so (the
+        // count of all interpolated vectors); 14 (22 %): said so as too blank, with or without
+        // the local test
+        assert_eq!(check(&field(6), None, true), Correlation::Fine);
+        let m = check(&field(12), None, true).message().unwrap().to_string();
+        assert!(
+            m.starts_with("19 % of the 64 vectors (not masked) are only interp"),
+            "{m}"
+        );
         for local in [true, false] {
             let c = check(&field(14), None, local);
             assert!(matches!(c, Correlation::Partly(_)), "{c:?}");
@@ -543,11 +592,11 @@ mod tests {
             assert!(!m.contains('\n'));
         }
         // the outer rings are not counted (their windows may reach outside the frame)
-        let mut pr = field(12);
+        let mut pr = field(6);
         pr.indexed_iter_mut()
             .filter(|(k, _)| !inside(*k))
             .for_each(|(_, p)| *p = 0.0);
-        assert_eq!(blank(&pr), 12 + 144 - 64);
+        assert_eq!(blank(&pr), 6 + 144 - 64);
         assert_eq!(check(&pr, None, true), Correlation::Fine);
         // nor the masked windows: masking 8 inside windows that correlate leaves 12 of 56
         let pr = field(12);
@@ -584,6 +633,60 @@ mod tests {
             check(&pr, None, true),
             Correlation::Uncorrelated(_)
         ));
+    }
+
+    #[test]
+    fn correlation_check_counts_the_vectors_only_interpolated() {
+        // a 12 x 12 grid of well correlated windows (ratio 3) whose inside (8 x 8 past the two
+        // outer rings) has `n` vectors rejected by the validation, spread over it
+        let inside = |(j, i): (usize, usize)| (2..10).contains(&j) && (2..10).contains(&i);
+        let spread = |(j, i): (usize, usize), n: usize| {
+            inside((j, i)) && (j.saturating_sub(2) * 8 + i.saturating_sub(2)) * 5 % 64 < n
+        };
+        let pr = Array2::from_elem((12, 12), 3.0);
+        let valid = |n: usize| Array2::from_shape_fn((12, 12), |k| !spread(k, n));
+        let check = |pr: &Array2<f64>, v: &Array2<bool>, m: Option<&Array2<bool>>| {
+            correlation_check(pr.view(), v.view(), m.map(|m| m.view()), true)
+        };
+        // 6 of 64 (9 %): fine; 7 (11 %): said so, in one line
+        assert_eq!(check(&pr, &valid(6), None), Correlation::Fine);
+        let c = check(&pr, &valid(7), None);
+        assert!(matches!(c, Correlation::Partly(_)), "{c:?}");
+        let m = c.message().unwrap();
+        assert!(
+            m.starts_with("11 % of the 64 vectors (not masked) are only interpolated")
+                && m.contains("(7 rejected by the validation, 0 from windows too blank"),
+            "{m}"
+        );
+        assert!(!m.contains('\n'));
+        // rejected vectors in the outer rings are not counted
+        let mut v = valid(6);
+        v.indexed_iter_mut()
+            .filter(|(k, _)| !inside(*k))
+            .for_each(|(_, ok)| *ok = false);
+        assert_eq!(check(&pr, &v, None), Correlation::Fine);
+        // nor masked ones: 7 rejected of which 2 masked is 5 of 62
+        let mut n = 0;
+        let mask = Array2::from_shape_fn((12, 12), |k| {
+            let pick = spread(k, 7) && n < 2;
+            n += pick as usize;
+            pick
+        });
+        assert_eq!(check(&pr, &valid(7), Some(&mask)), Correlation::Fine);
+        // windows too blank to correlate count too: 4 blank and 3 rejected of 64
+        let blank = Array2::from_shape_fn((12, 12), |k| if spread(k, 4) { 0.0 } else { 3.0 });
+        let c = check(&blank, &valid(7), None);
+        let m = c.message().unwrap_or_default().to_string();
+        assert!(
+            m.contains("(3 rejected by the validation, 4 from windows too blank"),
+            "{m}"
+        );
+        // valid flags of another shape reject nothing
+        let other = Array2::from_elem((3, 3), false);
+        assert_eq!(
+            correlation_check(pr.view(), other.view(), None, false),
+            Correlation::Fine
+        );
     }
 
     #[test]

@@ -272,6 +272,10 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         piv_core::validate::MIN_MEDIAN_PEAK_RATIO,
     )?;
     m.add("MAX_BLANK_FRACTION", piv_core::validate::MAX_BLANK_FRACTION)?;
+    m.add(
+        "MAX_REPLACED_FRACTION",
+        piv_core::validate::MAX_REPLACED_FRACTION,
+    )?;
     m.add("BLANK_EDGE", piv_core::validate::BLANK_EDGE)?;
     m.add_function(wrap_pyfunction!(piv, m)?)?;
     m.add_function(wrap_pyfunction!(piv_at, m)?)?;
