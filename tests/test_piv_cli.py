@@ -297,6 +297,21 @@ def test_a_mask_takes_a_region_out(tmp_path, engine, capsys):
     assert not (tmp_path / "x.nc").exists() and not (tmp_path / "x.csv").exists()
 
 
+def _warned_once_by_both_command_lines(tmp_path, engine, capsys, pair, phrase):
+    """``rspiv piv`` and ``rspiv-engine piv`` on ``pair`` (written as TIFF files), passes 64 x 64
+    -> 32 x 32 -> 32 x 8: both succeed and say ``phrase`` in one warning line."""
+    tifffile.imwrite(tmp_path / "a.tif", pair[0])
+    tifffile.imwrite(tmp_path / "b.tif", pair[1])
+    frames = [str(tmp_path / "a.tif"), str(tmp_path / "b.tif")]
+    capsys.readouterr()
+    assert main(["piv", *frames, "-o", str(tmp_path / "z.nc"), "--passes", "64x64,32x32,32x8"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("rspiv piv: warning: ") == 1 and phrase in err, err
+    r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
+                        "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0 and phrase in r.stderr, r.stderr
+
+
 def test_windows_too_blank_to_correlate_are_said_so(tmp_path, engine, capsys):
     """More than a fifth of the windows (not masked) too blank to be correlated: their vectors
     are only interpolated, and rspiv says so (CorrelationWarning, one line from ``rspiv piv``
@@ -328,16 +343,7 @@ def test_windows_too_blank_to_correlate_are_said_so(tmp_path, engine, capsys):
     ok = f.valid & ~f.masked
     assert np.median(np.hypot(f.u[ok] - 2.5, f.v[ok] + 1.0)) < 0.1
     # the command lines: one warning line each
-    tifffile.imwrite(tmp_path / "a.tif", fa)
-    tifffile.imwrite(tmp_path / "b.tif", fb)
-    frames = [str(tmp_path / "a.tif"), str(tmp_path / "b.tif")]
-    capsys.readouterr()
-    assert main(["piv", *frames, "-o", str(tmp_path / "z.nc"), "--passes", "64x64,32x32,32x8"]) == 0
-    err = capsys.readouterr().err
-    assert err.count("rspiv piv: warning: ") == 1 and "too little signal" in err, err
-    r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
-                        "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
-    assert r.returncode == 0 and "too little signal" in r.stderr, r.stderr
+    _warned_once_by_both_command_lines(tmp_path, engine, capsys, (fa, fb), "too little signal")
     # particle images too sparse for the windows (one per 64 x 64 px window, gaps between them
     # too long to tell a clean background from fill: see
     # test_sparse_particles_on_a_clean_background_are_correlated) on a background without
@@ -592,13 +598,6 @@ def test_fields_mostly_interpolated_are_said_so(tmp_path, engine, capsys):
             g = rspiv.piv(c, d, passes=p)
         assert g.warning() is None
     # the command lines: one warning line each
-    tifffile.imwrite(tmp_path / "a.tif", a)
-    tifffile.imwrite(tmp_path / "b.tif", b)
-    frames = [str(tmp_path / "a.tif"), str(tmp_path / "b.tif")]
-    capsys.readouterr()
-    assert main(["piv", *frames, "-o", str(tmp_path / "z.nc"), "--passes", "64x64,32x32,32x8"]) == 0
-    err = capsys.readouterr().err
-    assert err.count("rspiv piv: warning: ") == 1 and "only interpolated from their" in err, err
-    r = subprocess.run([engine, "piv", *frames, "-o", str(tmp_path / "z.csv"), "--passes",
-                        "64x64,32x32,32x8"], capture_output=True, text=True)  # fmt: skip
-    assert r.returncode == 0 and "only interpolated from their" in r.stderr, r.stderr
+    _warned_once_by_both_command_lines(
+        tmp_path, engine, capsys, (a, b), "only interpolated from their"
+    )
