@@ -17,6 +17,15 @@ recordings; they are read from its installation, not vendored). The paper's pass
    32, 32 x 8 and 16 x 16 px, and whether rspiv says so (``_rspiv.MAX_BLANK_FRACTION``); then
    the share of the windows correlated there whose vectors the validation rejected, and
    whether rspiv says so (``_rspiv.MAX_REPLACED_FRACTION``, on the two shares' sum).
+4. The particle images' diameter (``PivField.particle_diameter``) of OpenPIV's recordings and
+   of PIVlab's example recordings when fetched (``python benches/real_data_checks.py
+   particle-size [PIVLAB_DIR]``: ``PIVlab_Karman_01.bmp``/``_02.bmp``, ``PIVlab_0000_A.jpg``/
+   ``_B.jpg``, ``Jet_0005A.jpg``/``B.jpg`` from Shrediquette/PIVlab's ``Example_data``, not
+   vendored), and whether rspiv warns of peak locking; then the same recordings binned 2 x 2
+   (a sensor with pixels twice as large: particle images about half as wide) through windows
+   half as large, the locking bias's amplitude measured against the full-resolution field
+   (halved, interpolated to the binned grid; the error fitted as ``c - a sin(2 pi t) + b cos(2
+   pi t)`` in that reference ``t``, u and v pooled), without and with ``smooth = 0.7``.
 """
 
 from __future__ import annotations
@@ -62,6 +71,8 @@ def local_fraction(pr: np.ndarray, valid: np.ndarray) -> float:
 
 
 def main() -> None:
+    import sys
+
     import openpiv
 
     data = pathlib.Path(openpiv.__file__).parent / "data"
@@ -70,6 +81,11 @@ def main() -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # test3 is JPEG
             return read_image(data / p)
+
+    if len(sys.argv) > 1 and sys.argv[1] == "particle-size":
+        pivlab = pathlib.Path(sys.argv[2]) if len(sys.argv) > 2 else None
+        particle_table(rd, pivlab)
+        return
 
     rng = np.random.default_rng(3)
     print(
@@ -130,6 +146,77 @@ def main() -> None:
          rd("test6/Pattern_1001_B.tif")),
     ):  # fmt: skip
         blank_row(name, a, b, finals)
+
+
+def _bin2(a: np.ndarray) -> np.ndarray:
+    """2 x 2 binning (the mean of each block): a sensor with pixels twice as large."""
+    h, w = a.shape[0] // 2 * 2, a.shape[1] // 2 * 2
+    a = np.asarray(a[:h, :w], dtype=np.float32)
+    return 0.25 * (a[0::2, 0::2] + a[1::2, 0::2] + a[0::2, 1::2] + a[1::2, 1::2])
+
+
+def _locking_against(full, f) -> float:
+    """The locking amplitude of the binned field ``f`` against the full-resolution ``full``
+    (halved, interpolated bilinearly to ``f``'s centres; vectors valid in both, the few off by
+    more than half a pixel left out)."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    at = np.stack([2 * f.y + 0.5, 2 * f.x + 0.5], -1)
+    axes = (full.y[:, 0], full.x[0, :])
+
+    def interp(v):
+        return RegularGridInterpolator(axes, v, bounds_error=False)(at)
+
+    good = interp((full.valid & ~full.replaced).astype(float)) > 0.999
+    ok = f.valid & ~f.replaced & good
+    t = np.concatenate([interp(full.u)[ok] / 2, interp(full.v)[ok] / 2])
+    e = np.concatenate([f.u[ok], f.v[ok]]) - t
+    keep = np.abs(e) < 0.5
+    t, e = t[keep], e[keep]
+    x = np.stack([np.ones_like(t), np.sin(2 * np.pi * t), np.cos(2 * np.pi * t)], 1)
+    return float(-np.linalg.lstsq(x, e, rcond=None)[0][1])
+
+
+def particle_table(rd, pivlab: pathlib.Path | None) -> None:
+    """Item 4 of the module docstring."""
+    from rspiv.preprocess import Preprocess
+
+    pairs = [
+        ("OpenPIV test1", rd("test1/exp1_001_a.bmp"), rd("test1/exp1_001_b.bmp")),
+        ("OpenPIV test2, pair 0", rd("test2/2image_00.tif"), rd("test2/2image_01.tif")),
+        ("OpenPIV test3 (JPEG)", rd("test3/pair_4_frame_0.jpg"), rd("test3/pair_4_frame_1.jpg")),
+        ("OpenPIV test4", rd("test4/Camera1-0101.tif"), rd("test4/Camera1-0102.tif")),
+        ("OpenPIV test5, pattern 1", rd("test5/Pattern_1_A.tif"), rd("test5/Pattern_1_B.tif")),
+    ]  # fmt: skip (test6's first pair is test5's pattern 1 again)
+    if pivlab is not None:
+        for name, fa, fb in (
+            ("PIVlab Karman 01 / 02", "PIVlab_Karman_01.bmp", "PIVlab_Karman_02.bmp"),
+            ("PIVlab 0000 (JPEG)", "PIVlab_0000_A.jpg", "PIVlab_0000_B.jpg"),
+            ("PIVlab Jet 0005 (JPEG)", "Jet_0005A.jpg", "Jet_0005B.jpg"),
+        ):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                a, b = (read_image(pivlab / f) for f in (fa, fb))
+            pairs.append((name, *(x.mean(-1) if x.ndim == 3 else x for x in (a, b))))
+    print("| recording | diameter x, y px | warned | binned 2 x 2: diameter x, y px | warned "
+          "| locking a px | with smooth 0.7: a px |")
+    print("|---|---|---|---|---|---|---|")
+    smooth = Preprocess(smooth=0.7)
+    for name, a, b in pairs:
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            full = rspiv.piv(a, b, passes=[(64, 64), (32, 32)], overlap=0.75)
+            fb = rspiv.piv(_bin2(a), _bin2(b), passes=[(32, 32), (16, 16)])
+            fs = rspiv.piv(_bin2(a), _bin2(b), passes=[(32, 32), (16, 16)], preprocess=smooth)
+        said = [w.message for w in rec if isinstance(w.message, rspiv.ParticleSizeWarning)]
+        dx, dy = full.particle_diameter
+        bx, by = fb.particle_diameter
+        warned = "yes" if full.peak_locking() else "no"
+        bwarned = "yes" if fb.peak_locking() else "no"
+        assert len(said) == (warned == "yes") + 2 * (bwarned == "yes")
+        print(f"| {name} | {dx:.2f}, {dy:.2f} | {warned} | {bx:.2f}, {by:.2f} | {bwarned} "
+              f"| {_locking_against(full, fb):.4f} | {_locking_against(full, fs):.4f} |",
+              flush=True)  # fmt: skip
 
 
 def blank_row(name: str, a: np.ndarray, b: np.ndarray, finals: list[tuple[int, int]]) -> None:

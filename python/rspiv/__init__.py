@@ -14,10 +14,17 @@ from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
 from rspiv.ensemble import EnsembleAccumulator, EnsembleField
-from rspiv.errors import ConvergenceError, CorrelationWarning, InvalidInputError, RspivError
+from rspiv.errors import (
+    ConvergenceError,
+    CorrelationWarning,
+    InvalidInputError,
+    ParticleSizeWarning,
+    RspivError,
+)
 from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
+from rspiv.particle_size import particle_diameter
 from rspiv.piv import PivField, piv, piv_at, window_response
 from rspiv.reference import load_dns
 from rspiv.repeatability import Repeatability, repeatability
@@ -27,11 +34,11 @@ from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
 
 __all__ = ["__version__", "RspivError", "InvalidInputError", "ConvergenceError"]
-__all__ += ["CorrelationWarning"]
+__all__ += ["CorrelationWarning", "ParticleSizeWarning"]
 __all__ += ["FieldAccumulator", "CampaignConfig", "load_campaign_config", "analyse_profile"]
 __all__ += ["BoundaryLayerResult", "load_dns"]
 __all__ += ["Mapping", "fit_mapping"]
-__all__ += ["PivField", "PivSettings", "piv", "piv_at", "window_response"]
+__all__ += ["PivField", "PivSettings", "piv", "piv_at", "window_response", "particle_diameter"]
 __all__ += ["Calibration", "calibrate", "calibrate_points", "MonteCarloResult", "monte_carlo"]
 __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]

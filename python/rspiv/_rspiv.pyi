@@ -181,8 +181,9 @@ def piv(
     mask: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, object]:
     """Multipass PIV; frames uint8/uint16/float32/float64 of one dtype. Returns a dict with
-    x, y, u, v, peak_ratio, coef (float64), valid, replaced, masked (bool), peak_choice (uint8),
-    all (ny, nx), and grid = (x0, y0, dx, dy)."""
+    x, y, u, v, peak_ratio, coef, sigma_u, sigma_v (float64), valid, replaced, masked (bool),
+    peak_choice (uint8), all (ny, nx), grid = (x0, y0, dx, dy) and particle_diameter = (dx, dy)
+    px (the first pass's correlation peaks; NaN where not measured)."""
 
 def piv_at(
     frame_a: npt.NDArray[np.generic],
@@ -284,6 +285,26 @@ def correlation_check(
     validation or too blank, both inside the grid's ``BLANK_EDGE`` outer rings); None when the
     frames correlate. ValueError (InvalidInputError) when the arrays differ in shape."""
 
+MIN_PARTICLE_DIAMETER: float
+
+def particle_diameter(
+    frame_a: npt.NDArray[np.generic],
+    frame_b: npt.NDArray[np.generic],
+    window: tuple[int, int],
+    mask: npt.NDArray[np.bool_] | None = None,
+    background_a: npt.NDArray[np.float32] | None = None,
+    background_b: npt.NDArray[np.float32] | None = None,
+) -> tuple[float, float]:
+    """The particle images' e^-2 diameter ``(x, y)`` px of a frame pair as recorded, from the
+    confident correlation peaks of up to 4096 windows of ``window`` ``(w, h)`` px side by side
+    (no offset), the backgrounds subtracted (clipped at 0) when given; NaN where not
+    measured."""
+
+def peak_locking_warning(diameter_x: float, diameter_y: float) -> str | None:
+    """The one-line warning for particle images of e^-2 diameter ``(diameter_x, diameter_y)``
+    px under ``MIN_PARTICLE_DIAMETER`` along either axis (sub-pixel displacements locked
+    towards whole pixels); None otherwise or when not measured (NaN)."""
+
 def conditioned(
     frame: npt.NDArray[np.generic],
     hot_pixels: float | None = None,
@@ -291,6 +312,7 @@ def conditioned(
     cap: float | None = None,
     min_max: int | None = None,
     background: npt.NDArray[np.float32] | None = None,
+    smooth: float | None = None,
 ) -> npt.NDArray[np.float32]:
     """A new conditioned float32 copy of a uint8/uint16/float32/float64 frame
     (piv_core::conditioned: the conversion fused with the first steps)."""

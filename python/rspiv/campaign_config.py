@@ -55,6 +55,8 @@ A complete file (every key optional except where noted; defaults shown)::
     background = "min"           # "none" | "min" | "mean": over the run, per frame A and B
     hot_pixels = 3.0             # factor over the brightest neighbour (0: off)
     high_pass = 2.0              # Gaussian sigma, px (0: off)
+    smooth = 0.0                 # Gaussian smoothing sigma, px, <= 2 (0: off; 0.4-0.7 px
+                                 # against peak locking: particle images under 2 px)
     cap = 0.0                    # cap at mean + cap * std (0: off)
     min_max = 0                  # min-max normalisation window, px (0: off)
 
@@ -247,6 +249,7 @@ class PreprocessConfig:
     high_pass: float = 2.0
     cap: float = 0.0
     min_max: int = 0
+    smooth: float = 0.0
 
     def settings(self) -> Preprocess:
         """The section as the preprocessing settings object."""

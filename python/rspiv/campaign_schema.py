@@ -189,6 +189,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "percentile": lambda c, w, v: _number(c, w, v, minimum=0, maximum=100),
         "hot_pixels": lambda c, w, v: _number(c, w, v, minimum=0),
         "high_pass": lambda c, w, v: _number(c, w, v, minimum=0),
+        "smooth": lambda c, w, v: _number(c, w, v, minimum=0, maximum=2),
         "cap": lambda c, w, v: _number(c, w, v, minimum=0),
         "min_max": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
     },

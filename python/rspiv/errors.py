@@ -10,6 +10,9 @@ Every error derives from :class:`RspivError`.
 - :class:`CorrelationWarning` (a :class:`UserWarning`): a PIV field whose frames do not
   correlate (:meth:`rspiv.PivField.warning`): as a whole (its vectors are no measurement,
   :meth:`rspiv.PivField.uncorrelated`) or in a part where they hardly do.
+- :class:`ParticleSizeWarning` (a :class:`UserWarning`): particle images too small for a
+  sub-pixel fit (:meth:`rspiv.PivField.peak_locking`: the displacements lean towards whole
+  pixels), or for the preprocessing's hot-pixel rule.
 
 The native module raises these very classes (it looks them up here), so ``except
 rspiv.InvalidInputError`` catches errors from Rust and from Python alike.
@@ -37,4 +40,19 @@ class CorrelationWarning(UserWarning):
     an error."""
 
 
-__all__ = ["RspivError", "InvalidInputError", "ConvergenceError", "CorrelationWarning"]
+class ParticleSizeWarning(UserWarning):
+    """Particle images under 2 px across (:attr:`rspiv.PivField.particle_diameter`): every
+    sub-pixel displacement leans towards whole pixels (peak locking), a bias that neither the
+    per-vector uncertainty nor averaging removes (:meth:`rspiv.PivField.peak_locking`), and
+    the preprocessing's hot-pixel rule takes their brightest pixels for sensor defects
+    (:func:`rspiv.particle_size.warnings_for`). ``warnings.simplefilter("error",
+    rspiv.ParticleSizeWarning)`` turns it into an error."""
+
+
+__all__ = [
+    "RspivError",
+    "InvalidInputError",
+    "ConvergenceError",
+    "CorrelationWarning",
+    "ParticleSizeWarning",
+]

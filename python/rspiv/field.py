@@ -59,6 +59,15 @@ class PivField:
         Final window ``(w, h)`` in px (w along x).
     grid : tuple of float or None
         ``(x0, y0, dx, dy)`` of the regular grid (``x = x0 + i dx``), None for :func:`piv_at`.
+    particle_diameter : tuple of float
+        The particle images' e^-2 diameter along x and y, px, as recorded (the optics' image
+        integrated over the pixel), from the widths of the first pass's confident correlation
+        peaks (``piv_core::particle_size``; within 3 % on synthetic images); :func:`rspiv.piv`
+        measures the frames before it high-passes, smooths or dewarps them
+        (:mod:`rspiv.particle_size`). NaN where not measured (fewer than 16 windows with a peak
+        ratio of 2 or more). A displacement varying across the windows widens the peaks, so
+        the smaller axis is the better estimate. Under 2 px the sub-pixel displacements lean
+        towards whole pixels (peak locking): :meth:`peak_locking` says so.
     """
 
     x: np.ndarray
@@ -75,6 +84,7 @@ class PivField:
     sigma_v: np.ndarray
     window: tuple[int, int]
     grid: tuple[float, float, float, float] | None
+    particle_diameter: tuple[float, float] = (float("nan"), float("nan"))
 
     @classmethod
     def _from_native(cls, d: dict, window: tuple[int, int], shape=None) -> PivField:
@@ -82,7 +92,8 @@ class PivField:
         keys += ("peak_choice", "sigma_u", "sigma_v")
         arrays = {k: d[k] if shape is None else d[k].reshape(shape) for k in keys}
         grid = None if d["grid"] is None else tuple(float(g) for g in d["grid"])
-        return cls(**arrays, window=tuple(window), grid=grid)
+        diameter = tuple(float(x) for x in d.get("particle_diameter", (np.nan, np.nan)))
+        return cls(**arrays, window=tuple(window), grid=grid, particle_diameter=diameter)
 
     def peak_counts(self) -> dict[str, int]:
         """How the vectors that are not masked came about: ``{"first", "second", "third",
@@ -152,6 +163,26 @@ class PivField:
         local = local and self.grid is not None and pr.ndim == 2
         return _rspiv.correlation_check(np.atleast_2d(pr), np.atleast_2d(valid), local, masked)
 
+    def peak_locking(self) -> str | None:
+        """The one-line warning for particle images too small for a sub-pixel fit, None
+        otherwise or when not measured.
+
+        Under ``_rspiv.MIN_PARTICLE_DIAMETER`` (2 px, e^-2, as recorded; along x or y of
+        :attr:`particle_diameter`) every sub-pixel estimate leans towards whole pixels (peak
+        locking): measured on synthetic particle images through the paper's passes, a bias
+        ``-a sin(2 pi t)`` in the true displacement ``t`` of amplitude ``a`` = 0.050 px at a
+        diameter of 1.39 px, 0.027 at 1.61, 0.011 at 1.91, 0.003 at 2.24 px
+        (``piv_core::particle_size``). It does not average out: a campaign's mean profile and
+        its fluctuations carry it, and the per-vector uncertainty does not include it. A slight
+        defocus (particle images of 2-3 px) removes it; smoothing both frames after the
+        recording (:class:`rspiv.preprocess.Preprocess` ``smooth = 0.7``) about halves it, at
+        the same random error (the sub-pixel information the sensor did not sample is not
+        restored). :func:`rspiv.piv` and :func:`rspiv.piv_at` raise it as a
+        :class:`rspiv.ParticleSizeWarning`; ``rspiv piv`` prints it and writes it to the file.
+        """
+        dx, dy = self.particle_diameter
+        return _rspiv.peak_locking_warning(float(dx), float(dy))
+
     @property
     def shape(self) -> tuple[int, ...]:
         """Shape of the vector arrays."""
@@ -166,7 +197,9 @@ class PivField:
         ``y`` are the window centres in px; for a field at arbitrary points (:func:`piv_at`) the
         dims are indexed 0..n-1 and the positions are the 2D coordinates ``x_px``, ``y_px``.
         The attribute ``warning`` holds :meth:`warning` when the frames do not correlate (in
-        whole or in part).
+        whole or in part), ``particle_diameter_px`` the :attr:`particle_diameter` (x, y) when
+        measured, and ``peak_locking`` :meth:`peak_locking` when the particle images are too
+        small.
         """
         import xarray as xr
 
@@ -216,7 +249,13 @@ class PivField:
                 "conventions": "pixel frame: x right, y down, origin at the top-left pixel centre",
             }
         )
+        dx, dy = self.particle_diameter
+        if np.isfinite(dx) or np.isfinite(dy):
+            ds.attrs["particle_diameter_px"] = [float(dx), float(dy)]
         warning = self.warning()
         if warning is not None:
             ds.attrs["warning"] = warning
+        locking = self.peak_locking()
+        if locking is not None:
+            ds.attrs["peak_locking"] = locking
         return ds

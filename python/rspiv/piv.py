@@ -23,9 +23,10 @@ import numpy as np
 
 from rspiv import _rspiv
 from rspiv.correction import correct
-from rspiv.errors import CorrelationWarning, InvalidInputError
+from rspiv.errors import CorrelationWarning, InvalidInputError, ParticleSizeWarning
 from rspiv.field import PivField
 from rspiv.multipass import run_grid, run_points
+from rspiv.particle_size import as_recorded, warnings_for
 from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import OPTION_KEYS, PivSettings, parse_mapping_mode, parse_method
 
@@ -191,6 +192,10 @@ def piv(
     CorrelationWarning
         The frames do not correlate, or no window could be correlated
         (:meth:`PivField.warning`): the field is returned, but its vectors are no measurement.
+    ParticleSizeWarning
+        The particle images are under 2 px across (:meth:`PivField.peak_locking`): the
+        displacements lean towards whole pixels; and ``preprocess``'s hot-pixel rule flattens
+        them (:func:`rspiv.particle_size.warnings_for`).
     """
     options = {k: v for k, v in locals().items() if k in OPTION_KEYS}
     mapping = parse_mapping_mode(mapping)
@@ -200,10 +205,12 @@ def piv(
         )
     elif not isinstance(settings, PivSettings):
         raise InvalidInputError(f"settings must be an rspiv.PivSettings, got {type(settings)}")
+    recorded = frame_a, frame_b
     if preprocess is not None:
         frame_a, frame_b = condition_pair(frame_a, frame_b, preprocess, backgrounds)
     elif backgrounds is not None:
         raise InvalidInputError("backgrounds are subtracted by a preprocess step: give preprocess")
+    which = None
     if method is not None or calibration is not None:
         which = parse_method(method) if method is not None else None
         if which not in ("I", "II"):
@@ -213,15 +220,24 @@ def piv(
         field = correct(frame_a, frame_b, calibration, which, settings, mapping=mapping, mask=mask)
     else:
         field = run_grid(frame_a, frame_b, settings, mask)
-    return _warned(field)
+    # the particle images as recorded, not as high-passed, smoothed or dewarped
+    field = as_recorded(
+        field, *recorded, settings.passes[0], mask=mask, preprocess=preprocess,
+        backgrounds=backgrounds, dewarped=which == "I",
+    )  # fmt: skip
+    return _warned(field, preprocess)
 
 
-def _warned(field: PivField) -> PivField:
+def _warned(field: PivField, preprocess: Preprocess | None = None) -> PivField:
     """``field``, raising its :meth:`PivField.warning` (frames that do not correlate) as a
-    :class:`rspiv.CorrelationWarning` at the caller's line."""
+    :class:`rspiv.CorrelationWarning` and what its particle images' size says
+    (:func:`rspiv.particle_size.warnings_for`: peak locking, the hot-pixel rule of
+    ``preprocess``) as :class:`rspiv.ParticleSizeWarning` at the caller's line."""
     w = field.warning()
     if w is not None:
         warnings.warn(w, CorrelationWarning, stacklevel=3)
+    for w in warnings_for(field.particle_diameter, preprocess).values():
+        warnings.warn(w, ParticleSizeWarning, stacklevel=3)
     return field
 
 
@@ -288,7 +304,7 @@ def piv_at(
 
     Warns
     -----
-    CorrelationWarning
+    CorrelationWarning, ParticleSizeWarning
         As for :func:`piv`.
     """
     windows = [window] if np.ndim(window) == 1 else list(window)

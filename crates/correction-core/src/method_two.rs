@@ -195,5 +195,6 @@ pub fn method_two<T: Pixel>(
         replaced,
         peak_choice,
         masked,
+        particle_diameter: f.particle_diameter,
     })
 }

@@ -18,10 +18,15 @@
 //!    clipped: clipping at 0 would turn most of the background into exact zeros, which the
 //!    correlator's blank-window rule (`multipass`) takes for the zero fill of a dewarped frame;
 //!    the correlation is mean-free, so the sign costs nothing;
-//! 4. **intensity capping** (`cap_sigma = k`): `I <- min(I, mean + k std)` over the frame
+//! 4. **smoothing** (`smooth_sigma = s` px, at most [`MAX_SMOOTH_SIGMA`]): `I <- G_s * I`,
+//!    the same sampled Gaussian (truncated at 3 s, mirror boundaries): particle images under
+//!    2 px across, which lock every sub-pixel fit towards whole pixels
+//!    ([`crate::particle_size`]), are widened (their squared e^-2 diameter grows by about `16
+//!    s^2`: 0.5 px takes 1.5 px to 2.5 px) at the cost of some random error;
+//! 5. **intensity capping** (`cap_sigma = k`): `I <- min(I, mean + k std)` over the frame
 //!    (Shavit, Lowe & Steinbuck 2007, Exp. Fluids 42, with the mean in place of the median), so
 //!    that a few bright particles or a residual glare do not dominate a window;
-//! 5. **min-max normalisation** (`min_max_window = n` px): the local minimum and maximum over
+//! 6. **min-max normalisation** (`min_max_window = n` px): the local minimum and maximum over
 //!    about `n` x `n` px, each smoothed over about `n` x `n` px, and
 //!    `I <- (I - min) / max(max - min, 1e-6 * (global max - global min))` clipped to `[0, 1]`:
 //!    particles of every brightness and in every part of the sheet get the same contrast. The
@@ -31,13 +36,21 @@
 //!    every pixel. The envelopes vary smoothly over `n` px and need nothing finer: this costs
 //!    two passes over the frame instead of a running filter's many.
 //!
-//! Units: intensities in the frame's counts until step 5, dimensionless after it; lengths in px.
+//! Units: intensities in the frame's counts until step 6, dimensionless after it; lengths in px.
 //! Pixel frame of the crate (x = column, y = row).
 
 use crate::error::{PivError, Result};
+#[cfg(test)]
+use crate::gaussian_filter::{gaussian_taps, mirror};
+use crate::gaussian_filter::{high_pass, smooth};
 use image_core::Pixel;
 use ndarray::{Array2, ArrayView2, ArrayViewMut2};
 use rayon::prelude::*;
+
+/// The widest smoothing ([`Conditioning::smooth_sigma`], px): a Gaussian of 2 px turns
+/// particle images of 2 px into 8 px ones; more is a mistake (a high-pass sigma given as the
+/// smoothing?).
+pub const MAX_SMOOTH_SIGMA: f32 = 2.0;
 
 /// Which conditioning steps run, with their parameters (`None` or 0: off). See the module docs.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -46,6 +59,8 @@ pub struct Conditioning {
     pub hot_pixels: Option<f32>,
     /// High-pass Gaussian sigma in px (> 0), e.g. 4.
     pub high_pass_sigma: Option<f32>,
+    /// Smoothing Gaussian sigma in px (> 0, at most [`MAX_SMOOTH_SIGMA`]), e.g. 0.5.
+    pub smooth_sigma: Option<f32>,
     /// Intensity cap at `mean + k std` (k > 0), e.g. 2.
     pub cap_sigma: Option<f32>,
     /// Min-max normalisation window in px (>= 3), e.g. 15.
@@ -63,6 +78,14 @@ impl Conditioning {
         if let Some(s) = self.high_pass_sigma {
             if !(s.is_finite() && s > 0.0) {
                 return bad(format!("high_pass sigma {s} px must be > 0"));
+            }
+        }
+        if let Some(s) = self.smooth_sigma {
+            if !(s.is_finite() && s > 0.0 && s <= MAX_SMOOTH_SIGMA) {
+                return bad(format!(
+                    "smooth sigma {s} px must be in (0, {MAX_SMOOTH_SIGMA}] (it widens the \
+                     particle images: 0.4-0.7 px against peak locking)"
+                ));
             }
         }
         if let Some(k) = self.cap_sigma {
@@ -250,10 +273,13 @@ fn check_shapes((h, w): (usize, usize), background: &Option<ArrayView2<'_, f32>>
     Ok(())
 }
 
-/// Steps 3-5 (high-pass, cap, min-max normalisation), each when switched on.
+/// Steps 3-6 (high-pass, smoothing, cap, min-max normalisation), each when switched on.
 fn later_steps(buf: &mut [f32], w: usize, h: usize, c: &Conditioning) {
     if let Some(s) = c.high_pass_sigma {
         high_pass(buf, w, h, s);
+    }
+    if let Some(s) = c.smooth_sigma {
+        smooth(buf, w, h, s);
     }
     if let Some(k) = c.cap_sigma {
         let (mean, std) = mean_std(buf);
@@ -426,210 +452,6 @@ fn hot_row(
     }
 }
 
-/// Whole-sample mirror index into `0..n` (n >= 1).
-#[inline]
-fn mirror(i: isize, n: usize) -> usize {
-    image_core::kernels::mirror(i, n)
-}
-
-/// The normalised Gaussian taps of sigma `s` (truncated at 3 s): `(taps, radius)`.
-fn gaussian_taps(sigma: f32) -> (Vec<f32>, usize) {
-    let r = (3.0 * sigma).ceil() as isize;
-    let k: Vec<f32> = (-r..=r)
-        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let norm: f32 = k.iter().sum();
-    (k.iter().map(|v| v / norm).collect(), r as usize)
-}
-
-/// Outputs summed at a time in registers by [`gauss_row`] and [`low_removed`].
-const LANES: usize = 16;
-
-/// Horizontal Gaussian of one row (mirror boundaries): the interior [`LANES`] outputs at a
-/// time, each the sum `0 + k_0 s_0 + k_1 s_1 + ...` in tap order in registers (one pass over
-/// the row), the `r` samples at each end with mirrored taps.
-#[inline(always)]
-fn gauss_row(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
-    let n = src.len();
-    if n > 2 * r {
-        let m = n - 2 * r;
-        let mut chunks = dst[r..r + m].chunks_exact_mut(LANES);
-        let mut i0 = 0;
-        for o in &mut chunks {
-            let mut acc = [0.0f32; LANES];
-            for (j, &kj) in k.iter().enumerate() {
-                let s = &src[i0 + j..i0 + j + LANES];
-                for (a, &v) in acc.iter_mut().zip(s) {
-                    *a += kj * v;
-                }
-            }
-            o.copy_from_slice(&acc);
-            i0 += LANES;
-        }
-        for (l, o) in chunks.into_remainder().iter_mut().enumerate() {
-            let mut acc = 0.0f32;
-            for (j, &kj) in k.iter().enumerate() {
-                acc += kj * src[i0 + l + j];
-            }
-            *o = acc;
-        }
-    }
-    // every sample not written above is within r of an end
-    for i in (0..n).filter(|&i| i < r || i + r >= n) {
-        let mut acc = 0.0f32;
-        for (j, &kj) in k.iter().enumerate() {
-            acc += kj * src[mirror(i as isize + j as isize - r as isize, n)];
-        }
-        dst[i] = acc;
-    }
-}
-
-/// Rows per band of [`high_pass`]: one thread's run of rows.
-const PASS_BAND: usize = 128;
-
-/// High-pass in place: `buf -= G_sigma * buf` (module docs, step 3). The rows in bands of
-/// [`PASS_BAND`] in parallel: the horizontal blur of each band's rows into a buffer of the
-/// thread's, then per row the vertical blur of those (into a row buffer), subtracted from the
-/// row. The rows within `r` (the kernel's radius) of a band boundary, which the bands on
-/// either side read, are blurred before any band changes its rows and shared. The same sums
-/// in the same order as blurring the whole frame first, without a scratch frame.
-fn high_pass(buf: &mut [f32], w: usize, h: usize, sigma: f32) {
-    let (k, r) = gaussian_taps(sigma);
-    let blur = |s: &[f32], d: &mut [f32]| {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked just above)
-            return unsafe { gauss_row_avx2(&k, r, s, d) };
-        }
-        gauss_row(&k, r, s, d)
-    };
-    // the shared rows: within r of an interior band boundary, blurred first
-    let mut slot = vec![usize::MAX; h];
-    let mut shared_rows = Vec::new();
-    for y0 in (PASS_BAND..h).step_by(PASS_BAND) {
-        for y in y0.saturating_sub(r)..(y0 + r).min(h) {
-            if slot[y] == usize::MAX {
-                slot[y] = shared_rows.len();
-                shared_rows.push(y);
-            }
-        }
-    }
-    let mut shared = vec![0.0f32; shared_rows.len() * w];
-    shared
-        .par_chunks_mut(w)
-        .zip(&shared_rows)
-        .for_each(|(d, &y)| blur(&buf[y * w..(y + 1) * w], d));
-    buf.par_chunks_mut(PASS_BAND * w).enumerate().for_each_init(
-        || (vec![0.0f32; PASS_BAND * w], vec![0.0f32; w]),
-        |(own, low), (b, band)| {
-            let y0 = b * PASS_BAND;
-            for (i, row) in band.chunks_exact(w).enumerate() {
-                if slot[y0 + i] == usize::MAX {
-                    blur(row, &mut own[i * w..(i + 1) * w]);
-                }
-            }
-            let blurred = |yy: usize| match slot[yy] {
-                usize::MAX => &own[(yy - y0) * w..][..w],
-                s => &shared[s * w..][..w],
-            };
-            for (i, row) in band.chunks_exact_mut(w).enumerate() {
-                #[cfg(target_arch = "x86_64")]
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the CPU supports AVX2 (checked just above)
-                    unsafe { low_removed_avx2(&k, r, &blurred, (y0 + i, h), row, low) };
-                    continue;
-                }
-                low_removed(&k, r, &blurred, (y0 + i, h), row, low)
-            }
-        },
-    );
-}
-
-/// Most taps [`low_removed`] sums in registers (sigma up to 10 px); wider kernels sum row
-/// by row into `low`.
-const MAX_TAPS: usize = 63;
-
-/// Row `y` of [`high_pass`] (of `h` rows): the vertical Gaussian of the horizontally blurred
-/// rows (`blurred(row index)`), `0 + k_0 b_0 + k_1 b_1 + ...` in tap order, subtracted from
-/// `row`: [`LANES`] columns at a time in registers, or (more than [`MAX_TAPS`] taps) tap by
-/// tap into `low`; the same sums either way.
-#[inline(always)]
-fn low_removed<'a>(
-    k: &[f32],
-    r: usize,
-    blurred: &impl Fn(usize) -> &'a [f32],
-    (y, h): (usize, usize),
-    row: &mut [f32],
-    low: &mut [f32],
-) {
-    let tap = |j: usize| blurred(mirror(y as isize + j as isize - r as isize, h));
-    if k.len() > MAX_TAPS {
-        low.fill(0.0);
-        for (j, &kj) in k.iter().enumerate() {
-            for (o, &s) in low.iter_mut().zip(tap(j)) {
-                *o += kj * s;
-            }
-        }
-        for (v, &l) in row.iter_mut().zip(low.iter()) {
-            *v -= l;
-        }
-        return;
-    }
-    let mut src: [&[f32]; MAX_TAPS] = [&[]; MAX_TAPS];
-    for (j, s) in src.iter_mut().enumerate().take(k.len()) {
-        *s = tap(j);
-    }
-    let src = &src[..k.len()];
-    let mut chunks = row.chunks_exact_mut(LANES);
-    let mut x0 = 0;
-    for o in &mut chunks {
-        let mut acc = [0.0f32; LANES];
-        for (&kj, s) in k.iter().zip(src) {
-            for (a, &v) in acc.iter_mut().zip(&s[x0..x0 + LANES]) {
-                *a += kj * v;
-            }
-        }
-        for (v, a) in o.iter_mut().zip(acc) {
-            *v -= a;
-        }
-        x0 += LANES;
-    }
-    for (l, v) in chunks.into_remainder().iter_mut().enumerate() {
-        let mut acc = 0.0f32;
-        for (&kj, s) in k.iter().zip(src) {
-            acc += kj * s[x0 + l];
-        }
-        *v -= acc;
-    }
-}
-
-/// [`low_removed`] compiled for AVX2 (no FMA: the same results).
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn low_removed_avx2<'a>(
-    k: &[f32],
-    r: usize,
-    blurred: &impl Fn(usize) -> &'a [f32],
-    at: (usize, usize),
-    row: &mut [f32],
-    low: &mut [f32],
-) {
-    low_removed(k, r, blurred, at, row, low)
-}
-
-/// [`gauss_row`] compiled for AVX2 (no FMA: the same results).
-///
-/// # Safety
-/// The CPU must support AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn gauss_row_avx2(k: &[f32], r: usize, src: &[f32], dst: &mut [f32]) {
-    gauss_row(k, r, src, dst)
-}
-
 /// The cell size of the min-max normalisation for an `n` px window: 3 x 3 cells span about
 /// `n` px (`round(n / 3)`, at least 1).
 fn cell_size(n: usize) -> usize {
@@ -764,7 +586,7 @@ fn cell_lerp(len: usize, cells: usize, c: usize) -> Vec<(usize, f32)> {
         .collect()
 }
 
-/// Min-max normalisation (module docs, step 5): the envelopes at the cell centres
+/// Min-max normalisation (module docs, step 6): the envelopes at the cell centres
 /// ([`cell_extremes`], [`smooth_envelope`]) interpolated bilinearly to every pixel. The rows
 /// between two rows of cell centres form a band (groups of bands in parallel): the centre rows
 /// are interpolated along x once, and each pixel row of a band is the vectorised linear blend

@@ -76,6 +76,51 @@ fn high_pass_removes_smooth_light_and_keeps_particles() {
 }
 
 #[test]
+fn smoothing_widens_particle_images_and_keeps_their_sum() {
+    // one Gaussian particle image of standard deviation 0.4 px (e^-2 diameter 1.6 px)
+    let s0 = 0.4f64;
+    let img = Array2::from_shape_fn((32, 40), |(y, x)| {
+        let (dx, dy) = (x as f64 - 20.3, y as f64 - 15.6);
+        (1000.0 * (-(dx * dx + dy * dy) / (2.0 * s0 * s0)).exp()) as f32
+    });
+    let c = Conditioning {
+        smooth_sigma: Some(0.6),
+        ..Default::default()
+    };
+    let out = run(&img, &c, None);
+    let moments = |a: &Array2<f32>| {
+        let (mut m0, mut mx, mut mxx) = (0.0f64, 0.0f64, 0.0f64);
+        for ((_, x), &v) in a.indexed_iter() {
+            let (v, x) = (v as f64, x as f64);
+            m0 += v;
+            mx += v * x;
+            mxx += v * x * x;
+        }
+        let mean = mx / m0;
+        (m0, mean, mxx / m0 - mean * mean)
+    };
+    let (a0, ax, avar) = moments(&img);
+    let (b0, bx, bvar) = moments(&out);
+    // the sum and the centre stay; the variance grows by about the kernel's (the sampled
+    // Gaussian of 0.6 px has a variance of 0.35 px^2, not 0.36)
+    assert!(
+        (b0 / a0 - 1.0).abs() < 1e-5 && (bx - ax).abs() < 1e-4,
+        "{a0} {b0} {ax} {bx}"
+    );
+    assert!((bvar - avar - 0.355).abs() < 0.01, "{avar} -> {bvar}");
+    // out of range: refused with the parameter named
+    for bad in [0.0f32, -1.0, 2.5, f32::NAN] {
+        let c = Conditioning {
+            smooth_sigma: Some(bad),
+            ..Default::default()
+        };
+        let mut f = img.clone();
+        let e = condition(f.view_mut(), &c, None).unwrap_err().to_string();
+        assert!(e.contains("smooth sigma"), "{e}");
+    }
+}
+
+#[test]
 fn cap_limits_bright_pixels_at_mean_plus_k_std() {
     let img = Array2::from_shape_fn(
         (10, 10),
@@ -336,10 +381,10 @@ fn bad_input() {
 }
 
 #[test]
-fn banded_high_pass_equals_the_whole_frame_blur() {
+fn banded_high_pass_and_smoothing_equal_the_whole_frame_blur() {
     // the frame blurred horizontally as a whole, then vertically row by row (the sums of
-    // `high_pass` in their order), on frames of one band, several, a short last band, and
-    // kernels wider than a band's share
+    // `high_pass` and `smooth` in their order), on frames of one band, several, a short last
+    // band, kernels wider than a band's share, and the smoothing's narrow ones
     for (w, h, sigma) in [
         (23usize, 300usize, 2.0f32),
         (19, 129, 4.0),
@@ -348,6 +393,8 @@ fn banded_high_pass_equals_the_whole_frame_blur() {
         (8, 1, 1.0),
         (70, 40, 12.0),
         (5, 300, 1.5),
+        (33, 260, 0.5),
+        (9, 131, 0.3),
     ] {
         let img = Array2::from_shape_fn((h, w), |(y, x)| {
             ((x * 7919 + y * 104729) % 4093) as f32 * 0.37 - 300.0
@@ -364,7 +411,12 @@ fn banded_high_pass_equals_the_whole_frame_blur() {
             }
         }
         let mut want = src.to_vec();
-        for (y, row) in want.chunks_exact_mut(w).enumerate() {
+        let mut blurred = src.to_vec();
+        for (y, (row, b)) in want
+            .chunks_exact_mut(w)
+            .zip(blurred.chunks_exact_mut(w))
+            .enumerate()
+        {
             let mut low = vec![0.0f32; w];
             for (j, &kj) in k.iter().enumerate() {
                 let yy = mirror(y as isize + j as isize - r as isize, h);
@@ -375,14 +427,18 @@ fn banded_high_pass_equals_the_whole_frame_blur() {
             for (v, &l) in row.iter_mut().zip(&low) {
                 *v -= l;
             }
+            b.copy_from_slice(&low);
         }
+        let same = |got: &[f32], want: &[f32]| {
+            got.iter()
+                .zip(want)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        };
         let mut got = src.to_vec();
         high_pass(&mut got, w, h, sigma);
-        assert!(
-            got.iter()
-                .zip(&want)
-                .all(|(a, b)| a.to_bits() == b.to_bits()),
-            "{w}x{h} sigma {sigma}"
-        );
+        assert!(same(&got, &want), "high-pass {w}x{h} sigma {sigma}");
+        let mut got = src.to_vec();
+        smooth(&mut got, w, h, sigma);
+        assert!(same(&got, &blurred), "smoothing {w}x{h} sigma {sigma}");
     }
 }

@@ -15,6 +15,8 @@
 //!   response;
 //! - [`ensemble`]: correlation planes summed over many pairs (mean displacement and Reynolds
 //!   stresses from the summed peak);
+//! - [`particle_size`]: the particle images' diameter from the correlation peaks, and the
+//!   peak-locking check;
 //! - [`synth::render_particles`]: synthetic particle images.
 
 pub mod condition;
@@ -22,9 +24,11 @@ pub mod correlate;
 pub mod ensemble;
 pub mod ensemble_pixel;
 pub mod error;
+pub(crate) mod gaussian_filter;
 pub mod grid;
 pub mod image;
 pub mod multipass;
+pub mod particle_size;
 pub mod synth;
 pub mod validate;
 pub mod weighting;

@@ -262,11 +262,14 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
     let (_, second, third, interpolated) = f.peak_counts();
     eprintln!(
         "rspiv-engine piv: {} vectors ({} x {}), {second} from the second peak, {third} from \
-         the third, {interpolated} interpolated, {} masked, method {method} -> {}",
+         the third, {interpolated} interpolated, {} masked, particle images {:.1} x {:.1} px, \
+         method {method} -> {}",
         f.u.len(),
         f.u.ncols(),
         f.u.nrows(),
         f.masked.iter().filter(|&&r| r).count(),
+        f.particle_diameter.0,
+        f.particle_diameter.1,
         args.output.display()
     );
     let check = piv_core::validate::correlation_check(
@@ -276,6 +279,9 @@ pub fn run_piv(args: &PivArgs) -> Result<(), String> {
         true,
     );
     if let Some(w) = check.message() {
+        eprintln!("rspiv-engine piv: warning: {pair}: {w}");
+    }
+    if let Some(w) = piv_core::particle_size::peak_locking_warning(f.particle_diameter) {
         eprintln!("rspiv-engine piv: warning: {pair}: {w}");
     }
     Ok(())

@@ -8,10 +8,12 @@ use piv_core::Conditioning;
 use pyo3::prelude::*;
 
 /// A new conditioned float32 copy of `frame` (uint8, uint16, float32 or float64, read in
-/// place): hot pixels, background, high-pass, intensity cap, min-max normalisation (each off
-/// when None).
+/// place): hot pixels, background, high-pass, smoothing, intensity cap, min-max normalisation
+/// (each off when None).
 #[pyfunction]
-#[pyo3(signature = (frame, hot_pixels=None, high_pass=None, cap=None, min_max=None, background=None))]
+#[pyo3(signature = (frame, hot_pixels=None, high_pass=None, cap=None, min_max=None, background=None,
+    smooth=None))]
+#[allow(clippy::too_many_arguments)]
 fn conditioned<'py>(
     py: Python<'py>,
     frame: &Bound<'py, PyAny>,
@@ -20,10 +22,12 @@ fn conditioned<'py>(
     cap: Option<f32>,
     min_max: Option<usize>,
     background: Option<PyReadonlyArray2<'py, f32>>,
+    smooth: Option<f32>,
 ) -> PyResult<Bound<'py, PyArray2<f32>>> {
     let c = Conditioning {
         hot_pixels,
         high_pass_sigma: high_pass,
+        smooth_sigma: smooth,
         cap_sigma: cap,
         min_max_window: min_max,
     };

@@ -71,6 +71,12 @@ pub(crate) fn with_frames<R: Send>(
 
 /// Object-safe entry points over one frame pair of any pixel type.
 pub(crate) trait Runner: Sync {
+    fn particle_diameter(
+        &self,
+        window: (usize, usize),
+        mask: Option<ArrayView2<'_, bool>>,
+        backgrounds: Option<(ArrayView2<'_, f32>, ArrayView2<'_, f32>)>,
+    ) -> Result<(f64, f64), PivError>;
     fn piv(
         &self,
         mask: Option<ArrayView2<'_, bool>>,
@@ -129,6 +135,14 @@ pub(crate) trait Runner: Sync {
 }
 
 impl<T: Pixel> Runner for (ArrayView2<'_, T>, ArrayView2<'_, T>) {
+    fn particle_diameter(
+        &self,
+        window: (usize, usize),
+        mask: Option<ArrayView2<'_, bool>>,
+        backgrounds: Option<(ArrayView2<'_, f32>, ArrayView2<'_, f32>)>,
+    ) -> Result<(f64, f64), PivError> {
+        piv_core::particle_size::measure(self.0, self.1, window, mask, backgrounds)
+    }
     fn piv(
         &self,
         mask: Option<ArrayView2<'_, bool>>,

@@ -32,6 +32,7 @@ pub(crate) fn field_dict<'py>(py: Python<'py>, f: PivField) -> PyResult<Bound<'p
     d.set_item("replaced", f.replaced.into_pyarray(py))?;
     d.set_item("peak_choice", f.peak_choice.into_pyarray(py))?;
     d.set_item("masked", f.masked.into_pyarray(py))?;
+    d.set_item("particle_diameter", f.particle_diameter)?;
     match f.grid {
         Some(g) => d.set_item("grid", (g.x0, g.y0, g.dx, g.dy))?,
         None => d.set_item("grid", py.None())?,
@@ -264,6 +265,42 @@ fn correlation_check(
     Ok((gone, c.message().map(str::to_string)))
 }
 
+/// The particle images' e^-2 diameter `(x, y)` px of a frame pair as recorded, from up to
+/// 4096 windows of `window` `(w, h)` px side by side, the backgrounds of frames A and B
+/// subtracted when given (`piv_core::particle_size::measure`).
+#[pyfunction]
+#[pyo3(signature = (frame_a, frame_b, window, mask=None, background_a=None, background_b=None))]
+fn particle_diameter<'py>(
+    py: Python<'py>,
+    frame_a: &Bound<'py, PyAny>,
+    frame_b: &Bound<'py, PyAny>,
+    window: (usize, usize),
+    mask: Option<PyReadonlyArray2<'py, bool>>,
+    background_a: Option<PyReadonlyArray2<'py, f32>>,
+    background_b: Option<PyReadonlyArray2<'py, f32>>,
+) -> PyResult<(f64, f64)> {
+    let fr = frames(frame_a, frame_b)?;
+    let mask = mask.as_ref().map(|m| m.as_array());
+    let bg = match (&background_a, &background_b) {
+        (Some(a), Some(b)) => Some((a.as_array(), b.as_array())),
+        (None, None) => None,
+        _ => {
+            return Err(invalid(
+                "give both backgrounds (frame A's and frame B's) or neither",
+            ))
+        }
+    };
+    with_frames(py, &fr, |r| Ok(r.particle_diameter(window, mask, bg)?))
+}
+
+/// The one-line peak-locking warning for particle images of e^-2 diameter `(dx, dy)` px
+/// (`piv_core::particle_size::peak_locking_warning`): None from `MIN_PARTICLE_DIAMETER` on, or
+/// when not measured (NaN).
+#[pyfunction]
+fn peak_locking_warning(diameter_x: f64, diameter_y: f64) -> Option<String> {
+    piv_core::particle_size::peak_locking_warning((diameter_x, diameter_y))
+}
+
 /// Register the PIV functions in the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(correlation_check, m)?)?;
@@ -277,6 +314,12 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         piv_core::validate::MAX_REPLACED_FRACTION,
     )?;
     m.add("BLANK_EDGE", piv_core::validate::BLANK_EDGE)?;
+    m.add_function(wrap_pyfunction!(peak_locking_warning, m)?)?;
+    m.add_function(wrap_pyfunction!(particle_diameter, m)?)?;
+    m.add(
+        "MIN_PARTICLE_DIAMETER",
+        piv_core::particle_size::MIN_PARTICLE_DIAMETER,
+    )?;
     m.add_function(wrap_pyfunction!(piv, m)?)?;
     m.add_function(wrap_pyfunction!(piv_at, m)?)?;
     m.add_function(wrap_pyfunction!(piv_final_points, m)?)?;

@@ -434,6 +434,9 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     summary["timings_s"] = res.timings
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
+    for key in ("particle_diameter_px", "particle_size_warnings"):
+        if key in camp.info:
+            summary[key] = camp.info[key]
     res.files["summary"] = atomic_write_text(
         out / "summary.json", json.dumps(summary, indent=1, default=json_default)
     )
@@ -458,6 +461,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     main = ctx.runs[0]
     w, h = ctx.piv.final_window
     piv = {"samples N": res.n_done, "final window x (px)": w, "final window y (px)": h}
+    if "particle_diameter_px" in camp.info:
+        piv["particle image diameter x, y (px)"] = tuple(camp.info["particle_diameter_px"])
     r0 = res.analyses.get(main.name)
     if r0 is not None and r0.result is not None and camp.calibration is not None:
         lv_px = r0.result.nu / r0.result.u_tau * 1e3 * camp.calibration.magnification
@@ -476,6 +481,9 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:
             extra.insert(0, sec)
+    if camp.info.get("particle_size_warnings"):
+        said = "\n\n".join(f"Warning: {w}." for w in camp.info["particle_size_warnings"].values())
+        extra.append(ReportSection("Particle images too small", text=said))
     note = partial_correlation_note(res)
     for title, text, column, pairs in (
         (

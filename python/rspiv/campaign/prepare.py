@@ -26,6 +26,7 @@ from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image, read_mask
 from rspiv.montecarlo import monte_carlo
 from rspiv.outputs import atomic_path, atomic_write_text
+from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.preprocess import Background
 from rspiv.stats import FieldAccumulator
 
@@ -141,6 +142,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     elif cal is not None:
         mapping_json = cal.mapping.to_json()
     ctx = dataclasses.replace(base, mapping_json=mapping_json, _cache={})
+    _particle_images(camp, ctx, pairs, info)
     if cfg.ensemble.enabled:
         ctx = _plan_ensemble(camp, ctx, pairs, cal, info)
     camp.calibration = cal
@@ -156,6 +158,32 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         ),
     )
     return ctx
+
+def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) -> None:
+    """The particle images' e^-2 diameter (px, along x and y) on the first readable pair of
+    the first ``camp.pilot_pairs``, as recorded (:func:`rspiv.particle_diameter`: the raw
+    frames less the run's backgrounds, the first pass's window, the mask), in
+    ``info["particle_diameter_px"]``. Particle images too small for a sub-pixel fit or for the
+    hot-pixel rule (:func:`rspiv.particle_size.warnings_for`) are said once and kept in
+    ``info["particle_size_warnings"]`` for ``summary.json`` and the report: the optics do not
+    change within a campaign, and every pair's displacements carry the same bias."""
+    for p in pairs[: max(camp.pilot_pairs, 1)]:
+        frames = pair_work.read_ahead(p, ctx.image_shape)
+        if isinstance(frames, str):
+            continue
+        try:
+            dx, dy = particle_diameter(*frames, ctx.piv.passes[0], ctx.mask(), ctx.backgrounds())
+        except (RspivError, ValueError):
+            continue  # bad data: the pair loop says what (and leaves the pair out)
+        info["particle_diameter_px"] = [dx, dy]
+        camp.say(f"particle images {dx:.2f} x {dy:.2f} px (pair {p.pair_id}, e^-2 diameter)")
+        said = warnings_for((dx, dy), ctx.preprocess)
+        if said:
+            info["particle_size_warnings"] = said
+        for line in said.values():
+            camp.say(f"WARNING: {line}")
+        return
+
 
 def _pilot(
     camp, ctx: PairContext, pairs: list[PairSpec], what: str

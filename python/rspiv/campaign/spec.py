@@ -164,14 +164,17 @@ class PairContext:
 
     def ensemble_preprocess(self) -> Preprocess | None:
         """The conditioning of the frames the ensemble bands correlate, when it differs from
-        ``preprocess``: the same without the high-pass filter. A high-passed particle image's
-        correlation has negative side lobes (the filter removes its mean), so the summed cross
-        peak is no longer the auto peak widened by the displacement PDF that the Reynolds
-        stresses are read from; each window's mean removal already takes out the background.
+        ``preprocess``: the same without the high-pass filter and the smoothing. A high-passed
+        particle image's correlation has negative side lobes (the filter removes its mean), so
+        the summed cross peak is no longer the auto peak widened by the displacement PDF that
+        the Reynolds stresses are read from; each window's mean removal already takes out the
+        background. The smoothing is there against peak locking of single peaks, which a
+        summed plane does not suffer, and would cost the bands' resolution next to the wall.
         None: the PIV's own conditioned frames serve."""
-        if not self.preprocess.enabled or self.preprocess.high_pass <= 0:
+        pre = self.preprocess
+        if not pre.enabled or (pre.high_pass <= 0 and pre.smooth <= 0):
             return None
-        return dataclasses.replace(self.preprocess, high_pass=0.0)
+        return dataclasses.replace(pre, high_pass=0.0, smooth=0.0)
 
     def grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Window centres (px) of the final pass, shape (ny, nx) each (same for every run)."""

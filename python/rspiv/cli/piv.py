@@ -18,10 +18,11 @@ from typing import Any
 import rspiv
 from rspiv.calibration import Calibration
 from rspiv.correction import correct
-from rspiv.errors import CorrelationWarning, InvalidInputError
+from rspiv.errors import CorrelationWarning, InvalidInputError, ParticleSizeWarning
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
 from rspiv.io import DAVIS_SUFFIXES, davis_info, read_mask, read_pair
 from rspiv.outputs import write_netcdf
+from rspiv.particle_size import as_recorded, warnings_for
 from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import (
     DEFORMATIONS,
@@ -87,6 +88,9 @@ def settings_from_args(args: argparse.Namespace) -> PivSettings:
 #: The run's attributes also written into a Tecplot file.
 _TECPLOT_AUX = (
     "warning",
+    "peak_locking",
+    "hot_pixels",
+    "particle_diameter_px",
     "frame_a",
     "frame_b",
     "piv_settings",
@@ -119,13 +123,20 @@ def run(args: argparse.Namespace) -> int:
             )
     mask = read_mask(args.mask, a.shape) if args.mask is not None else None
     pre = Preprocess(
-        hot_pixels=args.hot_pixels, high_pass=args.high_pass, cap=args.cap, min_max=args.min_max
+        hot_pixels=args.hot_pixels,
+        high_pass=args.high_pass,
+        smooth=args.smooth,
+        cap=args.cap,
+        min_max=args.min_max,
     )
+    recorded = a, b
     if pre.enabled:
         a, b = condition_pair(a, b, pre)
+    method = "none"
     with warnings.catch_warnings():
         # said once below, as one line of this command, and written to the file
         warnings.simplefilter("ignore", CorrelationWarning)
+        warnings.simplefilter("ignore", ParticleSizeWarning)
         if args.calibration is not None:
             method = parse_method(args.method or "II")
             if method == "none":
@@ -137,7 +148,13 @@ def run(args: argparse.Namespace) -> int:
             raise InvalidInputError(f"--method {args.method} needs --calibration")
         else:
             field = rspiv.piv(a, b, settings=settings, mask=mask)
+    # the particle images as recorded (not as conditioned or dewarped), and what they say
+    field = as_recorded(
+        field, *recorded, settings.passes[0], mask=mask, preprocess=pre, dewarped=method == "I"
+    )
+    small = warnings_for(field.particle_diameter, pre)
     ds = field.to_xarray()
+    ds.attrs.update(small)  # "peak_locking" (as to_xarray has it), "hot_pixels"
     ds.attrs["frame_a"] = str(args.frame_a)
     ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
     ds.attrs["piv_settings"] = settings.to_json()
@@ -160,13 +177,17 @@ def run(args: argparse.Namespace) -> int:
         write_netcdf(ds, out)
     n = field.u.size
     c = field.peak_counts()
+    dx, dy = field.particle_diameter
     print(
         f"rspiv piv: {n} vectors {field.shape[1]} x {field.shape[0]}, "
         f"{c['second']} from the second correlation peak, {c['third']} from the third, "
-        f"{c['interpolated']} interpolated, {int(field.masked.sum())} masked -> {out}"
+        f"{c['interpolated']} interpolated, {int(field.masked.sum())} masked, "
+        f"particle images {dx:.1f} x {dy:.1f} px -> {out}"
     )
     if "warning" in ds.attrs:
         print(f"rspiv piv: warning: {ds.attrs['warning']}", file=sys.stderr)
+    for line in small.values():
+        print(f"rspiv piv: warning: {line}", file=sys.stderr)
     return 0
 
 
@@ -200,6 +221,12 @@ def register(sub) -> None:
     g = p.add_argument_group("image conditioning (rspiv.preprocess; 0: off)")
     g.add_argument("--hot-pixels", type=float, default=0.0, help="factor over the neighbours (3)")
     g.add_argument("--high-pass", type=float, default=0.0, help="Gaussian sigma, px (2)")
+    g.add_argument(
+        "--smooth",
+        type=float,
+        default=0.0,
+        help="Gaussian smoothing sigma, px, <= 2 (0.5: particle images under 2 px, peak locking)",
+    )
     g.add_argument("--cap", type=float, default=0.0, help="cap at mean + CAP * std")
     g.add_argument("--min-max", type=int, default=0, help="min-max normalisation window, px")
     p.add_argument(

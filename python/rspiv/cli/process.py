@@ -84,6 +84,8 @@ def _process(args: argparse.Namespace) -> int:
     note = partial_correlation_note(res)
     if note:
         print(f"warning: {note}", file=sys.stderr)
+    for line in camp.info.get("particle_size_warnings", {}).values():
+        print(f"warning: {line}", file=sys.stderr)
     for a in res.analyses.values():
         if a.result is not None:
             s = a.result.summary()

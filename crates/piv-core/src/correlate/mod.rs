@@ -69,6 +69,13 @@ pub struct Peak {
     /// (`uncertainty.rs`, Wieneke 2015); NaN unless asked for ([`Correlator::uncertainty`]) and the
     /// peak is `ok`.
     pub sigma: (f64, f64),
+    /// Standard deviation (px) along x and y of the Gaussian through the peak's three values
+    /// on each axis (the plane divided by the windows' overlap, as the 3-point fit sees it):
+    /// the correlation peak's width, `sqrt(2)` times the particle images' own (a Gaussian
+    /// particle image of e^-2 diameter `d`, as recorded, gives `d / (2 sqrt(2))`), broadened
+    /// by a displacement that varies across the window. NaN where the three values are not all
+    /// positive or not a maximum, and for [`Peak::FAILED`].
+    pub width: (f64, f64),
 }
 
 /// A secondary correlation peak (see [`Peak::alt`]); equality as [`Peak`]'s.
@@ -104,6 +111,7 @@ impl PartialEq for Peak {
             && self.ok == o.ok
             && self.alt == o.alt
             && same_sigma(self.sigma, o.sigma)
+            && same_sigma(self.width, o.width)
     }
 }
 
@@ -132,6 +140,7 @@ impl Peak {
         ok: false,
         alt: [AltPeak::NONE; 2],
         sigma: (f64::NAN, f64::NAN),
+        width: (f64::NAN, f64::NAN),
     };
 }
 

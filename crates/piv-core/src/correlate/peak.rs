@@ -200,11 +200,10 @@ pub(super) fn find_peak_with(
             on_border |= (rr, cc) != (pr, pc) && at(cc, rr) > best;
         }
     }
+    let (g3, width) = gauss3_2_width(&unbiased, pc, pr);
     let (ox, oy) = match sub {
-        SubPixel::Gauss3 => gauss3_2(&unbiased, pc, pr),
-        SubPixel::Gauss2d => {
-            gauss9(&unbiased, pc, pr).unwrap_or_else(|| gauss3_2(&unbiased, pc, pr))
-        }
+        SubPixel::Gauss3 => g3,
+        SubPixel::Gauss2d => gauss9(&unbiased, pc, pr).unwrap_or(g3),
     };
     let cx = (cw / 2) as f64;
     let cy = (ch / 2) as f64;
@@ -230,6 +229,7 @@ pub(super) fn find_peak_with(
         ok: !on_border,
         alt,
         sigma: (f64::NAN, f64::NAN),
+        width,
     };
     (peak, lags)
 }
@@ -308,41 +308,53 @@ pub(super) fn keep_top2(top: &mut [(f32, usize, usize); 2], cand: (f32, usize, u
 /// 3-point estimator along one axis; Gaussian when all values are positive, else parabolic.
 #[inline]
 pub fn gauss3(m: f32, c: f32, p: f32) -> f64 {
-    gauss3_lc(m, c, p, (c as f64).ln())
+    gauss3_lc(m, c, p, (c as f64).ln()).0
 }
 
-/// [`gauss3`] given `lc = ln(c)` (used only where `c > 0`).
+/// [`gauss3`] given `lc = ln(c)` (used only where `c > 0`), and the standard deviation (px) of
+/// the Gaussian through the three values (NaN where they are not all positive or not a
+/// maximum).
 #[inline(always)]
-fn gauss3_lc(m: f32, c: f32, p: f32, lc: f64) -> f64 {
+fn gauss3_lc(m: f32, c: f32, p: f32, lc: f64) -> (f64, f64) {
     let (m, c, p) = (m as f64, c as f64, p as f64);
-    let off = if m > 0.0 && c > 0.0 && p > 0.0 {
+    let (off, width) = if m > 0.0 && c > 0.0 && p > 0.0 {
         let (lm, lp) = (m.ln(), p.ln());
         let den = 2.0 * (lm - 2.0 * lc + lp);
         if den < 0.0 {
-            (lm - lp) / den
+            // ln R = const - (k - k0)^2 / (2 s^2): lm - 2 lc + lp = -1 / s^2
+            ((lm - lp) / den, (-2.0 / den).sqrt())
         } else {
-            0.0
+            (0.0, f64::NAN)
         }
     } else {
         let den = 2.0 * (m - 2.0 * c + p);
         if den < 0.0 {
-            (m - p) / den
+            ((m - p) / den, f64::NAN)
         } else {
-            0.0
+            (0.0, f64::NAN)
         }
     };
-    off.clamp(-0.5, 0.5)
+    (off.clamp(-0.5, 0.5), width)
 }
 
 /// [`gauss3`] along x and y at plane position `(c, r)` of `at`, the centre's logarithm once.
 #[inline(always)]
 pub(super) fn gauss3_2(at: &impl Fn(usize, usize) -> f32, c: usize, r: usize) -> (f64, f64) {
+    gauss3_2_width(at, c, r).0
+}
+
+/// [`gauss3_2`] and the peak's standard deviations along x and y ([`super::Peak::width`]).
+#[inline(always)]
+pub(super) fn gauss3_2_width(
+    at: &impl Fn(usize, usize) -> f32,
+    c: usize,
+    r: usize,
+) -> ((f64, f64), (f64, f64)) {
     let v = at(c, r);
     let lc = (v as f64).ln();
-    (
-        gauss3_lc(at(c - 1, r), v, at(c + 1, r), lc),
-        gauss3_lc(at(c, r - 1), v, at(c, r + 1), lc),
-    )
+    let (ox, wx) = gauss3_lc(at(c - 1, r), v, at(c + 1, r), lc);
+    let (oy, wy) = gauss3_lc(at(c, r - 1), v, at(c, r + 1), lc);
+    ((ox, oy), (wx, wy))
 }
 
 /// Least-squares fit of `ln R = a + b x + c y + d x^2 + e x y + f y^2` to the 3 x 3

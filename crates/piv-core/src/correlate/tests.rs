@@ -296,6 +296,21 @@ fn find_peak_plain(corr: &[f32], cw: usize, ch: usize, sub: SubPixel) -> Peak {
             gauss9(&unbiased, pc, pr).unwrap_or_else(|| gauss3_2(&unbiased, pc, pr))
         }
     };
+    // the peak's width from its three values along each axis, written out
+    let width_of = |m: f32, c: f32, p: f32| {
+        let (m, c, p) = (m as f64, c as f64, p as f64);
+        let k = m.ln() - 2.0 * c.ln() + p.ln();
+        if m > 0.0 && c > 0.0 && p > 0.0 && k < 0.0 {
+            (-1.0 / k).sqrt()
+        } else {
+            f64::NAN
+        }
+    };
+    let u = |c: usize, r: usize| unbiased(c, r);
+    let width = (
+        width_of(u(pc - 1, pr), u(pc, pr), u(pc + 1, pr)),
+        width_of(u(pc, pr - 1), u(pc, pr), u(pc, pr + 1)),
+    );
     let alt_of = |m: Option<&(f32, usize, usize)>| match m {
         Some(&(v, c, r)) => {
             let (ox, oy) = gauss3_2(&unbiased, c, r);
@@ -316,6 +331,7 @@ fn find_peak_plain(corr: &[f32], cw: usize, ch: usize, sub: SubPixel) -> Peak {
         ok: !on_border,
         alt: [alt_of(maxima.first()), alt_of(third)],
         sigma: (f64::NAN, f64::NAN),
+        width,
     }
 }
 

@@ -43,6 +43,10 @@ pub struct PivField {
     pub peak_choice: Array2<u8>,
     /// Not computed: inside the mask, or the centre outside the image.
     pub masked: Array2<bool>,
+    /// The particle images' e^-2 diameter (px of the frames correlated, as recorded) along x
+    /// and y, from the correlation peaks of the first pass
+    /// ([`crate::particle_size::particle_diameter`]); NaN where not measured.
+    pub particle_diameter: (f64, f64),
 }
 
 impl PivField {
@@ -319,6 +323,7 @@ pub(crate) fn finish(
     mut v: Array2<f64>,
     peaks: &[Peak],
     skip: &[bool],
+    particle_diameter: (f64, f64),
     Validation {
         valid,
         replaced,
@@ -390,6 +395,7 @@ pub(crate) fn finish(
         replaced,
         peak_choice,
         masked,
+        particle_diameter,
     }
 }
 

@@ -9,6 +9,7 @@ use super::window::*;
 use crate::correlate::Uncertainty;
 use crate::error::{PivError, Result};
 use crate::image::{GridField, Pixel};
+use crate::particle_size::particle_diameter;
 use ndarray::{Array2, ArrayView2};
 use rayon::prelude::*;
 
@@ -151,6 +152,9 @@ pub(crate) fn at_points<T: Pixel>(
     // window deformed by it is the window mean of `true - predictor`, see `crate::multipass`)
     let (mut bu, mut bv) = (vec![0.0; n], vec![0.0; n]);
     let mut last = None;
+    // measured on the first correlation (interpolated windows here unless the predictor is
+    // zero: see `crate::particle_size`)
+    let mut diameter = None;
     // the pair deformed once by the field predictor (see `Predictor::Field`)
     let mut deformed: Option<Frames<'static, f32>> = None;
     for (p, &(w, h)) in windows.iter().enumerate() {
@@ -192,6 +196,7 @@ pub(crate) fn at_points<T: Pixel>(
                 _ => frames.sweep(w, h, xs, ys, du, dv, skip, base, sub, u),
             };
             let mut peaks = sweep(&xs, &ys, &du, &dv, &skip, unc);
+            diameter.get_or_insert_with(|| particle_diameter(&peaks));
             let mut u = par_grid(shape, |j, i| {
                 let k = j * shape.1 + i;
                 bu[k] + du[k] + peaks[k].dx
@@ -238,6 +243,7 @@ pub(crate) fn at_points<T: Pixel>(
         v,
         &peaks,
         &skip,
+        diameter.unwrap_or((f64::NAN, f64::NAN)),
         checked,
     ))
 }
@@ -349,6 +355,11 @@ pub fn piv_with_final_points<T: Pixel>(
                 &settings_at,
             )?
         }
+    };
+    // the particle images as recorded: the predictor's first pass read the frames themselves
+    let f = PivField {
+        particle_diameter: pred.particle_diameter,
+        ..f
     };
     Ok((Some(pred), f))
 }

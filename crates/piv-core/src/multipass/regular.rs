@@ -8,6 +8,7 @@ use crate::correlate::Uncertainty;
 use crate::error::{PivError, Result};
 use crate::grid::Grid;
 use crate::image::{GridField, Pixel};
+use crate::particle_size::particle_diameter;
 use ndarray::{Array2, ArrayView2};
 use rayon::prelude::*;
 
@@ -50,6 +51,8 @@ pub(crate) fn grid_passes<T: Pixel>(
     let mut pred: Option<GridField> = None;
     let mut last = None;
     let mut spare = None;
+    // measured on the first correlation: windows cut from the frames as recorded
+    let mut diameter = None;
     for (pass, grid) in s.passes.iter().zip(grids) {
         let n = grid.len();
         let mut xs = Vec::with_capacity(n);
@@ -107,6 +110,7 @@ pub(crate) fn grid_passes<T: Pixel>(
                 }
             };
             let mut peaks = sweep(&xs, &ys, du, dv, &skip, unc);
+            let first = *diameter.get_or_insert_with(|| particle_diameter(&peaks));
             let mut u = par_grid((grid.ny, grid.nx), |j, i| {
                 let k = j * grid.nx + i;
                 pu[k] + peaks[k].dx
@@ -137,13 +141,23 @@ pub(crate) fn grid_passes<T: Pixel>(
                 u: u.clone(),
                 v: v.clone(),
             });
-            last = Some((u, v, peaks, checked));
+            last = Some((u, v, peaks, checked, first));
         }
-        if let Some((u, v, peaks, checked)) = last.take() {
+        if let Some((u, v, peaks, checked, first)) = last.take() {
             if last_pass {
                 let x = Array2::from_shape_vec((grid.ny, grid.nx), xs).expect("shape");
                 let y = Array2::from_shape_vec((grid.ny, grid.nx), ys).expect("shape");
-                return Ok(finish(Some(grid), x, y, u, v, &peaks, &skip, checked));
+                return Ok(finish(
+                    Some(grid),
+                    x,
+                    y,
+                    u,
+                    v,
+                    &peaks,
+                    &skip,
+                    first,
+                    checked,
+                ));
             }
         }
     }
