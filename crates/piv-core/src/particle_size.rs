@@ -93,18 +93,6 @@ pub fn measure<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
     backgrounds: Option<(ArrayView2<'_, f32>, ArrayView2<'_, f32>)>,
 ) -> Result<(f64, f64)> {
-    measure_at_most(frame_a, frame_b, (w, h), mask, backgrounds, MEASURE_WINDOWS)
-}
-
-/// [`measure`] from at most `most` windows.
-pub(crate) fn measure_at_most<T: Pixel>(
-    frame_a: ArrayView2<'_, T>,
-    frame_b: ArrayView2<'_, T>,
-    (w, h): (usize, usize),
-    mask: Option<ArrayView2<'_, bool>>,
-    backgrounds: Option<(ArrayView2<'_, f32>, ArrayView2<'_, f32>)>,
-    most: usize,
-) -> Result<(f64, f64)> {
     check_pair(&frame_a, &frame_b)?;
     let (rows, cols) = frame_a.dim();
     check_mask(&mask, (rows, cols))?;
@@ -129,7 +117,7 @@ pub(crate) fn measure_at_most<T: Pixel>(
         )));
     }
     let (nx, ny) = (cols / w, rows / h);
-    let k = ((nx * ny) as f64 / most.max(1) as f64)
+    let k = ((nx * ny) as f64 / MEASURE_WINDOWS as f64)
         .sqrt()
         .ceil()
         .max(1.0) as usize;

@@ -10,7 +10,7 @@ use crate::image::{
     keys_weights, sample_shift, GridField, Img, Pixel, Source,
 };
 use crate::weighting::Weighting;
-use ndarray::{Array2, ArrayView2};
+use ndarray::ArrayView2;
 use rayon::prelude::*;
 
 /// Runs `$body` with `$src` bound to the [`Source`] of `$frames` for the interpolation images
@@ -146,40 +146,6 @@ impl<'a, T: Pixel> Frames<'a, T> {
             coeffs: std::sync::OnceLock::new(),
             rule: BlankRule { floor, background },
         })
-    }
-
-    /// Both frames as views.
-    pub(crate) fn views(&self) -> (ArrayView2<'_, T>, ArrayView2<'_, T>) {
-        fn view<'s, T: Pixel>(i: &'s Img<'_, T>) -> ArrayView2<'s, T> {
-            ArrayView2::from_shape((i.height, i.width), i.slice()).expect("an image's own shape")
-        }
-        (view(&self.a), view(&self.b))
-    }
-
-    /// Both frames binned 2 x 2 (each binned pixel the mean of a 2 x 2 block; pixel `(j, i)`
-    /// holds the original pixels `oy + 2 j ..= oy + 2 j + 1` by `ox + 2 i ..= ox + 2 i + 1`,
-    /// its centre at `(ox + 2 i + 0.5, oy + 2 j + 0.5)` in the original pixel frame; an odd
-    /// last row or column left out), rows in parallel.
-    pub(crate) fn binned(&self, ox: usize, oy: usize) -> (Array2<f32>, Array2<f32>) {
-        let bin = |img: &Img<'_, T>| {
-            let (w, h) = (img.width, img.height);
-            let (bw, bh) = ((w - ox.min(w)) / 2, (h - oy.min(h)) / 2);
-            let src = img.slice();
-            let mut out = vec![0.0f32; bw * bh];
-            out.par_chunks_mut(bw.max(1))
-                .enumerate()
-                .for_each(|(j, row)| {
-                    let r0 = &src[(oy + 2 * j) * w + ox..];
-                    let r1 = &src[(oy + 2 * j + 1) * w + ox..];
-                    for (i, o) in row.iter_mut().enumerate() {
-                        let s = (r0[2 * i].to_f32() + r0[2 * i + 1].to_f32())
-                            + (r1[2 * i].to_f32() + r1[2 * i + 1].to_f32());
-                        *o = 0.25 * s;
-                    }
-                });
-            Array2::from_shape_vec((bh, bw), out).expect("bh * bw values")
-        };
-        rayon::join(|| bin(&self.a), || bin(&self.b))
     }
 
     pub(crate) fn coeffs(&self) -> &Coeffs {

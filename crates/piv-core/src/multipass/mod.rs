@@ -38,17 +38,6 @@
 //! from the pair deformed once (a common sub-pixel shift of both windows, see
 //! [`Predictor::Field`]); later iterations sample each window on its own.
 //!
-//! The first pass of three or more (Method II's pass at the points counted), with windows of
-//! 64 px or more both ways, only gives the next pass its predictor: it correlates the frames
-//! binned 2 x 2 with windows of half the size (the same particle images and search range, a
-//! quarter of the work; 0.93 -> 0.23 s of a 47 MP pair's 3.8 s), its displacements doubled.
-//! The pass after it measures the residual of its deformed or offset windows at full
-//! resolution, and the one after that takes away what the coarser predictor left: the final
-//! fields' RMS error is unchanged to within 0.5 % (`benches/RESULTS.md`, "a binned first
-//! pass"). With two passes it is not done (64 -> 32 on 1.7 px particle images: 0.081 -> 0.101
-//! px RMS). The particle images' diameter ([`crate::particle_size`]) then comes from windows
-//! of the first pass's size cut from the frames as recorded.
-//!
 //! After every iteration the vectors go through the normalised median test (and an optional
 //! peak-ratio threshold); rejected ones are replaced from their neighbours. Vectors inside the
 //! mask are neither computed nor used as neighbours; they are filled for the predictor only and

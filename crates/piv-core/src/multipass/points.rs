@@ -257,9 +257,7 @@ pub(crate) fn at_points<T: Pixel>(
 /// predictor that are not computed (mask) take the mean of the computed ones.
 ///
 /// Gives the same vectors as [`piv`] with the first passes followed by [`piv_at`] with that
-/// predictor, except that the first pass here counts the pass at the points among those that
-/// follow it: with three passes in all and a first window of 64 px or more it correlates the
-/// frames binned 2 x 2, as in a three-pass [`piv`] (`regular::coarse_first_pass`). Returns `(predictor, final)`; `predictor` is `None` when `s` has one pass (the
+/// predictor. Returns `(predictor, final)`; `predictor` is `None` when `s` has one pass (the
 /// final pass then has no predictor).
 pub fn piv_with_final_points<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
@@ -303,7 +301,7 @@ pub fn piv_with_final_points<T: Pixel>(
         )?;
         return Ok((None, f));
     }
-    let pred = grid_passes(&frames, dim, &mask, &first, grids, 1)?;
+    let pred = grid_passes(&frames, dim, &mask, &first, grids)?;
     let grid = pred.grid.expect("grid passes give a grid field");
     let fill = |a: &Array2<f64>| {
         let (sum, n) = a
