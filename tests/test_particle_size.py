@@ -78,6 +78,23 @@ def test_small_particle_images_are_measured_and_their_peak_locking_said():
     assert "peak_locking" not in fl.to_xarray().attrs
 
 
+def test_bad_input_is_refused_in_one_line():
+    a, b = _pair(2.5)
+    for args, kw, what in (
+        ((a, b[:, :-1]), {}, "differ in shape"),
+        ((a, b), {"window": (2048, 64)}, "window"),
+        ((a, b), {"mask": np.zeros((10, 10), bool)}, "mask"),
+        ((a, b), {"backgrounds": (np.zeros((8, 8)), np.zeros((8, 8)))}, "backgrounds"),
+    ):
+        with pytest.raises(rspiv.InvalidInputError, match=what) as e:
+            rspiv.particle_diameter(*args, **kw)
+        assert "\n" not in str(e.value)
+    # blank frames: not measured, and nothing said
+    z = np.zeros((128, 128), np.uint16)
+    assert all(np.isnan(rspiv.particle_diameter(z, z)))
+    assert rspiv.particle_size.warnings_for((float("nan"), float("nan"))) == {}
+
+
 def test_the_diameter_is_that_of_the_frames_as_recorded():
     """A high-pass narrows the correlation peaks without making the particle images smaller
     (2.7 px images read about 2 px once high-passed): rspiv.piv measures the frames before its

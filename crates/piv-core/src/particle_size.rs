@@ -106,11 +106,6 @@ pub fn measure<T: Pixel>(
             )));
         }
     }
-    let bg = |which: usize, y: usize, x: usize| match &backgrounds {
-        Some(b) => [b.0, b.1][which][[y, x]],
-        None => 0.0,
-    };
-    let less = backgrounds.is_some();
     if w < 4 || h < 4 || w > cols || h > rows {
         return Err(PivError::InvalidInput(format!(
             "window {w} x {h} px: at least 4 x 4 and at most the frames' {cols} x {rows}"
@@ -140,9 +135,9 @@ pub fn measure<T: Pixel>(
                             let (y, x) = (ya + r, xa + q);
                             let (mut va, mut vb) =
                                 (frame_a[[y, x]].to_f32(), frame_b[[y, x]].to_f32());
-                            if less {
-                                va = (va - bg(0, y, x)).max(0.0);
-                                vb = (vb - bg(1, y, x)).max(0.0);
+                            if let Some((ba, bb)) = &backgrounds {
+                                va = (va - ba[[y, x]]).max(0.0);
+                                vb = (vb - bb[[y, x]]).max(0.0);
                             }
                             c.wa[r * w + q] = va;
                             c.wb[r * w + q] = vb;
