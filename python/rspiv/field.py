@@ -62,12 +62,13 @@ class PivField:
     particle_diameter : tuple of float
         The particle images' e^-2 diameter along x and y, px, as recorded (the optics' image
         integrated over the pixel), from the widths of the first pass's confident correlation
-        peaks (``piv_core::particle_size``; within 3 % on synthetic images); :func:`rspiv.piv`
-        measures the frames before it high-passes, smooths or dewarps them
-        (:mod:`rspiv.particle_size`). NaN where not measured (fewer than 16 windows with a peak
-        ratio of 2 or more). A displacement varying across the windows widens the peaks, so
-        the smaller axis is the better estimate. Under 2 px the sub-pixel displacements lean
-        towards whole pixels (peak locking): :meth:`peak_locking` says so.
+        peaks (``piv_core::particle_size``; 1-4 % under the pixel-integrated diameter on
+        synthetic images); :func:`rspiv.piv` measures the frames as given when it conditions
+        (only their backgrounds subtracted) or dewarps them (:mod:`rspiv.particle_size`). NaN
+        where not measured (fewer than 16 windows with a peak ratio of 2 or more). A
+        displacement varying across the windows widens the peaks, so the smaller axis is the
+        better estimate. Under 2 px the sub-pixel displacements lean towards whole pixels
+        (peak locking): :meth:`peak_locking` says so.
     """
 
     x: np.ndarray

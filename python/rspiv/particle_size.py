@@ -4,9 +4,9 @@ A correlation peak of two windows of the same Gaussian particle images is a Gaus
 ``sqrt(2)`` times as wide as the images; the particle images' e^-2 diameter (px, as recorded:
 the optics' image integrated over the pixel) is ``2 sqrt(2)`` times the median width of the
 confident peaks (peak ratio >= 2) of windows cut from the frames themselves
-(``piv_core::particle_size``, within 3 % on synthetic images). Every :class:`rspiv.PivField`
-carries it (:attr:`~rspiv.PivField.particle_diameter`, from its first pass);
-:func:`particle_diameter` measures a pair directly.
+(``piv_core::particle_size``, 1-4 % under the pixel-integrated diameter on synthetic
+images). Every :class:`rspiv.PivField` carries it (:attr:`~rspiv.PivField.particle_diameter`,
+from its first pass); :func:`particle_diameter` measures a pair directly.
 
 What the frames went through matters: a high-pass narrows the correlation peaks without making
 the particle images smaller (particle images of 2.7 px read 2.0-2.2 px after a 2 px

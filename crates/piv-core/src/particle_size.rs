@@ -14,7 +14,7 @@
 //! bound in a strongly sheared field; the smaller of the two axes is the better estimate.
 //!
 //! Measured on synthetic particle images of known size (`render_particles`, pixel-integrated;
-//! passes 64 -> 32 -> 32 x 8): the diameter comes back within 3 % of the recorded one (e.g.
+//! passes 64 -> 32 -> 32 x 8): the diameter comes back 1-4 % under the recorded one (e.g.
 //! 1.51 px for particles of nominal diameter 1.0, whose pixel-integrated image has 1.53 px).
 //!
 //! Particle images under about 2 px are known to bias every sub-pixel fit towards whole pixels

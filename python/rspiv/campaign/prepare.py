@@ -159,6 +159,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     )
     return ctx
 
+
 def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) -> None:
     """The particle images' e^-2 diameter (px, along x and y) on the first readable pair of
     the first ``camp.pilot_pairs``, as recorded (:func:`rspiv.particle_diameter`: the raw

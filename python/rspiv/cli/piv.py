@@ -225,7 +225,8 @@ def register(sub) -> None:
         "--smooth",
         type=float,
         default=0.0,
-        help="Gaussian smoothing sigma, px, <= 2 (0.5: particle images under 2 px, peak locking)",
+        help="Gaussian smoothing sigma, px, <= 2 (0.7: about halves the peak locking of particle "
+        "images under 2 px)",
     )
     g.add_argument("--cap", type=float, default=0.0, help="cap at mean + CAP * std")
     g.add_argument("--min-max", type=int, default=0, help="min-max normalisation window, px")
