@@ -42,6 +42,12 @@ def _locking(f):
     return -np.linalg.lstsq(x, e, rcond=None)[0][1], float(np.sqrt(np.mean(e**2)))
 
 
+def _quiet_correlation(fn, *args, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rspiv.CorrelationWarning)
+        return fn(*args, **kw)
+
+
 def _quiet(fn, *args, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -89,9 +95,15 @@ def test_bad_input_is_refused_in_one_line():
         with pytest.raises(rspiv.InvalidInputError, match=what) as e:
             rspiv.particle_diameter(*args, **kw)
         assert "\n" not in str(e.value)
-    # blank frames: not measured, and nothing said
+    # blank frames, and a frame given twice (its autocorrelation, narrowed by its own noise):
+    # not measured, and nothing said
     z = np.zeros((128, 128), np.uint16)
     assert all(np.isnan(rspiv.particle_diameter(z, z)))
+    assert all(np.isnan(rspiv.particle_diameter(a, a)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", rspiv.ParticleSizeWarning)
+        f = _quiet_correlation(rspiv.piv, a, a)
+    assert all(np.isnan(f.particle_diameter)) and f.peak_locking() is None
     assert rspiv.particle_size.warnings_for((float("nan"), float("nan"))) == {}
 
 

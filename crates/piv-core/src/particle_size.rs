@@ -35,6 +35,13 @@ use rayon::prelude::*;
 /// wide).
 pub const DIAMETER_MIN_PEAK_RATIO: f64 = 2.0;
 
+/// A peak at least this high (the normalised correlation coefficient) comes from the same
+/// pixels in both windows: frame A given twice, or a static pattern that dominates the window.
+/// Its width is that of the autocorrelation, narrowed by the noise it shares with itself (1 px
+/// for camera noise, 2.5 px for OpenPIV's `test1` whose images read 2.5-3.2 px against their
+/// partner): not the particle images', so such peaks are left out. Real pairs give 0.3-0.9.
+pub const DIAMETER_MAX_COEF: f64 = 0.999;
+
 /// Fewer confident peaks than this: the diameter is not measured (NaN).
 pub const DIAMETER_MIN_WINDOWS: usize = 16;
 
@@ -49,13 +56,14 @@ pub const DIAMETER_MIN_WINDOWS: usize = 16;
 pub const MIN_PARTICLE_DIAMETER: f64 = 2.0;
 
 /// The particle images' e^-2 diameter (px, as recorded) along x and y: `2 sqrt(2)` times the
-/// median width of the confident correlation peaks among `peaks` (see the module notes); NaN
-/// along an axis with fewer than [`DIAMETER_MIN_WINDOWS`] of them.
+/// median width of the confident correlation peaks among `peaks` (peak ratio at least
+/// [`DIAMETER_MIN_PEAK_RATIO`], coefficient under [`DIAMETER_MAX_COEF`]; see the module
+/// notes); NaN along an axis with fewer than [`DIAMETER_MIN_WINDOWS`] of them.
 pub fn particle_diameter(peaks: &[Peak]) -> (f64, f64) {
     let confident = || {
         peaks
             .iter()
-            .filter(|p| p.ok && p.ratio >= DIAMETER_MIN_PEAK_RATIO)
+            .filter(|p| p.ok && p.ratio >= DIAMETER_MIN_PEAK_RATIO && p.coef < DIAMETER_MAX_COEF)
     };
     let axis = |w: fn(&Peak) -> f64| {
         let mut a: Vec<f64> = confident().map(w).filter(|x| x.is_finite()).collect();
@@ -184,6 +192,7 @@ mod tests {
             ratio,
             ok: true,
             width: w,
+            coef: 0.6,
             ..Peak::FAILED
         }
     }
@@ -199,6 +208,15 @@ mod tests {
         assert!((dx - 0.6 * k).abs() < 1e-12 && (dy - 0.8 * k).abs() < 1e-12);
         // too few confident peaks: not measured
         let (dx, dy) = particle_diameter(&peaks[10..]);
+        assert!(dx.is_nan() && dy.is_nan());
+        // peaks of a window with itself (coefficient 1) are not the particle images'
+        let same: Vec<Peak> = (0..40)
+            .map(|_| Peak {
+                coef: 1.0,
+                ..peak((0.3, 0.3), 50.0)
+            })
+            .collect();
+        let (dx, dy) = particle_diameter(&same);
         assert!(dx.is_nan() && dy.is_nan());
         assert!(peak_locking_warning((dx, dy)).is_none());
     }
