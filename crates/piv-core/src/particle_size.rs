@@ -89,7 +89,7 @@ pub const MEASURE_WINDOWS: usize = 4096;
 /// `rspiv.piv` reports for the frames as recorded when it conditions or dewarps them itself:
 /// a high-pass narrows the correlation peaks without making the particle images smaller (2.7
 /// px images read 2.0-2.2 px after a 2 px high-pass), the hot-pixel rule flattens images under
-/// 1.5 px, and an interpolation widens images under 2 px.
+/// 2 px (1.6 px images read 1.9 px after it), and an interpolation widens images under 2 px.
 ///
 /// # Errors
 /// [`PivError::InvalidInput`] for frames of different shapes, a mask or a background of
