@@ -11,10 +11,11 @@ from its first pass); :func:`particle_diameter` measures a pair directly.
 What the frames went through matters: a high-pass narrows the correlation peaks without making
 the particle images smaller (particle images of 2.7 px read 2.0-2.2 px after a 2 px
 high-pass), the hot-pixel rule flattens particle images under 2 px (it takes their brightest
-pixel for a sensor defect: 1.6 px images read 1.9 px after it), smoothing widens them after the sensor sampled them, and an
-interpolation (dewarping, Method I) widens those under 2 px. So :func:`rspiv.piv` reports the
-diameter of the frames as recorded: when it conditions them (``preprocess``) or dewarps them
-(``method="images"``), it measures the frames as given, only their backgrounds subtracted.
+pixel for a sensor defect: 1.6 px images read 1.9 px after it), smoothing widens them after
+the sensor sampled them, and an interpolation (dewarping, Method I) widens those under 2 px.
+So :func:`rspiv.piv` reports the diameter of the frames as recorded: when it conditions them
+(``preprocess``) or dewarps them (``method="images"``), it measures the frames as given, only
+their backgrounds subtracted.
 
 Particle images under ``MIN_PARTICLE_DIAMETER`` (2 px) lock every sub-pixel displacement
 towards whole pixels (:meth:`rspiv.PivField.peak_locking`, :class:`rspiv.ParticleSizeWarning`).
