@@ -23,6 +23,13 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # buffers (.im7/.imx/.ims, needs rspiv[davis]) or 2-page TIFFs;
                                  # a DaVis "Run.set" means the files Run/*.im7
     max_pairs = 0                # 0: all
+    pairing = "pairs"            # glob / multiframe: "pairs" (frames 1-2, 3-4, ...: a
+                                 # double-frame camera) | "sequential" (frames k and
+                                 # k + frame_gap for k = 0, pair_step, 2 pair_step, ...: a
+                                 # time-resolved recording; each frame is read once)
+    frame_gap = 1                # sequential: frame B is frame_gap frames after frame A
+                                 # ([flow] dt is then the time across those frame_gap frames)
+    pair_step = 1                # sequential: frames between the first frames of two pairs
 
     [correction]
     method = "II"                # "I" (dewarp images, then PIV) | "II" (PIV, then map) | "none"
@@ -152,6 +159,48 @@ class ImagesConfig:
     multiframe: pathlib.Path | None = None
     double_frame: str | None = None
     max_pairs: int = 0
+    pairing: str = "pairs"
+    frame_gap: int = 1
+    pair_step: int = 1
+
+    def frame_pairs(self, n: int, source: str, *, odd_ok: bool = False) -> list[tuple[int, int]]:
+        """The (frame A, frame B) indices of ``n`` frames in order (files of ``glob``, pages
+        of ``multiframe``, named by ``source`` in errors), as ``pairing`` forms them.
+
+        ``odd_ok``: with ``pairs``, an odd last frame is left out (the pages of one stack: a
+        recording stopped after frame A) rather than refused (files: one may be missing
+        anywhere, and every pair after it would be formed wrongly).
+
+        Raises
+        ------
+        InvalidInputError
+            ``pairs`` with an odd number of frames (unless ``odd_ok``); ``sequential`` with
+            ``frame_gap`` frames or fewer.
+        """
+        if self.pairing == "sequential":
+            if n <= self.frame_gap:
+                raise InvalidInputError(
+                    f"{source}: {n} frame(s); sequential pairing with frame_gap = "
+                    f"{self.frame_gap} needs at least {self.frame_gap + 1}"
+                )
+            out = [(k, k + self.frame_gap) for k in range(0, n - self.frame_gap, self.pair_step)]
+        else:
+            if n % 2 and odd_ok:
+                n -= 1
+            if n % 2:
+                raise InvalidInputError(
+                    f"{source}: {n} frames; pairs (1-2, 3-4, ...) need an even count "
+                    '(a time-resolved recording: [images] pairing = "sequential")'
+                )
+            out = [(k, k + 1) for k in range(0, n, 2)]
+        return out[: self.max_pairs] if self.max_pairs else out
+
+    def describe_pairing(self) -> str:
+        """One line: how the frames form pairs."""
+        if self.pairing != "sequential":
+            return "frames 1-2, 3-4, ... (pairs)"
+        step = "every frame" if self.pair_step == 1 else f"every {self.pair_step} frames"
+        return f"frames k and k + {self.frame_gap}, {step} (sequential, time-resolved)"
 
     def double_frame_files(self) -> list[pathlib.Path]:
         """The files of ``double_frame`` (a glob, or a DaVis ``.set`` standing for the
@@ -171,7 +220,8 @@ class ImagesConfig:
         Raises
         ------
         InvalidInputError
-            If the glob matches nothing or an odd number of files.
+            If the glob matches nothing, or too few or an odd number of files for the
+            pairing (:meth:`frame_pairs`).
         """
         if self.pairs is not None:
             out = list(self.pairs)
@@ -180,12 +230,8 @@ class ImagesConfig:
             files = sorted(pattern.parent.glob(pattern.name))
             if not files:
                 raise InvalidInputError(f"[images].glob: no file matches {self.glob!r}")
-            if len(files) % 2:
-                raise InvalidInputError(
-                    f"[images].glob: {len(files)} files match {self.glob!r}; "
-                    "pairs need an even count"
-                )
-            out = list(zip(files[0::2], files[1::2], strict=True))
+            idx = self.frame_pairs(len(files), f"[images].glob {self.glob!r}")
+            return [(files[i], files[j]) for i, j in idx]
         else:
             raise InvalidInputError("[images]: multiframe input has frames, not pair files")
         return out[: self.max_pairs] if self.max_pairs else out
@@ -379,6 +425,9 @@ class CampaignConfig:
         if im.double_frame is not None:
             imd["double_frame"] = p(im.double_frame)
         imd["max_pairs"] = im.max_pairs
+        imd["pairing"] = im.pairing
+        imd["frame_gap"] = im.frame_gap
+        imd["pair_step"] = im.pair_step
         out["images"] = imd
         out["correction"] = dataclasses.asdict(self.correction)
         pv = dataclasses.asdict(self.piv)
@@ -483,6 +532,17 @@ def parse_campaign_config(
             "[images]",
             "expected exactly one of glob, pairs, multiframe, double_frame"
             + (f", got {', '.join(given)}" if given else ", got none"),
+        )
+    im = cfg.images
+    if im.pairing != "sequential":
+        for key in ("frame_gap", "pair_step"):
+            if getattr(im, key) != 1:
+                raise ctx.err(f"[images].{key}", 'needs [images] pairing = "sequential"')
+    elif im.pairs is not None or im.double_frame is not None:
+        raise ctx.err(
+            "[images].pairing",
+            '"sequential" pairs the frames of glob or multiframe; pairs and double_frame '
+            "name their pairs",
         )
     if cfg.correction.method in ("I", "II") and cfg.calibration.target is None:
         raise ctx.err(

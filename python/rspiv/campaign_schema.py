@@ -159,6 +159,9 @@ PARSERS: dict[str, dict[str, Any]] = {
         "multiframe": lambda c, w, v: c.path(w, v, image=True, allow_empty=False, tiff=True),
         "double_frame": lambda c, w, v: str(c.path(w, v, allow_empty=False)),
         "max_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+        "pairing": lambda c, w, v: _choice(c, w, v, ("pairs", "sequential"), fold=str.lower),
+        "frame_gap": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "pair_step": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
     },
     "correction": {
         "method": _method,

@@ -434,7 +434,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     summary["timings_s"] = res.timings
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
-    for key in ("particle_diameter_px", "particle_size_warnings"):
+    for key in ("particle_diameter_px", "particle_size_warnings", "pairing"):
         if key in camp.info:
             summary[key] = camp.info[key]
     res.files["summary"] = atomic_write_text(
@@ -461,6 +461,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     main = ctx.runs[0]
     w, h = ctx.piv.final_window
     piv = {"samples N": res.n_done, "final window x (px)": w, "final window y (px)": h}
+    if "pairing" in camp.info:
+        piv["image pairs"] = camp.info["pairing"]["description"]
     if "particle_diameter_px" in camp.info:
         piv["particle image diameter x, y (px)"] = tuple(camp.info["particle_diameter_px"])
     r0 = res.analyses.get(main.name)

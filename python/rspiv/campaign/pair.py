@@ -11,7 +11,9 @@ Units: fields in px per pair; corrected runs in object px, the uncorrected run i
 
 from __future__ import annotations
 
+import collections
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -25,7 +27,13 @@ from rspiv.io import read_image
 from rspiv.multipass import run_grid
 from rspiv.preprocess import condition_pair
 
-__all__ = ["process_pair", "read_ahead", "read_checked_pair", "read_frame"]
+__all__ = [
+    "FrameCache",
+    "process_pair",
+    "read_ahead",
+    "read_checked_pair",
+    "read_frame",
+]
 
 
 def read_frame(path: str, index: int | None) -> np.ndarray:
@@ -34,8 +42,65 @@ def read_frame(path: str, index: int | None) -> np.ndarray:
     return read_image(path, 0 if index is None else int(index))
 
 
-def read_checked_pair(pair: PairSpec, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Frames A and B of ``pair``, each checked to be of the campaign's ``shape = (h, w)``.
+class FrameCache:
+    """The frames read last, kept for the pairs still to come that share them.
+
+    With sequential pairing (a time-resolved recording, ``[images] pairing = "sequential"``)
+    frame k is frame B of pair k - frame_gap and frame A of pair k: kept here, each frame is read
+    and decoded once. The cache holds at most ``frames`` frames and ``max_bytes`` of pixels,
+    evicting the least recently used; its frames are read-only (the same array serves two
+    pairs). Not thread-safe: one reader uses it.
+
+    Build it with :meth:`for_pairs`, which sizes it from the pairs' own reuse distance.
+    """
+
+    def __init__(self, frames: int, max_bytes: int = 512 << 20) -> None:
+        self.frames = max(int(frames), 1)
+        self.max_bytes = int(max_bytes)
+        self._held: collections.OrderedDict[tuple[str, int], np.ndarray] = (
+            collections.OrderedDict()
+        )
+        self.hits = 0
+        self.reads = 0
+
+    @classmethod
+    def for_pairs(cls, pairs: Sequence[PairSpec], limit: int = 8) -> FrameCache | None:
+        """A cache large enough for ``pairs`` processed in order: one frame more than the
+        longest run of pairs between two uses of a frame (at most ``limit``); None when no
+        frame is used twice (pairs 1-2, 3-4, ...: nothing to keep)."""
+        last: dict[tuple[str, int], int] = {}
+        gap = 0
+        for k, p in enumerate(pairs):
+            for key in ((p.a, p.frame_a or 0), (p.b, p.frame_b or 0)):
+                if key in last and k > last[key]:
+                    gap = max(gap, k - last[key])
+                last[key] = k
+        return cls(min(gap + 1, limit)) if gap else None
+
+    def read(self, path: str, index: int | None) -> np.ndarray:
+        """Frame ``index`` of ``path`` (:func:`read_frame`), from the cache when held."""
+        key = (path, 0 if index is None else int(index))
+        f = self._held.get(key)
+        if f is not None:
+            self._held.move_to_end(key)
+            self.hits += 1
+            return f
+        f = read_frame(path, index)
+        self.reads += 1
+        f.flags.writeable = False
+        self._held[key] = f
+        while len(self._held) > self.frames or (
+            len(self._held) > 1 and sum(a.nbytes for a in self._held.values()) > self.max_bytes
+        ):
+            self._held.popitem(last=False)
+        return f
+
+
+def read_checked_pair(
+    pair: PairSpec, shape: tuple[int, int], cache: FrameCache | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frames A and B of ``pair``, each checked to be of the campaign's ``shape = (h, w)``;
+    through ``cache`` (:class:`FrameCache`) when given.
 
     Raises
     ------
@@ -43,8 +108,9 @@ def read_checked_pair(pair: PairSpec, shape: tuple[int, int]) -> tuple[np.ndarra
         One line naming the file: a frame missing, unreadable (truncated, foreign) or not 2D,
         or of another size than ``shape`` (e.g. a page of a stack written at another size).
     """
-    a = read_frame(pair.a, pair.frame_a)
-    b = read_frame(pair.b, pair.frame_b)
+    read = read_frame if cache is None else cache.read
+    a = read(pair.a, pair.frame_a)
+    b = read(pair.b, pair.frame_b)
     for name, f in (("frame A", a), ("frame B", b)):
         if f.shape != tuple(shape):
             raise InvalidInputError(
@@ -97,12 +163,14 @@ def _field_arrays(
     return u, v, valid, np.asarray(su, np.float64), np.asarray(sv, np.float64)
 
 
-def read_ahead(pair: PairSpec, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | str:
-    """Frames A and B of ``pair`` (:func:`read_checked_pair`), or the one-line reason they
-    cannot be used: what :func:`process_pair` takes as ``frames`` when the reading was done
-    ahead, e.g. in a thread while the previous pair's PIV runs."""
+def read_ahead(
+    pair: PairSpec, shape: tuple[int, int], cache: FrameCache | None = None
+) -> tuple[np.ndarray, np.ndarray] | str:
+    """Frames A and B of ``pair`` (:func:`read_checked_pair`, through ``cache`` when given), or
+    the one-line reason they cannot be used: what :func:`process_pair` takes as ``frames`` when
+    the reading was done ahead, e.g. in a thread while the previous pair's PIV runs."""
     try:
-        return read_checked_pair(pair, shape)
+        return read_checked_pair(pair, shape, cache)
     except (RspivError, ValueError, OSError) as exc:
         return str(exc)
 

@@ -60,6 +60,19 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     runs = camp.runs()
     figdir = out / "report" / "figures"
     info: dict[str, Any] = {"figures": {}, "wall_deviation": {}}
+    im = cfg.images
+    if im.pairing == "sequential":
+        info["pairing"] = {
+            "pairing": im.pairing,
+            "frame_gap": im.frame_gap,
+            "pair_step": im.pair_step,
+            "description": im.describe_pairing(),
+        }
+        dt = f"{cfg.flow.dt:g} s" if cfg.flow.dt else "[flow] dt"
+        camp.say(
+            f"{len(pairs)} pair(s) of {im.describe_pairing()}: {dt} is the time from frame k "
+            f"to frame k + {im.frame_gap}"
+        )
     mapping_json = None
     cal = None
     # Everything that can refuse the inputs runs before anything is written: the frames' shape
@@ -297,17 +310,19 @@ class _LevelWall:
 
 def _backgrounds(camp, pairs: list[PairSpec], pre, shape: tuple[int, int]) -> tuple[Any, Any]:
     """The run's backgrounds of frames A and B (``pre.background``: min or mean over every
-    pair, :class:`rspiv.preprocess.Background`), streaming over the files (one pair in memory).
-    A pair that cannot be read or is not of the run's ``shape`` is left out here (the pair step
-    reports it as skipped); InvalidInputError with the first such reason when fewer than two
-    are left (over one pair the background is the frames themselves)."""
+    pair, :class:`rspiv.preprocess.Background`), streaming over the files (one pair in memory;
+    with sequential pairing, a time-resolved recording, the frames shared by successive pairs
+    are read once). A pair that cannot be read or is not of the run's ``shape`` is left out
+    here (the pair step reports it as skipped); InvalidInputError with the first such reason
+    when fewer than two are left (over one pair the background is the frames themselves)."""
     t0 = time.perf_counter()
     est = (Background(pre.background), Background(pre.background))
     used = 0
     first_reason = ""
+    cache = pair_work.FrameCache.for_pairs(pairs)  # sequential pairing: each frame read once
     for p in pairs:
         try:
-            a, b = pair_work.read_checked_pair(p, shape)
+            a, b = pair_work.read_checked_pair(p, shape, cache)
         except (RspivError, ValueError, OSError) as exc:
             first_reason = first_reason or str(exc)
             continue

@@ -101,8 +101,8 @@ class Campaign:
                     n = len(tf.pages)
             except Exception as exc:  # noqa: BLE001
                 raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
-            out = [PairSpec(k, str(p), str(p), 2 * k, 2 * k + 1) for k in range(n // 2)]
-            return out[: im.max_pairs] if im.max_pairs else out
+            idx = im.frame_pairs(n, f"[images].multiframe {p}", odd_ok=True)
+            return [PairSpec(k, str(p), str(p), i, j) for k, (i, j) in enumerate(idx)]
         if im.double_frame is not None:
             files = im.double_frame_files()
             return [PairSpec(k, str(f), str(f), 0, 1) for k, f in enumerate(files)]

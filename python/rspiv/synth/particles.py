@@ -14,7 +14,7 @@ import numpy as np
 from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 
-__all__ = ["particle_pair"]
+__all__ = ["particle_pair", "particle_sequence"]
 
 
 def _displacement_at(displacement, x: np.ndarray, y: np.ndarray, shape) -> tuple:
@@ -80,6 +80,57 @@ def particle_pair(
     -------
     frame_a, frame_b : ndarray of uint16, shape ``shape``
     """
+    frame_a, frame_b = _render(
+        shape, displacement, (-0.5, 0.5), density, diameter, noise, seed, bits
+    )
+    return frame_a, frame_b
+
+
+def particle_sequence(
+    shape: tuple[int, int],
+    displacement: Callable | tuple,
+    frames: int,
+    density: float = 0.03,
+    diameter: float = 2.5,
+    noise: float = 0.05,
+    seed: int = 0,
+    *,
+    bits: int = 12,
+) -> list[np.ndarray]:
+    """Render a time-resolved recording: ``frames`` frames whose particles move by a known
+    displacement per frame interval.
+
+    Each particle moves on a straight line at its own constant displacement per frame,
+    ``displacement`` evaluated at its position ``p`` at the middle of the recording: in frame k
+    it sits at ``p + (k - (frames - 1) / 2) d(p)``. Frames k and k + g are then a pair whose
+    displacement is ``g d``, exactly where ``d`` is uniform or points along x and varies with
+    y only (a parallel shear flow, a boundary layer's mean profile); elsewhere ``d`` is taken
+    at the particle's mid-recording position.
+
+    Parameters
+    ----------
+    shape, density, diameter, noise, seed, bits
+        As :func:`particle_pair`.
+    displacement : callable, (u, v) floats or (u, v) arrays
+        Displacement per frame interval in px, as :func:`particle_pair` takes it.
+    frames : int
+        Number of frames, >= 2.
+
+    Returns
+    -------
+    list of ndarray of uint16, shape ``shape``
+        The frames in time order.
+    """
+    if int(frames) < 2:
+        raise InvalidInputError(f"frames must be >= 2, got {frames!r}")
+    c = (int(frames) - 1) / 2.0
+    offsets = tuple(k - c for k in range(int(frames)))
+    return _render(shape, displacement, offsets, density, diameter, noise, seed, bits)
+
+
+def _render(shape, displacement, offsets, density, diameter, noise, seed, bits) -> list:
+    """Frames of particles drawn around midpoints ``p`` and placed at ``p + o d(p)`` for each
+    offset ``o`` of ``offsets`` (:func:`particle_pair`: -1/2 and 1/2)."""
     h, w = (int(s) for s in shape)
     if h < 1 or w < 1:
         raise InvalidInputError(f"shape {shape} must be positive")
@@ -96,19 +147,21 @@ def particle_pair(
         u, v = _displacement_at(displacement, xm, ym, (h, w))
         if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
             raise InvalidInputError("displacement contains NaN or inf")
-        reach = 0.5 * float(max(np.max(np.abs(u), initial=0), np.max(np.abs(v), initial=0)))
+        reach = max(abs(o) for o in offsets) * float(
+            max(np.max(np.abs(u), initial=0), np.max(np.abs(v), initial=0))
+        )
         if reach + 2.0 * diameter + 2.0 <= margin:
             break
         margin = reach + 2.0 * diameter + 4.0
     peak = 0.8 * full * rng.uniform(0.6, 1.0, n)
     sigma = noise * 0.8 * full * 0.8
     diam = np.array([float(diameter)])
-    seeds = rng.integers(0, 2**63 - 1, 2)
+    seeds = rng.integers(0, 2**63 - 1, len(offsets))
     frames = []
-    for sign, s in ((-0.5, seeds[0]), (0.5, seeds[1])):
+    for sign, s in zip(offsets, seeds, strict=True):
         frames.append(
             _rspiv.render_particles(
                 h, w, xm + sign * u, ym + sign * v, peak, diam, sigma, int(full), int(s)
             )
         )
-    return frames[0], frames[1]
+    return frames

@@ -21,8 +21,10 @@ class LocalExecutor:
     While a pair is processed, one reader thread reads and decodes the next pair's frames
     (:func:`rspiv.campaign.pair.read_ahead`; the file reads and the PIV release the GIL), so the
     PIV does not wait for the disk: the frames of two pairs are in memory at a time (190 MB per
-    47 MP pair of uint16 frames, besides the current pair's working copies). The run log's
-    ``read`` timing is the time the PIV waited for its frames.
+    47 MP pair of uint16 frames, besides the current pair's working copies). With sequential
+    pairing the frames shared by successive pairs are read once
+    (:class:`rspiv.campaign.pair.FrameCache`, a few frames more). The run log's ``read``
+    timing is the time the PIV waited for its frames.
 
     A checkpoint is written every ``checkpoint_every`` pairs and at the end; on an interrupt
     (KeyboardInterrupt) the pairs finished so far are checkpointed before it propagates, so a
@@ -43,14 +45,15 @@ class LocalExecutor:
         todo = list(state.todo)
         shape = tuple(state.ctx.image_shape)
         reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rspiv-read")
-        ahead = reader.submit(pair_work.read_ahead, todo[0], shape) if todo else None
+        cache = pair_work.FrameCache.for_pairs(todo)  # sequential pairing: frames read once
+        ahead = reader.submit(pair_work.read_ahead, todo[0], shape, cache) if todo else None
         try:
             for i, p in enumerate(todo):
                 t0 = time.perf_counter()
                 frames = ahead.result()
                 waited = time.perf_counter() - t0
                 nxt = todo[i + 1] if i + 1 < len(todo) else None
-                ahead = reader.submit(pair_work.read_ahead, nxt, shape) if nxt else None
+                ahead = reader.submit(pair_work.read_ahead, nxt, shape, cache) if nxt else None
                 ens = ensemble_work.band_accumulators(state.accs)
                 consistent = not ens  # the ensembles are added to inside process_pair
                 r = pair_work.process_pair(state.ctx, p, frames=frames, ensembles=ens)
