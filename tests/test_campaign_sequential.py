@@ -196,3 +196,76 @@ def test_sequential_pages_of_one_stack(recording, tmp_path):
     np.testing.assert_array_equal(
         res.accumulators["uncorrected"].mean_u, ref.accumulators["uncorrected"].mean_u
     )
+
+
+def _field_files(out, run):
+    import xarray as xr
+
+    files = sorted((out / "fields" / run).glob("pair_*.nc"))
+    return [xr.load_dataset(f, engine="h5netcdf") for f in files], files
+
+
+def test_fields_of_every_pair(recording, tmp_path):
+    """[output] fields: one file per pair and run, whose valid vectors average to the
+    campaign's statistics; turned on for a finished campaign, the pairs without a file are
+    said."""
+    out = tmp_path / "out"
+    cfg = _config(recording, out, pairing="sequential")
+    cfg.flow.dt = 1e-3
+    _, plain = _run(cfg, out)
+    assert not (out / "fields").exists()
+    cfg.output.fields = True
+    said = []
+    camp = Campaign(cfg, progress=False, out_dir=out, log=said.append)
+    res = camp.run()  # resumed: every pair finished, none has its file
+    assert res.n_resumed == FRAMES - 1
+    assert any(f"{FRAMES - 1} pair(s) finished before have no field file" in s for s in said)
+    out2 = tmp_path / "out2"
+    _, res = _run(cfg, out2)
+    dss, files = _field_files(out2, "uncorrected")
+    assert [f.name for f in files] == [f"pair_{k:06d}.nc" for k in range(FRAMES - 1)]
+    gx, gy = res.context.grid()
+    acc = res.accumulators["uncorrected"]
+    for k, ds in enumerate(dss):
+        assert ds["u"].dtype == np.float32 and ds["u"].attrs["units"] == "pix"
+        assert ds.attrs["pair_id"] == k and ds.attrs["frame_b"].endswith(f"frame_{k + 1:03d}.tif")
+        assert ds.attrs["dt_s"] == 1e-3 and "m_per_px" not in ds.attrs
+        assert ds.attrs["frame"] == "raw image" and ds.attrs["run"] == "uncorrected"
+        np.testing.assert_array_equal(ds["x"], gx[0])
+        np.testing.assert_array_equal(ds["y"], gy[:, 0])
+        assert {"sigma_u", "sigma_v", "valid"} <= set(ds)
+        assert np.all(np.isnan(ds["u"].values[ds["valid"].values == 0]))
+    valid = np.stack([ds["valid"].values for ds in dss]).astype(bool)
+    np.testing.assert_array_equal(valid.sum(axis=0), acc.count)
+    for comp, mean in (("u", acc.mean_u), ("v", acc.mean_v)):
+        stack = np.stack([ds[comp].values.astype(np.float64) for ds in dss])
+        seen = acc.count > 0
+        got = np.nansum(stack, axis=0)[seen] / acc.count[seen]
+        # float32 files: a relative rounding of 6e-8 per value
+        np.testing.assert_allclose(got, mean[seen], rtol=1e-6, atol=1e-6)
+    # the statistics do not depend on the fields being written
+    np.testing.assert_array_equal(acc.mean_u, plain.accumulators["uncorrected"].mean_u)
+    summary = json.loads((out2 / "summary.json").read_text())
+    assert summary["timings_s"]["fields"] > 0
+
+
+def test_a_pair_list_changed_under_the_checkpoint_is_refused(recording, tmp_path):
+    """Pairs are resumed by id: the checkpoint keeps each finished pair's frames, so switching
+    the pairing (pair 1: frames 2-3, then 1-2) is refused in one line, while pairs added after
+    the finished ones (a recording that grew) resume."""
+    out = tmp_path / "out"
+    _run(_config(recording, out), out)
+    with pytest.raises(InvalidInputError) as e:
+        _run(_config(recording, out, pairing="sequential"), out)
+    msg = str(e.value)
+    assert "\n" not in msg and "the pair list changed under the checkpoint" in msg, msg
+    assert "finished pair 1 is now " in msg and "frame_001.tif, " in msg and "frame_002.tif" in msg
+    # a recording that grew: the first three sequential pairs, then all five
+    out2 = tmp_path / "out2"
+    _run(_config(recording, out2, pairing="sequential", max_pairs=3), out2)
+    _, res = _run(_config(recording, out2, pairing="sequential"), out2)
+    assert (res.n_resumed, res.n_done) == (3, FRAMES - 1)
+    # fewer pairs than were finished: refused as well
+    gone = "finished pair 2 is not among the campaign's 2 pairs"
+    with pytest.raises(InvalidInputError, match=gone):
+        _run(_config(recording, out2, pairing="sequential", max_pairs=2), out2)

@@ -211,6 +211,30 @@ def test_bad_pair_is_skipped_and_logged_under_dask(synth, local, client, tmp_pat
         assert_same_statistics(acc, res.accumulators[run], rtol=1e-12)
 
 
+def test_dask_workers_write_each_pairs_fields(synth, local, client, tmp_path):
+    """[output] fields under Dask: each worker writes its pairs' files; per run, their valid
+    vectors average to the local run's statistics, in object px with the calibration's
+    scale."""
+    import xarray as xr
+
+    out = prepared_copy(local.out_dir, tmp_path / "out")
+    camp = _camp(synth, out)
+    camp.config.output.fields = True
+    res = run_dask(camp, client, chunk_size=2, progress_interval=0)
+    assert res.n_done == N_PAIRS and res.timings["fields"] > 0
+    for run, ref in local.accumulators.items():
+        files = sorted((out / "fields" / run).glob("pair_*.nc"))
+        assert [f.name for f in files] == [f"pair_{k:06d}.nc" for k in range(N_PAIRS)]
+        dss = [xr.load_dataset(f, engine="h5netcdf") for f in files]
+        assert dss[0].attrs["frame"] == ("raw image" if run == "uncorrected" else "object")
+        assert dss[0].attrs["m_per_px"] == pytest.approx(1e-3 / camp.calibration.magnification)
+        valid = np.stack([ds["valid"].values for ds in dss]).astype(bool)
+        np.testing.assert_array_equal(valid.sum(axis=0), ref.count)
+        u = np.nansum(np.stack([ds["u"].values.astype(np.float64) for ds in dss]), axis=0)
+        seen = ref.count > 0
+        np.testing.assert_allclose(u[seen] / ref.count[seen], ref.mean_u[seen], atol=1e-5)
+
+
 def test_dask_resumes_an_interrupted_local_run(synth, local, client, tmp_path, monkeypatch):
     """A local run interrupted after 3 pairs, resumed on Dask: the checkpoint's pairs are not
     recomputed and the statistics (lag-1 chains included) are those of one uninterrupted pass."""

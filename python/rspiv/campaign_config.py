@@ -110,6 +110,8 @@ A complete file (every key optional except where noted; defaults shown)::
     netcdf = true
     csv = true
     report = true
+    fields = false               # every pair's vector fields: OUT/fields/<run>/pair_<id>.nc
+                                 # (rspiv.campaign.fields; 12 MB per 47 MP pair and run)
 
 Paths are relative to the campaign file's folder; the loader makes them absolute. Any error
 (malformed TOML, a wrong type, an unknown key) raises :class:`~rspiv.errors.InvalidInputError`
@@ -347,6 +349,7 @@ class OutputConfig:
     netcdf: bool = True
     csv: bool = True
     report: bool = True
+    fields: bool = False
 
 
 _SECTIONS: dict[str, type] = {

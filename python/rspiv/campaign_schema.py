@@ -232,6 +232,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "netcdf": _boolean,
         "csv": _boolean,
         "report": _boolean,
+        "fields": _boolean,
     },
 }
 

@@ -28,7 +28,9 @@ skeleton) and :mod:`~rspiv.campaign.executors` (local, Dask).
    SI units (``M`` from the calibration, ``dt`` and ``nu`` from ``[flow]``), the boundary layer
    is analysed (:func:`rspiv.analyse_profile`) and the outputs are written atomically:
    ``statistics_<run>.nc`` (pivpy names, CF units), ``profile_<run>.nc``, ``profile_<run>.csv``,
-   ``summary.json`` and ``report/report.{md,html}``.
+   ``summary.json`` and ``report/report.{md,html}``. With ``[output] fields = true`` each
+   pair's vector fields are written as it is processed, in px per pair
+   (:mod:`~rspiv.campaign.fields`: ``OUT/fields/<run>/pair_<id>.nc``).
 
 Sharding (``shard=(i, n)``, 1-based, ``rspiv process --shard i/n``) processes the i-th of n
 contiguous slices of the pair list and writes the raw accumulators to
@@ -41,6 +43,7 @@ displacements in px per pair along the pixel axes; outputs are in m, m/s with x 
 (direction of the mean flow) and y from the wall into the flow.
 """
 
+from rspiv.campaign.fields import FieldWriter
 from rspiv.campaign.pair import process_pair
 from rspiv.campaign.runner import Campaign
 from rspiv.campaign.spec import (
@@ -62,6 +65,7 @@ __all__ = [
     "STAGES",
     "Campaign",
     "CampaignResult",
+    "FieldWriter",
     "PairContext",
     "PairResult",
     "PairSpec",

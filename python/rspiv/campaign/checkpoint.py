@@ -1,21 +1,38 @@
 """Checkpoints of a campaign run: the accumulators and the finished pair ids, written atomically
 every ``checkpoint_every`` pairs and at the end to ``OUT/checkpoint/``; a restarted run (local or
 Dask, either way round) loads them and skips the finished pairs. A checkpoint carries the
-fingerprint of the :class:`PairContext` it was written for and is refused for another one.
+fingerprint of the :class:`PairContext` it was written for and is refused for another one, and
+the identity of every finished pair (:func:`pair_key`: its files' names and frame indices), so
+that a pair list that changed under the finished ids (files added, removed or renamed before
+them, another ``[images] pairing``) is refused rather than resumed with the wrong frames.
 """
 
 from __future__ import annotations
 
+import hashlib
 import pathlib
 import pickle
+from collections.abc import Mapping, Sequence
 from typing import Any
 
-from rspiv.campaign.spec import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, PairContext
+import numpy as np
+
+from rspiv.campaign.spec import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, PairContext, PairSpec
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_bytes
 from rspiv.stats import FieldAccumulator
 
-__all__ = ["checkpoint_path", "load_checkpoint", "save_checkpoint"]
+__all__ = ["checkpoint_path", "load_checkpoint", "pair_key", "save_checkpoint"]
+
+
+def pair_key(pair: PairSpec) -> int:
+    """A 64-bit identity of ``pair``: the names (not the folders: a campaign may move) of its
+    files and its frame indices."""
+    text = "\0".join(
+        str(v)
+        for v in (pathlib.Path(pair.a).name, pair.frame_a, pathlib.Path(pair.b).name, pair.frame_b)
+    )
+    return int.from_bytes(hashlib.blake2b(text.encode(), digest_size=8).digest(), "little")
 
 
 def checkpoint_path(out_dir: pathlib.Path, shard: tuple[int, int]) -> pathlib.Path:
@@ -37,6 +54,7 @@ def save_checkpoint(
     accs: dict[str, FieldAccumulator],
     finished: set[int],
     timings: dict[str, float],
+    pairs: Mapping[int, PairSpec] | None = None,
 ) -> None:
     """Write the checkpoint ``path`` (:func:`checkpoint_path`) of ``shard`` atomically.
 
@@ -50,7 +68,19 @@ def save_checkpoint(
         Ids of the pairs in ``accs``.
     timings : dict of str to float
         Time per stage summed over the pairs, s.
+    pairs : mapping of int to PairSpec, optional
+        The campaign's pairs by id: the finished ones' :func:`pair_key` are stored.
     """
+    ids = np.array(sorted(finished), dtype=np.int64)
+    keys = None
+    if pairs is not None:
+        gone = [i for i in ids.tolist() if i not in pairs]
+        if gone:
+            raise InvalidInputError(
+                f"{path}: finished pair {gone[0]} is not among the campaign's {len(pairs)} "
+                "pairs (the pair list changed since it was processed)"
+            )
+        keys = np.array([pair_key(pairs[i]) for i in ids.tolist()], np.uint64)
     state = {
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
@@ -59,16 +89,22 @@ def save_checkpoint(
         "finished": sorted(finished),
         "accumulators": accs,
         "timings": timings,
+        **({} if keys is None else {"pair_ids": ids, "pair_keys": keys}),
     }
     atomic_write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
-def load_checkpoint(path: pathlib.Path, ctx: PairContext) -> dict[str, Any] | None:
+def load_checkpoint(
+    path: pathlib.Path, ctx: PairContext, pairs: Sequence[PairSpec] | None = None
+) -> dict[str, Any] | None:
     """Read the checkpoint ``path`` written by :func:`save_checkpoint`.
 
     Parameters
     ----------
     ctx : PairContext
         The prepared context; the checkpoint must have been written for its fingerprint.
+    pairs : sequence of PairSpec, optional
+        The campaign's pair list now: every finished pair must still be the same frames
+        (checkpoints written without the pairs' identities are not checked).
 
     Returns
     -------
@@ -80,7 +116,7 @@ def load_checkpoint(path: pathlib.Path, ctx: PairContext) -> dict[str, Any] | No
     ------
     InvalidInputError
         The checkpoint is corrupt, of another checkpoint version or belongs to another
-        configuration.
+        configuration, or a finished pair is no longer the same frames.
     """
     if not path.is_file():
         return None
@@ -103,6 +139,22 @@ def load_checkpoint(path: pathlib.Path, ctx: PairContext) -> dict[str, Any] | No
             f"{path}: checkpoint of a different configuration (calibration, PIV or runs "
             "changed); delete the checkpoint folder or choose another output folder"
         )
+    if pairs is not None and "pair_keys" in state:
+        now = {p.pair_id: p for p in pairs}
+        for i, key in zip(state["pair_ids"].tolist(), state["pair_keys"].tolist(), strict=True):
+            p = now.get(i)
+            if p is None or pair_key(p) != key:
+                what = (
+                    f"is not among the campaign's {len(now)} pairs now"
+                    if p is None
+                    else f"is now {p.describe()}, other frames than when it was processed"
+                )
+                raise InvalidInputError(
+                    f"{path}: the pair list changed under the checkpoint: finished pair {i} "
+                    f"{what} (files added, removed or renamed before it, or another [images] "
+                    "pairing or max_pairs); delete the checkpoint folder or choose another "
+                    "output folder"
+                )
     return state
 
 # ------------------------------------------------------------------ run

@@ -18,6 +18,7 @@ from rspiv.campaign import checkpoint
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
+from rspiv.campaign.fields import FieldWriter
 from rspiv.campaign.prepare import prepare_context
 from rspiv.campaign.reduce import logged_warnings
 from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_shard, shard_slice
@@ -82,6 +83,7 @@ class Campaign:
         self.log_fn = log
         self.calibration = None
         self.info: dict[str, Any] = {}
+        self._pair_index: dict[int, PairSpec] | None = None
 
     @classmethod
     def load(cls, path: str | os.PathLike, **kwargs: Any) -> Campaign:
@@ -166,14 +168,24 @@ class Campaign:
         finished: set[int],
         timings: dict[str, float],
     ) -> None:
-        """Write this shard's checkpoint atomically
+        """Write this shard's checkpoint atomically, with the finished pairs' identities
         (:func:`rspiv.campaign.checkpoint.save_checkpoint`)."""
-        checkpoint.save_checkpoint(self.checkpoint_path(), self.shard, ctx, accs, finished, timings)
+        checkpoint.save_checkpoint(
+            self.checkpoint_path(), self.shard, ctx, accs, finished, timings, self.pair_index()
+        )
 
     def load_checkpoint(self, ctx: PairContext) -> dict[str, Any] | None:
         """This shard's checkpoint, or None (:func:`rspiv.campaign.checkpoint.load_checkpoint`;
-        InvalidInputError for a corrupt one or one of another configuration)."""
-        return checkpoint.load_checkpoint(self.checkpoint_path(), ctx)
+        InvalidInputError for a corrupt one, one of another configuration, or one whose
+        finished pairs are no longer the same frames)."""
+        pairs = list(self.pair_index().values())
+        return checkpoint.load_checkpoint(self.checkpoint_path(), ctx, pairs)
+
+    def pair_index(self) -> dict[int, PairSpec]:
+        """The campaign's pairs by id, listed once (:meth:`pairs`) and kept."""
+        if self._pair_index is None:
+            self._pair_index = {p.pair_id: p for p in self.pairs()}
+        return self._pair_index
 
     # ------------------------------------------------------------------ run
     def open_run(self, t_start: float | None = None) -> RunState:
@@ -201,7 +213,8 @@ class Campaign:
             t_start = time.perf_counter()
         check_writable(self.out_dir)
         log = RunLog(self.out_dir / "run_log.jsonl")
-        all_pairs = self.pairs()
+        self._pair_index = None  # listed afresh for every run
+        all_pairs = list(self.pair_index().values())
         if not all_pairs:
             raise InvalidInputError("the campaign has no image pairs")
         sel = [all_pairs[k] for k in shard_slice(len(all_pairs), self.shard)]
@@ -242,6 +255,34 @@ class Campaign:
             state.timings = {k: 0.0 for k in STAGES}
         state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)
         state.todo = [p for p in state.sel if p.pair_id not in state.finished]
+        state.fields = self.field_writer()
+        if state.fields is not None:
+            first = ctx.runs[0].name
+            missing = sum(
+                1
+                for p in state.sel
+                if p.pair_id in state.finished and not state.fields.path(first, p.pair_id).exists()
+            )
+            if missing:
+                self.say(
+                    f"WARNING: [output] fields: {missing} pair(s) finished before have no field "
+                    f"file in {state.fields.path(first, 0).parent.parent} (processed with "
+                    "fields = false, or their files removed); delete the checkpoint to redo them"
+                )
+
+    def field_writer(self) -> FieldWriter | None:
+        """The writer of each pair's fields (:mod:`rspiv.campaign.fields`) when ``[output]
+        fields`` is on, else None; after :meth:`prepare` (the calibration's scale)."""
+        cfg = self.config
+        if not cfg.output.fields:
+            return None
+        cal = self.calibration
+        return FieldWriter(
+            str(self.out_dir),
+            cfg.name,
+            dt=cfg.flow.dt if cfg.flow.dt > 0 else None,
+            m_per_px=1e-3 / cal.magnification if cal is not None else None,
+        )
 
     def announce_run(self, state: RunState, progress, **start_extra: Any) -> None:
         """Write the ``start`` record of the run log and report the pairs resumed.

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv.campaign.fields import FieldWriter
 from rspiv.campaign.spec import PairContext, PairSpec, RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.stats import FieldAccumulator
@@ -193,6 +194,8 @@ class RunState:
         Pairs of ``sel`` already finished at the start (from the checkpoint).
     todo : list of PairSpec
         Pairs of ``sel`` still to process.
+    fields : FieldWriter or None
+        Writes each processed pair's fields (``[output] fields``), None when off.
     """
 
     log: RunLog
@@ -206,3 +209,4 @@ class RunState:
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     n_resumed: int = 0
     todo: list[PairSpec] = dataclasses.field(default_factory=list)
+    fields: FieldWriter | None = None

@@ -63,6 +63,7 @@ import numpy as np
 
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair as pair_work
+from rspiv.campaign.fields import FieldWriter
 from rspiv.campaign.reduce import RunReducer, add_fields
 from rspiv.campaign.runner import Campaign
 from rspiv.campaign.spec import STAGES, PairContext, PairSpec
@@ -123,12 +124,15 @@ class ChunkResult:
 _CONTEXTS: dict[str, PairContext] = {}
 
 
-def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResult:
+def process_chunk(
+    context: PairContext, pairs: Sequence[PairSpec], fields: FieldWriter | None = None
+) -> ChunkResult:
     """Process ``pairs`` in order into one partial accumulator per run (a Dask task).
 
-    Pure: reads the frames, writes nothing. Bad data is skipped (as in
-    :meth:`Campaign.run`); an exception raised by one pair marks that pair failed and the
-    chunk goes on.
+    Pure: reads the frames and writes nothing but, with ``fields``, each pair's field files
+    (:mod:`rspiv.campaign.fields`: atomic, and the same again when a task is retried). Bad
+    data is skipped (as in :meth:`Campaign.run`); an exception raised by one pair (or by the
+    writing of its fields) marks that pair failed and the chunk goes on.
     """
     # one parsed context (mapping, mask) per worker process and campaign
     context = _CONTEXTS.setdefault(context.fingerprint(), context)
@@ -156,6 +160,12 @@ def process_chunk(context: PairContext, pairs: Sequence[PairSpec]) -> ChunkResul
         if not r.ok:
             skipped[p.pair_id] = (p.describe(), r.reason)
             continue
+        if fields is not None:
+            try:
+                timings["fields"] = timings.get("fields", 0.0) + fields.write(context, p, r)
+            except OSError as exc:
+                failed[p.pair_id] = (p.describe(), f"writing its fields: {exc}")
+                continue
         t0 = time.perf_counter()
         if first is None:
             first = {
@@ -625,8 +635,10 @@ class DaskExecutor:
     def _submit(self, lo: int, hi: int) -> Any:
         """One task: the pairs ``todo[lo:hi]``; the context is small (the mapping as JSON),
         sent with each task and cached per worker."""
+        # the field writer only when on: a chunk function of (context, pairs) stays valid
+        extra = {} if self.state.fields is None else {"fields": self.state.fields}
         f = self.client.submit(
-            process_chunk, self.state.ctx, self.state.todo[lo:hi], pure=False
+            process_chunk, self.state.ctx, self.state.todo[lo:hi], pure=False, **extra
         )
         self.key_of[f.key] = (lo, hi)
         return f

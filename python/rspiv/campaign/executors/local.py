@@ -65,6 +65,8 @@ class LocalExecutor:
                     red.skip(p.pair_id, p.describe(), r.reason)
                     progress.advance(skipped=True)
                     continue
+                if state.fields is not None:  # before the statistics: a failure keeps them whole
+                    red.add_timings({"fields": state.fields.write(state.ctx, p, r)})
                 consistent = False
                 red.add_timings({"statistics": add_fields(state.accs, r)})
                 state.finished.add(p.pair_id)
