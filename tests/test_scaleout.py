@@ -438,3 +438,38 @@ def test_interrupted_client_keeps_chunks_merged_out_of_order(
     assert not seg_file.exists()  # removed once everything joined the checkpoint
     for run, ref in local.accumulators.items():
         assert_same_statistics(ref, res.accumulators[run], rtol=1e-12)
+
+
+def test_sequential_pairing_under_dask(client, tmp_path, monkeypatch):
+    """A time-resolved recording paired sequentially: each chunk reads its frames once
+    (FrameCache) and the statistics are the local run's."""
+    import tifffile
+    from rspiv.campaign_config import CampaignConfig, ImagesConfig
+    from rspiv.synth import particle_sequence
+
+    frames = particle_sequence((192, 256), lambda x, y: (1.5 + y / 192.0, 0.0 * y), 7, seed=4)
+    for k, f in enumerate(frames):
+        tifffile.imwrite(tmp_path / f"f_{k:02d}.tif", f)
+    cfg = CampaignConfig()
+    cfg.images = ImagesConfig(glob=str(tmp_path / "f_*.tif"), pairing="sequential")
+    cfg.correction.method = "none"
+    cfg.correction.compare_uncorrected = False
+    cfg.wall.enabled = False
+    cfg.output.report = False
+    ref = Campaign(cfg, progress=False, out_dir=tmp_path / "local").run()
+    out = prepared_copy(tmp_path / "local", tmp_path / "dask")
+    res = run_dask(
+        Campaign(cfg, progress=False, out_dir=out), client, chunk_size=3, progress_interval=0
+    )
+    assert res.n_done == ref.n_done == 6 and not res.skipped
+    assert_same_statistics(
+        ref.accumulators["uncorrected"], res.accumulators["uncorrected"], rtol=1e-12
+    )
+    # a chunk of three pairs reads its four frames once each
+    from rspiv.campaign import pair as pair_work
+
+    reads = []
+    read = pair_work.read_frame
+    monkeypatch.setattr(pair_work, "read_frame", lambda f, i: reads.append(f) or read(f, i))
+    chunk = scaleout.process_chunk(res.context, Campaign(cfg, progress=False).pairs()[:3])
+    assert len(chunk.done) == 3 and len(reads) == 4

@@ -146,9 +146,16 @@ def process_chunk(
     warned: dict[int, tuple[str, str]] = {}
     pair_timings: dict[int, dict[str, float]] = {}
     timings = {k: 0.0 for k in STAGES}
+    cache = pair_work.FrameCache.for_pairs(pairs)  # sequential pairing: frames read once
+    shape = tuple(context.image_shape)
     for p in pairs:
         try:
-            r = pair_work.process_pair(context, p, ensembles=ens)
+            t0 = time.perf_counter()
+            frames = None if cache is None else pair_work.read_ahead(p, shape, cache)
+            t_read = time.perf_counter() - t0
+            r = pair_work.process_pair(context, p, frames=frames, ensembles=ens)
+            if frames is not None:
+                r.timings["read"] = t_read
         except Exception as exc:  # noqa: BLE001 - one bad pair must not lose the chunk
             tb = traceback.extract_tb(exc.__traceback__)
             where = f" at {tb[-1].filename}:{tb[-1].lineno}" if tb else ""
