@@ -247,6 +247,8 @@ def test_fields_of_every_pair(recording, tmp_path):
     np.testing.assert_array_equal(acc.mean_u, plain.accumulators["uncorrected"].mean_u)
     summary = json.loads((out2 / "summary.json").read_text())
     assert summary["timings_s"]["fields"] > 0
+    assert summary["fields"]["files"] == {"uncorrected": FRAMES - 1}
+    assert res.files["fields"] == out2 / "fields"
 
 
 def test_a_pair_list_changed_under_the_checkpoint_is_refused(recording, tmp_path):

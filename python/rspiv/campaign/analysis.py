@@ -437,6 +437,13 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     for key in ("particle_diameter_px", "particle_size_warnings", "pairing"):
         if key in camp.info:
             summary[key] = camp.info[key]
+    if cfg.output.fields:  # each pair's fields, written by the pair loop
+        fields_dir = out / "fields"
+        summary["fields"] = {
+            "dir": str(fields_dir),
+            "files": {r.name: len(list((fields_dir / r.name).glob("pair_*.nc"))) for r in ctx.runs},
+        }
+        res.files["fields"] = fields_dir
     res.files["summary"] = atomic_write_text(
         out / "summary.json", json.dumps(summary, indent=1, default=json_default)
     )
