@@ -271,3 +271,20 @@ def test_a_pair_list_changed_under_the_checkpoint_is_refused(recording, tmp_path
     gone = "finished pair 2 is not among the campaign's 2 pairs"
     with pytest.raises(InvalidInputError, match=gone):
         _run(_config(recording, out2, pairing="sequential", max_pairs=2), out2)
+
+
+def test_particle_sequence_is_the_pair_renderer_in_time():
+    """Two frames of a recording are particle_pair's pair (the same draws, the particles at
+    p -+ d/2); bad input is refused in one line."""
+    from rspiv.synth import particle_pair
+
+    seq = particle_sequence((64, 96), per_frame, 2, seed=7)
+    pair = particle_pair((64, 96), per_frame, seed=7)
+    for s, p in zip(seq, pair, strict=True):
+        np.testing.assert_array_equal(s, p)
+    with pytest.raises(InvalidInputError, match="frames must be >= 2, got 1"):
+        particle_sequence((64, 96), (1.0, 0.0), 1)
+    with pytest.raises(InvalidInputError, match="displacement must be a callable"):
+        particle_sequence((64, 96), "fast", 3)
+    with pytest.raises(InvalidInputError, match="density and diameter must be > 0"):
+        particle_sequence((64, 96), (1.0, 0.0), 3, diameter=0.0)
