@@ -288,3 +288,19 @@ def test_particle_sequence_is_the_pair_renderer_in_time():
         particle_sequence((64, 96), "fast", 3)
     with pytest.raises(InvalidInputError, match="density and diameter must be > 0"):
         particle_sequence((64, 96), (1.0, 0.0), 3, diameter=0.0)
+
+
+def test_shared_read_only_frames_go_through_unconditioned(recording, tmp_path):
+    """With no conditioning the cached frames themselves (read-only, shared by two pairs)
+    reach the PIV, here with symmetric deformation: nothing writes into them."""
+    out = tmp_path / "out"
+    cfg = _config(recording, out, pairing="sequential")
+    cfg.preprocess.background = "none"
+    cfg.preprocess.hot_pixels = 0.0
+    cfg.preprocess.high_pass = 0.0
+    cfg.piv.deformation = "symmetric"
+    _, res = _run(cfg, out)
+    assert res.n_done == FRAMES - 1 and not res.skipped
+    _, y = res.context.grid()
+    err = res.accumulators["uncorrected"].mean_u - per_frame(0.0, y)[0]
+    assert np.nanmedian(np.abs(err[2:-2, 2:-2])) < 0.02
