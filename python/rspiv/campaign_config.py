@@ -197,6 +197,18 @@ class ImagesConfig:
             out = [(k, k + 1) for k in range(0, n, 2)]
         return out[: self.max_pairs] if self.max_pairs else out
 
+    def pairing_info(self) -> dict[str, Any] | None:
+        """``summary.json``'s ``pairing`` entry: the keys and :meth:`describe_pairing` for
+        sequential pairing, None for pairs."""
+        if self.pairing != "sequential":
+            return None
+        return {
+            "pairing": self.pairing,
+            "frame_gap": self.frame_gap,
+            "pair_step": self.pair_step,
+            "description": self.describe_pairing(),
+        }
+
     def describe_pairing(self) -> str:
         """One line: how the frames form pairs."""
         if self.pairing != "sequential":

@@ -434,9 +434,11 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     summary["timings_s"] = res.timings
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
-    for key in ("particle_diameter_px", "particle_size_warnings", "pairing"):
+    for key in ("particle_diameter_px", "particle_size_warnings"):
         if key in camp.info:
             summary[key] = camp.info[key]
+    if cfg.images.pairing_info() is not None:
+        summary["pairing"] = cfg.images.pairing_info()
     if cfg.output.fields:  # each pair's fields, written by the pair loop
         fields_dir = out / "fields"
         summary["fields"] = {
@@ -468,8 +470,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     main = ctx.runs[0]
     w, h = ctx.piv.final_window
     piv = {"samples N": res.n_done, "final window x (px)": w, "final window y (px)": h}
-    if "pairing" in camp.info:
-        piv["image pairs"] = camp.info["pairing"]["description"]
+    if camp.config.images.pairing != "pairs":
+        piv["image pairs"] = camp.config.images.describe_pairing()
     if "particle_diameter_px" in camp.info:
         piv["particle image diameter x, y (px)"] = tuple(camp.info["particle_diameter_px"])
     r0 = res.analyses.get(main.name)

@@ -60,19 +60,6 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     runs = camp.runs()
     figdir = out / "report" / "figures"
     info: dict[str, Any] = {"figures": {}, "wall_deviation": {}}
-    im = cfg.images
-    if im.pairing == "sequential":
-        info["pairing"] = {
-            "pairing": im.pairing,
-            "frame_gap": im.frame_gap,
-            "pair_step": im.pair_step,
-            "description": im.describe_pairing(),
-        }
-        dt = f"{cfg.flow.dt:g} s" if cfg.flow.dt else "[flow] dt"
-        camp.say(
-            f"{len(pairs)} pair(s) of {im.describe_pairing()}: {dt} is the time from frame k "
-            f"to frame k + {im.frame_gap}"
-        )
     mapping_json = None
     cal = None
     # Everything that can refuse the inputs runs before anything is written: the frames' shape

@@ -255,6 +255,13 @@ class Campaign:
             state.timings = {k: 0.0 for k in STAGES}
         state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)
         state.todo = [p for p in state.sel if p.pair_id not in state.finished]
+        im = self.config.images
+        if im.pairing == "sequential":
+            dt = f"{self.config.flow.dt:g} s" if self.config.flow.dt else "[flow] dt"
+            self.say(
+                f"{len(state.sel)} pair(s) of {im.describe_pairing()}: {dt} is the time from "
+                f"frame k to frame k + {im.frame_gap}"
+            )
         state.fields = self.field_writer()
         if state.fields is not None:
             first = ctx.runs[0].name
