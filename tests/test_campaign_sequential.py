@@ -304,3 +304,18 @@ def test_shared_read_only_frames_go_through_unconditioned(recording, tmp_path):
     _, y = res.context.grid()
     err = res.accumulators["uncorrected"].mean_u - per_frame(0.0, y)[0]
     assert np.nanmedian(np.abs(err[2:-2, 2:-2])) < 0.02
+
+
+def test_fields_that_cannot_be_written_stop_the_run_in_one_line(recording, tmp_path, capsys):
+    from rspiv.cli import main
+
+    out = tmp_path / "out"
+    cfg = _config(recording, out, pairing="sequential")
+    cfg.output.fields = True
+    (out / "fields").mkdir(parents=True)
+    (out / "fields" / "uncorrected").write_text("a file where the run's folder goes")
+    toml = cfg.save(tmp_path / "c.toml")
+    assert main(["process", str(toml), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "[output] fields: cannot write " in err and "pair_000000.nc" in err, err

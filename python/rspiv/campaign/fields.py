@@ -82,7 +82,8 @@ class FieldWriter:
 
     def write(self, context: PairContext, pair: PairSpec, result: PairResult) -> float:
         """Write every run's field of ``result`` (a pair processed, ``result.ok``); returns the
-        seconds it took."""
+        seconds it took. OSError naming the file when one cannot be written (the local run
+        stops there, a Dask chunk records the pair as failed)."""
         import xarray as xr
 
         t0 = time.perf_counter()
@@ -129,7 +130,11 @@ class FieldWriter:
                 },
                 attrs=attrs,
             )
-            write_netcdf(ds, self.path(run, pair.pair_id))
+            path = self.path(run, pair.pair_id)
+            try:
+                write_netcdf(ds, path)
+            except OSError as exc:
+                raise OSError(f"[output] fields: cannot write {path}: {exc}") from exc
         return time.perf_counter() - t0
 
 
