@@ -319,3 +319,17 @@ def test_fields_that_cannot_be_written_stop_the_run_in_one_line(recording, tmp_p
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert "[output] fields: cannot write " in err and "pair_000000.nc" in err, err
+
+
+def test_a_dask_chunk_records_a_pair_whose_fields_cannot_be_written(recording, tmp_path):
+    from rspiv.campaign.executors.dask import process_chunk
+    from rspiv.campaign.fields import FieldWriter
+
+    out = tmp_path / "out"
+    camp, res = _run(_config(recording, out, pairing="sequential"), out)
+    blocked = tmp_path / "blocked"
+    (blocked / "fields").mkdir(parents=True)
+    (blocked / "fields" / "uncorrected").write_text("not a folder")
+    chunk = process_chunk(res.context, camp.pairs()[:2], FieldWriter(str(blocked), "c"))
+    assert chunk.done == [] and sorted(chunk.failed) == [0, 1]
+    assert chunk.failed[0][1].startswith("[output] fields: cannot write "), chunk.failed[0]

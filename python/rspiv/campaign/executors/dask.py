@@ -171,7 +171,7 @@ def process_chunk(
             try:
                 timings["fields"] = timings.get("fields", 0.0) + fields.write(context, p, r)
             except OSError as exc:
-                failed[p.pair_id] = (p.describe(), f"writing its fields: {exc}")
+                failed[p.pair_id] = (p.describe(), str(exc))  # "[output] fields: cannot write ..."
                 continue
         t0 = time.perf_counter()
         if first is None:
