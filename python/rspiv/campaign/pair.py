@@ -71,7 +71,7 @@ class FrameCache:
         last: dict[tuple[str, int], int] = {}
         gap = 0
         for k, p in enumerate(pairs):
-            for key in ((p.a, p.frame_a or 0), (p.b, p.frame_b or 0)):
+            for key in (_frame_key(p.a, p.frame_a), _frame_key(p.b, p.frame_b)):
                 if key in last and k > last[key]:
                     gap = max(gap, k - last[key])
                 last[key] = k
@@ -79,7 +79,7 @@ class FrameCache:
 
     def read(self, path: str, index: int | None) -> np.ndarray:
         """Frame ``index`` of ``path`` (:func:`read_frame`), from the cache when held."""
-        key = (path, 0 if index is None else int(index))
+        key = _frame_key(path, index)
         f = self._held.get(key)
         if f is not None:
             self._held.move_to_end(key)
@@ -94,6 +94,11 @@ class FrameCache:
         ):
             self._held.popitem(last=False)
         return f
+
+
+def _frame_key(path: str, index: int | None) -> tuple[str, int]:
+    """A frame's key in :class:`FrameCache`: its file and its page (0 for a single image)."""
+    return (path, 0 if index is None else int(index))
 
 
 def read_checked_pair(
