@@ -282,8 +282,9 @@ def test_particle_sequence_is_the_pair_renderer_in_time():
     pair = particle_pair((64, 96), per_frame, seed=7)
     for s, p in zip(seq, pair, strict=True):
         np.testing.assert_array_equal(s, p)
-    with pytest.raises(InvalidInputError, match="frames must be >= 2, got 1"):
-        particle_sequence((64, 96), (1.0, 0.0), 1)
+    for bad in (1, 2.5, "3"):
+        with pytest.raises(InvalidInputError, match=f"frames must be an integer >= 2, got {bad!r}"):
+            particle_sequence((64, 96), (1.0, 0.0), bad)
     with pytest.raises(InvalidInputError, match="displacement must be a callable"):
         particle_sequence((64, 96), "fast", 3)
     with pytest.raises(InvalidInputError, match="density and diameter must be > 0"):

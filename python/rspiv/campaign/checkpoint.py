@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import pathlib
 import pickle
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -71,30 +71,31 @@ def save_checkpoint(
     pairs : mapping of int to PairSpec, optional
         The campaign's pairs by id: the finished ones' :func:`pair_key` are stored.
     """
-    ids = np.array(sorted(finished), dtype=np.int64)
+    ids = sorted(finished)
     keys = None
     if pairs is not None:
-        gone = [i for i in ids.tolist() if i not in pairs]
+        gone = [i for i in ids if i not in pairs]
         if gone:
             raise InvalidInputError(
                 f"{path}: finished pair {gone[0]} is not among the campaign's {len(pairs)} "
                 "pairs (the pair list changed since it was processed)"
             )
-        keys = np.array([pair_key(pairs[i]) for i in ids.tolist()], np.uint64)
+        keys = np.array([pair_key(pairs[i]) for i in ids], np.uint64)
     state = {
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
         "fingerprint": ctx.fingerprint(),
         "shard": list(shard),
-        "finished": sorted(finished),
+        "finished": ids,
         "accumulators": accs,
         "timings": timings,
-        **({} if keys is None else {"pair_ids": ids, "pair_keys": keys}),
+        # the identity of each pair of "finished", in its order
+        **({} if keys is None else {"pair_keys": keys}),
     }
     atomic_write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
 def load_checkpoint(
-    path: pathlib.Path, ctx: PairContext, pairs: Sequence[PairSpec] | None = None
+    path: pathlib.Path, ctx: PairContext, pairs: Mapping[int, PairSpec] | None = None
 ) -> dict[str, Any] | None:
     """Read the checkpoint ``path`` written by :func:`save_checkpoint`.
 
@@ -102,8 +103,8 @@ def load_checkpoint(
     ----------
     ctx : PairContext
         The prepared context; the checkpoint must have been written for its fingerprint.
-    pairs : sequence of PairSpec, optional
-        The campaign's pair list now: every finished pair must still be the same frames
+    pairs : mapping of int to PairSpec, optional
+        The campaign's pairs by id now: every finished pair must still be the same frames
         (checkpoints written without the pairs' identities are not checked).
 
     Returns
@@ -140,12 +141,11 @@ def load_checkpoint(
             "changed); delete the checkpoint folder or choose another output folder"
         )
     if pairs is not None and "pair_keys" in state:
-        now = {p.pair_id: p for p in pairs}
-        for i, key in zip(state["pair_ids"].tolist(), state["pair_keys"].tolist(), strict=True):
-            p = now.get(i)
+        for i, key in zip(state["finished"], state["pair_keys"].tolist(), strict=True):
+            p = pairs.get(i)
             if p is None or pair_key(p) != key:
                 what = (
-                    f"is not among the campaign's {len(now)} pairs now"
+                    f"is not among the campaign's {len(pairs)} pairs now"
                     if p is None
                     else f"is now {p.describe()}, other frames than when it was processed"
                 )

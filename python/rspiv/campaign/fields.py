@@ -90,11 +90,6 @@ class FieldWriter:
         gx, gy = context.grid()
         methods = {r.name: r.method for r in context.runs}
         dims = ("y", "x")
-        frame = (
-            (lambda f, i: f)
-            if pair.frame_a is None
-            else (lambda f, i: f"{f}[{i}]")
-        )
         for run, (u, v, valid, su, sv) in result.fields.items():
             ok = np.asarray(valid, bool)
             data: dict[str, Any] = {
@@ -111,8 +106,8 @@ class FieldWriter:
                     )
             attrs: dict[str, Any] = {
                 "pair_id": int(pair.pair_id),
-                "frame_a": frame(pair.a, pair.frame_a),
-                "frame_b": frame(pair.b, pair.frame_b),
+                "frame_a": _frame(pair.a, pair.frame_a),
+                "frame_b": _frame(pair.b, pair.frame_b),
                 "run": run,
                 "method": methods.get(run, ""),
                 "frame": "raw image" if methods.get(run) == "none" else "object",
@@ -136,6 +131,11 @@ class FieldWriter:
             except OSError as exc:
                 raise OSError(f"[output] fields: cannot write {path}: {exc}") from exc
         return time.perf_counter() - t0
+
+
+def _frame(path: str, index: int | None) -> str:
+    """A frame's file, with ``[index]`` for a page of a stack."""
+    return path if index is None else f"{path}[{index}]"
 
 
 def _px(axis: str) -> dict[str, str]:

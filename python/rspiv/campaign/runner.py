@@ -178,8 +178,7 @@ class Campaign:
         """This shard's checkpoint, or None (:func:`rspiv.campaign.checkpoint.load_checkpoint`;
         InvalidInputError for a corrupt one, one of another configuration, or one whose
         finished pairs are no longer the same frames)."""
-        pairs = list(self.pair_index().values())
-        return checkpoint.load_checkpoint(self.checkpoint_path(), ctx, pairs)
+        return checkpoint.load_checkpoint(self.checkpoint_path(), ctx, self.pair_index())
 
     def pair_index(self) -> dict[int, PairSpec]:
         """The campaign's pairs by id, listed once (:meth:`pairs`) and kept."""

@@ -121,8 +121,8 @@ def particle_sequence(
     list of ndarray of uint16, shape ``shape``
         The frames in time order.
     """
-    if int(frames) < 2:
-        raise InvalidInputError(f"frames must be >= 2, got {frames!r}")
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
+        raise InvalidInputError(f"frames must be an integer >= 2, got {frames!r}")
     c = (int(frames) - 1) / 2.0
     offsets = tuple(k - c for k in range(int(frames)))
     return _render(shape, displacement, offsets, density, diameter, noise, seed, bits)
