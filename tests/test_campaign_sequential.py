@@ -8,6 +8,7 @@ displacement per frame interval along x that varies with y (exact for every gap)
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -144,9 +145,10 @@ def test_sequential_campaign_measures_the_frame_gap(recording, tmp_path, gap, mo
     cfg = _config(recording, out, pairing="sequential", frame_gap=gap)
     camp, res = _run(cfg, out)
     assert res.n_done == FRAMES - gap and not res.skipped
-    # the frames' shape (frame 0), the background pass, the particle images' size on pair 0,
-    # the pair loop (without the cache: 1 + 10 + 2 + 10 for gap 1)
-    assert len(reads) == 1 + FRAMES + 2 + FRAMES, sorted(reads)
+    # the frames' shape (frame 0), the background pass, the check of the first two pairs'
+    # displacements (gap 1: frames 0, 1, 2; gap 2: 0, 2, 1, 3), the particle images' size on
+    # pair 0, the pair loop (without the cache: 1 + 10 + 4 + 2 + 10 for gap 1)
+    assert len(reads) == 1 + FRAMES + (2 + gap) + 2 + FRAMES, sorted(reads)
     assert [(p.a[-7:-4], p.b[-7:-4]) for p in camp.pairs()] == [
         (f"{k:03d}", f"{k + gap:03d}") for k in range(FRAMES - gap)
     ]
@@ -334,3 +336,30 @@ def test_a_dask_chunk_records_a_pair_whose_fields_cannot_be_written(recording, t
     chunk = process_chunk(res.context, camp.pairs()[:2], FieldWriter(str(blocked), "c"))
     assert chunk.done == [] and sorted(chunk.failed) == [0, 1]
     assert chunk.failed[0][1].startswith("[output] fields: cannot write "), chunk.failed[0]
+
+
+def test_a_double_frame_recording_paired_sequentially_is_refused(tmp_path):
+    """Frames A, B, A, B ... paired 1-2, 2-3: pairs of a short and a long interval, refused
+    before anything is written, whether the long pairs still correlate (a slow flow: 1 px
+    from A to B, 4 px from B to the next A) or not (independent pairs)."""
+    seq = particle_sequence(SHAPE, (1.0, 0.0), 12, seed=2)
+    slow = [seq[k] for k in (0, 1, 5, 6, 10, 11)]
+    independent = [f for s in (1, 2, 3) for f in particle_sequence(SHAPE, (2.0, 0.0), 2, seed=s)]
+    for name, frames, moves in (
+        ("slow", slow, r"moves 1\.0\d px .* 4\.0\d px"),
+        ("independent", independent, r"moves 2\.0\d px"),
+    ):
+        d = tmp_path / name
+        d.mkdir()
+        for k, f in enumerate(frames):
+            tifffile.imwrite(d / f"frame_{k:03d}.tif", f)
+        out = tmp_path / f"out_{name}"
+        with pytest.raises(InvalidInputError) as e:
+            _run(_config(d, out, pairing="sequential"), out)
+        msg = str(e.value)
+        assert "\n" not in msg and 'pairing = "sequential": pair 0 (' in msg, msg
+        assert "double-frame camera" in msg and re.search(moves, msg), msg
+        assert not any(p.is_file() for p in out.rglob("*")), sorted(out.rglob("*"))
+        # the same frames paired 1-2, 3-4 are processed
+        _, res = _run(_config(d, tmp_path / f"pairs_{name}"), tmp_path / f"pairs_{name}")
+        assert res.n_done == 3 and not res.skipped

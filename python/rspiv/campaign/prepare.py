@@ -64,13 +64,16 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     cal = None
     # Everything that can refuse the inputs runs before anything is written: the frames' shape
     # (the target's, else the first readable frame's), the mask against it, the background
-    # pass over every pair; then the calibration and its figures.
+    # pass over every pair, the check of a sequential pairing; then the calibration and its
+    # figures.
     image = None if cfg.calibration.target is None else read_image(cfg.calibration.target)
     image_shape = _first_shape(pairs) if image is None else tuple(image.shape)
     if cfg.piv.mask is not None:
         read_mask(cfg.piv.mask, image_shape)
     pre = cfg.preprocess.settings()
     background = _backgrounds(camp, pairs, pre, image_shape) if pre.background != "none" else None
+    if cfg.images.pairing == "sequential":
+        _check_sequence(camp, pairs, image_shape, cfg.piv.passes[0])
     if image is not None:
         t0 = time.perf_counter()
         cc = cfg.calibration
@@ -333,6 +336,56 @@ def _backgrounds(camp, pairs: list[PairSpec], pre, shape: tuple[int, int]) -> tu
         f"({time.perf_counter() - t0:.1f} s)"
     )
     return est[0].value, est[1].value
+
+
+#: Sequential pairing is refused when the first two pairs' median displacements differ by more
+#: than this factor (and the larger is over 1 px): frames A, B, A, B ... of a double-frame camera.
+SEQUENCE_MAX_RATIO = 3.0
+
+
+def _check_sequence(camp, pairs: list[PairSpec], shape: tuple[int, int], window) -> None:
+    """Refuse sequential pairing of a double-frame recording. Paired 1-2, 2-3, ..., the frames
+    A, B, A, B ... of a double-frame camera give pairs of two intervals, a short one (A to B)
+    and a long one (B to the next A): PIVlab's ``Jet_0001A``, ``B``, ``Jet_0002A`` move 0.47
+    px and 11.9 px, and through the campaign's passes the long pairs still correlate in part
+    (median peak ratio 1.36), so they would enter the statistics. A time-resolved recording's
+    successive pairs move alike and both correlate. The first two pairs, one pass of the first
+    window on the raw frames; InvalidInputError in one line when one correlates and the other
+    does not, or their median displacements differ by more than :data:`SEQUENCE_MAX_RATIO`."""
+    import warnings
+
+    from rspiv.piv import piv
+
+    seen = []
+    cache = pair_work.FrameCache.for_pairs(pairs[:2])  # three frames read
+    for p in pairs[:2]:
+        frames = pair_work.read_ahead(p, shape, cache)
+        if isinstance(frames, str):
+            return  # the pair loop says what is wrong with it
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # said below, or by the pair loop
+            f = piv(*frames, passes=[tuple(window)], overlap=0.5)
+        speed = np.hypot(f.u, f.v)[f.valid]
+        pr = f.peak_ratio[f.peak_ratio > 0]
+        seen.append(
+            (
+                p,
+                not f.uncorrelated(),
+                float(np.median(speed)) if speed.size else float("nan"),
+                float(np.median(pr)) if pr.size else float("nan"),
+            )
+        )
+    if len(seen) < 2:
+        return
+    (p0, ok0, m0, r0), (p1, ok1, m1, r1) = seen
+    lo, hi = sorted((m0, m1))
+    if ok0 != ok1 or (ok0 and hi > 1.0 and hi > SEQUENCE_MAX_RATIO * lo):
+        raise InvalidInputError(
+            f'[images] pairing = "sequential": pair {p0.pair_id} ({p0.describe()}) moves '
+            f"{m0:.2f} px (median peak ratio {r0:.2f}), pair {p1.pair_id} ({p1.describe()}) "
+            f"{m1:.2f} px ({r1:.2f}): frames of a double-frame camera (A, B, A, B, ...) rather "
+            'than a time-resolved recording? Pair them with pairing = "pairs"'
+        )
 
 
 def _save_backgrounds(background: tuple[Any, Any], out: pathlib.Path) -> tuple[str, str]:
