@@ -12,6 +12,7 @@ import dataclasses
 import json
 import pathlib
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ from rspiv.io import read_image, read_mask
 from rspiv.montecarlo import monte_carlo
 from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
+from rspiv.piv import piv
 from rspiv.preprocess import Background
 from rspiv.stats import FieldAccumulator
 
@@ -352,10 +354,6 @@ def _check_sequence(camp, pairs: list[PairSpec], shape: tuple[int, int], window)
     successive pairs move alike and both correlate. The first two pairs, one pass of the first
     window on the raw frames; InvalidInputError in one line when one correlates and the other
     does not, or their median displacements differ by more than :data:`SEQUENCE_MAX_RATIO`."""
-    import warnings
-
-    from rspiv.piv import piv
-
     seen = []
     cache = pair_work.FrameCache.for_pairs(pairs[:2])  # three frames read
     for p in pairs[:2]:
