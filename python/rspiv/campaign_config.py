@@ -266,7 +266,9 @@ class CorrectionConfig:
 @dataclasses.dataclass
 class PIVConfig:
     """The ``[piv]`` section: the keys of :class:`rspiv.PivSettings` (campaign default
-    deformation "offset") and the mask."""
+    deformation "offset") and the mask. ``roi = [x0, y0, x1, y1]`` (px, raw frames for the
+    uncorrected run, object px for Methods I and II) lays every run's grid out in that region
+    and reads only it and a margin: the alignment's PIV too, so the region must hold the wall."""
 
     passes: list[tuple[int, int]] = dataclasses.field(
         default_factory=lambda: [(64, 64), (32, 32), (32, 8)]
@@ -283,6 +285,7 @@ class PIVConfig:
     min_peak_ratio: float = 0.0
     peak_candidates: int = 3
     uncertainty: bool = True
+    roi: list[int] | None = None
     mask: pathlib.Path | None = None
 
     def settings(self) -> PivSettings:
@@ -448,6 +451,10 @@ class CampaignConfig:
         pv = dataclasses.asdict(self.piv)
         pv["passes"] = [[int(w), int(h)] for w, h in self.piv.passes]
         pv["mask"] = p(self.piv.mask)
+        if self.piv.roi is None:  # TOML has no null: no key is the whole frame
+            del pv["roi"]
+        else:
+            pv["roi"] = [int(v) for v in self.piv.roi]
         out["piv"] = pv
         for name in ("preprocess", "wall", "flow", "statistics", "ensemble"):
             out[name] = dataclasses.asdict(getattr(self, name))

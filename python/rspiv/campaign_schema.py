@@ -18,6 +18,7 @@ from rspiv.settings import (
     SUBPIXELS,
     WEIGHTINGS,
     parse_method,
+    parse_roi,
 )
 
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".bmp", ".jpg", ".jpeg", ".im7", ".imx", ".ims")
@@ -109,6 +110,14 @@ def _passes(ctx, where, v):
     return out
 
 
+def _roi(ctx, where, v):
+    """``[x0, y0, x1, y1]``: a region of interest of whole px (:func:`rspiv.settings.parse_roi`)."""
+    try:
+        return list(parse_roi(v))
+    except InvalidInputError as exc:
+        raise ctx.err(where, str(exc)) from None
+
+
 def _pair(ctx, where, v, *, integer, minimum):
     """``[a, b]``: two numbers (integers when ``integer``), each >= ``minimum`` (integers) or
     > ``minimum`` (floats)."""
@@ -184,6 +193,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "min_peak_ratio": lambda c, w, v: _number(c, w, v, minimum=0),
         "peak_candidates": lambda c, w, v: _number(c, w, v, integer=True, minimum=1, maximum=3),
         "uncertainty": _boolean,
+        "roi": _roi,
         "deform": lambda c, w, v: "symmetric" if _boolean(c, w, v) else "offset",
         "mask": lambda c, w, v: c.path(w, v, image=True, json_ok=True),
     },

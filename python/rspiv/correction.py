@@ -55,6 +55,7 @@ and y in object px.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -79,6 +80,8 @@ __all__ = [
     "correct",
     "dewarp_pair",
     "grid_for_windows",
+    "final_grid",
+    "roi_margin",
     "map_displacements",
     "mapping_of",
     "method_one",
@@ -134,6 +137,67 @@ def grid_for_windows(
     xs = mx + (w - 1) / 2.0 + sx * np.arange(nx, dtype=np.float64)
     ys = my + (h - 1) / 2.0 + sy * np.arange(ny, dtype=np.float64)
     return np.meshgrid(xs, ys)
+
+
+def roi_margin(settings: PivSettings) -> int:
+    """The px read around a region of interest (``piv_core::roi_margin``): the largest window
+    dimension of any pass, at least 64 px."""
+    return max(64, *(max(p) for p in settings.passes))
+
+
+def final_grid(shape: tuple[int, int], settings: PivSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Window centres of the last pass of ``settings`` on a frame of ``shape = (h, w)``: the
+    grid :func:`rspiv.piv` gives (Rust ``Grid::for_windows``), cut to the points whose windows
+    lie inside ``settings.roi`` when given (as ``piv_core::Roi::grid``; the region checked
+    against ``shape`` and the windows with the native messages).
+
+    Returns
+    -------
+    x, y : ndarray, shape (ny, nx)
+        Window centres in px of the frame.
+    """
+    window, overlap = settings.final_window, settings.overlaps[-1]
+    if settings.roi is None:
+        return grid_for_windows(shape, window, overlap)
+    x0, y0, x1, y1 = settings.roi
+    height, width = (int(v) for v in shape)
+    if x1 > width or y1 > height:
+        raise InvalidInputError(
+            f"roi [{x0}, {y0}, {x1}, {y1}] reaches beyond the frames ({width} x {height} px)"
+        )
+    cut = None
+    for (w, h), o in zip(settings.passes, settings.overlaps, strict=True):
+        gx, gy = grid_for_windows(shape, (w, h), o)
+        # the points whose windows [c - (n - 1)/2, c + (n - 1)/2] lie in [lo, hi - 1]
+        cols = (gx[0] - (w - 1) / 2 >= x0) & (gx[0] + (w - 1) / 2 <= x1 - 1)
+        rows = (gy[:, 0] - (h - 1) / 2 >= y0) & (gy[:, 0] + (h - 1) / 2 <= y1 - 1)
+        if not cols.any() or not rows.any():
+            sx = gx[0, 1] - gx[0, 0] if gx.shape[1] > 1 else w
+            sy = gy[1, 0] - gy[0, 0] if gy.shape[0] > 1 else h
+            raise InvalidInputError(
+                f"roi [{x0}, {y0}, {x1}, {y1}] ({x1 - x0} x {y1 - y0} px) holds no {w} x {h} px "
+                f"window (w x h) of the frames' grid (every {sx:g} x {sy:g} px)"
+            )
+        cut = gx[np.ix_(rows, cols)], gy[np.ix_(rows, cols)]
+    assert cut is not None and (window, overlap) == (settings.passes[-1], settings.overlaps[-1])
+    return cut
+
+
+def _crop_around(
+    points: np.ndarray, margin: int, shape: tuple[int, int]
+) -> tuple[tuple[slice, slice], tuple[int, int]]:
+    """The slices (rows, columns) of the frames holding ``points`` (..., 2) and ``margin`` px
+    around them (as ``piv_core::Roi::around``), and their origin ``(x0, y0)``."""
+    xy = points.reshape(-1, 2)
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    height, width = (int(v) for v in shape)
+    if xy.size == 0:
+        return (slice(0, height), slice(0, width)), (0, 0)
+    x0 = max(int(np.floor(xy[:, 0].min() - margin)), 0)
+    y0 = max(int(np.floor(xy[:, 1].min() - margin)), 0)
+    x1 = int(min(np.ceil(xy[:, 0].max() + margin), width - 1)) + 1
+    y1 = int(min(np.ceil(xy[:, 1].max() + margin), height - 1)) + 1
+    return (slice(y0, y1), slice(x0, x1)), (x0, y0)
 
 
 def map_displacements(
@@ -357,7 +421,9 @@ def method_two(
     ``settings.passes[:-1]`` (with their overlaps and iterations) are the raw-frame predictor
     passes, unused with a given ``predictor``; the last pass runs at the images of the regular
     object grid of ``settings.passes[-1]`` at ``settings.overlaps[-1]`` on ``object_shape``
-    (default: the frames' shape), with ``settings.iteration_counts[-1]`` iterations.
+    (default: the frames' shape), with ``settings.iteration_counts[-1]`` iterations. With
+    ``settings.roi`` (object px) the object grid is laid out in the region and only the raw
+    frames around its images are read (:func:`final_grid`).
     """
     m = mapping_of(calibration)
     mode = parse_mapping_mode(mapping)
@@ -378,27 +444,39 @@ def method_two(
     a = np.asarray(frame_a)
     shape = tuple(object_shape) if object_shape is not None else a.shape
     window = settings.final_window
-    gx, gy = grid_for_windows(shape, window, settings.overlaps[-1])
+    gx, gy = final_grid(shape, settings)
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     img = m.forward(obj)
     points = img.reshape(gx.shape + (2,))
+    # a region of interest: the raw frames around the points only (the points, the mask and
+    # a predictor field moved into the crop)
+    fa, fb, fmask, at, pred = frame_a, frame_b, mask, points, predictor
+    if settings.roi is not None:
+        (rows, cols), (cx, cy) = _crop_around(points, roi_margin(settings), a.shape)
+        fa, fb = a[rows, cols], np.asarray(frame_b)[rows, cols]
+        raw_mask = mask_array(mask, a.shape)
+        fmask = None if raw_mask is None else raw_mask[rows, cols]
+        at = points - np.array([cx, cy], dtype=np.float64)
+        if isinstance(predictor, PivField) and predictor.grid is not None:
+            x0, y0, dx, dy = predictor.grid
+            pred = dataclasses.replace(predictor, grid=(x0 - cx, y0 - cy, dx, dy))
+        settings = settings.replace(roi=None)
     if predictor is None:  # a duck-typed mapping: the same steps composed in Python
-        f = run_final_points(frame_a, frame_b, points, settings, mask)
+        f = run_final_points(fa, fb, at, settings, fmask)
     else:
-        pred: Any = predictor
         if settings.deformation == "offset":
             pred = _sample_field(predictor, img).reshape(gx.shape + (2,))
         # deformation "symmetric": the windows are deformed by the predictor field
         f = run_points(
-            frame_a,
-            frame_b,
-            points,
+            fa,
+            fb,
+            at,
             [window],
             settings,
             predictor=pred,
             iterations=settings.iteration_counts[-1],
             validate=settings.validate,
-            mask=mask,
+            mask=fmask,
         )
     d = np.column_stack([f.u.ravel(), f.v.ravel()])
     dob = map_displacements(m, img, d, mode).reshape(gx.shape + (2,))

@@ -87,6 +87,7 @@ def piv(
     min_peak_ratio: float = 0.0,
     peak_candidates: int = 3,
     uncertainty: bool = True,
+    roi: tuple[int, int, int, int] | None = None,
     settings: PivSettings | None = None,
     preprocess: Preprocess | None = None,
     backgrounds: tuple[Any, Any] | None = None,
@@ -167,6 +168,12 @@ def piv(
     uncertainty : bool
         Estimate every valid vector's standard uncertainty (``PivField.sigma_u``,
         ``sigma_v``, px) from its last correlation (Wieneke 2015); True.
+    roi : (x0, y0, x1, y1), optional
+        Region of interest, px (``x0 <= x < x1``, ``y0 <= y < y1``; object px with a
+        ``method``): every pass's grid is laid out in it and only it and a margin of the
+        largest window (at least 64 px) are read, dewarped and correlated, so the time scales
+        with its area (:class:`rspiv.PivSettings`); ``x``, ``y`` stay in the frame's px.
+        ``preprocess`` still conditions the whole frames.
     settings : PivSettings, optional
         All of the above PIV settings as one object (overrides the keywords).
     preprocess : rspiv.preprocess.Preprocess, optional

@@ -21,6 +21,7 @@ median_threshold  float                       threshold of the normalised median
 min_peak_ratio    float                       reject vectors below this peak ratio (0: off)
 peak_candidates   int 1-3                     correlation peaks tried before interpolating
 uncertainty       bool                        per-vector uncertainty (``PivField.sigma_u``)
+roi               (x0, y0, x1, y1) or None    region of interest, px: ``x0 <= x < x1``, ...
 ================  ==========================  ===============================================
 
 String values are case-insensitive on input and stored lowercase. The correction methods are
@@ -57,6 +58,7 @@ __all__ = [
     "parse_choice",
     "parse_method",
     "parse_mapping_mode",
+    "parse_roi",
     "normalise_model",
 ]
 
@@ -81,6 +83,7 @@ OPTION_KEYS = (
     "min_peak_ratio",
     "peak_candidates",
     "uncertainty",
+    "roi",
 )
 
 _METHOD_ALIASES = {"i": "I", "images": "I", "ii": "II", "vectors": "II", "none": "none"}
@@ -145,6 +148,25 @@ def per_pass(value: Any, n: int, name: str, cast: Any) -> list:
     return vals
 
 
+def parse_roi(value: Any) -> tuple[int, int, int, int] | None:
+    """A region of interest ``(x0, y0, x1, y1)`` of whole px with ``0 <= x0 < x1`` and
+    ``0 <= y0 < y1``, or None (InvalidInputError naming what was given)."""
+    if value is None:
+        return None
+    vals = list(value) if isinstance(value, (list, tuple, np.ndarray)) else []
+    ok = len(vals) == 4 and all(
+        isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 0 for v in vals
+    )
+    if not ok:
+        raise InvalidInputError(f"roi must be (x0, y0, x1, y1): four whole px >= 0, got {value!r}")
+    x0, y0, x1, y1 = (int(v) for v in vals)
+    if x0 >= x1 or y0 >= y1:
+        raise InvalidInputError(
+            f"roi [{x0}, {y0}, {x1}, {y1}] is empty: give x0 < x1 and y0 < y1 (px)"
+        )
+    return x0, y0, x1, y1
+
+
 def _scalar_or_tuple(value: Any, cast: Any) -> Any:
     if np.ndim(value) == 0:
         return cast(value)
@@ -196,6 +218,14 @@ class PivSettings:
         Estimate every valid vector's standard uncertainty from its correlation statistics on
         the last iteration of the last pass (``PivField.sigma_u``, ``sigma_v``; Wieneke 2015),
         True. Off, they are NaN (saves 5-15 % of the last pass's correlation time).
+    roi : (x0, y0, x1, y1) or None
+        Region of interest in px of the frame the field lies in (the frames' own; object px
+        with a correction): the pixels ``x0 <= x < x1``, ``y0 <= y < y1``. Every pass's grid is
+        laid out in it as in a whole frame, and only it and a margin around it (the largest
+        window, at least 64 px: what the search, the deformation and the interpolation read)
+        are read, so the time scales with its area; ``x``, ``y`` stay in the frame's px.
+        Vectors inside it are the whole frame's where the grids coincide (the validation's
+        neighbours stop at its edge). None: the whole frame.
 
     Values are checked and normalised on construction (InvalidInputError naming the key).
     """
@@ -213,6 +243,7 @@ class PivSettings:
     min_peak_ratio: float = 0.0
     peak_candidates: int = 3
     uncertainty: bool = True
+    roi: tuple[int, int, int, int] | None = None
 
     def __post_init__(self) -> None:
         passes = tuple(_window(p) for p in self.passes)
@@ -243,6 +274,7 @@ class PivSettings:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 3:
             raise InvalidInputError(f"peak_candidates must be 1, 2 or 3, got {n!r}")
         s(self, "peak_candidates", int(n))
+        s(self, "roi", parse_roi(self.roi))
 
     # -- per-pass views ------------------------------------------------------------------------
     @property
@@ -269,7 +301,7 @@ class PivSettings:
         """Plain JSON-able dictionary with the vocabulary's keys (lists for tuples)."""
         d = dataclasses.asdict(self)
         d["passes"] = [list(p) for p in self.passes]
-        for key in ("overlap", "iterations"):
+        for key in ("overlap", "iterations", "roi"):
             if isinstance(d[key], tuple):
                 d[key] = list(d[key])
         return d

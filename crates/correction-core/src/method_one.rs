@@ -7,7 +7,7 @@ use dewarp_core::remap::{remap, RemapOptions};
 use dewarp_core::Mapping;
 use image_core::Pixel;
 use ndarray::{Array2, ArrayView2};
-use piv_core::{PivField, PivSettings};
+use piv_core::{PivField, PivSettings, Roi};
 
 /// A frame pair dewarped into the object frame.
 #[derive(Debug, Clone)]
@@ -33,6 +33,21 @@ pub fn dewarp_pair<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
     zero_fill: ZeroFill,
 ) -> Result<DewarpedPair> {
+    let shape = object_shape.unwrap_or(frame_a.dim());
+    let whole = Roi::from([0, 0, shape.1, shape.0]);
+    dewarp_region(frame_a, frame_b, mapping, whole, mask, zero_fill)
+}
+
+/// [`dewarp_pair`] of the object px `region` only (a rectangle of the object frame): the
+/// returned frames' pixel `(0, 0)` is the object frame's `(region.x0, region.y0)`.
+pub fn dewarp_region<T: Pixel>(
+    frame_a: ArrayView2<'_, T>,
+    frame_b: ArrayView2<'_, T>,
+    mapping: &Mapping,
+    region: Roi,
+    mask: Option<ArrayView2<'_, bool>>,
+    zero_fill: ZeroFill,
+) -> Result<DewarpedPair> {
     if frame_a.dim() != frame_b.dim() {
         return Err(piv_core::PivError::InvalidInput(format!(
             "frame_a {:?} and frame_b {:?} differ in shape (rows, columns)",
@@ -51,9 +66,10 @@ pub fn dewarp_pair<T: Pixel>(
             .into());
         }
     }
-    let map = |x: f64, y: f64| mapping.forward(x, y);
+    let (ox, oy) = (region.x0 as f64, region.y0 as f64);
+    let map = |x: f64, y: f64| mapping.forward(x + ox, y + oy);
     let opts = RemapOptions {
-        out_shape: object_shape,
+        out_shape: Some((region.height(), region.width())),
         ..RemapOptions::default()
     };
     let (a, b) = rayon::join(
@@ -86,6 +102,9 @@ pub fn dewarp_pair<T: Pixel>(
 
 /// Method I: [`dewarp_pair`], then [`piv_core::piv`] of the dewarped frames with `settings`;
 /// vectors centred on the object mask are masked. Vectors and displacements in object px.
+///
+/// With [`PivSettings::roi`] (object px, inside `object_shape`) only the region and the margin
+/// [`piv_core::roi_margin`] around it are dewarped and correlated.
 pub fn method_one<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -95,11 +114,25 @@ pub fn method_one<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
     zero_fill: ZeroFill,
 ) -> Result<PivField> {
-    let d = dewarp_pair(frame_a, frame_b, mapping, object_shape, mask, zero_fill)?;
-    Ok(piv_core::piv(
+    let Some(roi) = settings.roi else {
+        let d = dewarp_pair(frame_a, frame_b, mapping, object_shape, mask, zero_fill)?;
+        return Ok(piv_core::piv(
+            d.a.view(),
+            d.b.view(),
+            d.mask.as_ref().map(|m| m.view()),
+            settings,
+        )?);
+    };
+    let shape = object_shape.unwrap_or(frame_a.dim());
+    roi.check(shape, settings)?;
+    let crop = roi.grown(piv_core::roi_margin(settings), shape);
+    let d = dewarp_region(frame_a, frame_b, mapping, crop, mask, zero_fill)?;
+    Ok(piv_core::piv_cropped(
         d.a.view(),
         d.b.view(),
         d.mask.as_ref().map(|m| m.view()),
         settings,
+        shape,
+        crop,
     )?)
 }

@@ -5,16 +5,20 @@ use crate::method::DisplacementMapping;
 use dewarp_core::Mapping;
 use image_core::Pixel;
 use ndarray::{Array2, ArrayView2, Zip};
-use piv_core::{Grid, PivField, PivSettings};
+use piv_core::{Grid, PivField, PivSettings, Roi};
 
 /// The regular object grid of the last pass of `settings` on an object frame of
 /// `object_shape` (rows, columns): the grid [`piv_core::piv`] gives on the dewarped frames, so
-/// Methods I and II share their vector positions.
+/// Methods I and II share their vector positions (laid out in [`PivSettings::roi`] when given).
 pub fn object_grid(object_shape: (usize, usize), settings: &PivSettings) -> Result<Grid> {
     let last = settings
         .passes
         .last()
         .ok_or_else(|| CorrectionError::InvalidInput("passes is empty".into()))?;
+    if let Some(roi) = settings.roi {
+        roi.check(object_shape, settings)?;
+        return Ok(roi.grid(last.w, last.h, last.overlap, object_shape, (0, 0))?);
+    }
     Ok(Grid::for_windows(
         object_shape.1,
         object_shape.0,
@@ -152,8 +156,32 @@ pub fn method_two<T: Pixel>(
             "the mapping sends object grid points to NaN or infinity".into(),
         ));
     }
-    let (_, f) =
-        piv_core::piv_with_final_points(frame_a, frame_b, ix.view(), iy.view(), mask, settings)?;
+    let (_, f) = match settings.roi {
+        None => {
+            piv_core::piv_with_final_points(frame_a, frame_b, ix.view(), iy.view(), mask, settings)?
+        }
+        // a region of interest: the raw frames around the object grid's images only, the
+        // predictor passes laid out in that crop
+        Some(_) => {
+            let (xs, ys) = (ix.as_slice().expect("owned"), iy.as_slice().expect("owned"));
+            let dim = frame_a.dim();
+            let crop = Roi::around(xs, ys, piv_core::roi_margin(settings), dim)
+                .unwrap_or(Roi::from([0, 0, dim.1, dim.0]));
+            let (cx, cy) = (crop.x0 as f64, crop.y0 as f64);
+            let inner = PivSettings {
+                roi: None,
+                ..settings.clone()
+            };
+            piv_core::piv_with_final_points(
+                crop.view(&frame_a),
+                crop.view(&frame_b),
+                ix.mapv(|x| x - cx).view(),
+                iy.mapv(|y| y - cy).view(),
+                mask.as_ref().map(|m| crop.view(m)),
+                &inner,
+            )?
+        }
+    };
     let (du, dv) = map_displacements(mapping, ix.view(), iy.view(), f.u.view(), f.v.view(), mode);
     let masked = Zip::from(&f.masked)
         .and(&du)

@@ -39,7 +39,8 @@ pub use error::PivError;
 pub use grid::Grid;
 pub use image::{GridField, Pixel};
 pub use multipass::{
-    piv, piv_at, piv_with_final_points, Interpolation, Mode, Pass, PivField, PivSettings, Predictor,
+    piv, piv_at, piv_cropped, piv_with_final_points, roi_margin, Interpolation, Mode, Pass,
+    PivField, PivSettings, Predictor, Roi,
 };
 pub use synth::render_particles;
 pub use weighting::Weighting;

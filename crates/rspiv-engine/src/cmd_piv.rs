@@ -14,7 +14,7 @@ use crate::csv::write_atomic;
 use crate::imageio::read_u16;
 use correction_core::{method_one, method_two, DisplacementMapping, Method, ZeroFill};
 use ndarray::Array2;
-use piv_core::{piv, Interpolation, Mode, Pass, PivField, PivSettings, SubPixel, Weighting};
+use piv_core::{piv, Interpolation, Mode, Pass, PivField, PivSettings, Roi, SubPixel, Weighting};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -71,6 +71,23 @@ pub struct PivArgs {
     /// centre falls on it are masked (NaN). Polygon masks (JSON) are read by `rspiv piv`.
     #[arg(long)]
     pub mask: Option<PathBuf>,
+    /// Region of interest X0,Y0,X1,Y1 (px, x0 <= x < x1, y0 <= y < y1; object px with
+    /// --calibration): the grid is laid out in it and only it and a margin are read.
+    #[arg(long)]
+    pub roi: Option<String>,
+}
+
+/// `X0,Y0,X1,Y1` as a region of interest.
+pub fn parse_roi(s: &str) -> Result<Roi, String> {
+    let v: Vec<usize> = s
+        .split(',')
+        .map(|t| t.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("--roi {s:?}: give X0,Y0,X1,Y1 in px (integers >= 0)"))?;
+    let a: [usize; 4] = v
+        .try_into()
+        .map_err(|_| format!("--roi {s:?}: give X0,Y0,X1,Y1 in px (four integers)"))?;
+    Ok(Roi::from(a))
 }
 
 /// The mask image `path` (non-zero = excluded) of frames of `shape` (rows, columns), as
@@ -173,6 +190,9 @@ pub fn settings_of(args: &PivArgs) -> Result<PivSettings, String> {
     }
     if let Some(n) = args.peak_candidates {
         s.peak_candidates = n;
+    }
+    if let Some(r) = &args.roi {
+        s.roi = Some(parse_roi(r)?);
     }
     s.validate().map_err(|e| format!("settings: {e}"))?;
     Ok(s)
@@ -299,5 +319,17 @@ mod tests {
         );
         assert!(parse_passes("64").is_err());
         assert!(parse_passes("64xa").is_err());
+    }
+
+    #[test]
+    fn roi_parses() {
+        assert_eq!(
+            parse_roi("0, 3000,8864,5288").unwrap(),
+            Roi::from([0, 3000, 8864, 5288])
+        );
+        assert!(parse_roi("0,3000,8864")
+            .unwrap_err()
+            .contains("four integers"));
+        assert!(parse_roi("0,-1,5,5").unwrap_err().contains("integers >= 0"));
     }
 }

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.correction import grid_for_windows
+from rspiv.correction import final_grid
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask
 from rspiv.mapping import Mapping
@@ -178,7 +178,7 @@ class PairContext:
 
     def grid(self) -> tuple[np.ndarray, np.ndarray]:
         """Window centres (px) of the final pass, shape (ny, nx) each (same for every run)."""
-        return grid_for_windows(self.object_shape, self.piv.final_window, self.piv.overlaps[-1])
+        return final_grid(self.object_shape, self.piv)
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -82,6 +82,11 @@ def settings_from_args(args: argparse.Namespace) -> PivSettings:
         changes["overlap"] = _numbers(args.overlap, float, "--overlap")
     if args.iterations is not None:
         changes["iterations"] = _numbers(args.iterations, int, "--iterations")
+    if args.roi is not None:
+        try:
+            changes["roi"] = tuple(int(v) for v in args.roi.split(","))
+        except ValueError as exc:
+            raise InvalidInputError(f"--roi: {args.roi!r} is not X0,Y0,X1,Y1 in px") from exc
     return base.replace(**changes) if changes else base
 
 
@@ -253,6 +258,12 @@ def register(sub) -> None:
         default=None,
         help="mask of the frames: an image (non-zero = excluded) or a JSON of polygons "
         "(rspiv.io.read_mask); vectors whose centre falls on it are masked (NaN)",
+    )
+    p.add_argument(
+        "--roi",
+        default=None,
+        help="region of interest X0,Y0,X1,Y1 in px (x0 <= x < x1; object px with --calibration):"
+        " the grid is laid out in it, only it and a margin are read",
     )
     p.add_argument("--calibration", default=None, help="calibration JSON: correct the distortion")
     p.add_argument(

@@ -50,6 +50,40 @@ pub struct PivField {
 }
 
 impl PivField {
+    /// The part of a grid field whose first point is its point `(column, row)` = `at`, on
+    /// `grid` (a grid of the same steps, inside this field's).
+    pub fn cut(self, at: (usize, usize), grid: Grid) -> PivField {
+        let s = ndarray::s![at.1..at.1 + grid.ny, at.0..at.0 + grid.nx];
+        PivField {
+            grid: Some(grid),
+            x: self.x.slice(s).to_owned(),
+            y: self.y.slice(s).to_owned(),
+            u: self.u.slice(s).to_owned(),
+            v: self.v.slice(s).to_owned(),
+            peak_ratio: self.peak_ratio.slice(s).to_owned(),
+            coef: self.coef.slice(s).to_owned(),
+            sigma_u: self.sigma_u.slice(s).to_owned(),
+            sigma_v: self.sigma_v.slice(s).to_owned(),
+            valid: self.valid.slice(s).to_owned(),
+            replaced: self.replaced.slice(s).to_owned(),
+            peak_choice: self.peak_choice.slice(s).to_owned(),
+            masked: self.masked.slice(s).to_owned(),
+            particle_diameter: self.particle_diameter,
+        }
+    }
+
+    /// The field moved by `(dx, dy)` px: its `x`, `y` and grid origin (a field computed on a
+    /// crop whose pixel `(0, 0)` is the frame's `(dx, dy)`, put back in the frame's px).
+    pub fn moved(mut self, dx: f64, dy: f64) -> PivField {
+        self.x.mapv_inplace(|x| x + dx);
+        self.y.mapv_inplace(|y| y + dy);
+        if let Some(g) = &mut self.grid {
+            g.x0 += dx;
+            g.y0 += dy;
+        }
+        self
+    }
+
     /// How the vectors that are not masked came about: `(first, second, third, interpolated)`
     /// = from the highest correlation peak, the second, the third, or replaced from their
     /// neighbours.

@@ -62,6 +62,7 @@ mod field;
 mod frames;
 mod points;
 mod regular;
+mod roi;
 mod settings;
 #[cfg(test)]
 mod tests;
@@ -71,7 +72,8 @@ pub use field::{ambiguity_variance, PivField, AMBIGUITY_RATE, AMBIGUITY_SCALE, R
 pub(crate) use frames::Frames;
 pub use frames::BLANK_VARIANCE;
 pub use points::{piv_at, piv_with_final_points, Predictor};
-pub use regular::piv;
+pub use regular::{piv, piv_cropped};
+pub use roi::{margin as roi_margin, Roi};
 pub use settings::{Interpolation, Mode, Pass, PivSettings};
 pub use window::MIN_SIGNAL_FRACTION;
 pub(crate) use window::{check_mask, check_pair, excluded as excluded_point};

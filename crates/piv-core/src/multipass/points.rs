@@ -78,6 +78,12 @@ pub(crate) fn check_at(
     s: &PivSettings,
 ) -> Result<PivSettings> {
     check_mask(mask, dim)?;
+    if let Some(r) = &s.roi {
+        return Err(PivError::InvalidInput(format!(
+            "{r}: a region of interest lays out the regular grid of piv and of Methods I and \
+             II; the points given here are where they are (leave roi out)"
+        )));
+    }
     if x.dim() != y.dim() {
         return Err(PivError::InvalidInput(format!(
             "points: x {:?} and y {:?} differ in shape",

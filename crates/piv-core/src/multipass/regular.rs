@@ -2,6 +2,7 @@
 
 use super::field::*;
 use super::frames::*;
+use super::roi::{margin as roi_margin, Roi};
 use super::settings::*;
 use super::window::*;
 use crate::correlate::Uncertainty;
@@ -15,8 +16,10 @@ use rayon::prelude::*;
 /// Multipass PIV of a frame pair on the regular grid of the last pass.
 ///
 /// `mask` (same shape as the frames, `true` = excluded) removes the vectors whose centre falls
-/// on a masked pixel. Errors: frames of different shapes, NaN/inf pixels, windows larger than the
-/// image, bad settings.
+/// on a masked pixel. With [`PivSettings::roi`] the grids are laid out in the region and only
+/// the region and a margin around it are read (`roi.rs`); `x`, `y` and `grid` stay in the
+/// frames' px. Errors: frames of different shapes, NaN/inf pixels, windows larger than the
+/// image (or the region), a region beyond the frames, bad settings.
 pub fn piv<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -27,9 +30,53 @@ pub fn piv<T: Pixel>(
     check_pair(&frame_a, &frame_b)?;
     let dim = frame_a.dim();
     check_mask(&mask, dim)?;
+    if let Some(roi) = s.roi {
+        roi.check(dim, s)?;
+        let crop = roi.grown(roi_margin(s), dim);
+        let (ca, cb) = (crop.view(&frame_a), crop.view(&frame_b));
+        return piv_cropped(ca, cb, mask.as_ref().map(|m| crop.view(m)), s, dim, crop);
+    }
     let grids = grids_of(s, dim)?;
     let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
     grid_passes(&frames, dim, &mask, s, grids)
+}
+
+/// [`piv`] in the region `s.roi` (px of frames of shape `dim`, checked) of the crop `crop` of
+/// those frames (`frame_a`, `frame_b` and `mask` are the crop; it holds the region and a
+/// margin): the grids are the whole frames' cut to the region (`roi.rs`); the field in the
+/// frames' px. Every pass runs with one more ring of the frames' grid points around the
+/// region where the frames have them (its windows reach half a window into the margin at 50 %
+/// overlap), so that the region's outer vectors have the median test's neighbours and the
+/// next pass's predictor is interpolated there, not extrapolated; the field returned is cut to
+/// the region.
+pub fn piv_cropped<T: Pixel>(
+    frame_a: ArrayView2<'_, T>,
+    frame_b: ArrayView2<'_, T>,
+    mask: Option<ArrayView2<'_, bool>>,
+    s: &PivSettings,
+    dim: (usize, usize),
+    crop: Roi,
+) -> Result<PivField> {
+    let roi = s
+        .roi
+        .ok_or_else(|| PivError::InvalidInput("piv_cropped needs a roi".into()))?;
+    let rings = s
+        .passes
+        .iter()
+        .map(|p| roi.grid_ring(p.w, p.h, p.overlap, dim, (crop.x0, crop.y0), 1))
+        .collect::<Result<Vec<_>>>()?;
+    let last = roi.grid(
+        s.passes[s.passes.len() - 1].w,
+        s.passes[s.passes.len() - 1].h,
+        s.passes[s.passes.len() - 1].overlap,
+        dim,
+        (crop.x0, crop.y0),
+    )?;
+    let at = rings[rings.len() - 1].1;
+    let grids = rings.into_iter().map(|(g, _)| g).collect();
+    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+    let f = grid_passes(&frames, frame_a.dim(), &mask, s, grids)?;
+    Ok(f.cut(at, last).moved(crop.x0 as f64, crop.y0 as f64))
 }
 
 /// The grids of the passes of `s` on frames of shape `dim` (rows, columns).

@@ -19,6 +19,7 @@
 //! | min_peak_ratio   | number                     | reject below this peak ratio (0: off)          |
 //! | peak_candidates  | 1, 2 or 3                  | correlation peaks tried per vector (see below) |
 //! | uncertainty      | bool                       | per-vector uncertainty (`PivField::sigma_u`)   |
+//! | roi              | `[x0, y0, x1, y1]` or null | region of interest, px ([`Roi`])               |
 //!
 //! `peak_candidates`: when a vector fails the median test (or its peak is rejected), its
 //! second and then third correlation peaks ([`crate::correlate::Peak::alt`]) are tried, up to
@@ -30,6 +31,7 @@
 //! string values parse case-insensitively through the enums' `FromStr` and print (`Display`) as
 //! the vocabulary's lowercase names.
 
+use super::roi::Roi;
 use crate::correlate::SubPixel;
 use crate::error::{PivError, Result};
 use crate::weighting::Weighting;
@@ -110,6 +112,9 @@ pub struct PivSettings {
     /// Estimate every vector's uncertainty on the last iteration of the last pass
     /// ([`crate::PivField::sigma_u`]); true. Off, the sigmas are NaN.
     pub uncertainty: bool,
+    /// The region of interest: every pass's grid laid out in it, only it and a margin read
+    /// ([`Roi`], `roi.rs`); `None`, the whole frame.
+    pub roi: Option<Roi>,
 }
 
 impl Default for PivSettings {
@@ -126,6 +131,7 @@ impl Default for PivSettings {
             min_peak_ratio: 0.0,
             peak_candidates: 3,
             uncertainty: true,
+            roi: None,
         }
     }
 }
@@ -169,6 +175,9 @@ impl PivSettings {
                 "peak_candidates {} is outside 1 ..= 3",
                 self.peak_candidates
             )));
+        }
+        if let Some(r) = &self.roi {
+            r.validate()?;
         }
         Ok(())
     }
@@ -282,6 +291,7 @@ struct SettingsJson {
     min_peak_ratio: f64,
     peak_candidates: usize,
     uncertainty: bool,
+    roi: Option<Roi>,
 }
 
 impl Default for SettingsJson {
@@ -306,6 +316,7 @@ impl From<&PivSettings> for SettingsJson {
             min_peak_ratio: s.min_peak_ratio,
             peak_candidates: s.peak_candidates,
             uncertainty: s.uncertainty,
+            roi: s.roi,
         }
     }
 }
@@ -343,6 +354,7 @@ impl PivSettings {
             min_peak_ratio: j.min_peak_ratio,
             peak_candidates: j.peak_candidates,
             uncertainty: j.uncertainty,
+            roi: j.roi,
         };
         s.validate()?;
         Ok(s)
@@ -400,7 +412,7 @@ mod vocabulary_tests {
                 "deformation": "Offset", "interpolation": "keys", "subpixel": "gauss2d",
                 "weighting": "blackman",
                 "validate": false, "median_eps": 0.2, "median_threshold": 3,
-                "min_peak_ratio": 1.2, "uncertainty": false}"#,
+                "min_peak_ratio": 1.2, "uncertainty": false, "roi": [0, 8, 640, 200]}"#,
         )
         .unwrap();
         assert_eq!(
@@ -418,6 +430,7 @@ mod vocabulary_tests {
         assert_eq!(s.weighting, Weighting::Blackman);
         assert!(!s.validate);
         assert!(!s.uncertainty);
+        assert_eq!(s.roi, Some(Roi::from([0, 8, 640, 200])));
         assert_eq!(
             (s.median_eps, s.median_threshold, s.min_peak_ratio),
             (0.2, 3.0, 1.2)
@@ -436,5 +449,7 @@ mod vocabulary_tests {
         assert!(err(r#"{"iterations": 0}"#).contains("0 iterations"));
         assert!(err(r#"{"passes": []}"#).contains("passes is empty"));
         assert!(err("[1, 2]").contains("PIV settings"));
+        assert!(err(r#"{"roi": [5, 0, 5, 10]}"#).contains("roi [5, 0, 5, 10] is empty"));
+        assert!(err(r#"{"roi": [5, 0, 10]}"#).contains("PIV settings"));
     }
 }

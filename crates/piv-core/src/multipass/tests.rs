@@ -925,3 +925,96 @@ fn blank_blocks_decide_as_the_definition() {
         "{checked:?}"
     );
 }
+
+/// A region of interest: the grid laid out in it, the frames' px kept; where its grid
+/// coincides with the whole frame's, a single pass gives the whole frame's vectors inside it
+/// (the windows hold the same pixels), and the paper's passes are as accurate as over the
+/// whole frame.
+#[test]
+fn region_of_interest_is_the_whole_frames_grid_there() {
+    let d = |x: f64, y: f64| {
+        (
+            2.0 + 1.5 * (2.0 * std::f64::consts::PI * y / 300.0).sin(),
+            0.6 * (2.0 * std::f64::consts::PI * x / 400.0).cos(),
+        )
+    };
+    let (a, b) = pair(320, 480, d);
+    // one pass: the whole frame's 32 x 32 grid starts at 15.5 every 16 px in both directions
+    let mut s = PivSettings {
+        passes: vec![Pass::new(32, 32)],
+        mode: Mode::Offset,
+        ..PivSettings::default()
+    };
+    let whole = piv(a.view(), b.view(), None, &s).unwrap();
+    s.roi = Some(super::Roi::from([96, 64, 288, 224]));
+    let f = piv(a.view(), b.view(), None, &s).unwrap();
+    let g = f.grid.unwrap();
+    assert_eq!((g.nx, g.ny), (11, 9));
+    assert_eq!((g.x0, g.y0), (96.0 + 15.5, 64.0 + 15.5));
+    assert_eq!((f.x[[0, 0]], f.y[[0, 0]]), (111.5, 79.5));
+    // the interior (the median test and the pooled uncertainty reach one neighbour out)
+    for j in 1..g.ny - 1 {
+        for i in 1..g.nx - 1 {
+            let (jw, iw) = (j + 4, i + 6);
+            assert_eq!(f.x[[j, i]], whole.x[[jw, iw]]);
+            assert_eq!(f.y[[j, i]], whole.y[[jw, iw]]);
+            assert_eq!(f.u[[j, i]], whole.u[[jw, iw]], "u at {j} {i}");
+            assert_eq!(f.v[[j, i]], whole.v[[jw, iw]], "v at {j} {i}");
+            assert_eq!(f.valid[[j, i]], whole.valid[[jw, iw]]);
+            assert_eq!(f.sigma_u[[j, i]], whole.sigma_u[[jw, iw]]);
+        }
+    }
+    // the paper's passes with deformation, a region at the frame's corner: as accurate as the
+    // whole frame's vectors in the same region
+    let mut s = PivSettings::default();
+    let whole = piv(a.view(), b.view(), None, &s).unwrap();
+    let roi = super::Roi::from([0, 150, 300, 320]);
+    s.roi = Some(roi);
+    let f = piv(a.view(), b.view(), None, &s).unwrap();
+    let inside = |x: f64, y: f64| x > 16.0 && x < 284.0 && y > 166.0 && y < 304.0;
+    let err = |f: &PivField| {
+        let (mut s2, mut n) = (0.0, 0.0);
+        for ((&x, &y), (&u, &v)) in f.x.iter().zip(&f.y).zip(f.u.iter().zip(&f.v)) {
+            if inside(x, y) {
+                let (tu, tv) = d(x, y);
+                s2 += (u - tu).powi(2) + (v - tv).powi(2);
+                n += 1.0;
+            }
+        }
+        ((s2 / n).sqrt(), n)
+    };
+    let ((er, nr), (ew, nw)) = (err(&f), err(&whole));
+    assert!(f.x.iter().all(|&x| x > 0.0 && x < 300.0));
+    assert!(f.y.iter().all(|&y| y > 150.0 && y < 320.0));
+    assert!(nr > 200.0 && nw > 200.0, "{nr} {nw}");
+    assert!(er < 1.15 * ew + 0.005, "region {er} whole frame {ew}");
+    // a region beyond the frames, or too small for a window, is refused in one line
+    s.roi = Some(super::Roi::from([0, 150, 481, 320]));
+    let e = piv(a.view(), b.view(), None, &s).unwrap_err().to_string();
+    assert!(
+        e.contains("reaches beyond the frames (480 x 320 px)"),
+        "{e}"
+    );
+    s.roi = Some(super::Roi::from([0, 150, 40, 320]));
+    let e = piv(a.view(), b.view(), None, &s).unwrap_err().to_string();
+    assert!(
+        e.contains("roi [0, 150, 40, 320] (40 x 170 px) holds no 64 x 64 px window"),
+        "{e}"
+    );
+    // points are where they are: piv_at refuses a region
+    let x = Array2::from_elem((1, 1), 100.0);
+    let e = piv_at(
+        a.view(),
+        b.view(),
+        x.view(),
+        x.view(),
+        Predictor::Zero,
+        None,
+        &[(32, 32)],
+        1,
+        &s,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("leave roi out"), "{e}");
+}
