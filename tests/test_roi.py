@@ -44,6 +44,30 @@ def test_a_single_pass_in_a_region_is_the_whole_frames_pass_there(pair):
         np.testing.assert_array_equal(getattr(f, name)[inner], getattr(whole, name)[there], name)
 
 
+@pytest.mark.parametrize("deformation", ["offset", "symmetric"])
+def test_the_papers_passes_in_a_region_are_the_whole_frames(pair, deformation):
+    """Every pass on the whole frame's grid cut to the region and two rings: with window offset
+    every vector of the region is the whole frame's, bit for bit; with symmetric deformation
+    (whose predictor's window average reaches past the rings) within 0.005 px on the outer
+    vectors (measured 0.0050) and 0.002 px from 20 px inside the edge (measured 0.0012)."""
+    a, b = pair
+    roi = (100, 150, 600, 450)
+    whole = rspiv.piv(a, b, deformation=deformation)
+    f = rspiv.piv(a, b, roi=roi, deformation=deformation)
+    j0 = int(np.flatnonzero(whole.y[:, 0] == f.y[0, 0])[0])
+    i0 = int(np.flatnonzero(whole.x[0] == f.x[0, 0])[0])
+    there = np.s_[j0 : j0 + f.u.shape[0], i0 : i0 + f.u.shape[1]]
+    np.testing.assert_array_equal(f.x, whole.x[there])
+    np.testing.assert_array_equal(f.y, whole.y[there])
+    if deformation == "offset":
+        for name in ("u", "v", "valid", "replaced", "sigma_u", "sigma_v", "peak_ratio"):
+            np.testing.assert_array_equal(getattr(f, name), getattr(whole, name)[there], name)
+        return
+    d = np.hypot(f.u - whole.u[there], f.v - whole.v[there])
+    edge = np.minimum.reduce([f.x - roi[0], roi[2] - f.x, f.y - roi[1], roi[3] - f.y])
+    assert d.max() < 0.01 and d[edge >= 20].max() < 0.002, (d.max(), d[edge >= 20].max())
+
+
 def test_the_papers_passes_in_a_region_are_as_accurate_and_faster(pair):
     a, b = pair
     roi = (0, 300, 400, 512)
@@ -97,23 +121,34 @@ def lens_case():
     return p3_mapping(lens, SHAPE), frames_through(lens, SHAPE, (U_OBJ, V_OBJ), 7, 11)
 
 
-@pytest.mark.parametrize("method", ["I", "II"])
-def test_methods_in_a_region_of_the_object_frame(lens_case, method):
-    """The object grid laid out in the region (object px); its vectors those of the whole
-    object frame at the same points (the region's grid coincides with it: 32 x 8 windows
-    every 16 x 4 px from (15.5, 3.5))."""
+@pytest.mark.parametrize(
+    "method, deformation", [("I", "symmetric"), ("II", "symmetric"), ("II", "offset")]
+)
+def test_methods_in_a_region_of_the_object_frame(lens_case, method, deformation):
+    """The object grid cut to the region (object px); its vectors those of the whole object
+    frame at the same points: Method II with window offset bit for bit (its raw region's
+    predictor passes on the whole raw grid), with deformation within 1e-4 px (measured 3e-5),
+    Method I within 0.001 px (measured 0.0002: the dewarped region's coarse map differs from
+    the whole frame's within its 1e-3 px)."""
     mapping, (a, b) = lens_case
     roi = (160, 100, 480, 300)
-    whole = rspiv.piv(a, b, calibration=mapping, method=method)
-    f = rspiv.piv(a, b, calibration=mapping, method=method, roi=roi)
+    kw = {"calibration": mapping, "method": method, "deformation": deformation}
+    whole = rspiv.piv(a, b, **kw)
+    f = rspiv.piv(a, b, roi=roi, **kw)
     assert f.u.shape == (49, 19) and f.grid[:2] == (175.5, 103.5)
-    np.testing.assert_array_equal(f.x, whole.x[25:74, 10:29])
-    np.testing.assert_array_equal(f.y, whole.y[25:74, 10:29])
-    ok = f.valid & whole.valid[25:74, 10:29]
+    there = np.s_[25:74, 10:29]
+    np.testing.assert_array_equal(f.x, whole.x[there])
+    np.testing.assert_array_equal(f.y, whole.y[there])
+    ok = f.valid & whole.valid[there]
     assert ok.mean() > 0.9
-    du = (f.u - whole.u[25:74, 10:29])[ok]
-    dv = (f.v - whole.v[25:74, 10:29])[ok]
-    assert np.median(np.abs(du)) < 0.005 and np.median(np.abs(dv)) < 0.005
+    d = np.hypot(f.u - whole.u[there], f.v - whole.v[there])[ok]
+    if (method, deformation) == ("II", "offset"):
+        np.testing.assert_array_equal(f.u, whole.u[there])
+        # the final pass ran with two more rings: the outer vectors pooled their uncertainty
+        # with the same neighbours
+        np.testing.assert_array_equal(f.sigma_v, whole.sigma_v[there])
+        np.testing.assert_array_equal(f.valid, whole.valid[there])
+    assert d.max() < (0.001 if method == "I" else 1e-4), d.max()
     assert np.sqrt(np.mean((f.u[ok] - U_OBJ) ** 2 + (f.v[ok] - V_OBJ) ** 2)) < 0.05
 
 
@@ -129,7 +164,10 @@ def test_method_two_with_a_predictor_in_a_region(lens_case):
     np.testing.assert_array_equal(f.x, whole.x[25:74, 10:29])
     ok = f.valid & whole.valid[25:74, 10:29]
     assert ok.mean() > 0.9
-    assert np.median(np.abs(f.u - whole.u[25:74, 10:29])[ok]) < 0.005
+    d = np.hypot(f.u - whole.u[25:74, 10:29], f.v - whole.v[25:74, 10:29])[ok]
+    # measured 0.0011 px at most, 86 % bit for bit: the raw region's predictor is held at its
+    # edge where the object grid's outer images lie beyond it
+    assert d.max() < 0.002 and np.mean(d == 0) > 0.7, (d.max(), np.mean(d == 0))
     assert np.sqrt(np.mean((f.u[ok] - U_OBJ) ** 2 + (f.v[ok] - V_OBJ) ** 2)) < 0.05
 
 

@@ -260,6 +260,22 @@ def render_particles(
     area, plus Gaussian noise (counts), rounded and clipped to [0, max_count]. ``diameter`` holds
     one value or one per particle. Deterministic for a seed whatever the thread count."""
 
+def object_grid(
+    shape: tuple[int, int], settings: str, ring: bool = False
+) -> tuple[tuple[float, float, float, float, int, int], tuple[int, int]]:
+    """The last pass's grid ``(x0, y0, dx, dy, nx, ny)`` on a frame of ``shape`` (rows,
+    columns), cut to the settings' ``roi`` when given, and the ``(column, row)`` of its first
+    point in the grid with the rings around the region (``ring``: that grid instead)."""
+
+def region_around(
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    settings: str,
+    shape: tuple[int, int],
+) -> tuple[int, int, int, int] | None:
+    """The frames' region ``(x0, y0, x1, y1)`` holding the points and the settings' margin
+    (``piv_core::roi_margin``), or None when no point is finite."""
+
 def window_response(weighting: str, n: int, wavelength: float) -> float:
     """Amplitude ratio of a sine displacement of ``wavelength`` px returned by an ``n`` px
     window weighted by ``weighting`` ("tophat", "gaussian", "blackman")."""

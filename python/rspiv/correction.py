@@ -81,7 +81,6 @@ __all__ = [
     "dewarp_pair",
     "grid_for_windows",
     "final_grid",
-    "roi_margin",
     "map_displacements",
     "mapping_of",
     "method_one",
@@ -139,64 +138,47 @@ def grid_for_windows(
     return np.meshgrid(xs, ys)
 
 
-def roi_margin(settings: PivSettings) -> int:
-    """The px read around a region of interest (``piv_core::roi_margin``): the largest window
-    dimension of any pass, at least 64 px."""
-    return max(64, *(max(p) for p in settings.passes))
-
-
 def final_grid(shape: tuple[int, int], settings: PivSettings) -> tuple[np.ndarray, np.ndarray]:
     """Window centres of the last pass of ``settings`` on a frame of ``shape = (h, w)``: the
-    grid :func:`rspiv.piv` gives (Rust ``Grid::for_windows``), cut to the points whose windows
-    lie inside ``settings.roi`` when given (as ``piv_core::Roi::grid``; the region checked
-    against ``shape`` and the windows with the native messages).
+    grid :func:`rspiv.piv` gives, cut to the points whose windows lie inside ``settings.roi``
+    when given (``correction_core::object_grid``: the region checked against ``shape`` and the
+    windows).
 
     Returns
     -------
     x, y : ndarray, shape (ny, nx)
         Window centres in px of the frame.
     """
-    window, overlap = settings.final_window, settings.overlaps[-1]
-    if settings.roi is None:
-        return grid_for_windows(shape, window, overlap)
-    x0, y0, x1, y1 = settings.roi
-    height, width = (int(v) for v in shape)
-    if x1 > width or y1 > height:
-        raise InvalidInputError(
-            f"roi [{x0}, {y0}, {x1}, {y1}] reaches beyond the frames ({width} x {height} px)"
-        )
-    cut = None
-    for (w, h), o in zip(settings.passes, settings.overlaps, strict=True):
-        gx, gy = grid_for_windows(shape, (w, h), o)
-        # the points whose windows [c - (n - 1)/2, c + (n - 1)/2] lie in [lo, hi - 1]
-        cols = (gx[0] - (w - 1) / 2 >= x0) & (gx[0] + (w - 1) / 2 <= x1 - 1)
-        rows = (gy[:, 0] - (h - 1) / 2 >= y0) & (gy[:, 0] + (h - 1) / 2 <= y1 - 1)
-        if not cols.any() or not rows.any():
-            sx = gx[0, 1] - gx[0, 0] if gx.shape[1] > 1 else w
-            sy = gy[1, 0] - gy[0, 0] if gy.shape[0] > 1 else h
-            raise InvalidInputError(
-                f"roi [{x0}, {y0}, {x1}, {y1}] ({x1 - x0} x {y1 - y0} px) holds no {w} x {h} px "
-                f"window (w x h) of the frames' grid (every {sx:g} x {sy:g} px)"
-            )
-        cut = gx[np.ix_(rows, cols)], gy[np.ix_(rows, cols)]
-    assert cut is not None and (window, overlap) == (settings.passes[-1], settings.overlaps[-1])
-    return cut
+    return _object_grid(shape, settings, ring=False)[0]
 
 
-def _crop_around(
-    points: np.ndarray, margin: int, shape: tuple[int, int]
+def _object_grid(
+    shape: tuple[int, int], settings: PivSettings, ring: bool
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[slice, slice]]:
+    """:func:`final_grid`, or with ``ring`` the grid the final pass runs on in a region of
+    interest (two more rings of points, ``correction_core::object_grid_ring``); and the slices
+    (rows, columns) of :func:`final_grid`'s points in it."""
+    (x0, y0, dx, dy, nx, ny), (i0, j0) = _rspiv.object_grid(
+        (int(shape[0]), int(shape[1])), settings.to_json(), ring=ring
+    )
+    grid = np.meshgrid(x0 + dx * np.arange(nx), y0 + dy * np.arange(ny))
+    if not ring:
+        return grid, (slice(0, ny), slice(0, nx))
+    (_, _, _, _, nx0, ny0), _ = _rspiv.object_grid(
+        (int(shape[0]), int(shape[1])), settings.to_json()
+    )
+    return grid, (slice(j0, j0 + ny0), slice(i0, i0 + nx0))
+
+
+def _region_around(
+    points: np.ndarray, settings: PivSettings, shape: tuple[int, int]
 ) -> tuple[tuple[slice, slice], tuple[int, int]]:
-    """The slices (rows, columns) of the frames holding ``points`` (..., 2) and ``margin`` px
-    around them (as ``piv_core::Roi::around``), and their origin ``(x0, y0)``."""
-    xy = points.reshape(-1, 2)
-    xy = xy[np.all(np.isfinite(xy), axis=1)]
-    height, width = (int(v) for v in shape)
-    if xy.size == 0:
-        return (slice(0, height), slice(0, width)), (0, 0)
-    x0 = max(int(np.floor(xy[:, 0].min() - margin)), 0)
-    y0 = max(int(np.floor(xy[:, 1].min() - margin)), 0)
-    x1 = int(min(np.ceil(xy[:, 0].max() + margin), width - 1)) + 1
-    y1 = int(min(np.ceil(xy[:, 1].max() + margin), height - 1)) + 1
+    """The slices (rows, columns) of the frames holding ``points`` (..., 2) and the margin a
+    region of interest reads around them (``piv_core::Roi::around``, ``roi_margin``), and their
+    origin ``(x0, y0)``."""
+    xy = np.ascontiguousarray(points.reshape(-1, 2).T)
+    r = _rspiv.region_around(xy[0], xy[1], settings.to_json(), (int(shape[0]), int(shape[1])))
+    x0, y0, x1, y1 = r if r is not None else (0, 0, int(shape[1]), int(shape[0]))
     return (slice(y0, y1), slice(x0, x1)), (x0, y0)
 
 
@@ -444,7 +426,9 @@ def method_two(
     a = np.asarray(frame_a)
     shape = tuple(object_shape) if object_shape is not None else a.shape
     window = settings.final_window
-    gx, gy = final_grid(shape, settings)
+    # in a region of interest the final pass runs on two more rings of points (the median test's
+    # neighbours and the pooled uncertainty of the region's outer vectors), cut off at the end
+    (gx, gy), cut = _object_grid(shape, settings, ring=True)
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     img = m.forward(obj)
     points = img.reshape(gx.shape + (2,))
@@ -452,7 +436,7 @@ def method_two(
     # a predictor field moved into the crop)
     fa, fb, fmask, at, pred = frame_a, frame_b, mask, points, predictor
     if settings.roi is not None:
-        (rows, cols), (cx, cy) = _crop_around(points, roi_margin(settings), a.shape)
+        (rows, cols), (cx, cy) = _region_around(points, settings, a.shape)
         fa, fb = a[rows, cols], np.asarray(frame_b)[rows, cols]
         raw_mask = mask_array(mask, a.shape)
         fmask = None if raw_mask is None else raw_mask[rows, cols]
@@ -483,8 +467,9 @@ def method_two(
     sig = np.column_stack([f.sigma_u.ravel(), f.sigma_v.ravel()])
     sob = map_sigmas(m, obj, sig, mode).reshape(gx.shape + (2,))
     lost = ~np.all(np.isfinite(dob), axis=-1) & ~f.masked
-    masked = f.masked | lost
-    valid = f.valid & ~masked
+    masked = (f.masked | lost)[cut]
+    valid = f.valid[cut] & ~masked
+    gx, gy, dob, sob = gx[cut], gy[cut], dob[cut], sob[cut]
     grid = (
         float(gx[0, 0]),
         float(gy[0, 0]),
@@ -497,11 +482,11 @@ def method_two(
         u=np.where(masked, np.nan, dob[..., 0]),
         v=np.where(masked, np.nan, dob[..., 1]),
         valid=valid,
-        replaced=f.replaced & ~masked,
-        peak_choice=np.where(masked, 0, f.peak_choice).astype(np.uint8),
+        replaced=f.replaced[cut] & ~masked,
+        peak_choice=np.where(masked, 0, f.peak_choice[cut]).astype(np.uint8),
         masked=masked,
-        peak_ratio=f.peak_ratio,
-        coef=f.coef,
+        peak_ratio=f.peak_ratio[cut],
+        coef=f.coef[cut],
         sigma_u=np.where(masked, np.nan, sob[..., 0]),
         sigma_v=np.where(masked, np.nan, sob[..., 1]),
         window=tuple(window),

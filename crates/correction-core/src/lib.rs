@@ -28,4 +28,4 @@ mod method_two;
 pub use error::{CorrectionError, Result};
 pub use method::{DisplacementMapping, Method, ZeroFill};
 pub use method_one::{dewarp_pair, dewarp_region, method_one, DewarpedPair};
-pub use method_two::{map_displacements, map_sigmas, method_two, object_grid};
+pub use method_two::{map_displacements, map_sigmas, method_two, object_grid, object_grid_ring};

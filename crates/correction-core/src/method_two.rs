@@ -28,6 +28,25 @@ pub fn object_grid(object_shape: (usize, usize), settings: &PivSettings) -> Resu
     )?)
 }
 
+/// The grid the final pass runs on: [`object_grid`], and in a region of interest
+/// [`piv_core::ROI_RINGS`] more rings of the object frame's grid points around it where it has them (the median test's
+/// neighbours and the pooled uncertainty of the region's outer vectors); and the place
+/// `(column, row)` of [`object_grid`]'s first point in it.
+pub fn object_grid_ring(
+    object_shape: (usize, usize),
+    settings: &PivSettings,
+) -> Result<(Grid, (usize, usize))> {
+    let out = object_grid(object_shape, settings)?;
+    match settings.roi {
+        None => Ok((out, (0, 0))),
+        Some(roi) => {
+            let last = settings.passes[settings.passes.len() - 1];
+            let rings = piv_core::ROI_RINGS;
+            Ok(roi.grid_ring(last.w, last.h, last.overlap, object_shape, (0, 0), rings)?)
+        }
+    }
+}
+
 /// Object-frame displacements of the image displacements `(u, v)` measured at the image points
 /// `(x, y)` (all of one shape): [`DisplacementMapping::Full`] gives
 /// `F^-1(p + d/2) - F^-1(p - d/2)` (NaN where `d` is not finite or the inverse does not
@@ -137,7 +156,9 @@ pub fn method_two<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
 ) -> Result<PivField> {
     let shape = object_shape.unwrap_or(frame_a.dim());
-    let grid = object_grid(shape, settings)?;
+    let out = object_grid(shape, settings)?;
+    // in a region, with its rings (cut off at the end)
+    let (grid, at) = object_grid_ring(shape, settings)?;
     let (gx, gy) = (
         Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| grid.xy(j, i).0),
         Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| grid.xy(j, i).1),
@@ -160,26 +181,19 @@ pub fn method_two<T: Pixel>(
         None => {
             piv_core::piv_with_final_points(frame_a, frame_b, ix.view(), iy.view(), mask, settings)?
         }
-        // a region of interest: the raw frames around the object grid's images only, the
-        // predictor passes laid out in that crop
+        // a region of interest (object px): the raw frames' region holding the object grid's
+        // images and their windows (the predictor passes cut to it, a margin read around it)
         Some(_) => {
             let (xs, ys) = (ix.as_slice().expect("owned"), iy.as_slice().expect("owned"));
             let dim = frame_a.dim();
-            let crop = Roi::around(xs, ys, piv_core::roi_margin(settings), dim)
+            let last = settings.passes[settings.passes.len() - 1];
+            let raw = Roi::around(xs, ys, last.w.max(last.h), dim)
                 .unwrap_or(Roi::from([0, 0, dim.1, dim.0]));
-            let (cx, cy) = (crop.x0 as f64, crop.y0 as f64);
             let inner = PivSettings {
-                roi: None,
+                roi: Some(raw),
                 ..settings.clone()
             };
-            piv_core::piv_with_final_points(
-                crop.view(&frame_a),
-                crop.view(&frame_b),
-                ix.mapv(|x| x - cx).view(),
-                iy.mapv(|y| y - cy).view(),
-                mask.as_ref().map(|m| crop.view(m)),
-                &inner,
-            )?
+            piv_core::piv_with_final_points(frame_a, frame_b, ix.view(), iy.view(), mask, &inner)?
         }
     };
     let (du, dv) = map_displacements(mapping, ix.view(), iy.view(), f.u.view(), f.v.view(), mode);
@@ -209,7 +223,7 @@ pub fn method_two<T: Pixel>(
     let peak_choice = Zip::from(&f.peak_choice)
         .and(&masked)
         .map_collect(|&c, &m| if m { 0 } else { c });
-    Ok(PivField {
+    let field = PivField {
         grid: Some(grid),
         x: gx,
         y: gy,
@@ -224,5 +238,10 @@ pub fn method_two<T: Pixel>(
         peak_choice,
         masked,
         particle_diameter: f.particle_diameter,
+    };
+    Ok(if grid == out {
+        field
+    } else {
+        field.cut(at, out)
     })
 }

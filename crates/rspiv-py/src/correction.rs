@@ -6,7 +6,7 @@ use crate::frames::{frames, with_frames};
 use crate::mapping::PyMapping;
 use crate::piv::{field_dict, settings};
 use correction_core::{DisplacementMapping, ZeroFill};
-use numpy::PyReadonlyArray2;
+use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -61,9 +61,48 @@ fn method_two<'py>(
     field_dict(py, field)
 }
 
+/// A grid `(x0, y0, dx, dy, nx, ny)` and a point's place `(column, row)` in it.
+type GridAt = ((f64, f64, f64, f64, usize, usize), (usize, usize));
+
+/// The grid of the last pass of `settings` on an object frame of `shape` (rows, columns), cut
+/// to its `roi` when given (`correction_core::object_grid`): `(x0, y0, dx, dy, nx, ny)`, and
+/// `(column, row)` of its first point in the grid with the rings around the region
+/// (`ring`: that grid returned instead, `correction_core::object_grid_ring`).
+#[pyfunction]
+#[pyo3(signature = (shape, settings, ring=false))]
+fn object_grid(shape: (usize, usize), settings: &str, ring: bool) -> PyResult<GridAt> {
+    let s = self::settings(settings)?;
+    let (g, at) = if ring {
+        correction_core::object_grid_ring(shape, &s).map_err(PyRspivErr::from)?
+    } else {
+        let g = correction_core::object_grid(shape, &s).map_err(PyRspivErr::from)?;
+        (g, (0, 0))
+    };
+    Ok(((g.x0, g.y0, g.dx, g.dy, g.nx, g.ny), at))
+}
+
+/// The frames' region read around the points `(x, y)` for `settings` (`piv_core::Roi::around`
+/// with `piv_core::roi_margin`) on frames of `shape` (rows, columns): `(x0, y0, x1, y1)`, or
+/// None when no point is finite and inside.
+#[pyfunction]
+fn region_around(
+    x: PyReadonlyArray1<'_, f64>,
+    y: PyReadonlyArray1<'_, f64>,
+    settings: &str,
+    shape: (usize, usize),
+) -> PyResult<Option<(usize, usize, usize, usize)>> {
+    let s = self::settings(settings)?;
+    let (x, y) = (x.as_array(), y.as_array());
+    let (xs, ys) = (x.to_vec(), y.to_vec());
+    let r = piv_core::Roi::around(&xs, &ys, piv_core::roi_margin(&s), shape);
+    Ok(r.map(|r| (r.x0, r.y0, r.x1, r.y1)))
+}
+
 /// Register the correction functions in the module.
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(method_one, m)?)?;
     m.add_function(wrap_pyfunction!(method_two, m)?)?;
+    m.add_function(wrap_pyfunction!(object_grid, m)?)?;
+    m.add_function(wrap_pyfunction!(region_around, m)?)?;
     Ok(())
 }

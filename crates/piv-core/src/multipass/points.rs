@@ -4,6 +4,7 @@
 use super::field::*;
 use super::frames::*;
 use super::regular::*;
+use super::roi::{margin as roi_margin, Roi, RINGS};
 use super::settings::*;
 use super::window::*;
 use crate::correlate::Uncertainty;
@@ -265,6 +266,10 @@ pub(crate) fn at_points<T: Pixel>(
 /// Gives the same vectors as [`piv`] with the first passes followed by [`piv_at`] with that
 /// predictor. Returns `(predictor, final)`; `predictor` is `None` when `s` has one pass (the
 /// final pass then has no predictor).
+///
+/// With [`PivSettings::roi`] (px of these frames; it should hold the points' windows) only the
+/// region and a margin are read, and the predictor passes run on the whole frames' grids cut
+/// to it and [`RINGS`] rings around it, as [`piv`] runs them in a region (`roi.rs`).
 pub fn piv_with_final_points<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -275,6 +280,50 @@ pub fn piv_with_final_points<T: Pixel>(
 ) -> Result<(Option<PivField>, PivField)> {
     s.validate()?;
     check_pair(&frame_a, &frame_b)?;
+    let dim = frame_a.dim();
+    let Some(roi) = s.roi else {
+        return final_points(frame_a, frame_b, x, y, mask, s, None);
+    };
+    roi.check(dim, &predictor_settings(s))?;
+    let crop = roi.grown(roi_margin(s), dim);
+    let (cx, cy) = (crop.x0 as f64, crop.y0 as f64);
+    let inner = PivSettings {
+        roi: None,
+        ..s.clone()
+    };
+    let (p, f) = final_points(
+        crop.view(&frame_a),
+        crop.view(&frame_b),
+        x.mapv(|v| v - cx).view(),
+        y.mapv(|v| v - cy).view(),
+        mask.as_ref().map(|m| crop.view(m)),
+        &inner,
+        Some((roi, dim, crop)),
+    )?;
+    Ok((p.map(|p| p.moved(cx, cy)), f.moved(cx, cy)))
+}
+
+/// The settings of [`piv_with_final_points`]'s predictor passes: all but the last (a single
+/// pass checks the region against its own window).
+fn predictor_settings(s: &PivSettings) -> PivSettings {
+    let mut first = s.clone();
+    if first.passes.len() > 1 {
+        first.passes.pop();
+    }
+    first
+}
+
+/// [`piv_with_final_points`] on frames that are the crop `crop` of frames of shape `dim` when
+/// `region` is given (the predictor's grids those frames' cut to the region and its rings).
+fn final_points<T: Pixel>(
+    frame_a: ArrayView2<'_, T>,
+    frame_b: ArrayView2<'_, T>,
+    x: ArrayView2<'_, f64>,
+    y: ArrayView2<'_, f64>,
+    mask: Option<ArrayView2<'_, bool>>,
+    s: &PivSettings,
+    region: Option<(Roi, (usize, usize), Roi)>,
+) -> Result<(Option<PivField>, PivField)> {
     let dim = frame_a.dim();
     let last = *s.passes.last().expect("checked: non-empty");
     let windows = [(last.w, last.h)];
@@ -291,7 +340,17 @@ pub fn piv_with_final_points<T: Pixel>(
     )?;
     let mut first = s.clone();
     first.passes.pop();
-    let grids = grids_of(&first, dim)?;
+    let grids = match region {
+        None => grids_of(&first, dim)?,
+        Some((roi, whole, crop)) => first
+            .passes
+            .iter()
+            .map(|p| {
+                let g = roi.grid_ring(p.w, p.h, p.overlap, whole, (crop.x0, crop.y0), RINGS)?;
+                Ok(g.0)
+            })
+            .collect::<Result<Vec<_>>>()?,
+    };
     let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
     if first.passes.is_empty() {
         let f = at_points(

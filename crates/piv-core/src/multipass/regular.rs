@@ -2,7 +2,7 @@
 
 use super::field::*;
 use super::frames::*;
-use super::roi::{margin as roi_margin, Roi};
+use super::roi::{margin as roi_margin, Roi, RINGS};
 use super::settings::*;
 use super::window::*;
 use crate::correlate::Uncertainty;
@@ -44,11 +44,9 @@ pub fn piv<T: Pixel>(
 /// [`piv`] in the region `s.roi` (px of frames of shape `dim`, checked) of the crop `crop` of
 /// those frames (`frame_a`, `frame_b` and `mask` are the crop; it holds the region and a
 /// margin): the grids are the whole frames' cut to the region (`roi.rs`); the field in the
-/// frames' px. Every pass runs with one more ring of the frames' grid points around the
-/// region where the frames have them (its windows reach half a window into the margin at 50 %
-/// overlap), so that the region's outer vectors have the median test's neighbours and the
-/// next pass's predictor is interpolated there, not extrapolated; the field returned is cut to
-/// the region.
+/// frames' px. Every pass runs on [`RINGS`] more rings of the frames' grid points around the
+/// region where the frames have them (windows reaching past the crop are not correlated and
+/// only interpolated, as at a frame's edge); the field returned is cut to the region.
 pub fn piv_cropped<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -63,7 +61,7 @@ pub fn piv_cropped<T: Pixel>(
     let rings = s
         .passes
         .iter()
-        .map(|p| roi.grid_ring(p.w, p.h, p.overlap, dim, (crop.x0, crop.y0), 1))
+        .map(|p| roi.grid_ring(p.w, p.h, p.overlap, dim, (crop.x0, crop.y0), RINGS))
         .collect::<Result<Vec<_>>>()?;
     let last = roi.grid(
         s.passes[s.passes.len() - 1].w,
