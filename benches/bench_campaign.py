@@ -18,6 +18,7 @@ per-pair cost for a *single* pass without any distortion correction.
 Usage::
 
     python benches/bench_campaign.py [--scales 0.4 1.0] [--pairs 4] [--workdir /tmp/rspiv-bench]
+    python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --roi-rows 0.25
     python benches/bench_campaign.py --scales 0.146 0.505 1.0 --methods II --threads 1 2 --no-peer
 
 Prints a Markdown table (for benches/RESULTS.md). With ``--threads``, each configuration runs
@@ -42,6 +43,9 @@ from rspiv.campaign import STAGES, Campaign
 from rspiv.campaign_config import load_campaign_config
 toml, method, out = sys.argv[1], sys.argv[2], sys.argv[3]
 cfg = load_campaign_config(toml)
+if len(sys.argv) > 4:  # the region of interest: the lower fraction of the rows (the wall's side)
+    h, w = json.loads((pathlib.Path(toml).parent / "truth.json").read_text())["image_shape"]
+    cfg.piv.roi = [0, int(round(h * (1.0 - float(sys.argv[4])))), w, h]
 cfg.correction.method = method
 cfg.correction.compare_uncorrected = False
 cfg.calibration.monte_carlo_samples = 0
@@ -114,6 +118,12 @@ def main() -> int:
     ap.add_argument("--methods", nargs="+", default=["II", "I", "none"])
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--threads", type=int, nargs="+", default=[None])
+    ap.add_argument(
+        "--roi-rows",
+        type=float,
+        default=None,
+        help="a region of interest ([piv] roi): the lower FRACTION of the rows, wall included",
+    )
     args = ap.parse_args()
 
     import dataclasses
@@ -148,8 +158,9 @@ def main() -> int:
                 env = dict(os.environ)
                 if threads is not None:
                     env["RAYON_NUM_THREADS"] = str(threads)
+                roi = [] if args.roi_rows is None else [str(args.roi_rows)]
                 r = subprocess.run(
-                    [sys.executable, "-c", CHILD, str(toml), method, str(out)],
+                    [sys.executable, "-c", CHILD, str(toml), method, str(out), *roi],
                     capture_output=True,
                     text=True,
                     env=env,

@@ -225,3 +225,26 @@ def test_noise_corrected_stresses_and_their_uncertainty():
     )
     with pytest.raises(InvalidInputError, match="noise: expected"):
         analyse_profile(y, U, uu, vv, uv, nu, 1000.0, noise=(nuu, nvv))
+
+
+def test_a_profile_without_free_stream_is_said():
+    """A field (or region of interest) that stops inside the layer: its last values become
+    U_e and delta_99 lies just below its top, a biased result that looks right; the result
+    says so (``warning``), and with U_e given the layer's thickness is refused instead."""
+    for re_theta in (2000, 3030, 4060):
+        d = load_dns(re_theta)
+        y_m, U, uu, vv, uv = _piv_profile(d, 0.35, 0.0)
+        full = analyse_profile(y_m, U, uu, vv, uv, NU)
+        assert full.warning is None
+        # cut inside the layer, and just beyond it (delta_99 then 3-4 % low)
+        for f in (0.6, 0.9, 1.1):
+            cut = y_m < f * full.delta99
+            part = analyse_profile(*(a[cut] for a in (y_m, U, uu, vv, uv)), NU)
+            assert part.warning is not None and "no free stream in the field" in part.warning
+            assert part.delta99 < 0.97 * full.delta99
+        with pytest.raises(InvalidInputError, match="never reaches 0.99 U_e"):
+            cut = y_m < 0.9 * full.delta99
+            analyse_profile(*(a[cut] for a in (y_m, U, uu, vv, uv)), NU, u_e=full.u_e)
+        # with the free stream from 1.3 delta_99 on the profile is trusted
+        cut = y_m < 1.3 * full.delta99
+        assert analyse_profile(*(a[cut] for a in (y_m, U, uu, vv, uv)), NU).warning is None

@@ -242,6 +242,22 @@ def test_a_campaign_in_a_region_holding_the_wall(synth, tmp_path):
         np.testing.assert_allclose(u_p[ok], u_w[ok], rtol=0.01, atol=0.01)
 
 
+def test_a_campaign_region_that_cuts_the_layer_says_so(synth, tmp_path, capsys):
+    """A region of 345 px rows above the wall, less than the layer's 540 px: the profile has no
+    free stream, and the friction velocity it gives is biased (2 % here); said in one line per
+    run on stderr, in summary.json and in the report."""
+    toml = _with_roi(synth, tmp_path, (0, 400, 1330, 793))
+    assert main(["process", str(toml)]) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "no free stream in the field" in line]
+    assert len(lines) == 2, err  # Method II and the uncorrected run
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    for run in ("method_II", "uncorrected"):
+        assert "no free stream" in summary["runs"][run]["profile_warning"]
+    report = (tmp_path / "out" / "report" / "report.md").read_text()
+    assert "No free stream in the field" in report
+
+
 def test_a_campaign_region_without_the_wall_is_refused(synth, tmp_path, capsys):
     toml = _with_roi(synth, tmp_path, (0, 0, 1330, 400))
     rc = main(["process", str(toml)])

@@ -397,6 +397,9 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             rs["wall"] = wall_dict(an.wall)
         if an.result is not None:
             rs.update(an.result.summary())
+            if an.result.warning:
+                rs["profile_warning"] = an.result.warning
+                camp.say(f"warning: {run.label}: {an.result.warning}")
             if cfg.output.netcdf:
                 res.files[f"profile_{run.name}_nc"] = write_netcdf(
                     profile_dataset(an.result, attrs={"run": run.name, "label": run.label}),
@@ -495,6 +498,13 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     if camp.info.get("particle_size_warnings"):
         said = "\n\n".join(f"Warning: {w}." for w in camp.info["particle_size_warnings"].values())
         extra.append(ReportSection("Particle images too small", text=said))
+    no_free_stream = [
+        f"{an.run.label}: {an.result.warning}."
+        for an in res.analyses.values()
+        if an.result is not None and an.result.warning
+    ]
+    if no_free_stream:
+        extra.append(ReportSection("No free stream in the field", text="\n\n".join(no_free_stream)))
     note = partial_correlation_note(res)
     for title, text, column, pairs in (
         (
