@@ -134,5 +134,6 @@ pub fn method_one<T: Pixel>(
         settings,
         shape,
         crop,
+        None,
     )?)
 }

@@ -125,26 +125,48 @@ impl Frames<'static, f32> {
     }
 }
 
+/// The blank-window rule of a frame pair: [`BLANK_VARIANCE`] times the larger of the frames'
+/// variances, and their clean background level if both have the same one.
+fn blank_rule<T: Pixel>(a: &Img<'_, T>, b: &Img<'_, T>) -> BlankRule {
+    let floor = (BLANK_VARIANCE * frame_variance(a).max(frame_variance(b))) as f32;
+    let clean = |i: &Img<'_, T>| clean_background(i.slice(), i.width, i.height);
+    let background = match (clean(a), clean(b)) {
+        (Some(la), Some(lb)) if la == lb => Some(la),
+        _ => None,
+    };
+    BlankRule { floor, background }
+}
+
 impl<'a, T: Pixel> Frames<'a, T> {
     pub(crate) fn new(
         a: ArrayView2<'a, T>,
         b: ArrayView2<'a, T>,
         interp: Interpolation,
     ) -> Result<Self> {
+        Self::cut_from(a, b, interp, None)
+    }
+
+    /// [`Frames::new`] of frames cut from `whole` (a region of interest's crop): the
+    /// blank-window rule is the whole frames' (their variance and clean background), so that
+    /// the region's windows are told blank as in the whole frames. `None`: the frames' own.
+    pub(crate) fn cut_from(
+        a: ArrayView2<'a, T>,
+        b: ArrayView2<'a, T>,
+        interp: Interpolation,
+        whole: Option<(ArrayView2<'_, T>, ArrayView2<'_, T>)>,
+    ) -> Result<Self> {
         let a = Img::new(a, "frame_a")?;
         let b = Img::new(b, "frame_b")?;
-        let floor = (BLANK_VARIANCE * frame_variance(&a).max(frame_variance(&b))) as f32;
-        let clean = |i: &Img<'_, T>| clean_background(i.slice(), i.width, i.height);
-        let background = match (clean(&a), clean(&b)) {
-            (Some(la), Some(lb)) if la == lb => Some(la),
-            _ => None,
+        let rule = match whole {
+            None => blank_rule(&a, &b),
+            Some((wa, wb)) => blank_rule(&Img::new(wa, "frame_a")?, &Img::new(wb, "frame_b")?),
         };
         Ok(Frames {
             a,
             b,
             interp,
             coeffs: std::sync::OnceLock::new(),
-            rule: BlankRule { floor, background },
+            rule,
         })
     }
 

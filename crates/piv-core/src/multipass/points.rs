@@ -298,7 +298,7 @@ pub fn piv_with_final_points<T: Pixel>(
         y.mapv(|v| v - cy).view(),
         mask.as_ref().map(|m| crop.view(m)),
         &inner,
-        Some((roi, dim, crop)),
+        Some((roi, dim, crop, (frame_a, frame_b))),
     )?;
     Ok((p.map(|p| p.moved(cx, cy)), f.moved(cx, cy)))
 }
@@ -313,8 +313,17 @@ fn predictor_settings(s: &PivSettings) -> PivSettings {
     first
 }
 
-/// [`piv_with_final_points`] on frames that are the crop `crop` of frames of shape `dim` when
-/// `region` is given (the predictor's grids those frames' cut to the region and its rings).
+/// The whole frames a crop is cut from: the region, their shape, the crop and the frames.
+type Whole<'a, T> = (
+    Roi,
+    (usize, usize),
+    Roi,
+    (ArrayView2<'a, T>, ArrayView2<'a, T>),
+);
+
+/// [`piv_with_final_points`] on frames that are the crop `crop` of the frames `whole` when
+/// `region` is given (the predictor's grids those frames' cut to the region and its rings, the
+/// blank-window rule theirs).
 fn final_points<T: Pixel>(
     frame_a: ArrayView2<'_, T>,
     frame_b: ArrayView2<'_, T>,
@@ -322,7 +331,7 @@ fn final_points<T: Pixel>(
     y: ArrayView2<'_, f64>,
     mask: Option<ArrayView2<'_, bool>>,
     s: &PivSettings,
-    region: Option<(Roi, (usize, usize), Roi)>,
+    region: Option<Whole<'_, T>>,
 ) -> Result<(Option<PivField>, PivField)> {
     let dim = frame_a.dim();
     let last = *s.passes.last().expect("checked: non-empty");
@@ -342,7 +351,7 @@ fn final_points<T: Pixel>(
     first.passes.pop();
     let grids = match region {
         None => grids_of(&first, dim)?,
-        Some((roi, whole, crop)) => first
+        Some((roi, whole, crop, _)) => first
             .passes
             .iter()
             .map(|p| {
@@ -351,7 +360,7 @@ fn final_points<T: Pixel>(
             })
             .collect::<Result<Vec<_>>>()?,
     };
-    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+    let frames = Frames::cut_from(frame_a, frame_b, s.interpolation, region.map(|r| r.3))?;
     if first.passes.is_empty() {
         let f = at_points(
             &frames,

@@ -34,7 +34,8 @@ pub fn piv<T: Pixel>(
         roi.check(dim, s)?;
         let crop = roi.grown(roi_margin(s), dim);
         let (ca, cb) = (crop.view(&frame_a), crop.view(&frame_b));
-        return piv_cropped(ca, cb, mask.as_ref().map(|m| crop.view(m)), s, dim, crop);
+        let cmask = mask.as_ref().map(|m| crop.view(m));
+        return piv_cropped(ca, cb, cmask, s, dim, crop, Some((frame_a, frame_b)));
     }
     let grids = grids_of(s, dim)?;
     let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
@@ -44,7 +45,9 @@ pub fn piv<T: Pixel>(
 /// [`piv`] in the region `s.roi` (px of frames of shape `dim`, checked) of the crop `crop` of
 /// those frames (`frame_a`, `frame_b` and `mask` are the crop; it holds the region and a
 /// margin): the grids are the whole frames' cut to the region (`roi.rs`); the field in the
-/// frames' px. Every pass runs on [`RINGS`] more rings of the frames' grid points around the
+/// frames' px. `whole`: the frames the crop was cut from, whose blank-window rule (their
+/// variance and clean background) the crop then follows; `None`, the crop's own (Method I's
+/// dewarped region). Every pass runs on [`RINGS`] more rings of the frames' grid points around the
 /// region where the frames have them (windows reaching past the crop are not correlated and
 /// only interpolated, as at a frame's edge); the field returned is cut to the region.
 pub fn piv_cropped<T: Pixel>(
@@ -54,6 +57,7 @@ pub fn piv_cropped<T: Pixel>(
     s: &PivSettings,
     dim: (usize, usize),
     crop: Roi,
+    whole: Option<(ArrayView2<'_, T>, ArrayView2<'_, T>)>,
 ) -> Result<PivField> {
     let roi = s
         .roi
@@ -72,7 +76,7 @@ pub fn piv_cropped<T: Pixel>(
     )?;
     let at = rings[rings.len() - 1].1;
     let grids = rings.into_iter().map(|(g, _)| g).collect();
-    let frames = Frames::new(frame_a, frame_b, s.interpolation)?;
+    let frames = Frames::cut_from(frame_a, frame_b, s.interpolation, whole)?;
     let f = grid_passes(&frames, frame_a.dim(), &mask, s, grids)?;
     Ok(f.cut(at, last).moved(crop.x0 as f64, crop.y0 as f64))
 }

@@ -1018,3 +1018,42 @@ fn region_of_interest_is_the_whole_frames_grid_there() {
     .to_string();
     assert!(e.contains("leave roi out"), "{e}");
 }
+
+/// A region's windows are told blank by the whole frames' rule (their variance), not the
+/// crop's: a part of the frames 1e-4 as bright as the rest is blank in both.
+#[test]
+fn region_of_interest_keeps_the_whole_frames_blank_rule() {
+    let d = |_: f64, _: f64| (1.2, 0.4);
+    let (a, b) = pair(320, 256, d);
+    let dim = |img: &Array2<u16>| {
+        Array2::from_shape_fn(img.dim(), |(j, i)| {
+            let v = img[[j, i]] as f32;
+            if j >= 160 {
+                v * 1e-4
+            } else {
+                v
+            }
+        })
+    };
+    let (a, b) = (dim(&a), dim(&b));
+    let mut s = PivSettings {
+        passes: vec![Pass::new(32, 32)],
+        mode: Mode::Offset,
+        ..PivSettings::default()
+    };
+    let whole = piv(a.view(), b.view(), None, &s).unwrap();
+    s.roi = Some(super::Roi::from([0, 240, 256, 320]));
+    let f = piv(a.view(), b.view(), None, &s).unwrap();
+    let rows = whole
+        .y
+        .column(0)
+        .iter()
+        .position(|&y| y == f.y[[0, 0]])
+        .unwrap();
+    let there = whole.valid.slice(ndarray::s![rows..rows + f.u.nrows(), ..]);
+    assert!(
+        there.iter().all(|&v| !v),
+        "the dim part is blank in the whole frames"
+    );
+    assert_eq!(f.valid.view(), there);
+}
