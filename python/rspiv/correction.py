@@ -404,8 +404,8 @@ def method_two(
     passes, unused with a given ``predictor``; the last pass runs at the images of the regular
     object grid of ``settings.passes[-1]`` at ``settings.overlaps[-1]`` on ``object_shape``
     (default: the frames' shape), with ``settings.iteration_counts[-1]`` iterations. With
-    ``settings.roi`` (object px) the object grid is laid out in the region and only the raw
-    frames around its images are read (:func:`final_grid`).
+    ``settings.roi`` (object px) the object grid is cut to the region and only the raw frames
+    around its images are read (:func:`final_grid`).
     """
     m = mapping_of(calibration)
     mode = parse_mapping_mode(mapping)

@@ -170,9 +170,10 @@ def piv(
         ``sigma_v``, px) from its last correlation (Wieneke 2015); True.
     roi : (x0, y0, x1, y1), optional
         Region of interest, px (``x0 <= x < x1``, ``y0 <= y < y1``; object px with a
-        ``method``): every pass's grid is laid out in it and only it and a margin of the
-        largest window (at least 64 px) are read, dewarped and correlated, so the time scales
-        with its area (:class:`rspiv.PivSettings`); ``x``, ``y`` stay in the frame's px.
+        ``method``): every pass runs on the whole frame's grid cut to it, and only it and a
+        margin of the largest window (at least 64 px) are read, dewarped and correlated, so
+        the time scales with its area (:class:`rspiv.PivSettings`); ``x``, ``y`` stay in the
+        frame's px.
         ``preprocess`` still conditions the whole frames.
     settings : PivSettings, optional
         All of the above PIV settings as one object (overrides the keywords).

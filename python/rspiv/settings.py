@@ -220,12 +220,14 @@ class PivSettings:
         True. Off, they are NaN (saves 5-15 % of the last pass's correlation time).
     roi : (x0, y0, x1, y1) or None
         Region of interest in px of the frame the field lies in (the frames' own; object px
-        with a correction): the pixels ``x0 <= x < x1``, ``y0 <= y < y1``. Every pass's grid is
-        laid out in it as in a whole frame, and only it and a margin around it (the largest
+        with a correction): the pixels ``x0 <= x < x1``, ``y0 <= y < y1``. Every pass runs on
+        the whole frame's grid cut to the points whose windows lie in it (and two rings of
+        points beyond it, cut off at the end), and only it and a margin around it (the largest
         window, at least 64 px: what the search, the deformation and the interpolation read)
-        are read, so the time scales with its area; ``x``, ``y`` stay in the frame's px.
-        Vectors inside it are the whole frame's where the grids coincide (the validation's
-        neighbours stop at its edge). None: the whole frame.
+        are read, so the time scales with its area; ``x``, ``y`` stay in the frame's px, and
+        its vectors are the whole frame's (bit for bit with window offset on synthetic pairs;
+        where vectors are replaced in clusters next to its edge they can differ). None: the
+        whole frame.
 
     Values are checked and normalised on construction (InvalidInputError naming the key).
     """

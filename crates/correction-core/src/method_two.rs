@@ -9,7 +9,7 @@ use piv_core::{Grid, PivField, PivSettings, Roi};
 
 /// The regular object grid of the last pass of `settings` on an object frame of
 /// `object_shape` (rows, columns): the grid [`piv_core::piv`] gives on the dewarped frames, so
-/// Methods I and II share their vector positions (laid out in [`PivSettings::roi`] when given).
+/// Methods I and II share their vector positions (cut to [`PivSettings::roi`] when given).
 pub fn object_grid(object_shape: (usize, usize), settings: &PivSettings) -> Result<Grid> {
     let last = settings
         .passes
@@ -29,9 +29,9 @@ pub fn object_grid(object_shape: (usize, usize), settings: &PivSettings) -> Resu
 }
 
 /// The grid the final pass runs on: [`object_grid`], and in a region of interest
-/// [`piv_core::ROI_RINGS`] more rings of the object frame's grid points around it where it has them (the median test's
-/// neighbours and the pooled uncertainty of the region's outer vectors); and the place
-/// `(column, row)` of [`object_grid`]'s first point in it.
+/// [`piv_core::ROI_RINGS`] more rings of the object frame's grid points around it where it
+/// has them (the median test's neighbours and the pooled uncertainty of the region's outer
+/// vectors); and the place `(column, row)` of [`object_grid`]'s first point in it.
 pub fn object_grid_ring(
     object_shape: (usize, usize),
     settings: &PivSettings,

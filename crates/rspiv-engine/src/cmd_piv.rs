@@ -72,7 +72,7 @@ pub struct PivArgs {
     #[arg(long)]
     pub mask: Option<PathBuf>,
     /// Region of interest X0,Y0,X1,Y1 (px, x0 <= x < x1, y0 <= y < y1; object px with
-    /// --calibration): the grid is laid out in it and only it and a margin are read.
+    /// --calibration): the whole frame's grid cut to it, only it and a margin read.
     #[arg(long)]
     pub roi: Option<String>,
 }

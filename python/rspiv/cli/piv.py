@@ -263,7 +263,7 @@ def register(sub) -> None:
         "--roi",
         default=None,
         help="region of interest X0,Y0,X1,Y1 in px (x0 <= x < x1; object px with --calibration):"
-        " the grid is laid out in it, only it and a margin are read",
+        " the whole frame's grid cut to it, only it and a margin read",
     )
     p.add_argument("--calibration", default=None, help="calibration JSON: correct the distortion")
     p.add_argument(

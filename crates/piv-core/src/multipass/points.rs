@@ -81,8 +81,8 @@ pub(crate) fn check_at(
     check_mask(mask, dim)?;
     if let Some(r) = &s.roi {
         return Err(PivError::InvalidInput(format!(
-            "{r}: a region of interest lays out the regular grid of piv and of Methods I and \
-             II; the points given here are where they are (leave roi out)"
+            "{r}: a region of interest cuts the regular grid of piv and of Methods I and II; \
+             the points given here are where they are (leave roi out)"
         )));
     }
     if x.dim() != y.dim() {

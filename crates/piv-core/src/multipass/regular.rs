@@ -16,8 +16,8 @@ use rayon::prelude::*;
 /// Multipass PIV of a frame pair on the regular grid of the last pass.
 ///
 /// `mask` (same shape as the frames, `true` = excluded) removes the vectors whose centre falls
-/// on a masked pixel. With [`PivSettings::roi`] the grids are laid out in the region and only
-/// the region and a margin around it are read (`roi.rs`); `x`, `y` and `grid` stay in the
+/// on a masked pixel. With [`PivSettings::roi`] the grids are the whole frames' cut to the
+/// region and only the region and a margin around it are read (`roi.rs`); `x`, `y` and `grid` stay in the
 /// frames' px. Errors: frames of different shapes, NaN/inf pixels, windows larger than the
 /// image (or the region), a region beyond the frames, bad settings.
 pub fn piv<T: Pixel>(

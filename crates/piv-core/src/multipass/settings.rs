@@ -112,7 +112,8 @@ pub struct PivSettings {
     /// Estimate every vector's uncertainty on the last iteration of the last pass
     /// ([`crate::PivField::sigma_u`]); true. Off, the sigmas are NaN.
     pub uncertainty: bool,
-    /// The region of interest: every pass's grid laid out in it, only it and a margin read
+    /// The region of interest: every pass on the whole frame's grid cut to it, only it and a
+    /// margin read
     /// ([`Roi`], `roi.rs`); `None`, the whole frame.
     pub roi: Option<Roi>,
 }

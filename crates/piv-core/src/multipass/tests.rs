@@ -926,7 +926,7 @@ fn blank_blocks_decide_as_the_definition() {
     );
 }
 
-/// A region of interest: the grid laid out in it, the frames' px kept; where its grid
+/// A region of interest: the whole frame's grid cut to it, the frames' px kept; where its grid
 /// coincides with the whole frame's, a single pass gives the whole frame's vectors inside it
 /// (the windows hold the same pixels), and the paper's passes are as accurate as over the
 /// whole frame.
