@@ -271,3 +271,28 @@ def test_a_campaign_region_is_checked_on_loading(synth, tmp_path, capsys):
     assert main(["process", str(toml)]) == 2
     err = capsys.readouterr().err
     assert "roi" in err and "four whole px" in err, err
+
+
+def test_the_engine_region_is_the_apis(pair, tmp_path, engine):
+    """``rspiv-engine piv --roi`` gives ``rspiv.piv(roi=...)``'s vectors; a bad region exits
+    non-zero with one line."""
+    import subprocess
+
+    a, b = pair
+    pa, pb = tmp_path / "a.tif", tmp_path / "b.tif"
+    tifffile.imwrite(pa, a)
+    tifffile.imwrite(pb, b)
+    out = tmp_path / "f.csv"
+    cmd = [engine, "piv", str(pa), str(pb), "-o", str(out)]
+    r = subprocess.run([*cmd, "--roi", "0,300,400,512"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    data = np.genfromtxt(out, delimiter=",", names=True)
+    f = rspiv.piv(a, b, roi=(0, 300, 400, 512))
+    np.testing.assert_array_equal(data["x"], f.x.ravel())
+    np.testing.assert_array_equal(data["y"], f.y.ravel())
+    ok = ~np.isnan(f.u.ravel())
+    assert np.max(np.abs(data["u"][ok] - f.u.ravel()[ok])) <= 1e-9
+    r = subprocess.run([*cmd, "--roi", "0,300,900,512"], capture_output=True, text=True)
+    assert r.returncode != 0
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "reaches beyond the frames (768 x 512 px)" in lines[0], r.stderr
