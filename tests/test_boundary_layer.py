@@ -7,16 +7,15 @@ import pytest
 from rspiv.boundary_layer import (
     KAPPA_CMN,
     analyse_profile,
-    average_along_x,
     chauhan_inner,
     clauser_fit,
     composite_fit,
     composite_u_plus,
     integral_quantities,
-    profile_from_accumulator,
     stress_uncertainties,
 )
 from rspiv.errors import InvalidInputError
+from rspiv.profiles import average_along_x, profile_from_accumulator
 from rspiv.reference import load_dns
 
 NU = 1.5e-5  # m^2/s

@@ -29,12 +29,12 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.boundary_layer import profile_from_accumulator
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig
 from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text, write_netcdf
+from rspiv.profiles import profile_from_accumulator
 from rspiv.report import ReportSection, ReportTable
 from rspiv.stats import FieldAccumulator
 from rspiv.synth.lighting import Lighting, wall_rows

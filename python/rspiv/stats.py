@@ -449,7 +449,7 @@ class FieldAccumulator:
 
     def n_eff_all(self) -> dict[str, np.ndarray]:
         """n_eff of every statistic: keys ``"U", "V", "uu", "vv", "uv"`` (the form
-        :func:`rspiv.boundary_layer.average_along_x` and ``analyse_profile`` accept)."""
+        :func:`rspiv.profiles.average_along_x` and ``analyse_profile`` accept)."""
         return {
             "U": self.n_eff("u"),
             "V": self.n_eff("v"),

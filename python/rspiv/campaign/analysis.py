@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from rspiv._rspiv import __version__
-from rspiv.boundary_layer import analyse_profile, profile_from_accumulator
+from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
@@ -34,6 +34,7 @@ from rspiv.outputs import (
     write_netcdf,
     write_profile_csv,
 )
+from rspiv.profiles import profile_from_accumulator
 from rspiv.report import ReportSection, ReportTable, campaign_report
 from rspiv.stats import FieldAccumulator
 from rspiv.wall import find_wall
