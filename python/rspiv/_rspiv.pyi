@@ -261,11 +261,11 @@ def render_particles(
     one value or one per particle. Deterministic for a seed whatever the thread count."""
 
 def object_grid(
-    shape: tuple[int, int], settings: str, ring: bool = False
-) -> tuple[tuple[float, float, float, float, int, int], tuple[int, int]]:
-    """The last pass's grid ``(x0, y0, dx, dy, nx, ny)`` on a frame of ``shape`` (rows,
-    columns), cut to the settings' ``roi`` when given, and the ``(column, row)`` of its first
-    point in the grid with the rings around the region (``ring``: that grid instead)."""
+    shape: tuple[int, int], settings: str
+) -> tuple[tuple[float, float, float, float, int, int], tuple[int, int], tuple[int, int]]:
+    """The grid ``(x0, y0, dx, dy, nx, ny)`` the last pass runs on, on a frame of ``shape``
+    (rows, columns): the settings' ``roi`` and the rings around it when given; the
+    ``(column, row)`` of the field's own grid in it, and its ``(nx, ny)``."""
 
 def region_around(
     x: npt.NDArray[np.float64],

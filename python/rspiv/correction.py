@@ -149,24 +149,20 @@ def final_grid(shape: tuple[int, int], settings: PivSettings) -> tuple[np.ndarra
     x, y : ndarray, shape (ny, nx)
         Window centres in px of the frame.
     """
-    return _object_grid(shape, settings, ring=False)[0]
+    (gx, gy), cut = _object_grid(shape, settings)
+    return gx[cut], gy[cut]
 
 
 def _object_grid(
-    shape: tuple[int, int], settings: PivSettings, ring: bool
+    shape: tuple[int, int], settings: PivSettings
 ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[slice, slice]]:
-    """:func:`final_grid`, or with ``ring`` the grid the final pass runs on in a region of
-    interest (two more rings of points, ``correction_core::object_grid_ring``); and the slices
-    (rows, columns) of :func:`final_grid`'s points in it."""
-    (x0, y0, dx, dy, nx, ny), (i0, j0) = _rspiv.object_grid(
-        (int(shape[0]), int(shape[1])), settings.to_json(), ring=ring
-    )
-    grid = np.meshgrid(x0 + dx * np.arange(nx), y0 + dy * np.arange(ny))
-    if not ring:
-        return grid, (slice(0, ny), slice(0, nx))
-    (_, _, _, _, nx0, ny0), _ = _rspiv.object_grid(
+    """The grid the final pass runs on (in a region of interest with two more rings of points
+    around it, ``correction_core::object_grid_ring``) and the slices (rows, columns) of
+    :func:`final_grid`'s points in it."""
+    (x0, y0, dx, dy, nx, ny), (i0, j0), (nx0, ny0) = _rspiv.object_grid(
         (int(shape[0]), int(shape[1])), settings.to_json()
     )
+    grid = np.meshgrid(x0 + dx * np.arange(nx), y0 + dy * np.arange(ny))
     return grid, (slice(j0, j0 + ny0), slice(i0, i0 + nx0))
 
 
@@ -428,7 +424,7 @@ def method_two(
     window = settings.final_window
     # in a region of interest the final pass runs on two more rings of points (the median test's
     # neighbours and the pooled uncertainty of the region's outer vectors), cut off at the end
-    (gx, gy), cut = _object_grid(shape, settings, ring=True)
+    (gx, gy), cut = _object_grid(shape, settings)
     obj = np.column_stack([gx.ravel(), gy.ravel()])
     img = m.forward(obj)
     points = img.reshape(gx.shape + (2,))

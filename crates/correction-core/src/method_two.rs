@@ -5,7 +5,7 @@ use crate::method::DisplacementMapping;
 use dewarp_core::Mapping;
 use image_core::Pixel;
 use ndarray::{Array2, ArrayView2, Zip};
-use piv_core::{Grid, PivField, PivSettings, Roi};
+use piv_core::{Grid, PivField, PivSettings, RingGrid, Roi};
 
 /// The regular object grid of the last pass of `settings` on an object frame of
 /// `object_shape` (rows, columns): the grid [`piv_core::piv`] gives on the dewarped frames, so
@@ -28,23 +28,22 @@ pub fn object_grid(object_shape: (usize, usize), settings: &PivSettings) -> Resu
     )?)
 }
 
-/// The grid the final pass runs on: [`object_grid`], and in a region of interest
-/// [`piv_core::ROI_RINGS`] more rings of the object frame's grid points around it where it
-/// has them (the median test's neighbours and the pooled uncertainty of the region's outer
-/// vectors); and the place `(column, row)` of [`object_grid`]'s first point in it.
-pub fn object_grid_ring(
-    object_shape: (usize, usize),
-    settings: &PivSettings,
-) -> Result<(Grid, (usize, usize))> {
-    let out = object_grid(object_shape, settings)?;
-    match settings.roi {
-        None => Ok((out, (0, 0))),
-        Some(roi) => {
-            let last = settings.passes[settings.passes.len() - 1];
-            let rings = piv_core::ROI_RINGS;
-            Ok(roi.grid_ring(last.w, last.h, last.overlap, object_shape, (0, 0), rings)?)
-        }
-    }
+/// The grid the final pass runs on (`grid`) and [`object_grid`] in it (`inner`, at `at`): in
+/// a region of interest [`piv_core::ROI_RINGS`] more rings of the object frame's grid points
+/// around it where it has them (the median test's neighbours and the pooled uncertainty of the
+/// region's outer vectors); without one both are [`object_grid`].
+pub fn object_grid_ring(object_shape: (usize, usize), settings: &PivSettings) -> Result<RingGrid> {
+    let (Some(roi), Some(last)) = (settings.roi, settings.passes.last()) else {
+        let g = object_grid(object_shape, settings)?;
+        return Ok(RingGrid {
+            grid: g,
+            at: (0, 0),
+            inner: g,
+        });
+    };
+    roi.check(object_shape, settings)?;
+    let rings = piv_core::ROI_RINGS;
+    Ok(roi.grid_ring(last.w, last.h, last.overlap, object_shape, (0, 0), rings)?)
 }
 
 /// Object-frame displacements of the image displacements `(u, v)` measured at the image points
@@ -156,9 +155,8 @@ pub fn method_two<T: Pixel>(
     mask: Option<ArrayView2<'_, bool>>,
 ) -> Result<PivField> {
     let shape = object_shape.unwrap_or(frame_a.dim());
-    let out = object_grid(shape, settings)?;
     // in a region, with its rings (cut off at the end)
-    let (grid, at) = object_grid_ring(shape, settings)?;
+    let RingGrid { grid, at, inner } = object_grid_ring(shape, settings)?;
     let (gx, gy) = (
         Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| grid.xy(j, i).0),
         Array2::from_shape_fn((grid.ny, grid.nx), |(j, i)| grid.xy(j, i).1),
@@ -239,9 +237,9 @@ pub fn method_two<T: Pixel>(
         masked,
         particle_diameter: f.particle_diameter,
     };
-    Ok(if grid == out {
+    Ok(if grid == inner {
         field
     } else {
-        field.cut(at, out)
+        field.cut(at, inner)
     })
 }

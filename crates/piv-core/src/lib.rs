@@ -40,7 +40,7 @@ pub use grid::Grid;
 pub use image::{GridField, Pixel};
 pub use multipass::{
     piv, piv_at, piv_cropped, piv_with_final_points, roi_margin, Interpolation, Mode, Pass,
-    PivField, PivSettings, Predictor, Roi, ROI_RINGS,
+    PivField, PivSettings, Predictor, RingGrid, Roi, ROI_RINGS,
 };
 pub use synth::render_particles;
 pub use weighting::Weighting;

@@ -61,24 +61,27 @@ fn method_two<'py>(
     field_dict(py, field)
 }
 
-/// A grid `(x0, y0, dx, dy, nx, ny)` and a point's place `(column, row)` in it.
-type GridAt = ((f64, f64, f64, f64, usize, usize), (usize, usize));
+/// A grid `(x0, y0, dx, dy, nx, ny)`, the place `(column, row)` of another in it, and that
+/// one's `(nx, ny)`.
+type GridIn = (
+    (f64, f64, f64, f64, usize, usize),
+    (usize, usize),
+    (usize, usize),
+);
 
-/// The grid of the last pass of `settings` on an object frame of `shape` (rows, columns), cut
-/// to its `roi` when given (`correction_core::object_grid`): `(x0, y0, dx, dy, nx, ny)`, and
-/// `(column, row)` of its first point in the grid with the rings around the region
-/// (`ring`: that grid returned instead, `correction_core::object_grid_ring`).
+/// The grid the final pass of `settings` runs on, on an object frame of `shape` (rows,
+/// columns; `correction_core::object_grid_ring`: with the rings around its `roi`), the place
+/// of the field's own grid (`correction_core::object_grid`) in it and its size.
 #[pyfunction]
-#[pyo3(signature = (shape, settings, ring=false))]
-fn object_grid(shape: (usize, usize), settings: &str, ring: bool) -> PyResult<GridAt> {
+fn object_grid(shape: (usize, usize), settings: &str) -> PyResult<GridIn> {
     let s = self::settings(settings)?;
-    let (g, at) = if ring {
-        correction_core::object_grid_ring(shape, &s).map_err(PyRspivErr::from)?
-    } else {
-        let g = correction_core::object_grid(shape, &s).map_err(PyRspivErr::from)?;
-        (g, (0, 0))
-    };
-    Ok(((g.x0, g.y0, g.dx, g.dy, g.nx, g.ny), at))
+    let r = correction_core::object_grid_ring(shape, &s).map_err(PyRspivErr::from)?;
+    let g = r.grid;
+    Ok((
+        (g.x0, g.y0, g.dx, g.dy, g.nx, g.ny),
+        r.at,
+        (r.inner.nx, r.inner.ny),
+    ))
 }
 
 /// The frames' region read around the points `(x, y)` for `settings` (`piv_core::Roi::around`

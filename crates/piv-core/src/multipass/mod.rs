@@ -73,7 +73,7 @@ pub(crate) use frames::Frames;
 pub use frames::BLANK_VARIANCE;
 pub use points::{piv_at, piv_with_final_points, Predictor};
 pub use regular::{piv, piv_cropped};
-pub use roi::{margin as roi_margin, Roi, RINGS as ROI_RINGS};
+pub use roi::{margin as roi_margin, RingGrid, Roi, RINGS as ROI_RINGS};
 pub use settings::{Interpolation, Mode, Pass, PivSettings};
 pub use window::MIN_SIGNAL_FRACTION;
 pub(crate) use window::{check_mask, check_pair, excluded as excluded_point};

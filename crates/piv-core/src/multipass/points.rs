@@ -355,8 +355,9 @@ fn final_points<T: Pixel>(
             .passes
             .iter()
             .map(|p| {
-                let g = roi.grid_ring(p.w, p.h, p.overlap, whole, (crop.x0, crop.y0), RINGS)?;
-                Ok(g.0)
+                Ok(roi
+                    .grid_ring(p.w, p.h, p.overlap, whole, (crop.x0, crop.y0), RINGS)?
+                    .grid)
             })
             .collect::<Result<Vec<_>>>()?,
     };

@@ -67,18 +67,12 @@ pub fn piv_cropped<T: Pixel>(
         .iter()
         .map(|p| roi.grid_ring(p.w, p.h, p.overlap, dim, (crop.x0, crop.y0), RINGS))
         .collect::<Result<Vec<_>>>()?;
-    let last = roi.grid(
-        s.passes[s.passes.len() - 1].w,
-        s.passes[s.passes.len() - 1].h,
-        s.passes[s.passes.len() - 1].overlap,
-        dim,
-        (crop.x0, crop.y0),
-    )?;
-    let at = rings[rings.len() - 1].1;
-    let grids = rings.into_iter().map(|(g, _)| g).collect();
+    let last = *rings.last().expect("checked: non-empty");
+    let grids = rings.into_iter().map(|r| r.grid).collect();
     let frames = Frames::cut_from(frame_a, frame_b, s.interpolation, whole)?;
     let f = grid_passes(&frames, frame_a.dim(), &mask, s, grids)?;
-    Ok(f.cut(at, last).moved(crop.x0 as f64, crop.y0 as f64))
+    Ok(f.cut(last.at, last.inner)
+        .moved(crop.x0 as f64, crop.y0 as f64))
 }
 
 /// The grids of the passes of `s` on frames of shape `dim` (rows, columns).

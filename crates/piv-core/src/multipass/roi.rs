@@ -23,6 +23,17 @@ use ndarray::{s, ArrayView2, SliceInfo, SliceInfoElem};
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
+/// A pass's grid in a region with rings of points around it ([`Roi::grid_ring`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RingGrid {
+    /// The region's points and the rings around them (where the frames' grid has them).
+    pub grid: Grid,
+    /// The place `(column, row)` of `inner`'s first point in `grid`.
+    pub at: (usize, usize),
+    /// The region's own points ([`Roi::grid`]).
+    pub inner: Grid,
+}
+
 /// A rectangle of pixels `x0 <= x < x1`, `y0 <= y < y1` (module docs). The vocabulary's JSON
 /// form is `[x0, y0, x1, y1]`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -169,11 +180,11 @@ impl Roi {
         dim: (usize, usize),
         origin: (usize, usize),
     ) -> Result<Grid> {
-        Ok(self.grid_ring(w, h, overlap, dim, origin, 0)?.0)
+        Ok(self.grid_ring(w, h, overlap, dim, origin, 0)?.inner)
     }
 
     /// [`Self::grid`] with `ring` more points of the frames' grid on every side where it has
-    /// them, and the place `(column, row)` of the region's first point in it.
+    /// them ([`RingGrid`]).
     pub fn grid_ring(
         &self,
         w: usize,
@@ -182,7 +193,7 @@ impl Roi {
         dim: (usize, usize),
         origin: (usize, usize),
         ring: usize,
-    ) -> Result<(Grid, (usize, usize))> {
+    ) -> Result<RingGrid> {
         let g = Grid::for_windows(dim.1, dim.0, w, h, overlap)?;
         // the points whose windows [c - (n - 1)/2, c + (n - 1)/2] lie in [lo, hi - 1]
         let cut = |c0: f64, d: f64, n: usize, count: usize, lo: usize, hi: usize| {
@@ -208,17 +219,22 @@ impl Roi {
                 g.dy
             )));
         };
-        let (ia, ja) = (i0.saturating_sub(ring), j0.saturating_sub(ring));
-        let nx = (i0 + nx + ring).min(g.nx) - ia;
-        let ny = (j0 + ny + ring).min(g.ny) - ja;
-        let grid = Grid {
-            x0: g.x0 + ia as f64 * g.dx - origin.0 as f64,
-            y0: g.y0 + ja as f64 * g.dy - origin.1 as f64,
+        // the points i0 .. i0 + n of the frames' grid, in the crop's px
+        let part = |i0: usize, j0: usize, nx: usize, ny: usize| Grid {
+            x0: g.x0 + i0 as f64 * g.dx - origin.0 as f64,
+            y0: g.y0 + j0 as f64 * g.dy - origin.1 as f64,
             nx,
             ny,
             ..g
         };
-        Ok((grid, (i0 - ia, j0 - ja)))
+        let (ia, ja) = (i0.saturating_sub(ring), j0.saturating_sub(ring));
+        let mx = (i0 + nx + ring).min(g.nx) - ia;
+        let my = (j0 + ny + ring).min(g.ny) - ja;
+        Ok(RingGrid {
+            grid: part(ia, ja, mx, my),
+            at: (i0 - ia, j0 - ja),
+            inner: part(i0, j0, nx, ny),
+        })
     }
 }
 
@@ -278,16 +294,17 @@ mod tests {
         assert_eq!((grid.x0, grid.y0), (31.5 - 5.0, 24.5 - 15.0));
         assert_eq!((grid.nx, grid.ny, grid.dx, grid.dy), (16, 23, 16.0, 4.0));
         // one point more on every side (the frames' grid has them)
-        let (ext, at) = r.grid_ring(32, 8, 0.5, (150, 320), (5, 15), 1).unwrap();
-        assert_eq!(at, (1, 1));
+        let ring = r.grid_ring(32, 8, 0.5, (150, 320), (5, 15), 1).unwrap();
+        let ext = ring.grid;
+        assert_eq!((ring.at, ring.inner), ((1, 1), grid));
         assert_eq!(
             (ext.x0, ext.y0, ext.nx, ext.ny),
             (grid.x0 - 16.0, grid.y0 - 4.0, 18, 25)
         );
         // at the frames' edge there is none
-        let (ext, at) = Roi::from([0, 0, 320, 150])
+        let ring = Roi::from([0, 0, 320, 150])
             .grid_ring(32, 8, 0.5, (150, 320), (0, 0), 1)
             .unwrap();
-        assert_eq!((at, ext), ((0, 0), whole));
+        assert_eq!((ring.at, ring.grid, ring.inner), ((0, 0), whole, whole));
     }
 }
