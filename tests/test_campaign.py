@@ -63,8 +63,10 @@ def test_outputs_are_written(processed):
             assert int(ds["count"].max()) == 3
             # pivpy names and attributes
             assert list(ds.attrs["variables"]) == ["x", "y", "u", "v"]
+            assert {"skewness_u", "flatness_u", "skewness_v", "flatness_v"} <= set(ds)
         cols, meta = rspiv.outputs.read_profile_csv(out / f"profile_{run}.csv")
         assert {"y_plus", "U_plus", "uu_plus", "vv_plus", "uv_plus"} <= set(cols)
+        assert {"S_u", "F_u", "eps_S_u", "eps_F_u", "S_v", "F_v"} <= set(cols)
         assert float(meta["u_tau"]) > 0
         assert (out / f"profile_{run}.nc").is_file()
     html = (out / "report" / "report.html").read_text()
@@ -83,6 +85,7 @@ def test_outputs_are_written(processed):
     for f in (
         "mean_velocity.png",
         "reynolds_stresses.png",
+        "higher_moments.png",
         "wall.png",
         "montecarlo_p3.png",
         "calibration_arrows.png",
@@ -133,6 +136,10 @@ def test_accuracy_at_small_scale(processed, synth):
     # at this scale the 8 px windows span ~10 wall units near y+ = 30)
     stress = [r for c, r in by.items() if "uu+, vv+, -uv+" in c and "Method" in c]
     assert len(stress) == 2 and all(" vv " in r["measured"] for r in stress)
+    # the skewness and flatness rows too (their claim is the demo's: with 3 pairs a skewness
+    # is a statistic of 3 samples, which a small error moves far)
+    moms = [r for c, r in by.items() if c.startswith("P3") and "skewness within" in c]
+    assert len(moms) == 2 and all("nan" not in r["measured"] for r in moms)
     # the mean profile follows the exact field of these pairs (window-averaged) away from the
     # wall, in true wall units at the found wall
     from rspiv.demo import _filtered_profile
@@ -624,6 +631,20 @@ def test_noise_correction_subtracts_the_profile_noise(processed):
     uu_cor = cor.result.uu_plus[ok] * cor.result.u_tau**2
     uu_raw = raw.result.uu_plus[ok] * raw.result.u_tau**2
     assert np.all(uu_cor <= uu_raw) and np.any(uu_cor < uu_raw)
+    # the flatness alike: the corrected one is the profile's, without the noise
+    keys = {"S_u", "F_u", "eps_S_u", "eps_F_u", "S_v", "F_v", "eps_S_v", "eps_F_v"}
+    assert keys <= set(raw.result.moments) and keys <= set(cor.result.moments)
+    f_raw, f_cor = raw.result.moments["F_u"], cor.result.moments["F_u"]
+    both = np.isfinite(f_raw) & np.isfinite(f_cor)
+    assert both.sum() > 8 and not np.allclose(f_raw[both], f_cor[both])
+    # the rows within 2.5 window heights of the wall are flagged: the nearest ones
+    from rspiv.campaign.analysis import MOMENTS_NEAR_WALL_HEIGHTS
+
+    near = raw.result.moments["moments_near_wall"] == 1
+    h = ctx.piv.final_window[1]
+    d = p["dist_px"][(p["dist_px"] > 0) & np.isfinite(p["U"]) & (p["count"] > 0)]
+    assert near.sum() == np.count_nonzero(d < MOMENTS_NEAR_WALL_HEIGHTS * h) > 0
+    assert raw.result.y[near].max() < raw.result.y[~near].min()
     ds = acc.to_xarray()
     assert {"noise_uu", "noise_vv", "uu_corrected", "vv_corrected"} <= set(ds.data_vars)
 

@@ -335,6 +335,19 @@ def conditioned(
 
 ENSEMBLE_MIN_PEAK_RATIO: float
 
+MOMENT_ORDERS: int
+
+def moments_add(
+    hm: npt.NDArray[np.float64],
+    m2: npt.NDArray[np.float64],
+    n_old: npt.NDArray[np.int64],
+    delta: npt.NDArray[np.float64],
+) -> None:
+    """Add one sample per position to the central sums M_3 .. M_8 (``hm``, MOMENT_ORDERS x n,
+    C-contiguous) in place; ``m2``, ``n_old``: M_2 and the counts before the sample, ``delta``:
+    the sample minus the mean before it (0: no sample). (piv_core::moments)"""
+
+
 def ensemble_stride(w: int, h: int) -> int: ...
 def ensemble_add(
     frame_a: npt.NDArray[np.generic],

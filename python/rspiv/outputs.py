@@ -146,6 +146,10 @@ def profile_dataset(result, *, attrs: Mapping[str, Any] | None = None):
         "vv_plus": "wall-normal Reynolds normal stress in wall units",
         "uv_plus": "Reynolds shear stress in wall units",
         "n_eff": "effective number of independent samples",
+        "S_u": "skewness of u",
+        "F_u": "flatness (kurtosis) of u",
+        "S_v": "skewness of v",
+        "F_v": "flatness (kurtosis) of v",
     }
     ds = xr.Dataset(coords={"y": ("y", cols["y_m"], {"units": "m", "axis": "Y"})})
     ds["y"].attrs["long_name"] = "wall-normal distance from the fitted wall"

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from rspiv import moments
 from rspiv.errors import InvalidInputError
 
 __all__ = ["average_along_x", "profile_from_accumulator"]
@@ -82,6 +83,13 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
     where no uncertainties were accumulated), the variance the measurement noise adds to
     ``uu`` and ``vv``, and ``eps_noise_uu``, ``eps_noise_vv``, their standard errors (the
     ``noise`` of :func:`analyse_profile`).
+
+    The skewness and flatness of u and v: ``S_u, F_u, eps_S_u, eps_F_u`` (and ``_v``) from the
+    count-weighted averages along x of the per-vector central moments ``mu_2 .. mu_8``
+    (:meth:`~rspiv.stats.FieldAccumulator.central_moments`; like the stresses, not pooled with
+    the spread of the means), their errors with the profile's n_eff of the mean
+    (:func:`rspiv.moments.skewness_flatness`), and ``S_u_c, F_u_c`` (``_v``) without the
+    measurement noise (:func:`rspiv.moments.noise_corrected`; NaN without uncertainties).
     """
     if len(acc.shape) != 2:
         raise InvalidInputError(f"acc: expected a 2D accumulator, got shape {acc.shape}")
@@ -108,4 +116,25 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
         wsum = w.sum(axis=axis)
         with np.errstate(invalid="ignore", divide="ignore"):
             out[key] = np.where(wsum > 0, (w * np.nan_to_num(noise)).sum(axis=axis) / wsum, np.nan)
+    keep = cnt >= max(int(min_count), 2)
+    for comp in ("u", "v"):
+        mu = acc.central_moments(comp)
+        w = np.where(keep & np.all(np.isfinite(mu), axis=0), cnt, 0.0)
+        wsum = w.sum(axis=axis)
+        ax = axis if axis < 0 else axis + 1  # the orders lead
+        with np.errstate(invalid="ignore", divide="ignore"):
+            avg = np.where(wsum > 0, (w * np.nan_to_num(mu)).sum(axis=ax) / wsum, np.nan)
+            noise4 = acc.noise_sigma4(comp)
+            w4 = np.where(keep & np.isfinite(noise4), cnt, 0.0)
+            s4 = np.where(
+                w4.sum(axis=axis) > 0,
+                (w4 * np.nan_to_num(noise4)).sum(axis=axis) / w4.sum(axis=axis),
+                np.nan,
+            )
+        ne = out["n_eff"][comp.upper()]
+        sf = moments.skewness_flatness(avg, ne)
+        for key in ("S", "F", "eps_S", "eps_F"):
+            out[f"{key}_{comp}"] = sf[key]
+        s_c, f_c = moments.noise_corrected(avg[0], avg[1], avg[2], out[f"noise_{comp * 2}"], s4)
+        out[f"S_{comp}_c"], out[f"F_{comp}_c"] = s_c, f_c
     return out

@@ -46,6 +46,9 @@ class DNSProfile:
         Momentum-thickness and friction Reynolds numbers of the station (``re_tau`` = delta99+).
     y_delta99, y_plus, u_plus, urms_plus, vrms_plus, wrms_plus, uv_plus : ndarray
         Columns of the file (``uv_plus`` < 0).
+    skewness_u, flatness_u : ndarray
+        Skewness ``S(u)`` and flatness ``F(u)`` of the streamwise fluctuations (columns 11, 12;
+        the values at the wall itself, ``y+ = 0``, are the DNS's limits, not a measurement).
     re_delta_star, h12, cf : float or None
         Integral quantities stated in the file header (only the ``.txt`` station has them).
     source : str
@@ -61,6 +64,8 @@ class DNSProfile:
     vrms_plus: np.ndarray
     wrms_plus: np.ndarray
     uv_plus: np.ndarray
+    skewness_u: np.ndarray
+    flatness_u: np.ndarray
     re_delta_star: float | None
     h12: float | None
     cf: float | None
@@ -129,6 +134,8 @@ def _parse(name: str, text: str) -> DNSProfile:
         vrms_plus=data[:, 4],
         wrms_plus=data[:, 5],
         uv_plus=data[:, 6],
+        skewness_u=data[:, 10],
+        flatness_u=data[:, 11],
         re_delta_star=header.get("Re_delta^*"),
         h12=header.get("H_12"),
         cf=header.get("c_f"),

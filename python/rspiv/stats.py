@@ -32,6 +32,13 @@ Measurement noise
     from the sums (:meth:`FieldAccumulator.noise_uncertainty`). States written before this
     (no ``noise_*`` variables) load with no noise information.
 
+Higher-order moments
+    Per vector the accumulator also keeps the central sums of orders 3 to 8 of u and of v
+    (``hm_u``, ``hm_v``, shape ``(6, *shape)``), updated and merged exactly like the second
+    moments (:mod:`rspiv.moments`): :meth:`FieldAccumulator.skewness_flatness` gives the
+    skewness, the flatness and their standard errors, raw or without the measurement noise.
+    States written before them load with NaN sums (no higher moments).
+
 Pair ids
     :meth:`FieldAccumulator.add` may be given the id of the image pair the field came from; the
     ids are kept in a set. Adding the same id twice, or merging two accumulators that share an
@@ -55,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv import moments
 from rspiv.errors import InvalidInputError
 
 _STATE = (
@@ -78,6 +86,9 @@ _STATE = (
 #: The noise sums (module docstring "Measurement noise"), kept apart from ``_STATE`` so that
 #: states written before them still load.
 _NOISE = ("noise_count", "noise_s_uu", "noise_s_vv", "noise_s2_uu", "noise_s2_vv")
+
+#: The central sums of orders 3-8 (module docstring "Higher-order moments"), kept apart alike.
+_MOMENTS = ("hm_u", "hm_v")
 
 
 def _chan_merge_moments(na, ma, nb, mb, n):
@@ -125,6 +136,8 @@ class FieldAccumulator:
         for name in _NOISE:
             dtype = np.int64 if name == "noise_count" else np.float64
             setattr(self, name, np.zeros(self.shape, dtype=dtype))
+        for name in _MOMENTS:
+            setattr(self, name, np.zeros((len(moments.ORDERS), *self.shape)))
         #: optional :class:`rspiv.EnsembleAccumulator` of the same pairs (a campaign's ensemble
         #: band): carried through :meth:`merge`, pickles and :meth:`to_xarray`
         self.ensemble: Any = None
@@ -229,6 +242,9 @@ class FieldAccumulator:
         du *= w
         dv = v0 - self.mean_v
         dv *= w
+        # orders 3-8 from the sums before this sample (M_2 included)
+        moments.add_sample(self.hm_u, self.m2_uu, self.count, du)
+        moments.add_sample(self.hm_v, self.m2_vv, self.count, dv)
         self.mean_u += du * inv
         self.mean_v += dv * inv
         du2 = u0 - self.mean_u
@@ -291,6 +307,9 @@ class FieldAccumulator:
         du, fu = _chan_merge_moments(na, self.mean_u, nb, other.mean_u, n)
         dv, _ = _chan_merge_moments(na, self.mean_v, nb, other.mean_v, n)
         w = na * fu  # na * nb / n
+        # orders 3-8 from both parts' sums before the merge (M_2 included)
+        self.hm_u = moments.merge(self.hm_u, self.m2_uu, na, other.hm_u, other.m2_uu, nb, du)
+        self.hm_v = moments.merge(self.hm_v, self.m2_vv, na, other.hm_v, other.m2_vv, nb, dv)
         self.m2_uu = self.m2_uu + other.m2_uu + du * du * w
         self.m2_vv = self.m2_vv + other.m2_vv + dv * dv * w
         self.c_uv = self.c_uv + other.c_uv + du * dv * w
@@ -377,6 +396,13 @@ class FieldAccumulator:
         """Mean ``<sigma_v^2>`` per vector (NaN without uncertainties)."""
         return self._noise_mean(self.noise_s_vv)
 
+    def noise_sigma4(self, component: str = "u") -> np.ndarray:
+        """Mean ``<sigma^4>`` of ``component`` ("u" or "v") per vector (NaN without
+        uncertainties): with ``<sigma^2>``, the noise in the flatness (:mod:`rspiv.moments`)."""
+        if component not in ("u", "v"):
+            raise InvalidInputError(f"component: expected 'u' or 'v', got {component!r}")
+        return self._noise_mean(getattr(self, f"noise_s2_{component * 2}"))
+
     def noise_uncertainty(self, component: str = "u") -> np.ndarray:
         """Standard uncertainty of ``<sigma^2>`` of ``component`` ("u" or "v"): the sample
         standard deviation of ``sigma^2`` over ``sqrt(n)`` (NaN where n < 2)."""
@@ -402,6 +428,35 @@ class FieldAccumulator:
     def vv_corrected(self) -> np.ndarray:
         """``vv - <sigma_v^2>`` (see :meth:`uu_corrected`)."""
         return self._corrected(self.vv, self.noise_vv())
+
+    def central_moments(self, component: str = "u") -> np.ndarray:
+        """Central moments ``mu_2 .. mu_8`` of ``component`` ("u" or "v") per vector: shape
+        ``(7, *shape)``, ``mu_p = M_p / n`` (population moments; NaN where count < 2, and
+        orders 3-8 NaN in states written before they were kept)."""
+        if component not in ("u", "v"):
+            raise InvalidInputError(f"component: expected 'u' or 'v', got {component!r}")
+        m2 = self.m2_uu if component == "u" else self.m2_vv
+        sums = np.concatenate([m2[None], getattr(self, f"hm_{component}")])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.count > 1, sums / np.maximum(self.count, 1), np.nan)
+
+    def skewness_flatness(self, component: str = "u", corrected: bool = False) -> dict:
+        """Skewness ``S``, flatness ``F`` of ``component`` per vector and their standard errors
+        ``eps_S``, ``eps_F`` (:func:`rspiv.moments.skewness_flatness`; n_eff of the mean,
+        :meth:`n_eff`).
+
+        ``corrected``: S and F without the measurement noise (:func:`rspiv.moments.
+        noise_corrected`, from the accumulated ``<sigma^2>``, ``<sigma^4>``; NaN where no
+        uncertainties were given). The errors are those of the measured moments either way.
+        """
+        mu = self.central_moments(component)
+        out = moments.skewness_flatness(mu, self.n_eff(component))
+        if corrected:
+            s2 = self.noise_uu() if component == "u" else self.noise_vv()
+            out["S"], out["F"] = moments.noise_corrected(
+                mu[0], mu[1], mu[2], s2, self.noise_sigma4(component)
+            )
+        return out
 
     def lag1_correlation(self, component: str = "u") -> np.ndarray:
         """Lag-1 autocorrelation ``rho_1`` of successive valid samples (NaN without pairs)."""
@@ -471,6 +526,10 @@ class FieldAccumulator:
             if name not in self.__dict__:
                 dtype = np.int64 if name == "noise_count" else np.float64
                 setattr(self, name, np.zeros(self.shape, dtype=dtype))
+        # pickles from before the higher moments: NaN sums (none known)
+        for name in _MOMENTS:
+            if name not in self.__dict__:
+                setattr(self, name, np.full((len(moments.ORDERS), *self.shape), np.nan))
 
     def to_xarray(self, x=None, y=None, velocity_units: str = "m s-1", attrs=None):
         """The statistics as an :class:`xarray.Dataset` (pivpy-compatible names).
@@ -523,6 +582,24 @@ class FieldAccumulator:
             ("vv_corrected", self.vv_corrected(), "vv - <sigma_v^2> (noise-corrected)"),
         ):
             ds[k] = (dims, arr, {"long_name": long_name, "units": stress_units})
+        for comp in ("u", "v"):
+            sf = self.skewness_flatness(comp)
+            ds[f"skewness_{comp}"] = (
+                dims,
+                sf["S"],
+                {"long_name": f"skewness of {comp}", "units": "1"},
+            )
+            ds[f"flatness_{comp}"] = (
+                dims,
+                sf["F"],
+                {"long_name": f"flatness (kurtosis) of {comp}", "units": "1"},
+            )
+        for k in _MOMENTS:
+            ds[k] = (
+                ("order", *dims),
+                getattr(self, k),
+                {"long_name": "accumulator state (central sums of orders 3-8)"},
+            )
         if self.ensemble is not None:
             _ensemble_to_dataset(ds, self.ensemble)
         if self.pixel is not None:
@@ -570,6 +647,12 @@ class FieldAccumulator:
             if k in ds:
                 dtype = np.int64 if k == "noise_count" else np.float64
                 setattr(acc, k, np.array(ds[k].values, dtype=dtype))
+        # states written before the higher moments: NaN sums (none known)
+        for k in _MOMENTS:
+            if k in ds:
+                setattr(acc, k, np.array(ds[k].values, dtype=np.float64))
+            else:
+                setattr(acc, k, np.full((len(moments.ORDERS), *acc.shape), np.nan))
         if "ensemble_sum" in ds:
             acc.ensemble = _ensemble_from_dataset(ds)
         if "pixel_sum" in ds:

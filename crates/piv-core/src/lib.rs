@@ -15,6 +15,8 @@
 //!   response;
 //! - [`ensemble`]: correlation planes summed over many pairs (mean displacement and Reynolds
 //!   stresses from the summed peak);
+//! - [`moments`]: per-vector central sums of orders 3-8 (the statistics' skewness and
+//!   flatness);
 //! - [`particle_size`]: the particle images' diameter from the correlation peaks, and the
 //!   peak-locking check;
 //! - [`synth::render_particles`]: synthetic particle images.
@@ -27,6 +29,7 @@ pub mod error;
 pub(crate) mod gaussian_filter;
 pub mod grid;
 pub mod image;
+pub mod moments;
 pub mod multipass;
 pub mod particle_size;
 pub mod synth;

@@ -11,6 +11,7 @@ mod ensemble;
 mod errors;
 mod frames;
 mod mapping;
+mod moments;
 mod piv;
 mod remap;
 
@@ -24,5 +25,6 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     correction::register(m)?;
     condition::register(m)?;
     ensemble::register(m)?;
+    moments::register(m)?;
     Ok(())
 }

@@ -597,7 +597,7 @@ def report_section(camp: Any, res: Any) -> Any:
         from rspiv.plots.boundary_layer import plot_boundary_layer  # deferred: matplotlib
 
         paths = plot_boundary_layer(
-            camp.out_dir / "report" / "figures", runs, prefix="ensemble_", dns=None
+            camp.out_dir / "report" / "figures", runs, prefix="ensemble_", dns=None, moments=False
         )
         figures = [
             (paths["mean_velocity"], "Mean velocity: instantaneous and ensemble, against DNS"),

@@ -1,5 +1,6 @@
-"""Boundary-layer figures: U+(y+) and the Reynolds stresses uu+, vv+, -uv+ in wall units,
-against the Schlatter & Örlü DNS and against other named runs (e.g. "uncorrected").
+"""Boundary-layer figures: U+(y+), the Reynolds stresses uu+, vv+, -uv+ in wall units and the
+skewness and flatness of u and v, against the Schlatter & Örlü DNS and against other named runs
+(e.g. "uncorrected").
 
 Uses matplotlib's object API with the Agg canvas (no pyplot, no global backend change), writes
 PNG files atomically.
@@ -55,6 +56,7 @@ def plot_boundary_layer(
     prefix: str = "",
     dpi: int = 120,
     with_laws: bool = True,
+    moments: bool = True,
 ) -> dict[str, pathlib.Path]:
     """Write ``mean_velocity.png`` (U+ vs y+) and ``reynolds_stresses.png`` (uu+, vv+, -uv+).
 
@@ -71,11 +73,15 @@ def plot_boundary_layer(
         (when it has ``re_tau``), else Re_theta = 4060. ``False`` draws none.
     prefix : str
         Prepended to the file names.
+    moments : bool
+        Also draw the skewness and flatness figure when the first run has them.
 
     Returns
     -------
     dict
-        ``{"mean_velocity": path, "reynolds_stresses": path}``.
+        ``{"mean_velocity": path, "reynolds_stresses": path}``, and ``"higher_moments"``
+        (``higher_moments.png``: skewness and flatness) when the first run has ``moments``
+        with ``S_u`` (:attr:`~rspiv.boundary_layer.BoundaryLayerResult.moments`).
     """
     from matplotlib.figure import Figure
 
@@ -168,7 +174,80 @@ def plot_boundary_layer(
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("$y^+$")
     paths["reynolds_stresses"] = _save(fig, out_dir / f"{prefix}reynolds_stresses.png", dpi)
+
+    # --- skewness and flatness, when the first run has them
+    first = next(iter(runs.values()))
+    mom = first.get("moments") if isinstance(first, Mapping) else getattr(first, "moments", None)
+    if moments and mom and "S_u" in mom:
+        paths["higher_moments"] = _plot_moments(
+            out_dir / f"{prefix}higher_moments.png", profiles, runs, dns, dpi, y_lo
+        )
     return paths
+
+
+def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.Path:
+    """``higher_moments.png``: S and F of u and v against y+ (the DNS's S(u), F(u); the
+    Gaussian values 0 and 3 dotted), error bars on the first run; rows flagged
+    ``moments_near_wall`` are left out."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9.6, 6.4), layout="constrained")
+    axes = fig.subplots(2, 2, sharex=True)
+    spec = (
+        ("S_u", "$S(u)$", 0.0, "skewness_u"),
+        ("F_u", "$F(u)$", 3.0, "flatness_u"),
+        ("S_v", "$S(v)$", 0.0, None),
+        ("F_v", "$F(v)$", 3.0, None),
+    )
+    y_hi = max(float(np.nanmax(p["y_plus"])) for p in profiles.values())
+    for ax, (key, label, gauss, ref) in zip(axes.T.ravel(), spec, strict=True):
+        ax.axhline(gauss, color="k", ls=":", lw=0.8)
+        # the axis spans the values (the DNS's within the runs' y+), not the error bars, which
+        # are large where few samples or heavy tails are (rows at the wall)
+        shown = [np.array([gauss])]
+        if dns and ref is not None:
+            m = dns.y_plus > 0
+            ax.plot(dns.y_plus[m], getattr(dns, ref)[m], "k-", lw=1.2, label=dns.label())
+            shown.append(getattr(dns, ref)[m & (dns.y_plus <= y_hi)])
+        for i, (name, run) in enumerate(runs.items()):
+            mom = run.get("moments") if isinstance(run, Mapping) else getattr(run, "moments", None)
+            if not mom or key not in mom:
+                continue
+            yp = profiles[name]["y_plus"]
+            m = yp > 0
+            if "moments_near_wall" in mom:  # shaped by the wall, not the flow
+                m &= np.asarray(mom["moments_near_wall"]) == 0
+            val = np.asarray(mom[key], dtype=np.float64)
+            shown.append(val[m])
+            err = mom.get(f"eps_{key}")
+            mk = _STYLES[i % len(_STYLES)]
+            if i == 0 and err is not None and np.isfinite(err).any():
+                ax.errorbar(
+                    yp[m],
+                    val[m],
+                    yerr=np.asarray(err, dtype=np.float64)[m],
+                    fmt=mk,
+                    ms=3,
+                    mfc="none",
+                    capsize=0,
+                    elinewidth=0.6,
+                    label=name,
+                )
+            else:
+                ax.plot(yp[m], val[m], mk, ms=3, mfc="none", label=name)
+        vals = np.concatenate(shown)
+        vals = vals[np.isfinite(vals)]
+        lo, hi = float(vals.min()), float(vals.max())
+        pad = 0.08 * (hi - lo) + 0.1
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_ylabel(label)
+        ax.set_xscale("log")
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    axes[0, 0].set_xlim(left=min(1.0, 0.8 * y_lo))
+    axes[0, 0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("$y^+$")
+    return _save(fig, path, dpi)
 
 
 __all__ = ["plot_boundary_layer"]
