@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import rspiv
 import scipy.stats as ss
-from rspiv import moments
+from rspiv import _rspiv, moments
 from rspiv.campaign.analysis import scaled_accumulator
 from rspiv.profiles import profile_from_accumulator
 from rspiv.stats import FieldAccumulator
@@ -203,3 +203,19 @@ def test_units_and_axis_flips_keep_the_shape_of_the_distribution():
         a, b = acc.skewness_flatness(comp), si.skewness_flatness(comp)
         assert np.allclose(b["S"], sign * a["S"]) and np.allclose(b["F"], a["F"])
         assert np.allclose(b["eps_S"], a["eps_S"]) and np.allclose(b["eps_F"], a["eps_F"])
+
+
+def test_bad_input_is_refused_in_one_line():
+    acc = FieldAccumulator((2, 2))
+    for call in (
+        lambda: acc.skewness_flatness("w"),
+        lambda: acc.central_moments("uv"),
+        lambda: acc.noise_sigma4("x"),
+        lambda: moments.skewness_flatness([np.ones(3)] * 3),
+        lambda: _rspiv.moments_add(
+            np.zeros((6, 4)), np.zeros(3), np.zeros(4, np.int64), np.zeros(4)
+        ),
+    ):
+        with pytest.raises(rspiv.InvalidInputError) as e:
+            call()
+        assert "\n" not in str(e.value)

@@ -44,6 +44,7 @@ from math import comb
 import numpy as np
 
 from rspiv import _rspiv
+from rspiv.errors import InvalidInputError
 
 #: Orders of the central sums kept beside ``M_2`` (``M_3 .. M_8``).
 ORDERS = tuple(range(3, 9))
@@ -127,8 +128,9 @@ def skewness_flatness(mu, n_eff=None) -> dict[str, np.ndarray]:
     dict
         ``S``, ``F``, ``eps_S``, ``eps_F`` (NaN where ``mu_2 <= 0`` or not finite).
     """
-    m2, m3, m4, m5, m6, m7, m8 = (np.asarray(a, dtype=np.float64) for a in mu)
-    del m7
+    if len(mu) != 7:
+        raise InvalidInputError(f"mu: expected the central moments of orders 2-8, got {len(mu)}")
+    m2, m3, m4, m5, m6, _, m8 = (np.asarray(a, dtype=np.float64) for a in mu)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         ok = np.isfinite(m2) & (m2 > 0)
         v = np.where(ok, m2, np.nan)

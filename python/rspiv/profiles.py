@@ -104,7 +104,17 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
         axis=axis,
         min_count=min_count,
     )
+    keep = np.asarray(acc.count) >= max(int(min_count), 2)
     cnt = np.asarray(acc.count, dtype=np.float64)
+
+    def along_x(a, ok):
+        """Count-weighted average along x of ``a`` (leading axes kept) where ``ok``."""
+        w = np.where(keep & ok, cnt, 0.0)
+        wsum = w.sum(axis=axis)
+        ax = axis if axis < 0 else axis + a.ndim - w.ndim
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(wsum > 0, (w * np.nan_to_num(a)).sum(axis=ax) / wsum, np.nan)
+
     for key, noise in (
         ("noise_uu", acc.noise_uu()),
         ("noise_vv", acc.noise_vv()),
@@ -112,27 +122,13 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
         ("eps_noise_uu", acc.noise_uncertainty("u")),
         ("eps_noise_vv", acc.noise_uncertainty("v")),
     ):
-        w = np.where((cnt >= max(int(min_count), 2)) & np.isfinite(noise), cnt, 0.0)
-        wsum = w.sum(axis=axis)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[key] = np.where(wsum > 0, (w * np.nan_to_num(noise)).sum(axis=axis) / wsum, np.nan)
-    keep = cnt >= max(int(min_count), 2)
+        out[key] = along_x(noise, np.isfinite(noise))
     for comp in ("u", "v"):
-        mu = acc.central_moments(comp)
-        w = np.where(keep & np.all(np.isfinite(mu), axis=0), cnt, 0.0)
-        wsum = w.sum(axis=axis)
-        ax = axis if axis < 0 else axis + 1  # the orders lead
-        with np.errstate(invalid="ignore", divide="ignore"):
-            avg = np.where(wsum > 0, (w * np.nan_to_num(mu)).sum(axis=ax) / wsum, np.nan)
-            noise4 = acc.noise_sigma4(comp)
-            w4 = np.where(keep & np.isfinite(noise4), cnt, 0.0)
-            s4 = np.where(
-                w4.sum(axis=axis) > 0,
-                (w4 * np.nan_to_num(noise4)).sum(axis=axis) / w4.sum(axis=axis),
-                np.nan,
-            )
-        ne = out["n_eff"][comp.upper()]
-        sf = moments.skewness_flatness(avg, ne)
+        mu = acc.central_moments(comp)  # orders 2-8 lead
+        avg = along_x(mu, np.all(np.isfinite(mu), axis=0))
+        noise4 = acc.noise_sigma4(comp)
+        s4 = along_x(noise4, np.isfinite(noise4))
+        sf = moments.skewness_flatness(avg, out["n_eff"][comp.upper()])
         for key in ("S", "F", "eps_S", "eps_F"):
             out[f"{key}_{comp}"] = sf[key]
         s_c, f_c = moments.noise_corrected(avg[0], avg[1], avg[2], out[f"noise_{comp * 2}"], s4)

@@ -51,14 +51,11 @@ pub fn add_sample(hm: &mut [f64], m2: &[f64], n_old: &[i64], delta: &[f64]) -> R
     if n == 0 {
         return Ok(());
     }
-    // the planes as rows of one position each would stride; work in blocks of positions
+    // blocks of positions, each task holding its block of every order's plane
     const BLOCK: usize = 4096;
-    let (planes, _) = hm.split_at_mut(ORDERS * n);
-    let mut rows: Vec<&mut [f64]> = planes.chunks_mut(n).collect();
-    // split every plane into blocks and hand each block's six slices to one task
     let mut blocks: Vec<Vec<&mut [f64]>> = (0..n.div_ceil(BLOCK)).map(|_| Vec::new()).collect();
-    for row in rows.iter_mut() {
-        for (b, part) in std::mem::take(row).chunks_mut(BLOCK).enumerate() {
+    for plane in hm.chunks_mut(n) {
+        for (b, part) in plane.chunks_mut(BLOCK).enumerate() {
             blocks[b].push(part);
         }
     }
