@@ -28,7 +28,9 @@ skeleton) and :mod:`~rspiv.campaign.executors` (local, Dask).
    SI units (``M`` from the calibration, ``dt`` and ``nu`` from ``[flow]``), the boundary layer
    is analysed (:func:`rspiv.analyse_profile`) and the outputs are written atomically:
    ``statistics_<run>.nc`` (pivpy names, CF units), ``profile_<run>.nc``, ``profile_<run>.csv``,
-   ``summary.json`` and ``report/report.{md,html}``. With ``[output] fields = true`` each
+   ``summary.json`` and ``report/report.{md,html}``; the profiles carry the skewness and
+   flatness of u and v with their errors and the ``moments_near_wall`` flag
+   (:func:`rspiv.campaign.analysis.profile_moments`). With ``[output] fields = true`` each
    pair's vector fields are written as it is processed, in px per pair
    (:mod:`~rspiv.campaign.fields`: ``OUT/fields/<run>/pair_<id>.nc``).
 
