@@ -633,17 +633,17 @@ def test_noise_correction_subtracts_the_profile_noise(processed):
     assert np.all(uu_cor <= uu_raw) and np.any(uu_cor < uu_raw)
     # the flatness alike: the corrected one is the profile's, without the noise
     keys = {"S_u", "F_u", "eps_S_u", "eps_F_u", "S_v", "F_v", "eps_S_v", "eps_F_v"}
-    assert keys <= set(raw.result.moments) and keys <= set(cor.result.moments)
-    f_raw, f_cor = raw.result.moments["F_u"], cor.result.moments["F_u"]
+    assert keys <= set(raw.result.extra) and keys <= set(cor.result.extra)
+    f_raw, f_cor = raw.result.extra["F_u"], cor.result.extra["F_u"]
     both = np.isfinite(f_raw) & np.isfinite(f_cor)
     assert both.sum() > 8 and not np.allclose(f_raw[both], f_cor[both])
     # the rows within 2.5 window heights of the wall are flagged: the nearest ones
-    from rspiv.campaign.analysis import MOMENTS_NEAR_WALL_HEIGHTS
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS
 
-    near = raw.result.moments["moments_near_wall"] == 1
+    near = raw.result.extra["near_wall"] == 1
     h = ctx.piv.final_window[1]
     d = p["dist_px"][(p["dist_px"] > 0) & np.isfinite(p["U"]) & (p["count"] > 0)]
-    assert near.sum() == np.count_nonzero(d < MOMENTS_NEAR_WALL_HEIGHTS * h) > 0
+    assert near.sum() == np.count_nonzero(d < NEAR_WALL_HEIGHTS * h) > 0
     assert raw.result.y[near].max() < raw.result.y[~near].min()
     ds = acc.to_xarray()
     assert {"noise_uu", "noise_vv", "uu_corrected", "vv_corrected"} <= set(ds.data_vars)

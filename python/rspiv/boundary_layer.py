@@ -513,9 +513,10 @@ class BoundaryLayerResult:
     n_eff: np.ndarray
     #: Why the results are suspect (:func:`free_stream_warning`), or None.
     warning: str | None = None
-    #: Further dimensionless profiles given to :func:`analyse_profile` (``moments``: the
-    #: skewness and flatness ``S_u, F_u, eps_S_u, ...``), sorted like ``y``.
-    moments: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    #: Further per-point columns given to :func:`analyse_profile` (``extra``: the campaign's
+    #: skewness and flatness ``S_u, F_u, eps_S_u, ...`` and ``near_wall`` flag), sorted like
+    #: ``y``.
+    extra: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
     def summary(self) -> dict[str, float]:
         """Scalar results (SI units) as a flat dict, e.g. for the report's tables."""
@@ -539,7 +540,7 @@ class BoundaryLayerResult:
             "eps_vv_plus": self.eps_vv_plus,
             "eps_uv_plus": self.eps_uv_plus,
             "n_eff": self.n_eff,
-            **self.moments,
+            **self.extra,
         }
 
 
@@ -597,7 +598,7 @@ def analyse_profile(
     y_max_fit: float | None = None,
     y_min_fit: float = 0.0,
     noise=None,
-    moments: Mapping[str, object] | None = None,
+    extra: Mapping[str, object] | None = None,
 ) -> BoundaryLayerResult:
     """Analyse one mean profile: u_tau (composite and Clauser), wall offset, thicknesses,
     Reynolds numbers, and the profiles in wall units with their uncertainties.
@@ -624,10 +625,10 @@ def analyse_profile(
         Mean squared per-vector uncertainties of u and v and their standard errors (m^2/s^2,
         same length as y_m): the normal stresses are reported noise-corrected (module
         docstring).
-    moments : mapping of str to array_like, optional
-        Dimensionless profiles carried into the result as they are (sorted with y; the
-        campaign's skewness and flatness, :func:`rspiv.profiles.profile_from_accumulator`),
-        same length as y_m.
+    extra : mapping of str to array_like, optional
+        Further per-point columns carried into the result as they are (sorted with y; the
+        campaign's skewness, flatness and near-wall flag,
+        :func:`rspiv.campaign.analysis.profile_extra`), same length as y_m.
     """
     nu = _check_nu(nu)
     y_in = _as_profile("y_m", y_m)
@@ -640,7 +641,7 @@ def analyse_profile(
     y_in, U_in, uu_in, vv_in, uv_in = (a[order] for a in (y_in, U_in, uu_in, vv_in, uv_in))
     ne_map = {k: v[order] for k, v in ne_map.items()}
     ne = ne_map["U"]
-    extra = {str(k): _as_profile(str(k), a, n)[order] for k, a in (moments or {}).items()}
+    more = {str(k): _as_profile(str(k), a, n)[order] for k, a in (extra or {}).items()}
 
     comp = composite_fit(
         y_in, U_in, nu, fit_offset=fit_offset, y_max_fit=y_max_fit, y_min_fit=y_min_fit
@@ -702,7 +703,7 @@ def analyse_profile(
         eps_uv_plus=euv / ut**2,
         n_eff=ne,
         warning=warning,
-        moments=extra,
+        extra=more,
     )
 
 

@@ -314,15 +314,15 @@ _MOMENT_KEYS = ("S_u", "F_u", "S_v", "F_v")
 def _moment_errors(r, filt: dict[str, Any], ut: float, nu: float, re_tau: float) -> dict:
     """Largest deviation of the measured skewness and flatness of u and v from the
     window-averaged exact field ``filt``, from 2.5 window heights off the wall (the rows not
-    flagged ``moments_near_wall``) to 0.5 delta+."""
+    flagged ``near_wall``) to 0.5 delta+."""
     yp = r.y * ut / nu
-    mom = r.moments
-    if not all(k in mom for k in (*_MOMENT_KEYS, "moments_near_wall")):
+    mom = r.extra
+    if not all(k in mom for k in (*_MOMENT_KEYS, "near_wall")):
         return {k: float("nan") for k in _MOMENT_KEYS}
     out = {}
     for k in _MOMENT_KEYS:
         meas = np.asarray(mom[k])
-        m = (mom["moments_near_wall"] == 0) & (yp <= 0.5 * re_tau) & np.isfinite(meas)
+        m = (mom["near_wall"] == 0) & (yp <= 0.5 * re_tau) & np.isfinite(meas)
         ref = np.interp(yp[m], filt["y_plus"], filt[k])
         out[k] = float(np.max(np.abs(meas[m] - ref))) if m.any() else float("nan")
     return out

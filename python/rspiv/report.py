@@ -385,9 +385,9 @@ def uncertainty_summary(result, y_plus_min: float = 30.0) -> dict[str, float]:
 MOMENTS_CAPTION = (
     "Skewness S and flatness F of u and v (error bars: one standard error from the moments up "
     "to order 8, any distribution). Rows within 2.5 window heights of the wall are left out "
-    "(flagged moments_near_wall in the profile files): there the wall, its reflection and the "
-    "gradient across the window skew the measured distribution, much as the DNS's S(u) at the "
-    "wall. The measurement noise draws S towards 0 and F towards 3 (removed with [statistics] "
+    "(flagged near_wall in the profile files): there the wall, its reflection and the gradient "
+    "across the window skew the measured distribution, much as the DNS's S(u) at the wall. "
+    "The measurement noise draws S towards 0 and F towards 3 (removed with [statistics] "
     "noise_correction); spurious vectors that pass the validation raise F"
 )
 
@@ -444,7 +444,12 @@ def campaign_report(
         text=text,
         figures=[
             (figs["mean_velocity"], "Mean streamwise velocity U+(y+)"),
-            (figs["reynolds_stresses"], "Reynolds stresses uu+, vv+, -uv+"),
+            (
+                figs["reynolds_stresses"],
+                "Reynolds stresses uu+, vv+, -uv+ (rows within 2.5 window heights of the wall, "
+                "flagged near_wall, left out: there the wall, its reflection and the gradient "
+                "across the window raise the stresses)",
+            ),
             *(
                 [(figs["higher_moments"], MOMENTS_CAPTION)]
                 if "higher_moments" in figs

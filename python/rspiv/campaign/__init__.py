@@ -29,8 +29,8 @@ skeleton) and :mod:`~rspiv.campaign.executors` (local, Dask).
    is analysed (:func:`rspiv.analyse_profile`) and the outputs are written atomically:
    ``statistics_<run>.nc`` (pivpy names, CF units), ``profile_<run>.nc``, ``profile_<run>.csv``,
    ``summary.json`` and ``report/report.{md,html}``; the profiles carry the skewness and
-   flatness of u and v with their errors and the ``moments_near_wall`` flag
-   (:func:`rspiv.campaign.analysis.profile_moments`). With ``[output] fields = true`` each
+   flatness of u and v with their errors and the ``near_wall`` flag of the rows the wall
+   shapes (:func:`rspiv.campaign.analysis.profile_extra`). With ``[output] fields = true`` each
    pair's vector fields are written as it is processed, in px per pair
    (:mod:`~rspiv.campaign.fields`: ``OUT/fields/<run>/pair_<id>.nc``).
 

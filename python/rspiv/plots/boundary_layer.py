@@ -23,6 +23,13 @@ _STYLES = ("o", "s", "^", "v", "D", "<", ">", "p")
 _KEYS = ("y_plus", "u_plus", "uu_plus", "vv_plus", "uv_plus")
 
 
+def _extra(run: Any) -> Mapping[str, Any]:
+    """A run's further columns (:attr:`~rspiv.boundary_layer.BoundaryLayerResult.extra`, or a
+    mapping's ``"extra"``), empty if none."""
+    ex = run.get("extra") if isinstance(run, Mapping) else getattr(run, "extra", None)
+    return ex or {}
+
+
 def _profile(name: str, run: Any) -> dict[str, np.ndarray]:
     """Accept a BoundaryLayerResult or a mapping with the wall-unit columns."""
     out = {}
@@ -32,6 +39,8 @@ def _profile(name: str, run: Any) -> dict[str, np.ndarray]:
             raise InvalidInputError(f"runs[{name!r}]: missing {k!r}")
         if v is not None:
             out[k] = np.asarray(v, dtype=np.float64)
+    if "near_wall" in _extra(run):  # rows the wall shapes (rspiv.campaign.analysis)
+        out["near_wall"] = np.asarray(_extra(run)["near_wall"], dtype=np.float64)
     n = out["y_plus"].size
     for k, v in out.items():
         if v.shape != (n,):
@@ -66,8 +75,10 @@ def plot_boundary_layer(
         Folder for the PNG files (created if missing).
     runs : mapping
         Run name -> :class:`~rspiv.boundary_layer.BoundaryLayerResult` (or a mapping with
-        ``y_plus, u_plus, uu_plus, vv_plus, uv_plus`` and optional ``eps_*``). The first run is
-        drawn with error bars where uncertainties are present; the others as markers only.
+        ``y_plus, u_plus, uu_plus, vv_plus, uv_plus``, optional ``eps_*`` and ``extra``). The
+        first run is drawn with error bars where uncertainties are present; the others as
+        markers only. Rows flagged ``near_wall`` in ``extra`` (shaped by the wall, not the flow)
+        are left out of the stress and moment figures.
     dns : DNSProfile, optional
         Reference profile; default: the vendored station closest in Re_tau to the first run
         (when it has ``re_tau``), else Re_theta = 4060. ``False`` draws none.
@@ -80,8 +91,8 @@ def plot_boundary_layer(
     -------
     dict
         ``{"mean_velocity": path, "reynolds_stresses": path}``, and ``"higher_moments"``
-        (``higher_moments.png``: skewness and flatness) when the first run has ``moments``
-        with ``S_u`` (:attr:`~rspiv.boundary_layer.BoundaryLayerResult.moments`).
+        (``higher_moments.png``: skewness and flatness) when the first run has them in
+        ``extra`` (``S_u``, ... :attr:`~rspiv.boundary_layer.BoundaryLayerResult.extra`).
     """
     from matplotlib.figure import Figure
 
@@ -151,7 +162,7 @@ def plot_boundary_layer(
             ref = {"uu_plus": dns.uu_plus, "vv_plus": dns.vv_plus, "uv_plus": dns.uv_plus}[key]
             ax.plot(dns.y_plus[m], sign * ref[m], "k-", lw=1.2, label=dns.label())
         for i, (name, p) in enumerate(profiles.items()):
-            m = p["y_plus"] > 0
+            m = (p["y_plus"] > 0) & (p.get("near_wall", 0.0) == 0)
             mk = _STYLES[i % len(_STYLES)]
             if i == 0 and ekey in p and np.isfinite(p[ekey]).any():
                 ax.errorbar(
@@ -176,9 +187,7 @@ def plot_boundary_layer(
     paths["reynolds_stresses"] = _save(fig, out_dir / f"{prefix}reynolds_stresses.png", dpi)
 
     # --- skewness and flatness, when the first run has them
-    first = next(iter(runs.values()))
-    mom = first.get("moments") if isinstance(first, Mapping) else getattr(first, "moments", None)
-    if moments and mom and "S_u" in mom:
+    if moments and "S_u" in _extra(next(iter(runs.values()))):
         paths["higher_moments"] = _plot_moments(
             out_dir / f"{prefix}higher_moments.png", profiles, runs, dns, dpi, y_lo
         )
@@ -187,8 +196,8 @@ def plot_boundary_layer(
 
 def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.Path:
     """``higher_moments.png``: S and F of u and v against y+ (the DNS's S(u), F(u); the
-    Gaussian values 0 and 3 dotted), error bars on the first run; rows flagged
-    ``moments_near_wall`` are left out."""
+    Gaussian values 0 and 3 dotted), error bars on the first run; rows flagged ``near_wall``
+    are left out."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(9.6, 6.4), layout="constrained")
@@ -210,13 +219,11 @@ def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.P
             ax.plot(dns.y_plus[m], getattr(dns, ref)[m], "k-", lw=1.2, label=dns.label())
             shown.append(getattr(dns, ref)[m & (dns.y_plus <= y_hi)])
         for i, (name, run) in enumerate(runs.items()):
-            mom = run.get("moments") if isinstance(run, Mapping) else getattr(run, "moments", None)
-            if not mom or key not in mom:
+            mom = _extra(run)
+            if key not in mom:
                 continue
             yp = profiles[name]["y_plus"]
-            m = yp > 0
-            if "moments_near_wall" in mom:  # shaped by the wall, not the flow
-                m &= np.asarray(mom["moments_near_wall"]) == 0
+            m = (yp > 0) & (profiles[name].get("near_wall", 0.0) == 0)
             val = np.asarray(mom[key], dtype=np.float64)
             shown.append(val[m])
             err = mom.get(f"eps_{key}")
