@@ -48,6 +48,18 @@ def _profile(name: str, run: Any) -> dict[str, np.ndarray]:
     return out
 
 
+def _draw(ax, i: int, name: str, x, y, err) -> None:
+    """Run ``i``'s points: the first run with error bars ``err`` where it has finite ones, the
+    others as markers only."""
+    mk = _STYLES[i % len(_STYLES)]
+    if i == 0 and err is not None and np.isfinite(err).any():
+        ax.errorbar(
+            x, y, yerr=err, fmt=mk, ms=3, mfc="none", capsize=0, elinewidth=0.6, label=name
+        )
+    else:
+        ax.plot(x, y, mk, ms=3, mfc="none", label=name)
+
+
 def _save(fig, path: pathlib.Path, dpi: int) -> pathlib.Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
@@ -124,21 +136,8 @@ def plot_boundary_layer(
         ax.plot(yg, np.log(yg) / 0.41 + 5.0, "k--", lw=0.8, label="ln(y+)/0.41 + 5.0")
     for i, (name, p) in enumerate(profiles.items()):
         m = p["y_plus"] > 0
-        mk = _STYLES[i % len(_STYLES)]
-        if i == 0 and "eps_u_plus" in p and np.isfinite(p["eps_u_plus"]).any():
-            ax.errorbar(
-                p["y_plus"][m],
-                p["u_plus"][m],
-                yerr=p["eps_u_plus"][m],
-                fmt=mk,
-                ms=3,
-                mfc="none",
-                capsize=0,
-                elinewidth=0.6,
-                label=name,
-            )
-        else:
-            ax.plot(p["y_plus"][m], p["u_plus"][m], mk, ms=3, mfc="none", label=name)
+        err = p["eps_u_plus"][m] if "eps_u_plus" in p else None
+        _draw(ax, i, name, p["y_plus"][m], p["u_plus"][m], err)
     ax.set_xscale("log")
     y_lo = min(float(np.min(p["y_plus"][p["y_plus"] > 0])) for p in profiles.values())
     ax.set_xlim(left=min(1.0, 0.8 * y_lo))
@@ -163,21 +162,8 @@ def plot_boundary_layer(
             ax.plot(dns.y_plus[m], sign * ref[m], "k-", lw=1.2, label=dns.label())
         for i, (name, p) in enumerate(profiles.items()):
             m = (p["y_plus"] > 0) & (p.get("near_wall", 0.0) == 0)
-            mk = _STYLES[i % len(_STYLES)]
-            if i == 0 and ekey in p and np.isfinite(p[ekey]).any():
-                ax.errorbar(
-                    p["y_plus"][m],
-                    sign * p[key][m],
-                    yerr=p[ekey][m],
-                    fmt=mk,
-                    ms=3,
-                    mfc="none",
-                    capsize=0,
-                    elinewidth=0.6,
-                    label=name,
-                )
-            else:
-                ax.plot(p["y_plus"][m], sign * p[key][m], mk, ms=3, mfc="none", label=name)
+            err = p[ekey][m] if ekey in p else None
+            _draw(ax, i, name, p["y_plus"][m], sign * p[key][m], err)
         ax.set_ylabel(label)
         ax.set_xscale("log")
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
@@ -211,8 +197,8 @@ def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.P
     y_hi = max(float(np.nanmax(p["y_plus"])) for p in profiles.values())
     for ax, (key, label, gauss, ref) in zip(axes.T.ravel(), spec, strict=True):
         ax.axhline(gauss, color="k", ls=":", lw=0.8)
-        # the axis spans the values (the DNS's within the runs' y+), not the error bars, which
-        # are large where few samples or heavy tails are (rows at the wall)
+        # the axis spans the values (the DNS's within the runs' y+) and the typical error bar,
+        # not the largest ones (few samples or heavy tails)
         shown = [np.array([gauss])]
         if dns and ref is not None:
             m = dns.y_plus > 0
@@ -227,21 +213,12 @@ def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.P
             val = np.asarray(mom[key], dtype=np.float64)
             shown.append(val[m])
             err = mom.get(f"eps_{key}")
-            mk = _STYLES[i % len(_STYLES)]
+            err = None if err is None else np.asarray(err, dtype=np.float64)[m]
             if i == 0 and err is not None and np.isfinite(err).any():
-                ax.errorbar(
-                    yp[m],
-                    val[m],
-                    yerr=np.asarray(err, dtype=np.float64)[m],
-                    fmt=mk,
-                    ms=3,
-                    mfc="none",
-                    capsize=0,
-                    elinewidth=0.6,
-                    label=name,
-                )
-            else:
-                ax.plot(yp[m], val[m], mk, ms=3, mfc="none", label=name)
+                # the typical error bar about the Gaussian value stays on the axis
+                e = float(np.nanmedian(err))
+                shown.append(np.array([gauss - e, gauss + e]))
+            _draw(ax, i, name, yp[m], val[m], err)
         vals = np.concatenate(shown)
         vals = vals[np.isfinite(vals)]
         lo, hi = float(vals.min()), float(vals.max())
