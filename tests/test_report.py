@@ -217,3 +217,41 @@ def test_campaign_report_assembles_everything(tmp_path, result):
     assert 0.05 < unc["uncertainty of U (%)"] < 2
     assert unc["uncertainty of uu (%)"] == pytest.approx(100 * np.sqrt(2 / 500), rel=1e-9)
     assert f"| uncertainty of U (%) | {unc['uncertainty of U (%)']:.4g} | 0.825 |" in md
+
+
+def test_rows_the_wall_shapes_are_left_out_of_the_stress_and_moment_figures(
+    tmp_path, monkeypatch
+):
+    """A run whose ``extra`` flags rows ``near_wall``: the mean velocity figure draws every row,
+    the stress and the skewness/flatness figures only the others."""
+    from rspiv.plots import boundary_layer as bl
+
+    drawn = []
+    draw = bl._draw
+
+    def spy(ax, i, name, x, y, err):
+        drawn.append(np.asarray(x))
+        draw(ax, i, name, x, y, err)
+
+    monkeypatch.setattr(bl, "_draw", spy)
+    yp = np.geomspace(1.0, 500.0, 30)
+    one = np.ones_like(yp)
+    run = {
+        "y_plus": yp,
+        "u_plus": np.log1p(yp) * 5,
+        "uu_plus": 2 * one,
+        "vv_plus": one,
+        "uv_plus": -one,
+        "extra": {
+            "near_wall": (yp < 10).astype(float),
+            **{k: 0.1 * one for k in ("S_u", "S_v", "eps_S_u", "eps_S_v", "eps_F_u", "eps_F_v")},
+            "F_u": 3 * one,
+            "F_v": 3 * one,
+        },
+    }
+    paths = bl.plot_boundary_layer(tmp_path, {"run": run}, dns=False)
+    assert set(paths) == {"mean_velocity", "reynolds_stresses", "higher_moments"}
+    assert len(drawn) == 1 + 3 + 4
+    assert drawn[0].size == yp.size
+    for x in drawn[1:]:
+        assert x.size == np.count_nonzero(yp >= 10) and x.min() >= 10
