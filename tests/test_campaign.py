@@ -69,6 +69,15 @@ def test_outputs_are_written(processed):
         assert {"S_u", "F_u", "eps_S_u", "eps_F_u", "S_v", "F_v"} <= set(cols)
         assert float(meta["u_tau"]) > 0
         assert (out / f"profile_{run}.nc").is_file()
+        # [statistics] two_point (the synthetic campaign's): spectra and correlations per row
+        with xr.open_dataset(out / f"two_point_{run}.nc", engine="h5netcdf") as ds:
+            assert ds["phi_uu"].dims == ("y", "k_x") and ds["R_uu"].dims == ("y", "dx")
+            assert ds["k_x"].attrs["units"] == "rad m-1" and ds.attrs["pairs"] == 3
+            assert np.all(ds["y"].values > 0) and bool(ds["near_wall"][0])
+            assert np.all(ds["count"].values <= 3)
+            r0 = ds["R_uu"].sel(dx=0.0, method="nearest").values
+            np.testing.assert_allclose(r0[ds["count"].values >= 2], 1.0, atol=1e-12)
+            assert np.isfinite(ds["L_uu"].values[~ds["near_wall"].values]).mean() > 0.9
     html = (out / "report" / "report.html").read_text()
     for needle in (
         "Calibration",
@@ -79,6 +88,7 @@ def test_outputs_are_written(processed):
         "Method I",
         "Method II",
         "measurement noise in uu, vv (%)",
+        "Spectra and two-point correlations",
     ):
         assert needle in html
     figs = sorted(p.name for p in (out / "report" / "figures").glob("*.png"))
@@ -89,6 +99,7 @@ def test_outputs_are_written(processed):
         "wall.png",
         "montecarlo_p3.png",
         "calibration_arrows.png",
+        "two_point.png",
     ):
         assert f in figs
     summary = json.loads((out / "summary.json").read_text())
@@ -140,6 +151,9 @@ def test_accuracy_at_small_scale(processed, synth):
     # is a statistic of 3 samples, which a small error moves far)
     moms = [r for c, r in by.items() if c.startswith("P3") and "skewness within" in c]
     assert len(moms) == 2 and all("nan" not in r["measured"] for r in moms)
+    # the streamwise correlations' rows too (their claim is the demo's, at 24 pairs)
+    tps = [r for c, r in by.items() if c.startswith("P3") and "R_uu, R_vv within" in c]
+    assert len(tps) == 2 and all("nan" not in r["measured"] for r in tps), tps
     # the mean profile follows the exact field of these pairs (window-averaged) away from the
     # wall, in true wall units at the found wall
     from rspiv.demo import _filtered_profile
@@ -200,6 +214,11 @@ def test_interrupted_run_resumes_to_the_same_statistics(processed, synth, tmp_pa
         assert acc.pair_ids == ref.pair_ids == {0, 1, 2}
         np.testing.assert_allclose(acc.mean_u, ref.mean_u, rtol=0, atol=1e-12)
         np.testing.assert_allclose(acc.m2_uu, ref.m2_uu, rtol=1e-12, atol=1e-9)
+        # the two-point sums ride with the accumulator through the checkpoint
+        np.testing.assert_array_equal(acc.two_point.count, ref.two_point.count)
+        np.testing.assert_allclose(
+            acc.two_point.correlation()["R_uu"], ref.two_point.correlation()["R_uu"], atol=1e-10
+        )
 
 
 def test_shards_merge_to_the_full_statistics(processed, synth, tmp_path):
@@ -228,11 +247,52 @@ def test_shards_merge_to_the_full_statistics(processed, synth, tmp_path):
     np.testing.assert_array_equal(merged.count, ref.count)
     np.testing.assert_allclose(merged.mean_u, ref.mean_u, atol=1e-10)
     np.testing.assert_allclose(merged.uu, ref.uu, rtol=1e-9, atol=1e-10)
+    # the two-point sums travel in the shard files and merge exactly
+    assert merged.two_point.pair_ids == ref.two_point.pair_ids
+    np.testing.assert_allclose(
+        merged.two_point.spectra()["phi_uu"], ref.two_point.spectra()["phi_uu"], rtol=1e-9
+    )
     # the merged statistics go through the same analysis (what `rspiv merge` will call)
     camp = Campaign.load(synth / "campaign.toml", extra_methods=("I",), progress=False, out_dir=out)
     res = camp.analyse({**full.accumulators, "method_II": merged})
     assert res.result().u_tau == pytest.approx(full.result().u_tau, rel=1e-6)
     assert (out / "report" / "report.html").is_file()
+
+
+def test_two_point_rows_with_few_pairs_are_warned(processed, synth, tmp_path):
+    """Rows that most pairs leave out (too few valid vectors) are said, in the log, the file
+    and the report, and keep their place (NaN where a row holds under two fields)."""
+    import copy
+
+    import xarray as xr
+
+    _, full = processed
+    out = tmp_path / "out"
+    shutil.copytree(full.out_dir, out, ignore=shutil.ignore_patterns("checkpoint", "*.nc"))
+    acc = copy.deepcopy(full.accumulators["method_II"])
+    tp = rspiv.TwoPointAccumulator(acc.shape, acc.two_point.columns, acc.two_point.min_valid)
+    rng = np.random.default_rng(0)
+    for p in range(3):
+        valid = np.ones(acc.shape, bool)
+        if p:
+            valid[: acc.shape[0] // 2] = False  # the upper rows (the flow's) enter pair 0 only
+        u = acc.mean_u + 0.1 * rng.standard_normal(acc.shape)
+        tp.add(u, acc.mean_v + 0.1 * rng.standard_normal(acc.shape), valid, pair_id=p)
+    acc.two_point = tp
+    said = []
+    camp = Campaign.load(
+        synth / "campaign.toml", extra_methods=("I",), progress=False, out_dir=out, log=said.append
+    )
+    res = camp.analyse({**full.accumulators, "method_II": acc})
+    prof = res.two_point["method_II"]
+    assert "entered fewer than half of the 3 pairs" in prof["warning"]
+    assert any("WARNING" in m and "two-point" in m for m in said)
+    assert np.isnan(prof["R_uu"][prof["count"] < 2]).all()
+    assert np.isfinite(prof["R_uu"][prof["count"] == 3]).any()
+    with xr.open_dataset(out / "two_point_method_II.nc", engine="h5netcdf") as ds:
+        assert "fewer than half" in ds.attrs["warning"]
+        assert ds.sizes["y"] == prof["y"].size
+    assert "fewer than half" in (out / "report" / "report.html").read_text()
 
 
 def test_shard_selection():

@@ -30,6 +30,7 @@ from rspiv.reference import load_dns
 from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
 from rspiv.stats import FieldAccumulator
+from rspiv.two_point import TwoPointAccumulator
 from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
 
@@ -44,5 +45,5 @@ __all__ += ["Campaign", "piv_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
-__all__ += ["EnsembleAccumulator", "EnsembleField"]
+__all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["Repeatability", "repeatability"]

@@ -85,6 +85,9 @@ A complete file (every key optional except where noted; defaults shown)::
     reference_re_theta = 0.0     # DNS station for plots (0: the closest in Re_tau)
     noise_correction = false     # subtract each vector's mean sigma^2 from uu and vv
                                  # (rspiv.stats "Measurement noise"; needs [piv] uncertainty)
+    two_point = false            # streamwise spectra and two-point correlations per row
+                                 # (rspiv.two_point; two_point_<run>.nc, a report section)
+    two_point_min_valid = 0.9    # fraction of valid vectors a row of a pair needs to enter
 
     [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
                                  # correlation planes summed over every pair, then the peak
@@ -341,6 +344,8 @@ class StatisticsConfig:
     fit_offset: bool = True
     reference_re_theta: float = 0.0
     noise_correction: bool = False
+    two_point: bool = False
+    two_point_min_valid: float = 0.9
 
 
 @dataclasses.dataclass

@@ -223,6 +223,10 @@ PARSERS: dict[str, dict[str, Any]] = {
         "fit_offset": _boolean,
         "reference_re_theta": lambda c, w, v: _number(c, w, v, minimum=0),
         "noise_correction": _boolean,
+        "two_point": _boolean,
+        "two_point_min_valid": lambda c, w, v: _number(
+            c, w, v, minimum=0, exclusive_min=True, maximum=1
+        ),
     },
     "ensemble": {
         "enabled": _boolean,

@@ -14,8 +14,10 @@ correlation length of 96 px (as on the full sensor).
 
 :func:`synth_campaign` writes the target, the pairs (``raw/pair_NNNNN_{a,b}.tif``), the truth
 (``truth.json``; ``truth_filtered.nc``: the exact displacement averaged over each final
-interrogation window on wall-parallel rows, accumulated over the same pairs) and
-``campaign.toml``. :func:`verdicts` compares a processed campaign with the truth;
+interrogation window on wall-parallel rows, accumulated over the same pairs;
+``truth_two_point.nc``: the same fields' streamwise spectra and correlations,
+:class:`rspiv.two_point.TwoPointAccumulator`) and ``campaign.toml`` (with ``[statistics]
+two_point``). :func:`verdicts` compares a processed campaign with the truth;
 :func:`run_demo` is ``rspiv demo``.
 """
 
@@ -40,6 +42,7 @@ from rspiv.stats import FieldAccumulator
 from rspiv.synth.lighting import Lighting, wall_rows
 from rspiv.synth.target import PAPER_OPTICS, calibration_target, paper_lens
 from rspiv.synth.tbl import TBLFlow, tbl_pair
+from rspiv.two_point import TwoPointAccumulator, integral_length
 
 __all__ = [
     "DemoScene",
@@ -167,8 +170,9 @@ def synth_campaign(
     Parameters
     ----------
     directory : path
-        Created if missing; ``target.tif``, ``raw/``, ``truth.json``, ``truth_filtered.nc``
-        and ``campaign.toml`` are written there (output folder of the campaign: ``out``).
+        Created if missing; ``target.tif``, ``raw/``, ``truth.json``, ``truth_filtered.nc``,
+        ``truth_two_point.nc`` and ``campaign.toml`` are written there (output folder of the
+        campaign: ``out``).
     pairs, scale : optional
         Override the scene's ``pairs`` and ``scale``.
     scene : DemoScene
@@ -176,6 +180,7 @@ def synth_campaign(
         Progress messages.
     """
     import tifffile
+    import xarray as xr
 
 
     if pairs is not None:
@@ -203,6 +208,7 @@ def synth_campaign(
     delta_px = flow.delta99_mm * PAPER_M
     d = np.arange(0.5 * dy, 1.25 * delta_px, dy)
     acc = FieldAccumulator((d.size, xs.size))
+    two_point = TwoPointAccumulator((d.size, xs.size))
     truth = None
     for k in range(scene.pairs):
         t0 = time.perf_counter()
@@ -228,6 +234,7 @@ def synth_campaign(
         tifffile.imwrite(root / "raw" / f"pair_{k:05d}_b.tif", b)
         us, vn = _filtered_truth(truth, xs, d, scene.passes[-1])
         acc.add(us, vn, pair_id=k)
+        two_point.add(us, vn, pair_id=k)
         say(f"pair {k + 1}/{scene.pairs} rendered ({time.perf_counter() - t0:.1f} s)")
     info = {
         "scene": dataclasses.asdict(scene),
@@ -246,6 +253,7 @@ def synth_campaign(
         "flow_side": truth.flow_side,
         "image_shape": list(shape),
         "filtered_wall_distance_px": d.tolist(),
+        "grid_step_px": float(xs[1] - xs[0]),
     }
     atomic_write_text(root / "truth.json", json.dumps(info, indent=1))
     write_netcdf(
@@ -260,6 +268,8 @@ def synth_campaign(
         ),
         root / "truth_filtered.nc",
     )
+    variables, attrs = two_point.to_dataset_vars()
+    write_netcdf(xr.Dataset(variables, attrs=attrs), root / "truth_two_point.nc")
     cfg = CampaignConfig(name=f"synthetic boundary layer (scale {scene.scale:g})")
     cfg.description = "rspiv synth campaign: the paper's optics and flow, exact ground truth"
     cfg.calibration.target = root / "target.tif"
@@ -275,6 +285,7 @@ def synth_campaign(
     cfg.flow.nu = truth.nu
     cfg.flow.dt = truth.dt
     cfg.statistics.min_count = 2
+    cfg.statistics.two_point = True
     cfg.output.dir = root / "out"
     return cfg.save(root / "campaign.toml")
 
@@ -342,6 +353,39 @@ def _stress_errors(r, filt: dict[str, Any], ut: float, nu: float, re_tau: float)
             continue
         ref = np.interp(yp[m], filt["y_plus"], filt[f"{comp}_plus"])
         out[comp] = float(np.max(np.abs(meas[m] / ref - 1.0)))
+    return out
+
+
+def _two_point_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
+    """Largest deviation of a run's streamwise correlation coefficients ``R_uu, R_vv`` (lags
+    within two correlation lengths) and largest relative deviation of their integral lengths
+    from the same pairs' exact field (``truth_two_point.nc``), over the rows from 2.5 window
+    heights off the wall (not ``near_wall``) to 0.5 delta, at the rows' measured distances."""
+    import xarray as xr
+
+    keys = ("R_uu", "R_vv", "L_uu", "L_vv")
+    if prof is None:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_two_point.nc", engine="h5netcdf") as ds:
+        exact = TwoPointAccumulator.from_dataset_vars(ds.load(), set()).correlation()
+    d = np.asarray(info["filtered_wall_distance_px"])
+    delta_px = info["delta99_mm"] * PAPER_M
+    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * delta_px)
+    m = (prof["R_uu"].shape[1] - 1) // 2
+    step = float(prof["dx"][m + 1] - prof["dx"][m])  # one grid step, in the run's length unit
+    grid_px = info["grid_step_px"]
+    # lags (grid steps) held by both, within two correlation lengths
+    lags = np.arange(-m, m + 1)
+    reach = np.abs(lags) * grid_px <= 2 * info["scene"]["correlation_px"]
+    use = np.flatnonzero(np.isin(lags, exact["lag"]) & reach)
+    col = np.searchsorted(exact["lag"], lags[use])
+    out = {}
+    for q in ("uu", "vv"):
+        ref = np.array([np.interp(prof["dist_px"][rows], d, exact[f"R_{q}"][:, c]) for c in col]).T
+        out[f"R_{q}"] = float(np.nanmax(np.abs(prof[f"R_{q}"][rows][:, use] - ref)))
+        length = integral_length(exact["lag"], exact[f"R_{q}"]) * grid_px
+        ref_l = np.interp(prof["dist_px"][rows], d, length)
+        out[f"L_{q}"] = float(np.nanmax(np.abs(prof[f"L_{q}"][rows] / step * grid_px / ref_l - 1)))
     return out
 
 
@@ -485,6 +529,27 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
                 "pass": (
                     ok_m
                     and all(e_m[k] <= (0.05 if k[0] == "S" else 0.1) for k in _MOMENT_KEYS)
+                )
+                if corrected
+                else None,
+            }
+        )
+        # streamwise correlations and their integral lengths alike
+        e_t = _two_point_errors(result.two_point.get(run.name), directory, info)
+        ok_t = all(np.isfinite(v) for v in e_t.values())
+        rows.append(
+            {
+                "claim": f"{run.label}: R_uu, R_vv within 0.05 (|dx| <= 2 correlation lengths) "
+                "and their integral lengths within 10 % of these pairs' exact field, "
+                "2.5 window heights <= y <= 0.5 delta",
+                "measured": ", ".join(
+                    f"{k} {v:.3f}" if k[0] == "R" else f"{k} {100 * v:.1f} %"
+                    for k, v in e_t.items()
+                ),
+                "limit": "0.05 / 10 %",
+                "pass": (
+                    ok_t
+                    and all(e_t[k] <= (0.05 if k[0] == "R" else 0.10) for k in e_t)
                 )
                 if corrected
                 else None,

@@ -144,6 +144,9 @@ class FieldAccumulator:
         #: optional :class:`rspiv.ensemble.PixelAccumulator` of the same pairs (the campaign's
         #: single-pixel rows at the wall), carried alike
         self.pixel: Any = None
+        #: optional :class:`rspiv.two_point.TwoPointAccumulator` of the same fields (a
+        #: campaign's streamwise spectra and correlations), carried alike
+        self.two_point: Any = None
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -341,7 +344,7 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        for name in ("ensemble", "pixel"):
+        for name in ("ensemble", "pixel", "two_point"):
             theirs = getattr(other, name)
             if theirs is not None:
                 mine = getattr(self, name)
@@ -521,6 +524,7 @@ class FieldAccumulator:
         self.__dict__.update(state)
         self.__dict__.setdefault("ensemble", None)
         self.__dict__.setdefault("pixel", None)
+        self.__dict__.setdefault("two_point", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
             if name not in self.__dict__:
@@ -604,6 +608,11 @@ class FieldAccumulator:
             _ensemble_to_dataset(ds, self.ensemble)
         if self.pixel is not None:
             _pixel_to_dataset(ds, self.pixel)
+        if self.two_point is not None:
+            variables, attrs = self.two_point.to_dataset_vars()
+            for k, val in variables.items():
+                ds[k] = val
+            ds.attrs.update(attrs)
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:
@@ -657,6 +666,10 @@ class FieldAccumulator:
             acc.ensemble = _ensemble_from_dataset(ds)
         if "pixel_sum" in ds:
             acc.pixel = _pixel_from_dataset(ds)
+        if "two_point_count" in ds:
+            from rspiv.two_point import TwoPointAccumulator  # deferred: optional state
+
+            acc.two_point = TwoPointAccumulator.from_dataset_vars(ds, acc.pair_ids)
         return acc
 
     def __repr__(self) -> str:

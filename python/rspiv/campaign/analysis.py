@@ -23,6 +23,7 @@ from rspiv import moments
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
 from rspiv.campaign_config import CampaignConfig
@@ -60,7 +61,8 @@ def scaled_accumulator(
     """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
     and axis flips; every moment of the state transforms exactly)."""
     # not the ensemble's sums
-    out = copy.deepcopy(acc, memo={id(acc.ensemble): None, id(acc.pixel): None})
+    attached = (acc.ensemble, acc.pixel, acc.two_point)
+    out = copy.deepcopy(acc, memo={id(a): None for a in attached})
     ku, kv = k * sign_u, k * sign_v
     out.mean_u = acc.mean_u * ku
     out.mean_v = acc.mean_v * kv
@@ -467,6 +469,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         bands = (
             ("ensemble", "ensemble", ensemble_work.write_outputs, res.ensembles),
             ("single_pixel", "single-pixel", ensemble_work.write_pixel_outputs, res.pixel_profiles),
+            ("two_point", "two-point", two_point_work.write_outputs, res.two_point),
         )
         for key, what, write, store in bands:
             try:
@@ -478,6 +481,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             if prof is not None:
                 store[run.name] = prof
                 rs[key] = {"pairs": prof["pairs"], "rows": int(prof["dist_px"].size)}
+                if key == "two_point":
+                    rs[key]["columns"] = list(prof["columns"])
                 for flag in ("near_wall", "clipped"):
                     if flag in prof:
                         rs[key][f"{flag}_rows"] = int(np.count_nonzero(prof[flag]))
@@ -546,6 +551,10 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:
             extra.insert(0, sec)
+    if res.two_point:
+        sec = two_point_work.report_section(camp, res)
+        if sec is not None:
+            extra.append(sec)
     if camp.info.get("particle_size_warnings"):
         said = "\n\n".join(f"Warning: {w}." for w in camp.info["particle_size_warnings"].values())
         extra.append(ReportSection("Particle images too small", text=said))

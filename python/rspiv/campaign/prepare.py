@@ -19,6 +19,7 @@ import numpy as np
 
 from rspiv.calibration import Calibration, calibrate
 from rspiv.campaign import pair as pair_work
+from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign.analysis import analyse_run, calibration_table, find_run_wall, wall_dict
 from rspiv.campaign.ensemble import plan_bands
 from rspiv.campaign.spec import PairContext, PairSpec
@@ -150,6 +151,10 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     _particle_images(camp, ctx, pairs, info)
     if cfg.ensemble.enabled:
         ctx = _plan_ensemble(camp, ctx, pairs, cal, info)
+    if cfg.statistics.two_point:
+        ctx = dataclasses.replace(
+            ctx, two_point=two_point_work.plan(ctx, cfg.statistics.two_point_min_valid), _cache={}
+        )
     camp.calibration = cal
     if cal is not None:
         cal.save(out / "calibration.json")

@@ -20,11 +20,14 @@ __all__ = ["RunReducer", "add_fields", "logged_warnings"]
 
 
 def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
-    """Add a processed pair's fields to the accumulators (keyed by its pair id, so a pair is
-    never counted twice); returns the seconds it took."""
+    """Add a processed pair's fields to the accumulators and the two-point sums they carry
+    (keyed by its pair id, so a pair is never counted twice); returns the seconds it took."""
     t0 = time.perf_counter()
     for name, (u, v, valid, su, sv) in result.fields.items():
         accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
+        two_point = getattr(accs[name], "two_point", None)
+        if two_point is not None:
+            two_point.add(u, v, valid, pair_id=result.pair_id)
     return time.perf_counter() - t0
 
 

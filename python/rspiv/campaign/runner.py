@@ -16,6 +16,7 @@ import tifffile
 
 from rspiv.campaign import checkpoint
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
 from rspiv.campaign.fields import FieldWriter
@@ -247,9 +248,8 @@ class Campaign:
             state.finished = set(ckpt["finished"])
             state.timings = dict(ckpt.get("timings", {}))
         else:
-            state.accs = ensemble_work.attach(
-                ctx, {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
-            )
+            accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
+            state.accs = two_point_work.attach(ctx, ensemble_work.attach(ctx, accs))
             state.finished = set()
             state.timings = {k: 0.0 for k in STAGES}
         state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)

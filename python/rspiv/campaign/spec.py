@@ -111,6 +111,9 @@ class PairContext:
     background_paths: tuple[str, str] | None = None
     #: run name -> the ensemble band of that run (:mod:`rspiv.campaign.ensemble`), or None
     ensemble: dict[str, Any] | None = None
+    #: the streamwise spectra's and correlations' columns per run and ``min_valid``
+    #: (:func:`rspiv.campaign.two_point.plan`), or None
+    two_point: dict[str, Any] | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -191,6 +194,7 @@ class PairContext:
             "background_paths": self.background_paths,
             "runs": [dataclasses.asdict(r) for r in self.runs],
             **({} if self.ensemble is None else {"ensemble": self.ensemble}),
+            **({} if self.two_point is None else {"two_point": self.two_point}),
         }
 
     @classmethod
@@ -207,6 +211,7 @@ class PairContext:
                 None if d.get("background_paths") is None else tuple(d["background_paths"])
             ),
             ensemble=d.get("ensemble"),
+            two_point=d.get("two_point"),
         )
 
     def fingerprint(self) -> str:

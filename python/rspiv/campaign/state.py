@@ -133,6 +133,9 @@ class CampaignResult:
     pixel_profiles : dict
         Run name -> its single-pixel profile at the wall (``[ensemble] single_pixel``; empty
         without).
+    two_point : dict
+        Run name -> its streamwise spectra and two-point correlations (``[statistics]
+        two_point``; empty without).
     """
 
     out_dir: pathlib.Path
@@ -152,6 +155,8 @@ class CampaignResult:
     ensembles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> the single-pixel profile (:mod:`rspiv.campaign.ensemble_pixel`)
     pixel_profiles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its spectra and two-point correlations (:mod:`rspiv.campaign.two_point`)
+    two_point: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
     @property
     def report(self) -> pathlib.Path | None:

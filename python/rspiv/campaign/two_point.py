@@ -1,0 +1,240 @@
+"""A campaign's streamwise spectra and two-point correlations (``[statistics] two_point``).
+
+Every run's :class:`~rspiv.stats.FieldAccumulator` carries a
+:class:`~rspiv.two_point.TwoPointAccumulator` (:func:`attach`) that each pair's field is added
+to beside the statistics (:func:`rspiv.campaign.reduce.add_fields`); checkpoints, shards and
+Dask carry it with the accumulator. The columns that enter are fixed before the first pair
+(:func:`plan`): those whose final windows, widened by half a window on each side for the
+displacement (up to a window width), lie inside the recorded frames at every row (a corrected
+run's windows mapped to the raw frame), so the vectors the campaign rejects at the sensor's
+edges never enter.
+
+At the end (:func:`write_outputs`) the rows on the flow side become ``two_point_<run>.nc``: per
+row (``y`` from the wall, ``y_plus``) the one-sided spectra ``phi_uu, phi_vv, phi_uv`` against
+``k_x`` (rad/m) with ``lambda_x`` and ``lambda_plus``, the premultiplied ``kphi_uu_plus``
+(``k_x phi_uu / u_tau^2``), the correlation coefficients ``R_uu, R_vv, R_uv`` against the lag
+``dx`` (m, ``dx_plus``), the integral lengths ``L_uu, L_vv`` (m), the fields per row and the
+``near_wall`` flag (:data:`rspiv.campaign.analysis.NEAR_WALL_HEIGHTS`). SI units when the run's
+profile has them (a calibration and ``[flow] dt``), else px and px per pair.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.pair import _window_positions
+from rspiv.campaign.spec import PairContext, RunSpec
+from rspiv.errors import InvalidInputError
+from rspiv.outputs import write_netcdf
+from rspiv.report import ReportSection
+from rspiv.two_point import TwoPointAccumulator, integral_length
+
+__all__ = ["attach", "plan", "report_section", "write_outputs", "FILTER_WIDTHS"]
+
+#: Wavelengths shorter than this many final-window widths lose more than 20 % of their energy
+#: to the window's average along x (the top hat's transfer ``sinc^2(pi w / lambda)`` is 0.81
+#: at ``lambda = 4 w``); they are marked in the figure and the file (``filtered``).
+FILTER_WIDTHS = 4.0
+
+
+def plan(ctx: PairContext, min_valid: float) -> dict[str, Any]:
+    """The columns ``[c0, c1)`` of every run (module docstring) and ``min_valid``: the
+    context's ``two_point``.
+
+    Raises
+    ------
+    InvalidInputError
+        No 8 columns of a run lie inside the frames.
+    """
+    w = ctx.piv.final_window[0]
+    width = ctx.image_shape[1]
+    cols: dict[str, list[int]] = {}
+    for run in ctx.runs:
+        x = _window_positions(ctx, run.method != "none")[..., 0]
+        inside = np.all((x - w >= -0.5) & (x + w <= width - 0.5), axis=0)
+        idx = np.flatnonzero(inside)
+        if idx.size < 8 or idx[-1] - idx[0] + 1 != idx.size:
+            raise InvalidInputError(
+                f"[statistics] two_point: {run.label}: only {idx.size} columns of final windows "
+                "lie inside the frames with half a window's margin on each side (8 are needed)"
+            )
+        cols[run.name] = [int(idx[0]), int(idx[-1]) + 1]
+    return {"columns": cols, "min_valid": float(min_valid)}
+
+
+def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
+    """Give every run's empty FieldAccumulator in ``accs`` a TwoPointAccumulator when the
+    context asks for one; returns ``accs``."""
+    spec = ctx.two_point
+    if not spec:
+        return accs
+    for run in ctx.runs:
+        a = accs.get(run.name)
+        if a is None or a.n_fields != 0 or getattr(a, "two_point", None) is not None:
+            continue
+        a.two_point = TwoPointAccumulator(
+            a.shape, tuple(spec["columns"][run.name]), spec["min_valid"]
+        )
+    return accs
+
+
+def _rows(tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: float) -> dict:
+    """The spectra and correlations of the rows on the flow side, in the run's units."""
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    p = an.profile
+    si = bool(p.get("si"))
+    m = p["m_per_px"] if p.get("m_per_px") else None
+    k = float(p.get("k", 1.0))
+    sx, sy = float(p.get("sign_x", 1.0)), float(p.get("sign_y", 1.0))
+    dist = np.asarray(p["dist_px"], np.float64)
+    keep = np.flatnonzero(dist > 0)
+    if not np.any(tp.count[keep] >= 2):
+        raise InvalidInputError("no row on the flow side holds two fields")
+    keep = keep[np.argsort(dist[keep])]
+    dx = dx_px * (m if si else 1.0)
+    sp = tp.spectra(dx=dx)
+    cr = tp.correlation()
+    lag = cr["lag"] * dx
+    flip = (lambda a: a[:, ::-1]) if sx < 0 else (lambda a: a)  # lags along the flow
+    out = {
+        "y": dist[keep] * (m if si else 1.0),
+        "dist_px": dist[keep],
+        "count": tp.count[keep],
+        "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * window[1],
+        "k_x": sp["k"],
+        "dx": lag,
+        "phi_uu": sp["phi_uu"][keep] * k * k,
+        "phi_vv": sp["phi_vv"][keep] * k * k,
+        "phi_uv": sp["phi_uv"][keep] * k * k * sx * sy,
+        "R_uu": flip(cr["R_uu"][keep]),
+        "R_vv": flip(cr["R_vv"][keep]),
+        "R_uv": flip(cr["R_uv"][keep]) * sx * sy,
+        "si": si,
+        "window_px": tuple(window),
+        "columns": tp.columns,
+        "pairs": int(tp.n_fields),
+    }
+    out["L_uu"] = integral_length(lag, out["R_uu"])
+    out["L_vv"] = integral_length(lag, out["R_vv"])
+    with np.errstate(divide="ignore"):
+        out["lambda_x"] = np.where(sp["k"] > 0, 2.0 * np.pi / sp["k"], np.inf)
+    out["filtered"] = out["lambda_x"] < FILTER_WIDTHS * window[0] * (m if si else 1.0)
+    res = an.result
+    if res is not None and si:
+        lv = res.nu / res.u_tau
+        out["y_plus"] = out["y"] / lv
+        out["dx_plus"] = lag / lv
+        out["lambda_plus"] = out["lambda_x"] / lv
+        out["kphi_uu_plus"] = sp["k"] * out["phi_uu"] / res.u_tau**2
+        out["kphi_vv_plus"] = sp["k"] * out["phi_vv"] / res.u_tau**2
+        out["delta_99"] = float(res.delta99)
+    return out
+
+
+def _dataset(prof: dict, run: RunSpec) -> Any:
+    import xarray as xr
+
+    si = prof["si"]
+    length = "m" if si else "pix"
+    vel2 = "m2 s-2" if si else "pix2"
+    ds = xr.Dataset(
+        coords={
+            "y": ("y", prof["y"], {"units": length, "long_name": "distance from the wall"}),
+            "k_x": ("k_x", prof["k_x"], {"units": f"rad {length}-1", "long_name": "wavenumber"}),
+            "dx": ("dx", prof["dx"], {"units": length, "long_name": "streamwise lag"}),
+        }
+    )
+    ds["lambda_x"] = ("k_x", prof["lambda_x"], {"units": length, "long_name": "wavelength"})
+    ds["filtered"] = ("k_x", prof["filtered"], {"long_name": "attenuated by the window average"})
+    for q in ("uu", "vv", "uv"):
+        long = "co-spectrum" if q == "uv" else "spectrum"
+        ds[f"phi_{q}"] = (("y", "k_x"), prof[f"phi_{q}"], {"units": f"{vel2} {length}",
+                                                          "long_name": f"one-sided {long} {q}"})
+        ds[f"R_{q}"] = (("y", "dx"), prof[f"R_{q}"],
+                        {"units": "1", "long_name": f"two-point correlation coefficient {q}"})
+    for q in ("uu", "vv"):
+        ds[f"L_{q}"] = ("y", prof[f"L_{q}"], {"units": length, "long_name": f"integral length {q}"})
+    ds["count"] = ("y", prof["count"], {"long_name": "fields per row"})
+    ds["near_wall"] = ("y", prof["near_wall"], {"long_name": "row shaped by the wall"})
+    if "y_plus" in prof:
+        ds["y_plus"] = ("y", prof["y_plus"], {"units": "1"})
+        ds["dx_plus"] = ("dx", prof["dx_plus"], {"units": "1"})
+        ds["lambda_plus"] = ("k_x", prof["lambda_plus"], {"units": "1"})
+        for q in ("uu", "vv"):
+            ds[f"kphi_{q}_plus"] = (("y", "k_x"), prof[f"kphi_{q}_plus"],
+                                   {"units": "1", "long_name": f"k_x phi_{q} / u_tau^2"})
+        ds.attrs["delta_99"] = prof["delta_99"]
+    ds.attrs.update(
+        {
+            "run": run.name,
+            "label": run.label,
+            "pairs": prof["pairs"],
+            "columns": list(prof["columns"]),
+            "window_px": list(prof["window_px"]),
+            "description": "rspiv streamwise spectra and two-point correlations (rspiv.two_point)",
+        }
+    )
+    return ds
+
+
+def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
+    """The spectra and correlations of ``run`` (module docstring) written as
+    ``OUT/two_point_<run>.nc`` (with ``[output] netcdf``); None when the run has none."""
+    tp = getattr(res.accumulators[run.name], "two_point", None)
+    if tp is None or not res.context.two_point:
+        return None
+    gx, _ = res.context.grid()
+    prof = _rows(tp, an, res.context.piv.final_window, float(gx[0, 1] - gx[0, 0]))
+    away = ~prof["near_wall"]
+    few = int(np.count_nonzero(away & (prof["count"] < 0.5 * prof["pairs"])))
+    if few:
+        prof["warning"] = (
+            f"{few} of {int(away.sum())} rows away from the wall entered fewer than half of the "
+            f"{prof['pairs']} pairs (a row of a pair enters with at least "
+            f"{100 * tp.min_valid:g} % valid vectors): their spectra and correlations rest on "
+            "fewer fields (count)"
+        )
+        camp.say(f"WARNING: {run.label}: two-point: {prof['warning']}")
+    if camp.config.output.netcdf:
+        ds = _dataset(prof, run)
+        if few:
+            ds.attrs["warning"] = prof["warning"]
+        res.files[f"two_point_{run.name}"] = write_netcdf(
+            ds, camp.out_dir / f"two_point_{run.name}.nc"
+        )
+    return prof
+
+
+def report_section(camp: Any, res: Any) -> Any:
+    """The report's section on the main run's spectra and correlations, or None."""
+    main = res.context.runs[0]
+    prof = res.two_point.get(main.name)
+    if prof is None or "y_plus" not in prof:
+        return None
+    figures = []
+    try:
+        from rspiv.plots.two_point import plot_two_point  # deferred: matplotlib
+
+        path = plot_two_point(camp.out_dir / "report" / "figures" / "two_point.png", prof)
+        figures.append((path, f"{main.label}: premultiplied spectra and two-point correlations"))
+    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
+        camp.say(f"two-point figure failed: {exc}")
+    w = prof["window_px"][0]
+    n = prof["columns"][1] - prof["columns"][0]
+    text = (
+        f"Streamwise spectra and two-point correlations of {prof['pairs']} pairs, per row along "
+        f"the wall over {n} vectors ({prof['dx'][-1] * 2 / max(prof['delta_99'], 1e-30):.2f} "
+        "delta_99), each vector's fluctuation about its own mean. Wavelengths longer than the "
+        "field are not measured; those shorter than "
+        f"{FILTER_WIDTHS:g} window widths ({FILTER_WIDTHS * w:g} px) lose more than 20 % of "
+        "their energy to the window average (hatched), and the spectrum's tail there holds the "
+        "measurement noise, which also lowers every correlation coefficient by about the "
+        "noise's share of the variance. Rows within "
+        "2.5 window heights of the wall are left out (near_wall)."
+    )
+    if "warning" in prof:
+        text += f"\n\nWarning: {prof['warning']}."
+    return ReportSection("Spectra and two-point correlations", text=text, figures=figures)
