@@ -19,6 +19,7 @@ Usage::
 
     python benches/bench_campaign.py [--scales 0.4 1.0] [--pairs 4] [--workdir /tmp/rspiv-bench]
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --roi-rows 0.25
+    python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --two-point
     python benches/bench_campaign.py --scales 0.146 0.505 1.0 --methods II --threads 1 2 --no-peer
 
 Prints a Markdown table (for benches/RESULTS.md). With ``--threads``, each configuration runs
@@ -38,7 +39,7 @@ import sys
 import time
 
 CHILD = r"""
-import json, sys, time, pathlib
+import json, os, sys, time, pathlib
 from rspiv.campaign import STAGES, Campaign
 from rspiv.campaign_config import load_campaign_config
 toml, method, out = sys.argv[1], sys.argv[2], sys.argv[3]
@@ -48,6 +49,9 @@ if len(sys.argv) > 4:  # the region of interest: the lower fraction of the rows 
     cfg.piv.roi = [0, int(round(h * (1.0 - float(sys.argv[4])))), w, h]
 cfg.correction.method = method
 cfg.correction.compare_uncorrected = False
+# the synthetic campaign's [statistics] two_point (spectra, maps and their pilot) only if asked
+cfg.statistics.two_point = os.environ.get("RSPIV_BENCH_TWO_POINT") == "1"
+
 cfg.calibration.monte_carlo_samples = 0
 cfg.output.report = False
 def hwm_mb():
@@ -119,6 +123,11 @@ def main() -> int:
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--threads", type=int, nargs="+", default=[None])
     ap.add_argument(
+        "--two-point",
+        action="store_true",
+        help="keep the synthetic campaign's [statistics] two_point (spectra and maps)",
+    )
+    ap.add_argument(
         "--roi-rows",
         type=float,
         default=None,
@@ -158,6 +167,7 @@ def main() -> int:
                 env = dict(os.environ)
                 if threads is not None:
                     env["RAYON_NUM_THREADS"] = str(threads)
+                env["RSPIV_BENCH_TWO_POINT"] = "1" if args.two_point else "0"
                 roi = [] if args.roi_rows is None else [str(args.roi_rows)]
                 r = subprocess.run(
                     [sys.executable, "-c", CHILD, str(toml), method, str(out), *roi],

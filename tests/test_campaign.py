@@ -78,6 +78,16 @@ def test_outputs_are_written(processed):
             r0 = ds["R_uu"].sel(dx=0.0, method="nearest").values
             np.testing.assert_allclose(r0[ds["count"].values >= 2], 1.0, atol=1e-12)
             assert np.isfinite(ds["L_uu"].values[~ds["near_wall"].values]).mean() > 0.9
+            # the maps about the synthetic campaign's heights (0.1, 0.3, 0.6 delta, in px)
+            assert ds["R_uu_map"].dims == ("ref", "y_map", "dx") and ds.attrs["map_pairs"] == 3
+            want = np.array(load_campaign_config(out.parent / "campaign.toml").statistics
+                            .two_point_heights)  # fmt: skip
+            m_per_px = float(ds["y"][1] - ds["y"][0]) / 4.0  # rows 4 px apart
+            np.testing.assert_allclose(ds["y_ref"].values / m_per_px, want, atol=2.5)
+            peak = ds["R_uu_map"].sel(dx=0.0, method="nearest")
+            for i, y_ref in enumerate(ds["y_ref"].values):
+                row = int(np.argmin(np.abs(ds["y_map"].values - y_ref)))
+                assert float(peak[i, row]) == pytest.approx(1.0)
     html = (out / "report" / "report.html").read_text()
     for needle in (
         "Calibration",
@@ -100,6 +110,7 @@ def test_outputs_are_written(processed):
         "montecarlo_p3.png",
         "calibration_arrows.png",
         "two_point.png",
+        "two_point_maps.png",
     ):
         assert f in figs
     summary = json.loads((out / "summary.json").read_text())
@@ -191,8 +202,8 @@ def test_interrupted_run_resumes_to_the_same_statistics(processed, synth, tmp_pa
     real = campaign_mod.process_pair
 
     def flaky(ctx, pair, frames=None, ensembles=None):
-        if not ctx.runs[0].name == "method_II" or len(ctx.runs) == 1:
-            return real(ctx, pair, frames, ensembles)  # the pilot
+        if ctx.two_point is None:  # the pilots (the wall's, the two-point maps')
+            return real(ctx, pair, frames, ensembles)
         calls["n"] += 1
         if calls["n"] == 3:
             raise KeyboardInterrupt
@@ -293,6 +304,21 @@ def test_two_point_rows_with_few_pairs_are_warned(processed, synth, tmp_path):
         assert "fewer than half" in ds.attrs["warning"]
         assert ds.sizes["y"] == prof["y"].size
     assert "fewer than half" in (out / "report" / "report.html").read_text()
+
+
+def test_two_point_heights_beyond_the_field_are_refused(synth, tmp_path, capsys):
+    """A reference height beyond the field (here 5 delta_99 of the pilot's profile) stops the
+    campaign with one line before any pair is processed."""
+    cfg = load_campaign_config(synth / "campaign.toml")
+    cfg.statistics.two_point_heights = (0.3, 5.0)
+    cfg.statistics.two_point_height_units = "delta"
+    cfg.output.dir = tmp_path / "out"
+    path = cfg.save(tmp_path / "campaign.toml")
+    assert main(["process", str(path), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "two_point_heights" in err and "outside the rows" in err, err
+    assert len(err.splitlines()) == 1
+    assert not list((tmp_path / "out").glob("statistics_*.nc"))
 
 
 def test_shard_selection():

@@ -233,3 +233,28 @@ def test_noise_correction_and_uncertainty_keys(tmp_path):
     bad = FULL.replace("[statistics]\n", '[statistics]\nnoise_correction = "yes"\n')
     with pytest.raises(InvalidInputError, match=r"\[statistics\]\.noise_correction"):
         load_campaign_config(_write(tmp_path, bad))
+
+
+def test_two_point_keys(tmp_path):
+    """``[statistics] two_point``: off by default; the maps' heights a short increasing list,
+    their units "delta" or "px"; anything else named in one line."""
+    cfg = load_campaign_config(_write(tmp_path, FULL))
+    assert cfg.statistics.two_point is False
+    assert cfg.statistics.two_point_heights == (0.1, 0.3, 0.6)
+    on = FULL.replace(
+        "[statistics]\n",
+        '[statistics]\ntwo_point = true\ntwo_point_heights = [200, 400]\n'
+        'two_point_height_units = "PX"\ntwo_point_min_valid = 0.8\n',
+    )
+    st = load_campaign_config(_write(tmp_path, on)).statistics
+    assert st.two_point and st.two_point_heights == (200.0, 400.0)
+    assert st.two_point_height_units == "px" and st.two_point_min_valid == 0.8
+    for key, value, msg in (
+        ("two_point_heights", "[0.3, 0.1]", "increasing"),
+        ("two_point_heights", "[0.1, -0.3]", "> 0"),
+        ("two_point_height_units", '"mm"', "'delta', 'px'"),
+        ("two_point_min_valid", "1.5", "<= 1"),
+    ):
+        bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
+        with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*{msg}"):
+            load_campaign_config(_write(tmp_path, bad))

@@ -17,14 +17,18 @@ def _fields(rng, pairs, shape, gap=0.03):
         yield p, u, v, valid
 
 
+def _lagged(a, b, d):
+    """sum over fields and x of a'(x) b'(x + d), each about its vectors' means over the fields
+    (fields along the first axis)."""
+    a = a - a.mean(axis=0)
+    b = b - b.mean(axis=0)
+    n = a.shape[1]
+    return (a[:, : n - d] * b[:, d:]).sum() if d >= 0 else (a[:, -d:] * b[:, : n + d]).sum()
+
+
 def _direct(us, vs, d):
-    """sum over fields and x of a'(x) b'(x + d), a' about each vector's mean over the fields."""
-    up = us - us.mean(axis=0)
-    vp = vs - vs.mean(axis=0)
-    n = us.shape[1]
-    if d >= 0:
-        return (up[:, : n - d] * up[:, d:]).sum(), (up[:, : n - d] * vp[:, d:]).sum()
-    return (up[:, -d:] * up[:, : n + d]).sum(), (up[:, -d:] * vp[:, : n + d]).sum()
+    """The lagged sums uu and uv of one row's fields."""
+    return _lagged(us, us, d), _lagged(us, vs, d)
 
 
 def test_sums_equal_the_direct_estimates_with_rows_left_out():
@@ -66,13 +70,49 @@ def test_sums_equal_the_direct_estimates_with_rows_left_out():
         np.testing.assert_allclose(sp["phi_uu"][y], phi, rtol=1e-9, atol=1e-12)
 
 
+def test_maps_equal_the_direct_estimates_over_the_fields_holding_the_band():
+    rng = np.random.default_rng(4)
+    shape, band, refs = (7, 30), (1, 6), (2, 4)
+    acc = TwoPointAccumulator(shape, min_valid=0.95, band=band, refs=refs)
+    us, vs = [], []
+    for p, u, v, valid in _fields(rng, 30, shape, gap=0.0):
+        if p % 4 == 1:
+            valid[3, :5] = False  # a band row left out: the field stays out of the maps
+        if p % 4 == 2:
+            valid[0, :5] = False  # a row outside the band: the field enters the maps
+        acc.add(u, v, valid, pair_id=p)
+        if p % 4 != 1:
+            us.append(u)
+            vs.append(v)
+    us, vs = np.array(us), np.array(vs)
+    mp = acc.maps(max_lag=9)
+    assert mp["count"] == len(us) == acc.map_count
+    n = shape[1]
+    m = len(us)
+    for comp, arr in (("R_uu", us), ("R_vv", vs)):
+        var = ((arr - arr.mean(0)) ** 2).sum(axis=(0, 2)) / (n * (m - 1))
+        for i, r in enumerate(refs):
+            for j, y in enumerate(range(*band)):
+                for li, d in enumerate(mp["lag"]):
+                    c = _lagged(arr[:, r], arr[:, y], int(d))
+                    want = c / ((n - abs(d)) * (m - 1)) / np.sqrt(var[r] * var[y])
+                    assert mp[comp][i, j, li] == pytest.approx(want, abs=1e-10)
+    # a map's reference row against itself is the row's own correlation
+    np.testing.assert_allclose(mp["R_uu"][0, refs[0] - band[0], mp["lag"].size // 2], 1.0)
+    with pytest.raises(InvalidInputError, match="in the band"):
+        TwoPointAccumulator(shape, band=band, refs=(6,))
+    with pytest.raises(InvalidInputError, match="without a band"):
+        TwoPointAccumulator(shape).maps()
+
+
 def test_merged_parts_and_a_saved_state_equal_one_pass():
     import xarray as xr
 
     rng = np.random.default_rng(2)
     fields = list(_fields(rng, 12, (4, 24)))
-    one = TwoPointAccumulator((4, 24), min_valid=0.9)
-    parts = [TwoPointAccumulator((4, 24), min_valid=0.9) for _ in range(3)]
+    kw = {"min_valid": 0.9, "band": (1, 4), "refs": (2,)}
+    one = TwoPointAccumulator((4, 24), **kw)
+    parts = [TwoPointAccumulator((4, 24), **kw) for _ in range(3)]
     for p, u, v, valid in fields:
         one.add(u, v, valid, pair_id=p)
         parts[p % 3].add(u, v, valid, pair_id=p)
@@ -86,6 +126,7 @@ def test_merged_parts_and_a_saved_state_equal_one_pass():
     for k in ("R_uu", "R_vv", "R_uv", "var_u"):
         np.testing.assert_allclose(a[k], b[k], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(merged.spectra()["phi_uv"], one.spectra()["phi_uv"], atol=1e-12)
+    np.testing.assert_allclose(merged.maps()["R_vv"], one.maps()["R_vv"], rtol=1e-10, atol=1e-12)
     with pytest.raises(InvalidInputError, match="pair id"):
         merged.merge(one)
     with pytest.raises(InvalidInputError, match="differ"):
@@ -93,21 +134,26 @@ def test_merged_parts_and_a_saved_state_equal_one_pass():
 
 
 def test_known_correlation_and_spectrum():
-    """Rows of a Gaussian random field with rho(d) = exp(-d^2 / L^2) (white noise filtered by a
-    Gaussian of standard deviation L / 2, on a periodic line four times a row): R and the
-    one-sided spectrum sigma^2 L / sqrt(pi) exp(-k^2 L^2 / 4) within the sampling error."""
+    """A Gaussian random field with rho(dx, dy) = exp(-(dx^2 + dy^2) / L^2) (white noise
+    filtered by a Gaussian of standard deviation L / 2 on a periodic plane four times the
+    field): R along the rows, the maps about a reference row and the one-sided spectrum sigma^2
+    L / sqrt(pi) exp(-k^2 L^2 / 4) within the sampling error."""
     rng = np.random.default_rng(3)
-    big, n, rows, pairs, length = 1024, 256, 4, 200, 6.0
+    big, n, rows, pairs, length = 1024, 256, 16, 200, 6.0
     x = np.arange(big)
     x = np.minimum(x, big - x)
-    kernel_ft = np.fft.rfft(np.exp(-(x**2) / (2 * (length / 2) ** 2)))
-    acc = TwoPointAccumulator((rows, n))
+    y = np.arange(4 * rows)
+    y = np.minimum(y, 4 * rows - y)
+    r2 = x[None, :] ** 2 + y[:, None] ** 2
+    kernel_ft = np.fft.rfft2(np.exp(-r2 / (2 * (length / 2) ** 2)))
+    acc = TwoPointAccumulator((rows, n), band=(0, rows), refs=(8,))
     sigma = 0.7
     for p in range(pairs):
-        g = np.fft.irfft(np.fft.rfft(rng.standard_normal((2, rows, big))) * kernel_ft, n=big)
-        g *= sigma / np.sqrt(np.sum(np.exp(-(x**2) / (length / 2) ** 2)))
-        u = 3.0 + g[0, :, :n]
-        v = -1.0 + g[1, :, :n]
+        white = rng.standard_normal((2, 4 * rows, big))
+        g = np.fft.irfft2(np.fft.rfft2(white) * kernel_ft, s=(4 * rows, big))
+        g *= sigma / np.sqrt(np.sum(np.exp(-r2 / (length / 2) ** 2)))
+        u = 3.0 + g[0, :rows, :n]
+        v = -1.0 + g[1, :rows, :n]
         acc.add(u, v, pair_id=p)
     cr = acc.correlation(max_lag=24)
     exact = np.exp(-(cr["lag"] ** 2) / length**2)
@@ -128,6 +174,11 @@ def test_known_correlation_and_spectrum():
     assert np.trapezoid(sp["phi_uu"], k, axis=1) == pytest.approx(cr["var_u"], rel=0.05)
     lengths = integral_length(cr["lag"], cr["R_uu"])
     assert np.all(np.abs(lengths / (length * np.sqrt(np.pi) / 2) - 1) < 0.08), lengths
+    mp = acc.maps(max_lag=24)
+    dy = mp["rows"] - 8
+    exact2 = np.exp(-(mp["lag"][None, :] ** 2 + dy[:, None] ** 2) / length**2)
+    for q in ("R_uu", "R_vv"):
+        assert np.max(np.abs(mp[q][0] - exact2)) < 0.06
 
 
 def test_integral_length_of_a_triangle_and_unresolved_rows():

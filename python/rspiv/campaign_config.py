@@ -88,6 +88,8 @@ A complete file (every key optional except where noted; defaults shown)::
     two_point = false            # streamwise spectra and two-point correlations per row
                                  # (rspiv.two_point; two_point_<run>.nc, a report section)
     two_point_min_valid = 0.9    # fraction of valid vectors a row of a pair needs to enter
+    two_point_heights = [0.1, 0.3, 0.6]  # reference heights of the two-point maps ([]: none)
+    two_point_height_units = "delta"     # "delta" (the pilot's delta_99) | "px" from the wall
 
     [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
                                  # correlation planes summed over every pair, then the peak
@@ -346,6 +348,8 @@ class StatisticsConfig:
     noise_correction: bool = False
     two_point: bool = False
     two_point_min_valid: float = 0.9
+    two_point_heights: tuple[float, ...] = (0.1, 0.3, 0.6)
+    two_point_height_units: str = "delta"
 
 
 @dataclasses.dataclass

@@ -136,6 +136,17 @@ def _pair(ctx, where, v, *, integer, minimum):
     return tuple(out)
 
 
+def _heights(ctx, where, v):
+    """A list of at most 8 positive heights, increasing (the two-point maps' references)."""
+    msg = "expected a list of at most 8 increasing positive numbers"
+    if not isinstance(v, list) or len(v) > 8:
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    out = [_number(ctx, where, t, minimum=0, exclusive_min=True) for t in v]
+    if any(b <= a for a, b in zip(out, out[1:], strict=False)):
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    return tuple(out)
+
+
 def _method(ctx, where, v):
     try:
         return parse_method(v)
@@ -226,6 +237,10 @@ PARSERS: dict[str, dict[str, Any]] = {
         "two_point": _boolean,
         "two_point_min_valid": lambda c, w, v: _number(
             c, w, v, minimum=0, exclusive_min=True, maximum=1
+        ),
+        "two_point_heights": _heights,
+        "two_point_height_units": lambda c, w, v: _choice(
+            c, w, v, ("delta", "px"), fold=str.lower
         ),
     },
     "ensemble": {

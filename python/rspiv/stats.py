@@ -609,10 +609,10 @@ class FieldAccumulator:
         if self.pixel is not None:
             _pixel_to_dataset(ds, self.pixel)
         if self.two_point is not None:
-            variables, attrs = self.two_point.to_dataset_vars()
+            variables, tp_attrs = self.two_point.to_dataset_vars()
             for k, val in variables.items():
                 ds[k] = val
-            ds.attrs.update(attrs)
+            ds.attrs.update(tp_attrs)
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:

@@ -61,6 +61,7 @@ __all__ = ["TwoPointAccumulator", "integral_length"]
 _COMPONENTS = ("uu", "vv", "uv")
 #: The state's sums besides ``count`` (module docstring): transforms, powers, cross products.
 _SUMS = ("sum_a", "pow_a", "cross_a", "sum_b", "pow_b", "cross_b")
+_MAP_SUMS = ("map_sum", "map_pow", "map_cross")
 
 
 class TwoPointAccumulator:
@@ -74,15 +75,26 @@ class TwoPointAccumulator:
         Columns ``c0 <= c < c1`` that enter (default: all). At least 8.
     min_valid : float
         Fraction of valid vectors (within ``columns``) a row needs to enter, in (0, 1].
+    band : (int, int), optional
+        Rows ``r0 <= r < r1`` of the two-point maps (:meth:`maps`): a field enters them when
+        every row of the band enters.
+    refs : sequence of int, optional
+        The maps' reference rows, inside ``band``.
 
     Raises
     ------
     InvalidInputError
-        A shape that is not 2D, fewer than 8 columns, or ``min_valid`` outside (0, 1].
+        A shape that is not 2D, fewer than 8 columns, ``min_valid`` outside (0, 1], a band
+        outside the rows or a reference row outside the band.
     """
 
     def __init__(
-        self, shape: tuple[int, int], columns: tuple[int, int] | None = None, min_valid=0.9
+        self,
+        shape: tuple[int, int],
+        columns: tuple[int, int] | None = None,
+        min_valid=0.9,
+        band: tuple[int, int] | None = None,
+        refs=(),
     ) -> None:
         shape = tuple(int(s) for s in shape)
         if len(shape) != 2 or min(shape) < 1:
@@ -109,6 +121,28 @@ class TwoPointAccumulator:
         self.cross_b = np.zeros((ny, nk), np.complex128)
         self.pair_ids: set[Hashable] = set()
         self.n_fields = 0
+        refs = tuple(int(r) for r in refs)
+        self.band = None if band is None else (int(band[0]), int(band[1]))
+        self.refs = refs
+        if self.band is None:
+            if refs:
+                raise InvalidInputError("refs: the maps' reference rows need a band")
+            nb = 0
+        else:
+            r0, r1 = self.band
+            if not (0 <= r0 < r1 <= ny) or not refs:
+                raise InvalidInputError(
+                    f"band: rows ({r0}, {r1}) must lie in the {ny} rows, with reference rows"
+                )
+            if any(not (r0 <= r < r1) for r in refs):
+                raise InvalidInputError(f"refs: {list(refs)} must lie in the band ({r0}, {r1})")
+            nb = r1 - r0
+        #: fields in the maps, and their band's sums: transforms, powers, and per reference
+        #: row conj(A_ref) A_row (u with u, v with v)
+        self.map_count = 0
+        self.map_sum = np.zeros((2, nb, nk_pad), np.complex128)
+        self.map_pow = np.zeros((2, nb, nk_pad))
+        self.map_cross = np.zeros((len(refs), 2, nb, nk_pad), np.complex128)
 
     @property
     def n_columns(self) -> int:
@@ -170,6 +204,16 @@ class TwoPointAccumulator:
             getattr(self, f"pow_{part}")[:, at] += power
             getattr(self, f"cross_{part}")[at] += np.conj(f[0]) * f[1]
         self.count += rows
+        if self.band is not None and rows[self.band[0] : self.band[1]].all():
+            pos = np.cumsum(rows) - 1  # a row's place among the rows that entered
+            fb = a[:, pos[self.band[0] : self.band[1]]]
+            self.map_sum += fb
+            power = fb.real**2
+            power += fb.imag**2
+            self.map_pow += power
+            for i, r in enumerate(self.refs):
+                self.map_cross[i] += np.conj(fb[:, r - self.band[0], None]) * fb
+            self.map_count += 1
         return int(rows.sum())
 
     # ------------------------------------------------------------------ merge
@@ -183,17 +227,17 @@ class TwoPointAccumulator:
         """
         if not isinstance(other, TwoPointAccumulator):
             raise InvalidInputError(f"other: expected a TwoPointAccumulator, got {type(other)!r}")
-        mine = (self.shape, self.columns, self.min_valid)
-        theirs = (other.shape, other.columns, other.min_valid)
+        mine = (self.shape, self.columns, self.min_valid, self.band, self.refs)
+        theirs = (other.shape, other.columns, other.min_valid, other.band, other.refs)
         if mine != theirs:
             raise InvalidInputError(
-                f"other: (shape, columns, min_valid) {theirs} differ from this accumulator's "
-                f"{mine}"
+                f"other: (shape, columns, min_valid, band, refs) {theirs} differ from this "
+                f"accumulator's {mine}"
             )
         common = self.pair_ids & other.pair_ids
         if common:
             raise InvalidInputError(f"merge: {len(common)} pair id(s) in both accumulators")
-        for k in ("count", *_SUMS):
+        for k in ("count", *_SUMS, "map_count", *_MAP_SUMS):
             setattr(self, k, getattr(self, k) + getattr(other, k))
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
@@ -283,6 +327,59 @@ class TwoPointAccumulator:
             "count": self.count.copy(),
         }
 
+    def maps(self, max_lag: int | None = None) -> dict[str, np.ndarray]:
+        """Two-point correlation maps about the reference rows.
+
+        ``R_uu[i, j, l] = <u'(x, ref_i) u'(x + lag_l, band_j)> / (sigma_u(ref_i)
+        sigma_u(band_j))`` over the fields in which every row of the band entered
+        (``map_count``), each vector's fluctuation about its mean over those fields; R_vv alike.
+
+        Parameters
+        ----------
+        max_lag : int, optional
+            Largest lag (grid steps); at most (and by default) ``N // 2``.
+
+        Returns
+        -------
+        dict
+            ``lag`` (grid steps), ``rows`` (the band's row indices), ``refs``, ``R_uu``,
+            ``R_vv`` (refs x band rows x lags), ``count`` (fields; NaN maps below 2).
+
+        Raises
+        ------
+        InvalidInputError
+            The accumulator has no band.
+        """
+        if self.band is None:
+            raise InvalidInputError("maps: this accumulator was made without a band")
+        n = self.n_columns
+        m = n // 2 if max_lag is None else min(int(max_lag), n // 2)
+        lag = np.arange(-m, m + 1)
+        cnt = float(self.map_count)
+        r0, r1 = self.band
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = self.map_sum / cnt
+            auto = self.map_pow - cnt * (mean.real**2 + mean.imag**2)  # (2, nb, k)
+            var = np.fft.irfft(auto, n=2 * n, axis=-1)[..., 0] / (n * (cnt - 1.0))
+            idx = [r - r0 for r in self.refs]
+            cross = self.map_cross - cnt * np.conj(mean[:, idx]).transpose(1, 0, 2)[
+                :, :, None, :
+            ] * mean[None]
+            c = np.fft.irfft(cross, n=2 * n, axis=-1)[..., lag % (2 * n)]
+            cov = c / ((n - np.abs(lag)) * (cnt - 1.0))
+            norm = np.sqrt(var[:, idx].T[:, :, None] * var[None])  # (refs, 2, nb)
+            r = cov / norm[..., None]
+        if self.map_count < 2:
+            r[:] = np.nan
+        return {
+            "lag": lag,
+            "rows": np.arange(r0, r1),
+            "refs": np.array(self.refs, int),
+            "R_uu": r[:, 0],
+            "R_vv": r[:, 1],
+            "count": self.map_count,
+        }
+
     # ------------------------------------------------------------------ I/O
     def to_dataset_vars(self, prefix: str = "two_point_") -> tuple[dict[str, Any], dict]:
         """The state as (variables, attributes) for an xarray Dataset (complex sums split in
@@ -294,11 +391,27 @@ class TwoPointAccumulator:
             out[f"{prefix}{k}_re"] = (d, a.real)
             if np.iscomplexobj(a):
                 out[f"{prefix}{k}_im"] = (d, a.imag)
+        if self.band is not None:
+            for k in _MAP_SUMS:
+                a = getattr(self, k)
+                d = ("tp_ref", "tp_comp", "tp_band", "tp_k_a")[4 - a.ndim :]
+                out[f"{prefix}{k}_re"] = (d, a.real)
+                if np.iscomplexobj(a):
+                    out[f"{prefix}{k}_im"] = (d, a.imag)
         attrs = {
             f"{prefix}shape": list(self.shape),
             f"{prefix}columns": list(self.columns),
             f"{prefix}min_valid": self.min_valid,
             f"{prefix}n_fields": self.n_fields,
+            **(
+                {}
+                if self.band is None
+                else {
+                    f"{prefix}band": list(self.band),
+                    f"{prefix}refs": list(self.refs),
+                    f"{prefix}map_count": self.map_count,
+                }
+            ),
         }
         return out, attrs
 
@@ -306,13 +419,18 @@ class TwoPointAccumulator:
     def from_dataset_vars(cls, ds, pair_ids, prefix: str = "two_point_") -> TwoPointAccumulator:
         """The accumulator :meth:`to_dataset_vars` wrote into ``ds`` (its pairs ``pair_ids``)."""
         try:
+            band = ds.attrs.get(f"{prefix}band")
             acc = cls(
                 tuple(np.ravel(ds.attrs[f"{prefix}shape"])),
                 tuple(np.ravel(ds.attrs[f"{prefix}columns"])),
                 float(ds.attrs[f"{prefix}min_valid"]),
+                None if band is None else tuple(np.ravel(band)),
+                () if band is None else tuple(np.ravel(ds.attrs[f"{prefix}refs"])),
             )
             acc.count = np.array(ds[f"{prefix}count"].values, np.int64)
-            for k in _SUMS:
+            if band is not None:
+                acc.map_count = int(ds.attrs[f"{prefix}map_count"])
+            for k in _SUMS + (_MAP_SUMS if band is not None else ()):
                 a = np.asarray(ds[f"{prefix}{k}_re"].values, np.float64)
                 if np.iscomplexobj(getattr(acc, k)):
                     a = a + 1j * np.asarray(ds[f"{prefix}{k}_im"].values, np.float64)

@@ -152,9 +152,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     if cfg.ensemble.enabled:
         ctx = _plan_ensemble(camp, ctx, pairs, cal, info)
     if cfg.statistics.two_point:
-        ctx = dataclasses.replace(
-            ctx, two_point=two_point_work.plan(ctx, cfg.statistics.two_point_min_valid), _cache={}
-        )
+        ctx = _plan_two_point(camp, ctx, pairs, cal, info)
     camp.calibration = cal
     if cal is not None:
         cal.save(out / "calibration.json")
@@ -222,12 +220,12 @@ def _pilot(
     return accs, used
 
 
-def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
-    """The ensemble bands (:func:`rspiv.campaign.ensemble.plan_bands`) from a pilot over the
-    first ``camp.pilot_pairs`` usable pairs, every run; ``ctx`` with them."""
-    t0 = time.perf_counter()
+def _pilot_walls(camp, ctx: PairContext, pairs: list[PairSpec], what: str):
+    """:func:`_pilot` of every run of ``ctx`` and the wall each run's pilot statistics show:
+    ``(accumulators, pair ids, {run: (Wall, flow_side)})`` (with ``[wall] enabled = false``
+    the convention of :func:`analyse_run`: a level wall at the grid's edge)."""
     cfg = camp.config
-    accs, used = _pilot(camp, ctx, pairs, "the [ensemble] band's pilot")
+    accs, used = _pilot(camp, ctx, pairs, what)
     gx, gy = ctx.grid()
     walls = {}
     for run in ctx.runs:
@@ -235,11 +233,61 @@ def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dic
             walls[run.name] = find_run_wall(
                 accs[run.name], gx, gy, cfg.wall.stations, cfg.wall.side, 1
             )
-        else:  # the convention of analyse_run: the wall at the grid's edge
+        else:
             ys = gy[:, 0]
             side = "above" if cfg.wall.side != "top" else "below"
             y = ys[-1] + 0.5 * (ys[1] - ys[0]) if side == "above" else ys[0]
             walls[run.name] = (_LevelWall(float(y)), side)
+    return accs, used, walls
+
+
+def _plan_two_point(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
+    """The columns of the streamwise spectra and, with ``two_point_heights``, the rows of the
+    two-point maps (:func:`rspiv.campaign.two_point.plan`) from a pilot over the first
+    ``camp.pilot_pairs`` usable pairs; ``ctx`` with them."""
+    st = camp.config.statistics
+    walls, delta_px = None, None
+    if st.two_point_heights:
+        t0 = time.perf_counter()
+        accs, used, walls = _pilot_walls(camp, ctx, pairs, "the two-point maps' pilot")
+        if st.two_point_height_units == "delta":
+            main = ctx.runs[0]
+            gx, gy = ctx.grid()
+            mag = None if cal is None else cal.magnification
+            try:
+                an = analyse_run(
+                    main, accs[main.name], gx, gy, camp.config, mag, camp.config.flow.dt,
+                    ctx.piv.final_window,
+                )  # fmt: skip
+            except (RspivError, ValueError) as exc:
+                raise InvalidInputError(
+                    f"[statistics] two_point_height_units = 'delta': the pilot's profile fit "
+                    f"failed ({exc})"
+                ) from None
+            if an.result is None:
+                raise InvalidInputError(
+                    "[statistics] two_point_height_units = 'delta' needs the pilot's delta_99: a "
+                    "calibration and [flow].dt > 0 (or give the heights in px)"
+                )
+            delta_px = an.result.delta99 / an.profile["m_per_px"]
+        info["two_point"] = {"pilot_pairs": used, "delta99_px": delta_px}
+        camp.say(
+            f"two-point maps: the wall from {len(used)} pilot pair(s)"
+            + (f", delta_99 {delta_px:.0f} px" if delta_px else "")
+            + f" ({time.perf_counter() - t0:.1f} s)"
+        )
+    heights = [h * delta_px if delta_px else float(h) for h in st.two_point_heights]
+    spec = two_point_work.plan(ctx, st.two_point_min_valid, walls, heights)
+    return dataclasses.replace(ctx, two_point=spec, _cache={})
+
+
+def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
+    """The ensemble bands (:func:`rspiv.campaign.ensemble.plan_bands`) from a pilot over the
+    first ``camp.pilot_pairs`` usable pairs, every run; ``ctx`` with them."""
+    t0 = time.perf_counter()
+    cfg = camp.config
+    accs, used, walls = _pilot_walls(camp, ctx, pairs, "the [ensemble] band's pilot")
+    gx, gy = ctx.grid()
     ec = cfg.ensemble
     band_px = float(ec.band)
     lv_px = None

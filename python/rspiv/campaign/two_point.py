@@ -39,16 +39,34 @@ __all__ = ["attach", "plan", "report_section", "write_outputs", "FILTER_WIDTHS"]
 FILTER_WIDTHS = 4.0
 
 
-def plan(ctx: PairContext, min_valid: float) -> dict[str, Any]:
-    """The columns ``[c0, c1)`` of every run (module docstring) and ``min_valid``: the
-    context's ``two_point``.
+def plan(
+    ctx: PairContext,
+    min_valid: float,
+    walls: dict[str, tuple[Any, str]] | None = None,
+    heights_px=(),
+) -> dict[str, Any]:
+    """The context's ``two_point``: ``min_valid``, the columns ``[c0, c1)`` of every run
+    (module docstring) and, with ``walls`` and ``heights_px``, every run's maps: their
+    reference rows (the rows nearest to each height from the run's wall) and their band (the
+    rows from :data:`~rspiv.campaign.analysis.NEAR_WALL_HEIGHTS` window heights off the wall
+    to twice the highest reference, within the grid).
+
+    Parameters
+    ----------
+    walls : dict, optional
+        Run name -> ``(Wall, flow_side)`` of a pilot.
+    heights_px : sequence of float
+        Reference heights from the wall, px, increasing.
 
     Raises
     ------
     InvalidInputError
-        No 8 columns of a run lie inside the frames.
+        No 8 columns of a run lie inside the frames, or a height lies beyond the grid or
+        within the rows the wall shapes.
     """
-    w = ctx.piv.final_window[0]
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    w, h = ctx.piv.final_window
     width = ctx.image_shape[1]
     cols: dict[str, list[int]] = {}
     for run in ctx.runs:
@@ -61,7 +79,34 @@ def plan(ctx: PairContext, min_valid: float) -> dict[str, Any]:
                 "lie inside the frames with half a window's margin on each side (8 are needed)"
             )
         cols[run.name] = [int(idx[0]), int(idx[-1]) + 1]
-    return {"columns": cols, "min_valid": float(min_valid)}
+    out: dict[str, Any] = {"columns": cols, "min_valid": float(min_valid)}
+    if not walls or not len(heights_px):
+        return out
+    gx, gy = ctx.grid()
+    maps = {}
+    for run in ctx.runs:
+        wall, side = walls[run.name]
+        y_wall = float(wall.line(np.mean(gx[0])))
+        dist = (y_wall - gy[:, 0]) * (1.0 if side == "above" else -1.0)
+        lo, hi = NEAR_WALL_HEIGHTS * h, 2.0 * max(heights_px)
+        band = np.flatnonzero((dist >= lo) & (dist <= hi))
+        refs = []
+        for y in heights_px:
+            i = int(np.argmin(np.abs(dist - y)))
+            if not (lo <= y <= dist.max()) or abs(dist[i] - y) > gy[1, 0] - gy[0, 0]:
+                raise InvalidInputError(
+                    f"[statistics] two_point_heights: {run.label}: {y:.1f} px from the wall lies "
+                    f"outside the rows from {lo:g} px ({NEAR_WALL_HEIGHTS:g} window heights) to "
+                    f"{dist.max():.1f} px (the field's edge)"
+                )
+            refs.append(i)
+        maps[run.name] = {
+            "band": [int(band.min()), int(band.max()) + 1],
+            "refs": refs,
+            "heights_px": [float(y) for y in heights_px],
+        }
+    out["maps"] = maps
+    return out
 
 
 def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
@@ -74,8 +119,13 @@ def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
         a = accs.get(run.name)
         if a is None or a.n_fields != 0 or getattr(a, "two_point", None) is not None:
             continue
+        m = spec.get("maps", {}).get(run.name)
         a.two_point = TwoPointAccumulator(
-            a.shape, tuple(spec["columns"][run.name]), spec["min_valid"]
+            a.shape,
+            tuple(spec["columns"][run.name]),
+            spec["min_valid"],
+            None if m is None else tuple(m["band"]),
+            () if m is None else tuple(m["refs"]),
         )
     return accs
 
@@ -102,6 +152,7 @@ def _rows(tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: floa
     out = {
         "y": dist[keep] * (m if si else 1.0),
         "dist_px": dist[keep],
+        "rows": keep,
         "count": tp.count[keep],
         "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * window[1],
         "k_x": sp["k"],
@@ -117,6 +168,14 @@ def _rows(tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: floa
         "columns": tp.columns,
         "pairs": int(tp.n_fields),
     }
+    if tp.band is not None:
+        mp = tp.maps()
+        out["map_dist_px"], out["ref_dist_px"] = dist[mp["rows"]], dist[mp["refs"]]
+        out["map_y"] = out["map_dist_px"] * (m if si else 1.0)
+        out["y_ref"] = out["ref_dist_px"] * (m if si else 1.0)
+        out["R_uu_map"] = mp["R_uu"][..., ::-1] if sx < 0 else mp["R_uu"]
+        out["R_vv_map"] = mp["R_vv"][..., ::-1] if sx < 0 else mp["R_vv"]
+        out["map_pairs"] = int(mp["count"])
     out["L_uu"] = integral_length(lag, out["R_uu"])
     out["L_vv"] = integral_length(lag, out["R_vv"])
     with np.errstate(divide="ignore"):
@@ -158,6 +217,17 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
     for q in ("uu", "vv"):
         ds[f"L_{q}"] = ("y", prof[f"L_{q}"], {"units": length, "long_name": f"integral length {q}"})
     ds["count"] = ("y", prof["count"], {"long_name": "fields per row"})
+    if "map_y" in prof:
+        ds = ds.assign_coords(
+            y_ref=("ref", prof["y_ref"], {"units": length, "long_name": "reference row"}),
+            y_map=("y_map", prof["map_y"], {"units": length, "long_name": "distance from wall"}),
+        )
+        for q in ("uu", "vv"):
+            ds[f"R_{q}_map"] = (("ref", "y_map", "dx"), prof[f"R_{q}_map"], {
+                "units": "1",
+                "long_name": f"two-point correlation coefficient {q} about the reference row",
+            })  # fmt: skip
+        ds.attrs["map_pairs"] = prof["map_pairs"]
     ds["near_wall"] = ("y", prof["near_wall"], {"long_name": "row shaped by the wall"})
     if "y_plus" in prof:
         ds["y_plus"] = ("y", prof["y_plus"], {"units": "1"})
@@ -188,7 +258,11 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         return None
     gx, _ = res.context.grid()
     prof = _rows(tp, an, res.context.piv.final_window, float(gx[0, 1] - gx[0, 0]))
-    away = ~prof["near_wall"]
+    # rows whose windows reach past the frames (the field's edge) never enter: not said
+    y = _window_positions(res.context, run.method != "none")[..., 1]
+    h, height = res.context.piv.final_window[1], res.context.image_shape[0]
+    edge = np.any((y - h < -0.5) | (y + h > height - 0.5), axis=1)[prof["rows"]]
+    away = ~prof["near_wall"] & ~edge
     few = int(np.count_nonzero(away & (prof["count"] < 0.5 * prof["pairs"])))
     if few:
         prof["warning"] = (
@@ -215,11 +289,16 @@ def report_section(camp: Any, res: Any) -> Any:
     if prof is None or "y_plus" not in prof:
         return None
     figures = []
+    figdir = camp.out_dir / "report" / "figures"
     try:
-        from rspiv.plots.two_point import plot_two_point  # deferred: matplotlib
+        from rspiv.plots.two_point import plot_two_point, plot_two_point_maps  # deferred: mpl
 
-        path = plot_two_point(camp.out_dir / "report" / "figures" / "two_point.png", prof)
+        path = plot_two_point(figdir / "two_point.png", prof)
         figures.append((path, f"{main.label}: premultiplied spectra and two-point correlations"))
+        if "R_uu_map" in prof:
+            path = plot_two_point_maps(figdir / "two_point_maps.png", prof)
+            figures.append((path, f"{main.label}: two-point correlation maps of u (R_uu >= 0.1; "
+                                  "the black line is R_uu = 0.05)"))  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
         camp.say(f"two-point figure failed: {exc}")
     w = prof["window_px"][0]
@@ -235,6 +314,11 @@ def report_section(camp: Any, res: Any) -> Any:
         "noise's share of the variance. Rows within "
         "2.5 window heights of the wall are left out (near_wall)."
     )
+    if "R_uu_map" in prof:
+        text += (
+            f" The maps correlate each reference row with the rows around it over the "
+            f"{prof['map_pairs']} pairs in which every row of the map entered."
+        )
     if "warning" in prof:
         text += f"\n\nWarning: {prof['warning']}."
     return ReportSection("Spectra and two-point correlations", text=text, figures=figures)

@@ -16,7 +16,7 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 from rspiv.plots.boundary_layer import _save
 
-__all__ = ["plot_two_point"]
+__all__ = ["plot_two_point", "plot_two_point_maps"]
 
 #: Heights (y / delta_99) of the correlation curves, besides the buffer layer's y+ = 15.
 HEIGHTS = (0.1, 0.3, 0.6)
@@ -64,4 +64,31 @@ def plot_two_point(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Pat
     bx.set_ylabel(r"$R_{uu}$")
     bx.set_title("streamwise two-point correlation of u")
     bx.legend(fontsize=8)
+    return _save(fig, pathlib.Path(path), 120)
+
+
+def plot_two_point_maps(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Path:
+    """Write the two-point maps of ``prof`` (``R_uu`` about each reference row against ``dx /
+    delta_99`` and ``y / delta_99``; :func:`rspiv.campaign.two_point.write_outputs`) to
+    ``path``."""
+    from matplotlib.figure import Figure
+
+    if "R_uu_map" not in prof or "delta_99" not in prof:
+        raise InvalidInputError("two-point maps figure: no maps in wall units")
+    delta = prof["delta_99"]
+    n = len(prof["y_ref"])
+    fig = Figure(figsize=(4.2 * n, 4.0), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, n, sharey=True))
+    levels = np.arange(0.1, 1.01, 0.1)
+    for ax, y_ref, r in zip(axes, prof["y_ref"], prof["R_uu_map"], strict=True):
+        cs = ax.contourf(prof["dx"] / delta, prof["map_y"] / delta, r, levels=levels,
+                         cmap="viridis", extend="neither")  # fmt: skip
+        ax.contour(prof["dx"] / delta, prof["map_y"] / delta, r, levels=[0.05], colors="k",
+                   linewidths=0.6)  # fmt: skip
+        ax.plot([0.0], [y_ref / delta], "r+", ms=10)
+        ax.set_title(f"$R_{{uu}}$ about $y/\\delta = {y_ref / delta:.2f}$")
+        ax.set_xlabel(r"$\Delta x / \delta_{99}$")
+        ax.set_aspect("equal", adjustable="box")
+    axes[0].set_ylabel(r"$y / \delta_{99}$")
+    fig.colorbar(cs, ax=axes.tolist(), label=r"$R_{uu}$", shrink=0.9)
     return _save(fig, pathlib.Path(path), 120)
