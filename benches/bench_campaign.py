@@ -60,7 +60,8 @@ def hwm_mb():
             return int(line.split()[1]) / 1024.0
     return float("nan")
 t0 = time.perf_counter()
-camp = Campaign(cfg, progress=False, out_dir=out, pilot_pairs=1)
+# one pilot pair for the wall's angle; two for the two-point maps' delta_99 (a profile)
+camp = Campaign(cfg, progress=False, out_dir=out, pilot_pairs=2 if cfg.statistics.two_point else 1)
 t1 = time.perf_counter()
 camp.prepare()
 prepare_s = time.perf_counter() - t1

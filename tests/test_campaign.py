@@ -308,8 +308,10 @@ def test_two_point_rows_with_few_pairs_are_warned(processed, synth, tmp_path):
 
 def test_two_point_heights_beyond_the_field_are_refused(synth, tmp_path, capsys):
     """A reference height beyond the field (here 5 delta_99 of the pilot's profile) stops the
-    campaign with one line before any pair is processed."""
+    campaign with one line before any pair is processed. The pilot's delta_99 comes from its
+    4 pairs, whatever the campaign's min_count (here the default, 10)."""
     cfg = load_campaign_config(synth / "campaign.toml")
+    cfg.statistics.min_count = 10
     cfg.statistics.two_point_heights = (0.3, 5.0)
     cfg.statistics.two_point_height_units = "delta"
     cfg.output.dir = tmp_path / "out"

@@ -64,6 +64,7 @@ import numpy as np
 
 from rspiv import moments
 from rspiv.errors import InvalidInputError
+from rspiv.two_point import TwoPointAccumulator
 
 _STATE = (
     "count",
@@ -667,8 +668,6 @@ class FieldAccumulator:
         if "pixel_sum" in ds:
             acc.pixel = _pixel_from_dataset(ds)
         if "two_point_count" in ds:
-            from rspiv.two_point import TwoPointAccumulator  # deferred: optional state
-
             acc.two_point = TwoPointAccumulator.from_dataset_vars(ds, acc.pair_ids)
         return acc
 

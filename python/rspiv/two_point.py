@@ -8,7 +8,12 @@ exactly, for the fluctuations about each vector's own mean over the pairs:
 - the one-sided streamwise wavenumber spectra ``phi_uu, phi_vv`` and the co-spectrum
   ``phi_uv`` (:meth:`TwoPointAccumulator.spectra`), and
 - the streamwise two-point correlation coefficients ``R_uu(dx), R_vv(dx), R_uv(dx)`` at every
-  row (:meth:`TwoPointAccumulator.correlation`) and their integral lengths.
+  row (:meth:`TwoPointAccumulator.correlation`) and their integral lengths
+  (:func:`integral_length`), and
+- optionally the two-point maps ``R_uu(dx, y; y_ref)``, ``R_vv`` about reference rows
+  (:meth:`TwoPointAccumulator.maps`): the correlation of each reference row with every row of
+  a band, over the fields in which every row of the band entered (one sample set for the whole
+  map, so its means are exact as well).
 
 Conventions and units
 ---------------------
@@ -35,16 +40,17 @@ A_b - conj(sum A_a) sum A_b / n``: the mean of every vector over the row's ``n``
 removed exactly, though it is only known at the end; sums over parts of a campaign merge by
 addition (:meth:`TwoPointAccumulator.merge`).
 
-The correlation at lag ``d`` (grid steps) divides by the ``n (N - |d|)`` products it holds
-(unbiased), the variances by ``(n - 1) N`` (N columns); lags beyond ``N / 2`` are not given.
+The correlation at lag ``d`` (grid steps) divides by ``(n - 1) (N - |d|)`` (the ``N - |d|``
+products of each field's row, unbiased; N columns), the variances by ``(n - 1) N``; lags beyond
+``N / 2`` are not given.
 The spectrum is the Hann-windowed periodogram as a one-sided density, ``phi(k_j) = 2 dx / (2
 pi) <|B_j'|^2> / sum(w^2)`` at ``k_j = 2 pi j / (N dx)``, averaged over the fields with ``n -
 1``; its trapezoidal integral over ``k_j`` is the variance the taper passes (Parseval).
 
 What a PIV field does to them (not corrected here): the measurement noise adds to the variance
 at zero lag and lowers every ``R`` by about ``var / (var + noise)``; the interrogation window
-averages over its width, so wavelengths shorter than about two window widths are attenuated
-and the spectrum's tail holds the noise. A campaign marks both (:mod:`rspiv.campaign.analysis`).
+averages over its width, so wavelengths shorter than a few window widths are attenuated and
+the spectrum's tail holds the noise. A campaign marks both (:mod:`rspiv.campaign.two_point`).
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ written to ``OUT/context.json`` (reused by shards and restarts of the same confi
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import pathlib
@@ -241,6 +242,20 @@ def _pilot_walls(camp, ctx: PairContext, pairs: list[PairSpec], what: str):
     return accs, used, walls
 
 
+def _pilot_profile(camp, ctx: PairContext, accs: dict[str, FieldAccumulator], cal):
+    """:func:`analyse_run` of the main run's pilot statistics ``accs``: the profile from the
+    vectors valid in two of the pilot's pairs (the campaign's ``[statistics] min_count`` is for
+    the whole run, more than a pilot's few pairs)."""
+    cfg = copy.deepcopy(camp.config)
+    cfg.statistics.min_count = 2
+    main = ctx.runs[0]
+    gx, gy = ctx.grid()
+    mag = None if cal is None else cal.magnification
+    return analyse_run(
+        main, accs[main.name], gx, gy, cfg, mag, cfg.flow.dt, ctx.piv.final_window
+    )
+
+
 def _plan_two_point(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dict) -> PairContext:
     """The columns of the streamwise spectra and, with ``two_point_heights``, the rows of the
     two-point maps (:func:`rspiv.campaign.two_point.plan`) from a pilot over the first
@@ -251,18 +266,12 @@ def _plan_two_point(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: di
         t0 = time.perf_counter()
         accs, used, walls = _pilot_walls(camp, ctx, pairs, "the two-point maps' pilot")
         if st.two_point_height_units == "delta":
-            main = ctx.runs[0]
-            gx, gy = ctx.grid()
-            mag = None if cal is None else cal.magnification
             try:
-                an = analyse_run(
-                    main, accs[main.name], gx, gy, camp.config, mag, camp.config.flow.dt,
-                    ctx.piv.final_window,
-                )  # fmt: skip
+                an = _pilot_profile(camp, ctx, accs, cal)
             except (RspivError, ValueError) as exc:
                 raise InvalidInputError(
-                    f"[statistics] two_point_height_units = 'delta': the pilot's profile fit "
-                    f"failed ({exc})"
+                    f"[statistics] two_point_height_units = 'delta': the profile fit of the "
+                    f"pilot's {len(used)} pair(s) failed ({exc})"
                 ) from None
             if an.result is None:
                 raise InvalidInputError(
@@ -287,17 +296,12 @@ def _plan_ensemble(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: dic
     t0 = time.perf_counter()
     cfg = camp.config
     accs, used, walls = _pilot_walls(camp, ctx, pairs, "the [ensemble] band's pilot")
-    gx, gy = ctx.grid()
     ec = cfg.ensemble
     band_px = float(ec.band)
     lv_px = None
-    main = ctx.runs[0]
     if ec.band_units == "plus" or cal is not None:
         try:
-            an = analyse_run(
-                main, accs[main.name], gx, gy, cfg,
-                None if cal is None else cal.magnification, cfg.flow.dt, ctx.piv.final_window,
-            )  # fmt: skip
+            an = _pilot_profile(camp, ctx, accs, cal)
             if an.result is not None:
                 lv_px = an.result.nu / an.result.u_tau / an.profile["m_per_px"]
         except (RspivError, ValueError) as exc:

@@ -111,8 +111,8 @@ class PairContext:
     background_paths: tuple[str, str] | None = None
     #: run name -> the ensemble band of that run (:mod:`rspiv.campaign.ensemble`), or None
     ensemble: dict[str, Any] | None = None
-    #: the streamwise spectra's and correlations' columns per run and ``min_valid``
-    #: (:func:`rspiv.campaign.two_point.plan`), or None
+    #: the streamwise spectra's columns and the two-point maps' rows per run, and
+    #: ``min_valid`` (:func:`rspiv.campaign.two_point.plan`), or None
     two_point: dict[str, Any] | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 

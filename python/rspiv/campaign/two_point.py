@@ -170,11 +170,13 @@ def _rows(tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: floa
     }
     if tp.band is not None:
         mp = tp.maps()
-        out["map_dist_px"], out["ref_dist_px"] = dist[mp["rows"]], dist[mp["refs"]]
+        order = np.argsort(dist[mp["rows"]])  # the map's rows from the wall out
+        out["map_dist_px"], out["ref_dist_px"] = dist[mp["rows"]][order], dist[mp["refs"]]
         out["map_y"] = out["map_dist_px"] * (m if si else 1.0)
         out["y_ref"] = out["ref_dist_px"] * (m if si else 1.0)
-        out["R_uu_map"] = mp["R_uu"][..., ::-1] if sx < 0 else mp["R_uu"]
-        out["R_vv_map"] = mp["R_vv"][..., ::-1] if sx < 0 else mp["R_vv"]
+        for q in ("uu", "vv"):
+            r = mp[f"R_{q}"][:, order]
+            out[f"R_{q}_map"] = r[..., ::-1] if sx < 0 else r
         out["map_pairs"] = int(mp["count"])
     out["L_uu"] = integral_length(lag, out["R_uu"])
     out["L_vv"] = integral_length(lag, out["R_vv"])
