@@ -75,6 +75,8 @@ def test_outputs_are_written(processed):
             assert ds["k_x"].attrs["units"] == "rad m-1" and ds.attrs["pairs"] == 3
             assert np.all(ds["y"].values > 0) and bool(ds["near_wall"][0])
             assert np.all(ds["count"].values <= 3)
+            # the field's last row never enters (its windows reach past the frame): not warned
+            assert int(ds["count"].values[-1]) == 0 and "warning" not in ds.attrs
             r0 = ds["R_uu"].sel(dx=0.0, method="nearest").values
             np.testing.assert_allclose(r0[ds["count"].values >= 2], 1.0, atol=1e-12)
             assert np.isfinite(ds["L_uu"].values[~ds["near_wall"].values]).mean() > 0.9
@@ -321,6 +323,20 @@ def test_two_point_heights_beyond_the_field_are_refused(synth, tmp_path, capsys)
     assert "two_point_heights" in err and "outside the rows" in err, err
     assert len(err.splitlines()) == 1
     assert not list((tmp_path / "out").glob("statistics_*.nc"))
+
+
+def test_two_point_heights_in_delta_need_a_profile(synth, tmp_path, capsys):
+    """Heights in delta_99 without [flow] dt (no profile in wall units): one line naming the
+    key and what it needs."""
+    cfg = load_campaign_config(synth / "campaign.toml")
+    cfg.statistics.two_point_height_units = "delta"
+    cfg.flow.dt = 0.0
+    cfg.output.dir = tmp_path / "out"
+    path = cfg.save(tmp_path / "campaign.toml")
+    assert main(["process", str(path), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "two_point_height_units = 'delta' needs the pilot's delta_99" in err, err
+    assert "[flow].dt > 0" in err and len(err.splitlines()) == 1
 
 
 def test_shard_selection():
