@@ -287,6 +287,14 @@ def _plan_two_point(camp, ctx: PairContext, pairs: list[PairSpec], cal, info: di
         )
     heights = [h * delta_px if delta_px else float(h) for h in st.two_point_heights]
     spec = two_point_work.plan(ctx, st.two_point_min_valid, walls, heights)
+    n = ctx.grid()[0].shape[1]
+    for run in ctx.runs:
+        c0, c1 = spec["columns"][run.name]
+        if c1 - c0 < n:
+            camp.say(
+                f"two-point: {run.label}: {c1 - c0} of {n} columns enter (the others' windows, "
+                "with half a window's margin, reach past the frames)"
+            )
     return dataclasses.replace(ctx, two_point=spec, _cache={})
 
 
