@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign import Campaign
+from rspiv.campaign.two_point import map_rows
 from rspiv.campaign_config import CampaignConfig
 from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
@@ -212,9 +213,7 @@ def synth_campaign(
     acc = FieldAccumulator((d.size, xs.size))
     # the maps' reference heights (px): the campaign's, from the wall it finds
     heights = tuple(round(f * delta_px, 1) for f in TWO_POINT_HEIGHTS)
-    near = np.flatnonzero(d >= 2.5 * scene.passes[-1][1])[0]
-    band = (int(near), int(np.searchsorted(d, 2.0 * heights[-1], side="right")))
-    refs = tuple(int(np.argmin(np.abs(d - y))) for y in heights)
+    band, refs = map_rows(d, heights, scene.passes[-1][1])
     two_point = TwoPointAccumulator((d.size, xs.size), band=band, refs=refs)
     truth = None
     for k in range(scene.pairs):

@@ -31,7 +31,7 @@ from rspiv.outputs import write_netcdf
 from rspiv.report import ReportSection
 from rspiv.two_point import TwoPointAccumulator, integral_length
 
-__all__ = ["attach", "plan", "report_section", "write_outputs", "FILTER_WIDTHS"]
+__all__ = ["attach", "map_rows", "plan", "report_section", "write_outputs", "FILTER_WIDTHS"]
 
 #: Wavelengths shorter than this many final-window widths lose more than 20 % of their energy
 #: to the window's average along x (the top hat's transfer ``sinc^2(pi w / lambda)`` is 0.81
@@ -64,15 +64,9 @@ def plan(
         No 8 columns of a run lie inside the frames, or a height lies beyond the grid or
         within the rows the wall shapes.
     """
-    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
-
-    w, h = ctx.piv.final_window
-    width = ctx.image_shape[1]
     cols: dict[str, list[int]] = {}
     for run in ctx.runs:
-        x = _window_positions(ctx, run.method != "none")[..., 0]
-        inside = np.all((x - w >= -0.5) & (x + w <= width - 0.5), axis=0)
-        idx = np.flatnonzero(inside)
+        idx = np.flatnonzero(np.all(_inside_frames(ctx, run, axis=0), axis=0))
         if idx.size < 8 or idx[-1] - idx[0] + 1 != idx.size:
             raise InvalidInputError(
                 f"[statistics] two_point: {run.label}: only {idx.size} columns of final windows "
@@ -88,25 +82,59 @@ def plan(
         wall, side = walls[run.name]
         y_wall = float(wall.line(np.mean(gx[0])))
         dist = (y_wall - gy[:, 0]) * (1.0 if side == "above" else -1.0)
-        lo, hi = NEAR_WALL_HEIGHTS * h, 2.0 * max(heights_px)
-        band = np.flatnonzero((dist >= lo) & (dist <= hi))
-        refs = []
-        for y in heights_px:
-            i = int(np.argmin(np.abs(dist - y)))
-            if not (lo <= y <= dist.max()) or abs(dist[i] - y) > gy[1, 0] - gy[0, 0]:
-                raise InvalidInputError(
-                    f"[statistics] two_point_heights: {run.label}: {y:.1f} px from the wall lies "
-                    f"outside the rows from {lo:g} px ({NEAR_WALL_HEIGHTS:g} window heights) to "
-                    f"{dist.max():.1f} px (the field's edge)"
-                )
-            refs.append(i)
+        try:
+            band, refs = map_rows(dist, heights_px, ctx.piv.final_window[1])
+        except InvalidInputError as exc:
+            raise InvalidInputError(
+                f"[statistics] two_point_heights: {run.label}: {exc}"
+            ) from None
         maps[run.name] = {
-            "band": [int(band.min()), int(band.max()) + 1],
-            "refs": refs,
+            "band": list(band),
+            "refs": list(refs),
             "heights_px": [float(y) for y in heights_px],
         }
     out["maps"] = maps
     return out
+
+
+def map_rows(dist, heights_px, window_height: float) -> tuple[tuple[int, int], tuple[int, ...]]:
+    """The two-point maps' rows of a grid whose rows lie ``dist`` px from the wall (monotonic):
+    the band ``(r0, r1)`` of the rows from :data:`~rspiv.campaign.analysis.NEAR_WALL_HEIGHTS`
+    window heights off the wall to twice the highest reference, and the reference rows, the
+    rows nearest to ``heights_px``.
+
+    Raises
+    ------
+    InvalidInputError
+        A height within the rows the wall shapes, beyond the last row, or more than a row's
+        spacing from the nearest row.
+    """
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    dist = np.asarray(dist, np.float64)
+    lo, hi = NEAR_WALL_HEIGHTS * window_height, 2.0 * max(heights_px)
+    band = np.flatnonzero((dist >= lo) & (dist <= hi))
+    spacing = float(np.min(np.abs(np.diff(dist))))
+    refs = []
+    for y in heights_px:
+        i = int(np.argmin(np.abs(dist - y)))
+        if not (lo <= y <= dist.max()) or abs(dist[i] - y) > spacing:
+            raise InvalidInputError(
+                f"{y:.1f} px from the wall lies outside the rows from {lo:g} px "
+                f"({NEAR_WALL_HEIGHTS:g} window heights) to {dist.max():.1f} px (the field's edge)"
+            )
+        refs.append(i)
+    return (int(band.min()), int(band.max()) + 1), tuple(refs)
+
+
+def _inside_frames(ctx: PairContext, run: RunSpec, axis: int) -> np.ndarray:
+    """Per grid point: do the run's final windows, widened by half a window on each side for
+    the displacement (up to a window width), lie inside the recorded frames along ``axis``
+    (0: x, 1: y)? A corrected run's windows are mapped to the raw frame."""
+    pos = _window_positions(ctx, run.method != "none")[..., axis]
+    size = ctx.piv.final_window[axis]
+    extent = ctx.image_shape[1 - axis]
+    return (pos - size >= -0.5) & (pos + size <= extent - 0.5)
 
 
 def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
@@ -261,9 +289,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     gx, _ = res.context.grid()
     prof = _rows(tp, an, res.context.piv.final_window, float(gx[0, 1] - gx[0, 0]))
     # rows whose windows reach past the frames (the field's edge) never enter: not said
-    y = _window_positions(res.context, run.method != "none")[..., 1]
-    h, height = res.context.piv.final_window[1], res.context.image_shape[0]
-    edge = np.any((y - h < -0.5) | (y + h > height - 0.5), axis=1)[prof["rows"]]
+    edge = ~np.all(_inside_frames(res.context, run, axis=1), axis=1)[prof["rows"]]
     away = ~prof["near_wall"] & ~edge
     few = int(np.count_nonzero(away & (prof["count"] < 0.5 * prof["pairs"])))
     if few:
