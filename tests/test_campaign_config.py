@@ -258,3 +258,22 @@ def test_two_point_keys(tmp_path):
         bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
         with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*{msg}"):
             load_campaign_config(_write(tmp_path, bad))
+
+
+def test_quadrant_keys(tmp_path):
+    """``[statistics] quadrant``: off by default, and needs ``[output] fields`` (the second
+    pass reads them); the hole sizes an increasing list of numbers >= 0; anything else named in
+    one line."""
+    cfg = load_campaign_config(_write(tmp_path, FULL))
+    assert cfg.statistics.quadrant is False
+    assert cfg.statistics.quadrant_holes == (0.0, 1.0, 2.0, 4.0)
+    on = FULL.replace("[statistics]\n", "[statistics]\nquadrant = true\nquadrant_holes = [0, 3]\n")
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.quadrant: needs each pair's"):
+        load_campaign_config(_write(tmp_path, on))
+    with_fields = on.replace("[output]\n", "[output]\nfields = true\n")
+    st = load_campaign_config(_write(tmp_path, with_fields))
+    assert st.statistics.quadrant and st.statistics.quadrant_holes == (0.0, 3.0)
+    for value, msg in (("[2, 1]", "increasing"), ("[-1]", ">= 0"), ("[]", "1 to 8"), ("2", "list")):
+        bad = FULL.replace("[statistics]\n", f"[statistics]\nquadrant_holes = {value}\n")
+        with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.quadrant_holes: .*{msg}"):
+            load_campaign_config(_write(tmp_path, bad))

@@ -316,14 +316,14 @@ def test_pair_that_kills_its_worker_is_recorded_failed(synth, local, tmp_path, m
     single pairs, the deadly pair is recorded as failed and left out, the others are merged."""
     from rspiv.campaign import PairContext
 
-    def deadly(ctx, pairs):  # a local function: pickled by value to the workers
+    def deadly(ctx, pairs, **kw):  # a local function: pickled by value to the workers
         import os
 
         from rspiv.campaign.executors.dask import process_chunk as real
 
         if any(p.pair_id == 3 for p in pairs):
             os._exit(1)
-        return real(ctx, pairs)
+        return real(ctx, pairs, **kw)
 
     monkeypatch.setattr(scaleout, "process_chunk", deadly)
     out, res = _run_killing_workers(synth, local, tmp_path)
@@ -354,7 +354,7 @@ def test_pair_killed_beside_another_is_retried_not_failed(synth, local, tmp_path
     count = tmp_path / "deaths"
     count.write_text("0")
 
-    def dies_twice(ctx, pairs):  # a local function: pickled by value to the workers
+    def dies_twice(ctx, pairs, **kw):  # a local function: pickled by value to the workers
         import os
         import pathlib
 
@@ -366,7 +366,7 @@ def test_pair_killed_beside_another_is_retried_not_failed(synth, local, tmp_path
             if n < 2:
                 f.write_text(str(n + 1))
                 os._exit(1)
-        return real(ctx, pairs)
+        return real(ctx, pairs, **kw)
 
     monkeypatch.setattr(scaleout, "process_chunk", dies_twice)
     out, res = _run_killing_workers(synth, local, tmp_path)
@@ -403,14 +403,14 @@ def test_interrupted_client_keeps_chunks_merged_out_of_order(
     interrupted. The restarted run recomputes pair 0 and the pairs never merged, not the
     out-of-order ones saved beside the checkpoint, and gives the local statistics."""
 
-    def slow_first(ctx, pairs):  # a local function: pickled by value to the workers
+    def slow_first(ctx, pairs, **kw):  # a local function: pickled by value to the workers
         import time
 
         from rspiv.campaign.executors.dask import process_chunk as real
 
         if pairs[0].pair_id == 0:
             time.sleep(8.0)
-        return real(ctx, pairs)
+        return real(ctx, pairs, **kw)
 
     real_save = scaleout._save_segments
 

@@ -90,6 +90,10 @@ A complete file (every key optional except where noted; defaults shown)::
     two_point_min_valid = 0.9    # fraction of valid vectors a row of a pair needs to enter
     two_point_heights = [0.1, 0.3, 0.6]  # reference heights of the two-point maps ([]: none)
     two_point_height_units = "delta"     # "delta" (the pilot's delta_99) | "px" from the wall
+    quadrant = false             # quadrant analysis of u'v' and joint PDFs per row, a second
+                                 # pass over the fields (rspiv.quadrant; needs [output] fields;
+                                 # quadrant_<run>.nc, a report section)
+    quadrant_holes = [0, 1, 2, 4]  # hole sizes H: |u'v'| >= H u_rms v_rms
 
     [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
                                  # correlation planes summed over every pair, then the peak
@@ -350,6 +354,8 @@ class StatisticsConfig:
     two_point_min_valid: float = 0.9
     two_point_heights: tuple[float, ...] = (0.1, 0.3, 0.6)
     two_point_height_units: str = "delta"
+    quadrant: bool = False
+    quadrant_holes: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0)
 
 
 @dataclasses.dataclass
@@ -584,6 +590,11 @@ def parse_campaign_config(
         raise ctx.err(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
+        )
+    if cfg.statistics.quadrant and not cfg.output.fields:
+        raise ctx.err(
+            "[statistics].quadrant",
+            "needs each pair's fields ([output] fields = true): the second pass reads them",
         )
     if cfg.ensemble.single_pixel and not cfg.ensemble.enabled:
         raise ctx.err(

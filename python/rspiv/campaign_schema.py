@@ -147,6 +147,17 @@ def _heights(ctx, where, v):
     return tuple(out)
 
 
+def _holes(ctx, where, v):
+    """A list of 1 to 8 hole sizes >= 0, increasing (the quadrant analysis)."""
+    msg = "expected a list of 1 to 8 increasing numbers >= 0"
+    if not isinstance(v, list) or not 1 <= len(v) <= 8:
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    out = [float(_number(ctx, where, t, minimum=0)) for t in v]
+    if any(b <= a for a, b in zip(out, out[1:], strict=False)):
+        raise ctx.err(where, f"{msg}, got {v!r}")
+    return tuple(out)
+
+
 def _method(ctx, where, v):
     try:
         return parse_method(v)
@@ -242,6 +253,8 @@ PARSERS: dict[str, dict[str, Any]] = {
         "two_point_height_units": lambda c, w, v: _choice(
             c, w, v, ("delta", "px"), fold=str.lower
         ),
+        "quadrant": _boolean,
+        "quadrant_holes": _holes,
     },
     "ensemble": {
         "enabled": _boolean,

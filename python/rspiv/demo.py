@@ -16,8 +16,10 @@ correlation length of 96 px (as on the full sensor).
 (``truth.json``; ``truth_filtered.nc``: the exact displacement averaged over each final
 interrogation window on wall-parallel rows, accumulated over the same pairs;
 ``truth_two_point.nc``: the same fields' streamwise spectra and correlations,
-:class:`rspiv.two_point.TwoPointAccumulator`) and ``campaign.toml`` (with ``[statistics]
-two_point``). :func:`verdicts` compares a processed campaign with the truth;
+:class:`rspiv.two_point.TwoPointAccumulator`; ``truth_quadrant.nc``: their quadrant analysis,
+:class:`rspiv.quadrant.QuadrantAccumulator`) and ``campaign.toml`` (with ``[statistics]
+two_point`` and ``quadrant``, and so ``[output] fields``). :func:`verdicts` compares a processed
+campaign with the truth;
 :func:`run_demo` is ``rspiv demo``.
 """
 
@@ -38,6 +40,7 @@ from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text, write_netcdf
 from rspiv.profiles import profile_from_accumulator
+from rspiv.quadrant import QuadrantAccumulator
 from rspiv.report import ReportSection, ReportTable
 from rspiv.stats import FieldAccumulator
 from rspiv.synth.lighting import Lighting, wall_rows
@@ -174,8 +177,8 @@ def synth_campaign(
     ----------
     directory : path
         Created if missing; ``target.tif``, ``raw/``, ``truth.json``, ``truth_filtered.nc``,
-        ``truth_two_point.nc`` and ``campaign.toml`` are written there (output folder of the
-        campaign: ``out``).
+        ``truth_two_point.nc``, ``truth_quadrant.nc`` and ``campaign.toml`` are written there
+        (output folder of the campaign: ``out``).
     pairs, scale : optional
         Override the scene's ``pairs`` and ``scale``.
     scene : DemoScene
@@ -216,6 +219,7 @@ def synth_campaign(
     band, refs = map_rows(d, heights, scene.passes[-1][1])
     two_point = TwoPointAccumulator((d.size, xs.size), band=band, refs=refs)
     truth = None
+    exact = []  # the pairs' exact fields, for the quadrant analysis's second pass
     for k in range(scene.pairs):
         t0 = time.perf_counter()
         a, b, truth = tbl_pair(
@@ -241,6 +245,7 @@ def synth_campaign(
         us, vn = _filtered_truth(truth, xs, d, scene.passes[-1])
         acc.add(us, vn, pair_id=k)
         two_point.add(us, vn, pair_id=k)
+        exact.append((us, vn))
         say(f"pair {k + 1}/{scene.pairs} rendered ({time.perf_counter() - t0:.1f} s)")
     info = {
         "scene": dataclasses.asdict(scene),
@@ -276,6 +281,21 @@ def synth_campaign(
     )
     variables, attrs = two_point.to_dataset_vars()
     write_netcdf(xr.Dataset(variables, attrs=attrs), root / "truth_two_point.nc")
+    quad = QuadrantAccumulator(acc.mean_u, acc.mean_v, np.sqrt(acc.uu), np.sqrt(acc.vv),
+                               sign_x=float(np.sign(np.nanmean(acc.mean_u))) or 1.0)  # fmt: skip
+    for k, (us, vn) in enumerate(exact):
+        quad.add(us, vn, pair_id=k)
+    dims = ("y", "quadrant", "hole")
+    q = quad.results()
+    write_netcdf(
+        xr.Dataset(
+            {k: (dims, np.moveaxis(q[k], -1, 0)) for k in ("fraction", "time_fraction")},
+            coords={"y": d, "quadrant": np.arange(1, 5), "hole": q["holes"]},
+            attrs={"description": "quadrant analysis of the exact field (rspiv.quadrant); "
+                   "y = wall distance, px"},  # fmt: skip
+        ),
+        root / "truth_quadrant.nc",
+    )
     cfg = CampaignConfig(name=f"synthetic boundary layer (scale {scene.scale:g})")
     cfg.description = "rspiv synth campaign: the paper's optics and flow, exact ground truth"
     cfg.calibration.target = root / "target.tif"
@@ -294,6 +314,8 @@ def synth_campaign(
     cfg.statistics.two_point = True
     cfg.statistics.two_point_heights = heights
     cfg.statistics.two_point_height_units = "px"
+    cfg.statistics.quadrant = True
+    cfg.output.fields = True  # the quadrant analysis's second pass reads them
     cfg.output.dir = root / "out"
     return cfg.save(root / "campaign.toml")
 
@@ -412,6 +434,27 @@ def _two_point_errors(prof: dict | None, directory: pathlib.Path, info: dict[str
             diff = prof[f"R_{q}_map"][i][inside][:, use] - ref_m
             worst = max(worst, float(np.nanmax(np.abs(diff))))
         out[f"map_{q}"] = worst
+    return out
+
+
+def _quadrant_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
+    """Largest deviation of a run's shares of u'v' carried by ejections (Q2) and sweeps (Q4)
+    at hole sizes 0 and 2 from those of the same pairs' exact field (``truth_quadrant.nc``),
+    over the rows from 2.5 window heights off the wall (not ``near_wall``) to 0.5 delta, at the
+    rows' measured distances."""
+    import xarray as xr
+
+    keys = {"Q2 H0": (1, 0.0), "Q4 H0": (3, 0.0), "Q2 H2": (1, 2.0), "Q4 H2": (3, 2.0)}
+    if prof is None:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_quadrant.nc", engine="h5netcdf") as ds:
+        d, holes, frac = ds["y"].values, list(ds["hole"].values), ds["fraction"].values
+    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * info["delta99_mm"] * PAPER_M)
+    mine = list(prof["holes"])
+    out = {}
+    for k, (q, h) in keys.items():
+        ref = np.interp(prof["dist_px"][rows], d, frac[:, q, holes.index(h)])
+        out[k] = float(np.nanmax(np.abs(prof["fraction"][rows, q, mine.index(h)] - ref)))
     return out
 
 
@@ -580,6 +623,18 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
                 )
                 if corrected
                 else None,
+            }
+        )
+        # the quadrant analysis alike (a second pass over the fields the campaign wrote)
+        e_q = _quadrant_errors(result.quadrant.get(run.name), directory, info)
+        rows.append(
+            {
+                "claim": f"{run.label}: ejections' and sweeps' shares of u'v' (hole sizes 0 "
+                "and 2) within 0.05 of these pairs' exact field, 2.5 window heights <= y <= "
+                "0.5 delta",
+                "measured": ", ".join(f"{k} {v:.3f}" for k, v in e_q.items()),
+                "limit": "0.05",
+                "pass": all(v <= 0.05 for v in e_q.values()) if corrected else None,
             }
         )
         if not corrected and run.name in result.analyses:

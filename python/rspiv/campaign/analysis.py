@@ -23,6 +23,7 @@ from rspiv import moments
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
@@ -470,6 +471,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("ensemble", "ensemble", ensemble_work.write_outputs, res.ensembles),
             ("single_pixel", "single-pixel", ensemble_work.write_pixel_outputs, res.pixel_profiles),
             ("two_point", "two-point", two_point_work.write_outputs, res.two_point),
+            ("quadrant", "quadrant", quadrant_work.write_outputs, res.quadrant),
         )
         for key, what, write, store in bands:
             try:
@@ -483,6 +485,10 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 rs[key] = {"pairs": prof["pairs"], "rows": int(prof["dist_px"].size)}
                 if key == "two_point":
                     rs[key]["columns"] = list(prof["columns"])
+                if prof.get("missing"):
+                    rs[key]["missing_fields"] = len(prof["missing"])
+                if "warning" in prof:
+                    rs[key]["warning"] = prof["warning"]
                 for flag in ("near_wall", "clipped"):
                     if flag in prof:
                         rs[key][f"{flag}_rows"] = int(np.count_nonzero(prof[flag]))
@@ -551,8 +557,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:
             extra.insert(0, sec)
-    if res.two_point:
-        sec = two_point_work.report_section(camp, res)
+    for store, work in ((res.two_point, two_point_work), (res.quadrant, quadrant_work)):
+        sec = work.report_section(camp, res) if store else None
         if sec is not None:
             extra.append(sec)
     if camp.info.get("particle_size_warnings"):

@@ -136,6 +136,8 @@ class CampaignResult:
     two_point : dict
         Run name -> its streamwise spectra and two-point correlations (``[statistics]
         two_point``; empty without).
+    quadrant : dict
+        Run name -> its quadrant analysis (``[statistics] quadrant``; empty without).
     """
 
     out_dir: pathlib.Path
@@ -157,6 +159,8 @@ class CampaignResult:
     pixel_profiles: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its spectra and two-point correlations (:mod:`rspiv.campaign.two_point`)
     two_point: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its quadrant analysis (:mod:`rspiv.campaign.quadrant`)
+    quadrant: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
     @property
     def report(self) -> pathlib.Path | None:

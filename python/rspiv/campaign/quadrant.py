@@ -1,0 +1,250 @@
+"""A campaign's quadrant analysis and joint PDFs (``[statistics] quadrant``).
+
+Quadrant analysis needs each vector's mean before any event can be classified, so it is a
+second pass, over the fields the pair loop wrote (``[output] fields = true``, which the
+configuration requires): at the end of a run (:func:`write_outputs`, also after ``rspiv merge``
+or a Dask run, which share the output folder) every pair's field file of the run is read back
+and added to a :class:`~rspiv.quadrant.QuadrantAccumulator` about the run's own statistics (the
+mean and standard deviation of every vector over the same pairs, from its
+:class:`~rspiv.stats.FieldAccumulator`). The sums are therefore exact, not about a pilot's
+mean. The fields are stored as float32: the fluctuations carry its rounding (about 1e-7 of the
+displacement).
+
+Which vectors enter: those of the rows on the flow side whose statistics rest on at least
+``[statistics] min_count`` valid samples (the profiles' rule), in every pair in which they are
+valid (the statistics' rule). Units: the stresses in m^2/s^2 with a calibration and ``[flow]
+dt``, else px^2 per pair^2; the signs are the flow's (u' downstream, v' away from the wall).
+
+Output: ``quadrant_<run>.nc`` per row (``y`` from the wall, ``y_plus``): ``count``, ``uv``,
+``stress``, ``fraction`` and ``time_fraction`` by ``quadrant`` (1-4) and ``hole`` (``[statistics]
+quadrant_holes``), ``fraction_gaussian`` (H = 0: a jointly Gaussian (u', v') with the row's
+correlation coefficient, for comparison), the joint PDF ``jpdf`` of ``(u'/u_rms, v'/v_rms)``
+and the ``near_wall`` flag; a report section with the figure. A pair whose field file is
+missing is left out and said; a file whose grid or run is not the campaign's stops the analysis
+of that run with one line naming it.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import time
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.spec import RunSpec
+from rspiv.errors import InvalidInputError
+from rspiv.outputs import write_netcdf
+from rspiv.quadrant import QUADRANTS, QuadrantAccumulator, gaussian_quadrant
+from rspiv.report import ReportSection
+
+__all__ = ["accumulate", "read_field", "report_section", "write_outputs"]
+
+
+def read_field(path: pathlib.Path, shape: tuple[int, int], run: str) -> tuple[np.ndarray, ...]:
+    """``u, v, valid`` of a field file (:mod:`rspiv.campaign.fields`) of ``run``.
+
+    Raises
+    ------
+    InvalidInputError
+        The file cannot be read, is another run's, or its grid is not ``shape``.
+    """
+    import h5py  # deferred: only the second pass reads fields
+
+    try:
+        with h5py.File(path, "r") as f:
+            got = f.attrs.get("run")
+            got = got.decode() if isinstance(got, bytes) else got
+            if got is not None and str(got) != run:
+                raise InvalidInputError(f"{path}: a field of run {got!r}, not {run!r}")
+            u, v, valid = (np.asarray(f[k]) for k in ("u", "v", "valid"))
+    except (OSError, KeyError) as exc:
+        raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
+    if u.shape != shape or v.shape != shape or valid.shape != shape:
+        raise InvalidInputError(
+            f"{path}: a grid of {u.shape[1]} x {u.shape[0]} vectors, the campaign's is "
+            f"{shape[1]} x {shape[0]}"
+        )
+    return u, v, valid
+
+
+def accumulate(
+    acc: QuadrantAccumulator, paths: dict[int, pathlib.Path], run: str
+) -> tuple[int, list[int]]:
+    """Add the field files ``paths`` (pair id -> file) of ``run`` to ``acc``; returns the
+    number added and the pair ids whose file is missing."""
+    missing = []
+    for pid in sorted(paths):
+        path = paths[pid]
+        if not path.exists():
+            missing.append(pid)
+            continue
+        u, v, valid = read_field(path, acc.shape, run)
+        acc.add(u, v, valid, pair_id=pid)
+    return acc.n_fields, missing
+
+
+def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
+    """The quadrant analysis of ``run`` (module docstring), written as ``OUT/quadrant_<run>.nc``
+    (with ``[output] netcdf``); None when ``[statistics] quadrant`` is off."""
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    st = camp.config.statistics
+    if not st.quadrant:
+        return None
+    acc = res.accumulators[run.name]
+    if not acc.pair_ids:
+        raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
+    t0 = time.perf_counter()
+    p = an.profile
+    dist = np.asarray(p["dist_px"], np.float64)
+    usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]
+    with np.errstate(invalid="ignore"):
+        q = QuadrantAccumulator(
+            acc.mean_u,
+            acc.mean_v,
+            np.sqrt(acc.uu),
+            np.sqrt(acc.vv),
+            usable=usable,
+            sign_x=float(p.get("sign_x", 1.0)),
+            sign_y=float(p.get("sign_y", 1.0)),
+            holes=st.quadrant_holes,
+        )
+    writer = camp.field_writer()
+    paths = {pid: writer.path(run.name, pid) for pid in acc.pair_ids}
+    n, missing = accumulate(q, paths, run.name)
+    if n == 0:
+        raise InvalidInputError(
+            f"none of the {len(paths)} pairs has a field file in {writer.path(run.name, 0).parent}"
+        )
+    r = q.results()
+    keep = np.flatnonzero((dist > 0) & (r["count"] > 0))
+    keep = keep[np.argsort(dist[keep])]
+    si = bool(p.get("si"))
+    m = p["m_per_px"] if si else 1.0
+    k2 = float(p.get("k", 1.0)) ** 2
+    orient = float(p.get("sign_x", 1.0)) * float(p.get("sign_y", 1.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = np.where(usable, acc.uv / np.sqrt(acc.uu * acc.vv), np.nan)
+        rho_row = np.nanmean(rho[keep], axis=1) * orient  # the flow's signs
+    gauss = np.full((keep.size, 4), np.nan)
+    for i, rr in enumerate(rho_row):
+        if np.isfinite(rr) and abs(rr) < 1:
+            gauss[i] = gaussian_quadrant(rr, (0.0,))["fraction"][:, 0]
+    prof: dict[str, Any] = {
+        "y": dist[keep] * m,
+        "dist_px": dist[keep],
+        "rows": keep,
+        "count": r["count"][keep],
+        "uv": r["uv"][keep] * k2,
+        "stress": np.moveaxis(r["stress"][..., keep], -1, 0) * k2,  # (y, quadrant, hole)
+        "fraction": np.moveaxis(r["fraction"][..., keep], -1, 0),
+        "time_fraction": np.moveaxis(r["time_fraction"][..., keep], -1, 0),
+        "fraction_gaussian": gauss,
+        "rho": rho_row,
+        "jpdf": r["jpdf"][keep],
+        "centres": r["centres"],
+        "holes": r["holes"],
+        "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1],
+        "si": si,
+        "pairs": int(n),
+        "missing": missing,
+        "seconds": time.perf_counter() - t0,
+    }
+    res_bl = an.result
+    if res_bl is not None and si:
+        lv = res_bl.nu / res_bl.u_tau
+        prof["y_plus"] = prof["y"] / lv
+        prof["stress_plus"] = prof["stress"] / res_bl.u_tau**2
+        prof["delta_99"] = float(res_bl.delta99)
+    camp.say(
+        f"{run.label}: quadrant analysis of {n} pairs' fields ({prof['seconds']:.1f} s)"
+    )
+    if missing:
+        prof["warning"] = (
+            f"{len(missing)} of {len(paths)} pairs have no field file (first: pair "
+            f"{missing[0]}): the quadrant analysis holds {n} pairs, about the means of all "
+            f"{len(paths)}"
+        )
+        camp.say(f"WARNING: {run.label}: quadrant: {prof['warning']}")
+    if camp.config.output.netcdf:
+        res.files[f"quadrant_{run.name}"] = write_netcdf(
+            _dataset(prof, run), camp.out_dir / f"quadrant_{run.name}.nc"
+        )
+    return prof
+
+
+def _dataset(prof: dict, run: RunSpec) -> Any:
+    import xarray as xr
+
+    length = "m" if prof["si"] else "pix"
+    vel2 = "m2 s-2" if prof["si"] else "pix2"
+    dims = ("y", "quadrant", "hole")
+    ds = xr.Dataset(
+        coords={
+            "y": ("y", prof["y"], {"units": length, "long_name": "distance from the wall"}),
+            "quadrant": ("quadrant", np.arange(1, 5), {"long_name": "; ".join(
+                f"Q{i + 1} {name}" for i, name in enumerate(QUADRANTS))}),  # fmt: skip
+            "hole": ("hole", prof["holes"], {"units": "1",
+                     "long_name": "hole size H: |u'v'| >= H u_rms v_rms"}),  # fmt: skip
+            "u_n": ("u_n", prof["centres"], {"units": "1", "long_name": "u' / u_rms"}),
+            "v_n": ("v_n", prof["centres"], {"units": "1", "long_name": "v' / v_rms"}),
+        }
+    )
+    ds["count"] = ("y", prof["count"], {"long_name": "samples (vectors x pairs) per row"})
+    ds["uv"] = ("y", prof["uv"], {"units": vel2, "long_name": "<u'v'> of the row's samples"})
+    ds["stress"] = (dims, prof["stress"], {"units": vel2,
+                                           "long_name": "<u'v'> of the events in Q outside H"})
+    ds["fraction"] = (dims, prof["fraction"], {"units": "1", "long_name": "stress / uv"})
+    ds["time_fraction"] = (dims, prof["time_fraction"],
+                           {"units": "1", "long_name": "share of samples in Q outside H"})
+    ds["fraction_gaussian"] = (("y", "quadrant"), prof["fraction_gaussian"], {
+        "units": "1", "long_name": "fraction at H = 0 of a jointly Gaussian (u', v') with rho"})
+    ds["rho"] = ("y", prof["rho"], {"units": "1", "long_name": "mean of uv / (u_rms v_rms)"})
+    ds["jpdf"] = (("y", "v_n", "u_n"), prof["jpdf"].astype(np.float32),
+                  {"units": "1", "long_name": "joint PDF of (u'/u_rms, v'/v_rms)"})
+    ds["near_wall"] = ("y", prof["near_wall"], {"long_name": "row shaped by the wall"})
+    if "y_plus" in prof:
+        ds["y_plus"] = ("y", prof["y_plus"], {"units": "1"})
+        ds["stress_plus"] = (dims, prof["stress_plus"], {"units": "1",
+                             "long_name": "stress / u_tau^2"})  # fmt: skip
+        ds.attrs["delta_99"] = prof["delta_99"]
+    ds.attrs.update(
+        {
+            "run": run.name,
+            "label": run.label,
+            "pairs": prof["pairs"],
+            "description": "rspiv quadrant analysis (rspiv.quadrant): u' downstream, v' away "
+            "from the wall, each vector's fluctuation about its own mean",
+        }
+    )
+    if "warning" in prof:
+        ds.attrs["warning"] = prof["warning"]
+    return ds
+
+
+def report_section(camp: Any, res: Any) -> Any:
+    """The report's section on the main run's quadrant analysis, or None."""
+    main = res.context.runs[0]
+    prof = res.quadrant.get(main.name)
+    if prof is None or "y_plus" not in prof:
+        return None
+    figures = []
+    try:
+        from rspiv.plots.quadrant import plot_quadrant  # deferred: matplotlib
+
+        path = plot_quadrant(camp.out_dir / "report" / "figures" / "quadrant.png", prof)
+        figures.append((path, f"{main.label}: quadrant analysis and joint PDFs"))
+    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
+        camp.say(f"quadrant figure failed: {exc}")
+    text = (
+        f"Quadrant analysis of u'v' over {prof['pairs']} pairs (each vector's fluctuation about "
+        "its own mean; u' downstream, v' away from the wall): Q2 ejections and Q4 sweeps carry "
+        "the stress, Q1 and Q3 subtract from it. Thin lines: a jointly Gaussian (u', v') with "
+        "the row's correlation coefficient. The measurement noise moves events across the "
+        "quadrants' edges, pulling the fractions at small hole sizes towards that Gaussian's. "
+        "Rows within 2.5 window heights of the wall are left out (near_wall)."
+    )
+    if "warning" in prof:
+        text += f"\n\nWarning: {prof['warning']}."
+    return ReportSection("Quadrant analysis", text=text, figures=figures)

@@ -1,0 +1,132 @@
+"""A campaign's quadrant analysis (``[statistics] quadrant``, rspiv.campaign.quadrant): the second
+pass over the fields the pair loop wrote equals direct sums over those files about the run's own
+statistics; missing and foreign field files are said."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+from rspiv.campaign import Campaign
+from rspiv.campaign_config import load_campaign_config
+from rspiv.demo import DEFAULT_SCENE, synth_campaign
+
+SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=3, monte_carlo_samples=500)
+
+
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory):
+    d = tmp_path_factory.mktemp("quadrant")
+    synth_campaign(d, scene=SCENE)  # quadrant and fields on, as the demo has them
+    cfg = load_campaign_config(d / "campaign.toml")
+    assert cfg.statistics.quadrant and cfg.output.fields
+    camp = Campaign.load(d / "campaign.toml", progress=False)
+    return d, camp, camp.run()
+
+
+def test_the_file_equals_direct_sums_over_the_fields(processed):
+    import xarray as xr
+
+    _, camp, res = processed
+    out = res.out_dir
+    holes = camp.config.statistics.quadrant_holes
+    for run in ("method_II", "uncorrected"):
+        acc = res.accumulators[run]
+        prof = res.analyses[run].profile
+        sx, sy, k = prof["sign_x"], prof["sign_y"], prof["k"]
+        files = sorted((out / "fields" / run).glob("pair_*.nc"))
+        assert len(files) == 3
+        u, v, ok = [], [], []
+        for f in files:
+            with xr.open_dataset(f, engine="h5netcdf") as ds:
+                u.append(ds["u"].values.astype(np.float64))
+                v.append(ds["v"].values.astype(np.float64))
+                ok.append(ds["valid"].values.astype(bool))
+        u, v, ok = np.array(u), np.array(v), np.array(ok)
+        usable = (acc.count >= 2) & (prof["dist_px"] > 0)[:, None]
+        ok &= usable & np.isfinite(u) & np.isfinite(v)
+        du, dv = sx * (u - acc.mean_u), sy * (v - acc.mean_v)
+        su, sv = np.sqrt(acc.uu), np.sqrt(acc.vv)
+        with np.errstate(invalid="ignore"):
+            level = np.abs(du * dv) / (su * sv)
+        uv = np.where(ok, du * dv, 0.0)
+        n = ok.sum(axis=(0, 2))
+        with xr.open_dataset(out / f"quadrant_{run}.nc", engine="h5netcdf") as ds:
+            assert ds.attrs["pairs"] == 3 and "warning" not in ds.attrs
+            assert ds["stress"].dims == ("y", "quadrant", "hole")
+            assert ds["stress"].attrs["units"] == "m2 s-2"
+            np.testing.assert_array_equal(ds["hole"].values, holes)
+            rows = np.argsort(prof["dist_px"])
+            rows = rows[(prof["dist_px"][rows] > 0) & (n[rows] > 0)]
+            np.testing.assert_array_equal(ds["count"].values, n[rows])
+            np.testing.assert_allclose(ds["uv"].values, uv.sum(axis=(0, 2))[rows] / n[rows] * k * k,
+                                       rtol=1e-9)  # fmt: skip
+            signs = ((1, 1), (-1, 1), (-1, -1), (1, -1))
+            for q, (a, b) in enumerate(signs):
+                inq = ((du >= 0) if a > 0 else (du < 0)) & ((dv >= 0) if b > 0 else (dv < 0))
+                for h, hole in enumerate(holes):
+                    sel = ok & inq & (level >= hole)
+                    want = np.where(sel, uv, 0).sum(axis=(0, 2))[rows] / n[rows] * k * k
+                    np.testing.assert_allclose(ds["stress"].values[:, q, h], want, rtol=1e-9,
+                                               atol=1e-15)  # fmt: skip
+                    np.testing.assert_allclose(ds["time_fraction"].values[:, q, h],
+                                               sel.sum(axis=(0, 2))[rows] / n[rows])  # fmt: skip
+            # u'v' < 0 away from the wall: ejections and sweeps carry the stress
+            away = ~ds["near_wall"].values & (ds["y"].values < 0.5 * ds.attrs["delta_99"])
+            assert np.median(ds["uv"].values[away]) < 0
+            frac = ds["fraction"].sel(hole=0.0).values[away]
+            assert np.median(frac[:, 1] + frac[:, 3]) > 1.0
+            np.testing.assert_allclose(frac.sum(axis=1), 1.0, rtol=1e-9)
+    html = (out / "report" / "report.html").read_text()
+    assert "Quadrant analysis" in html
+    assert (out / "report" / "figures" / "quadrant.png").is_file()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"]["method_II"]["quadrant"]["pairs"] == 3
+
+
+def _reanalyse(processed, tmp_path, broken):
+    d, _, full = processed
+    out = tmp_path / "out"
+    shutil.copytree(full.out_dir, out, ignore=shutil.ignore_patterns("checkpoint"))
+    broken(out)
+    said = []
+    camp = Campaign.load(d / "campaign.toml", progress=False, out_dir=out, log=said.append)
+    return camp.analyse(full.accumulators), said, out
+
+
+def test_a_missing_field_file_is_said(processed, tmp_path):
+    def drop(out: pathlib.Path):
+        (out / "fields" / "method_II" / "pair_000001.nc").unlink()
+
+    res, said, out = _reanalyse(processed, tmp_path, drop)
+    prof = res.quadrant["method_II"]
+    assert prof["pairs"] == 2 and prof["missing"] == [1]
+    assert "1 of 3 pairs have no field file (first: pair 1)" in prof["warning"]
+    assert any("WARNING" in m and "quadrant" in m for m in said)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["runs"]["method_II"]["quadrant"]["missing_fields"] == 1
+    assert "no field file" in (out / "report" / "report.html").read_text()
+    assert res.quadrant["uncorrected"]["pairs"] == 3  # the other run's files are all there
+
+
+def test_a_foreign_field_file_stops_the_run_in_one_line(processed, tmp_path):
+    import xarray as xr
+
+    def foreign(out: pathlib.Path):
+        path = out / "fields" / "method_II" / "pair_000002.nc"
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            small = ds.isel(x=slice(0, 10)).load()
+        path.unlink()
+        small.to_netcdf(path, engine="h5netcdf")
+
+    res, said, out = _reanalyse(processed, tmp_path, foreign)
+    assert "method_II" not in res.quadrant
+    summary = json.loads((out / "summary.json").read_text())
+    err = summary["runs"]["method_II"]["quadrant_error"]
+    assert "pair_000002.nc: a grid of 10 x" in err and "\n" not in err
+    assert any("quadrant profile failed" in m for m in said)
+    assert "uncorrected" in res.quadrant
