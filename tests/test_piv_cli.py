@@ -58,6 +58,28 @@ def test_cli_piv_writes_netcdf(pair_files, tmp_path):
     assert main(["piv", str(d / "a.tif"), str(d / "b.tif"), "-o", str(out), "--passes", "6"]) == 2
 
 
+def test_cli_piv_writes_derived_quantities(pair_files, tmp_path, capsys):
+    """``--derived SCHEME``: vorticity, divergence and swirling strength beside u and v (a
+    uniform displacement: zero inside, NaN on the outermost vectors); Tecplot refused in one
+    line before any work."""
+    d, _, _ = pair_files
+    frames = [str(d / "a.tif"), str(d / "b.tif")]
+    out = tmp_path / "derived.nc"
+    assert main(["piv", *frames, "-o", str(out), "--passes", "32x32", "--derived", "central"]) == 0
+    ds = xr.load_dataset(out, engine="h5netcdf")
+    for name in ("vorticity", "divergence", "swirling_strength"):
+        assert ds[name].attrs["units"] == "1/pair" and "central" in ds[name].attrs["long_name"]
+        inner = ds[name].values[1:-1, 1:-1]
+        assert np.isfinite(inner).all() and np.abs(inner).max() < 0.01
+        assert np.isnan(ds[name].values[0]).all()
+    capsys.readouterr()
+    bad = tmp_path / "derived.dat"
+    assert main(["piv", *frames, "-o", str(bad), "--derived", "central"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--derived: derived.dat: the Tecplot file's columns are fixed" in err
+    assert not bad.exists()
+
+
 def test_engine_binary_piv(pair_files, tmp_path, engine):
     exe = engine
     d, a, b = pair_files

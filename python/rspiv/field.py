@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rspiv import _rspiv
+from rspiv import _rspiv, derivatives
+from rspiv.errors import InvalidInputError
 
 __all__ = ["PivField"]
 
@@ -189,7 +190,44 @@ class PivField:
         """Shape of the vector arrays."""
         return self.u.shape
 
-    def to_xarray(self):
+    def _spacing(self, what: str) -> tuple[float, float]:
+        if self.grid is None:
+            raise InvalidInputError(
+                f"{what}: needs a field on a regular grid (rspiv.piv), not rspiv.piv_at's points"
+            )
+        return float(self.grid[2]), float(self.grid[3])
+
+    def gradients(self, scheme: str = "least_squares") -> dict[str, np.ndarray]:
+        """``dudx, dudy, dvdx, dvdy`` in the image's right-handed frame (x right, y up), 1/pair
+        (:mod:`rspiv.derivatives`: frame, schemes ``"central"``, ``"least_squares"``,
+        ``"richardson"``, edges and NaN). Divide by the pulse separation for 1/s.
+
+        Raises
+        ------
+        InvalidInputError
+            A field at arbitrary points (:func:`rspiv.piv_at`), or an unknown scheme.
+        """
+        dx, dy = self._spacing("gradients")
+        return derivatives.gradients(self.u, self.v, dx, dy, scheme)
+
+    def vorticity(self, scheme: str = "least_squares") -> np.ndarray:
+        """The vorticity ``omega_z``, positive counter-clockwise on the image, 1/pair
+        (:func:`rspiv.derivatives.vorticity`)."""
+        dx, dy = self._spacing("vorticity")
+        return derivatives.vorticity(self.u, self.v, dx, dy, scheme)
+
+    def divergence(self, scheme: str = "least_squares") -> np.ndarray:
+        """The in-plane divergence, 1/pair (:func:`rspiv.derivatives.divergence`)."""
+        dx, dy = self._spacing("divergence")
+        return derivatives.divergence(self.u, self.v, dx, dy, scheme)
+
+    def swirling_strength(self, scheme: str = "least_squares", signed: bool = False) -> np.ndarray:
+        """The swirling strength ``lambda_ci``, 1/pair, signed by the vorticity with ``signed``
+        (:func:`rspiv.derivatives.swirling_strength`)."""
+        dx, dy = self._spacing("swirling_strength")
+        return derivatives.swirling_strength(self.u, self.v, dx, dy, scheme, signed)
+
+    def to_xarray(self, derived: str | None = None):
         """The field as an :class:`xarray.Dataset` compatible with pivpy.
 
         Variables ``u``, ``v`` (px) and ``chc`` (1 valid, 0 replaced, -1 not computed), plus
@@ -201,6 +239,10 @@ class PivField:
         whole or in part), ``particle_diameter_px`` the :attr:`particle_diameter` (x, y) when
         measured, and ``peak_locking`` :meth:`peak_locking` when the particle images are too
         small.
+
+        With ``derived`` (a scheme of :mod:`rspiv.derivatives`, e.g. ``"least_squares"``) it
+        also holds ``vorticity``, ``divergence`` and the signed ``swirling_strength`` (1/pair;
+        x right, y up).
         """
         import xarray as xr
 
@@ -241,6 +283,17 @@ class PivField:
                 "x_px": (dims, self.x, {"units": "pix"}),
                 "y_px": (dims, self.y, {"units": "pix"}),
             }
+        if derived is not None:
+            g = self.gradients(derived)
+            long = f"(x right, y up; {derived} differences)"
+            omega = g["dvdx"] - g["dudy"]
+            for name, val, what in (
+                ("vorticity", omega, "vorticity, counter-clockwise positive"),
+                ("divergence", g["dudx"] + g["dvdy"], "in-plane divergence"),
+                ("swirling_strength", self.swirling_strength(derived, signed=True),
+                 "swirling strength signed by the vorticity"),
+            ):  # fmt: skip
+                data[name] = (dims, val, {"units": "1/pair", "long_name": f"{what} {long}"})
         ds = xr.Dataset(data, coords=coords)
         ds.attrs.update(
             {

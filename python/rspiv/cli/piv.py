@@ -18,6 +18,7 @@ from typing import Any
 import rspiv
 from rspiv.calibration import Calibration
 from rspiv.correction import correct
+from rspiv.derivatives import SCHEMES
 from rspiv.errors import CorrelationWarning, InvalidInputError, ParticleSizeWarning
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
 from rspiv.io import DAVIS_SUFFIXES, davis_info, read_mask, read_pair
@@ -110,6 +111,11 @@ _TECPLOT_AUX = (
 
 def run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
+    out = pathlib.Path(args.output)
+    if args.derived is not None and out.suffix.lower() in TECPLOT_SUFFIXES:
+        raise InvalidInputError(
+            f"--derived: {out.name}: the Tecplot file's columns are fixed; write NetCDF (.nc)"
+        )
     a, b = read_pair(args.frame_a, args.frame_b)
     davis = None
     if pathlib.Path(args.frame_a).suffix.lower() in DAVIS_SUFFIXES:
@@ -158,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         field, *recorded, settings.passes[0], mask=mask, preprocess=pre, dewarped=method == "I"
     )
     small = warnings_for(field.particle_diameter, pre)
-    ds = field.to_xarray()
+    ds = field.to_xarray(derived=args.derived)
     ds.attrs.update(small)  # "peak_locking" (as to_xarray has it), "hot_pixels"
     ds.attrs["frame_a"] = str(args.frame_a)
     ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
@@ -174,7 +180,6 @@ def run(args: argparse.Namespace) -> int:
     if args.calibration is not None:
         ds.attrs["calibration"] = str(args.calibration)
         ds.attrs["method"] = parse_method(args.method or "II")
-    out = pathlib.Path(args.output)
     if out.suffix.lower() in TECPLOT_SUFFIXES:
         aux = {k: str(v) for k, v in ds.attrs.items() if k in _TECPLOT_AUX}
         write_tecplot(field, out, zone=f"{args.frame_a}", aux=aux)
@@ -273,4 +278,9 @@ def register(sub) -> None:
     )  # fmt: skip
     p.add_argument("--mapping", default="full", type=str.lower, choices=MAPPING_MODES,
                    help="Method II displacement mapping (full)")  # fmt: skip
+    p.add_argument(
+        "--derived", default=None, type=str.lower, choices=tuple(SCHEMES),
+        help="also write vorticity, divergence and signed swirling strength (1/pair; x right, "
+        "y up) by this difference scheme (rspiv.derivatives; NetCDF only)",
+    )  # fmt: skip
     p.set_defaults(func=run)
