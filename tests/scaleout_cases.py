@@ -74,3 +74,20 @@ def assert_same_statistics(a, b, rtol: float = 1e-12, lag: bool = True) -> None:
         assert a.ensemble.pairs == b.ensemble.pairs
         x = a.ensemble.acc
         np.testing.assert_allclose(b.ensemble.acc, x, rtol=rtol, atol=rtol * np.max(np.abs(x)))
+    # the two-point sums (the synthetic campaign's [statistics] two_point): the same sums
+    assert (a.two_point is None) == (b.two_point is None)
+    if a.two_point is not None:
+        assert a.two_point.pair_ids == b.two_point.pair_ids
+        np.testing.assert_array_equal(a.two_point.count, b.two_point.count)
+        # the raw sums (sums of transforms: plain additions); the coefficients derived from
+        # them subtract the means' products and lose about 1e-10 to the cancellation
+        for name in ("sum_a", "pow_a", "cross_a", "sum_b", "pow_b", "cross_b"):
+            x, y = getattr(a.two_point, name), getattr(b.two_point, name)
+            np.testing.assert_allclose(y, x, rtol=rtol, atol=rtol * np.max(np.abs(x)), err_msg=name)
+    # the vorticity statistics (the synthetic campaign's [statistics] vorticity) alike
+    assert (a.vorticity is None) == (b.vorticity is None)
+    if a.vorticity is not None:
+        np.testing.assert_array_equal(a.vorticity.omega_count, b.vorticity.omega_count)
+        for name in ("omega", "swirl"):
+            x, y = a.vorticity.var(name), b.vorticity.var(name)
+            np.testing.assert_allclose(y, x, rtol=rtol, atol=rtol * np.nanmax(x))

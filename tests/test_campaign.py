@@ -169,8 +169,8 @@ def test_accuracy_at_small_scale(processed, synth):
     assert len(tps) == 2 and all("nan" not in r["measured"] for r in tps), tps
     # the mean profile follows the exact field of these pairs (window-averaged) away from the
     # wall, in true wall units at the found wall
-    from rspiv.demo import _filtered_profile
     from rspiv.synth.tbl import TBLFlow
+    from rspiv.synth.truth import filtered_profile as _filtered_profile
 
     filt = _filtered_profile(synth, truth)
     re_tau = TBLFlow(re_tau=truth["re_tau"], delta99_mm=truth["delta99_mm"]).re_tau
@@ -666,7 +666,8 @@ def test_stress_verdict_arithmetic(synth):
     field itself, and a known 3 % scaling of vv+ reads 3 %."""
     import types
 
-    from rspiv.demo import _filtered_profile, _stress_errors
+    from rspiv.synth.truth import filtered_profile as _filtered_profile
+    from rspiv.synth.truth import stress_errors as _stress_errors
 
     truth = json.loads((synth / "truth.json").read_text())
     filt = _filtered_profile(synth, truth)

@@ -277,3 +277,17 @@ def test_quadrant_keys(tmp_path):
         bad = FULL.replace("[statistics]\n", f"[statistics]\nquadrant_holes = {value}\n")
         with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.quadrant_holes: .*{msg}"):
             load_campaign_config(_write(tmp_path, bad))
+
+
+def test_vorticity_keys(tmp_path):
+    """``[statistics] vorticity``: off by default, least-squares differences; the scheme one of
+    the three (any case), anything else named in one line."""
+    cfg = load_campaign_config(_write(tmp_path, FULL))
+    assert cfg.statistics.vorticity is False and cfg.statistics.vorticity_scheme == "least_squares"
+    keys = '[statistics]\nvorticity = true\nvorticity_scheme = "Central"\n'
+    on = FULL.replace("[statistics]\n", keys)
+    st = load_campaign_config(_write(tmp_path, on)).statistics
+    assert st.vorticity and st.vorticity_scheme == "central"
+    bad = FULL.replace("[statistics]\n", '[statistics]\nvorticity_scheme = "fourier"\n')
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.vorticity_scheme: .*richardson"):
+        load_campaign_config(_write(tmp_path, bad))

@@ -17,10 +17,11 @@ import json
 import numpy as np
 import pytest
 from rspiv.campaign import Campaign
-from rspiv.demo import DEFAULT_SCENE, _filtered_profile, synth_campaign
+from rspiv.demo import DEFAULT_SCENE, synth_campaign
 from rspiv.preprocess import NEAR_WALL
 from rspiv.synth.lighting import Lighting
 from rspiv.synth.tbl import TBLFlow
+from rspiv.synth.truth import filtered_profile as _filtered_profile
 
 SCENE = dataclasses.replace(
     DEFAULT_SCENE,

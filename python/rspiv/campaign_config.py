@@ -94,6 +94,9 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # pass over the fields (rspiv.quadrant; needs [output] fields;
                                  # quadrant_<run>.nc, a report section)
     quadrant_holes = [0, 1, 2, 4]  # hole sizes H: |u'v'| >= H u_rms v_rms
+    vorticity = false            # per-vector statistics of the vorticity and swirling strength
+                                 # (rspiv.vorticity; vorticity_<run>.nc, a report figure)
+    vorticity_scheme = "least_squares"  # "central" | "least_squares" | "richardson"
 
     [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
                                  # correlation planes summed over every pair, then the peak
@@ -356,6 +359,8 @@ class StatisticsConfig:
     two_point_height_units: str = "delta"
     quadrant: bool = False
     quadrant_holes: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0)
+    vorticity: bool = False
+    vorticity_scheme: str = "least_squares"
 
 
 @dataclasses.dataclass

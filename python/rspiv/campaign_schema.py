@@ -255,6 +255,10 @@ PARSERS: dict[str, dict[str, Any]] = {
         ),
         "quadrant": _boolean,
         "quadrant_holes": _holes,
+        "vorticity": _boolean,
+        "vorticity_scheme": lambda c, w, v: _choice(
+            c, w, v, ("central", "least_squares", "richardson"), fold=str.lower
+        ),
     },
     "ensemble": {
         "enabled": _boolean,

@@ -39,14 +39,25 @@ from rspiv.campaign_config import CampaignConfig
 from rspiv.correction import grid_for_windows
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text, write_netcdf
-from rspiv.profiles import profile_from_accumulator
 from rspiv.quadrant import QuadrantAccumulator
 from rspiv.report import ReportSection, ReportTable
 from rspiv.stats import FieldAccumulator
 from rspiv.synth.lighting import Lighting, wall_rows
 from rspiv.synth.target import PAPER_OPTICS, calibration_target, paper_lens
 from rspiv.synth.tbl import TBLFlow, tbl_pair
-from rspiv.two_point import TwoPointAccumulator, integral_length
+from rspiv.synth.truth import (
+    MOMENT_KEYS,
+    PAPER_M,
+    filtered_profile,
+    moment_errors,
+    quadrant_errors,
+    read_truth,
+    stress_errors,
+    two_point_errors,
+    vorticity_errors,
+)
+from rspiv.two_point import TwoPointAccumulator
+from rspiv.vorticity import VorticityAccumulator
 
 __all__ = [
     "DemoScene",
@@ -57,7 +68,6 @@ __all__ = [
     "format_verdicts",
 ]
 
-PAPER_M = 34.538  # px/mm
 #: The two-point maps' reference heights, y / delta_99 (given to the campaign in px).
 TWO_POINT_HEIGHTS = (0.1, 0.3, 0.6)
 
@@ -296,6 +306,18 @@ def synth_campaign(
         ),
         root / "truth_quadrant.nc",
     )
+    # the exact fields' vorticity by the campaign's scheme, on rows turned to the image's
+    # (down, from the wall out) so that the accumulator's frame is the flow's
+    va = VorticityAccumulator((d.size, xs.size), float(xs[1] - xs[0]), dy)
+    for k, (us, vn) in enumerate(exact):
+        va.add(us[::-1], -vn[::-1], pair_id=k)
+    vp = va.profile(np.ones(va.shape, bool), 1.0)
+    write_netcdf(
+        xr.Dataset({k: ("y", vp[k][::-1]) for k in ("omega_mean", "omega_rms")}, coords={"y": d},
+                   attrs={"description": "vorticity of the exact field, 1/pair; y = wall "
+                          f"distance, px; {va.scheme} differences"}),  # fmt: skip
+        root / "truth_vorticity.nc",
+    )
     cfg = CampaignConfig(name=f"synthetic boundary layer (scale {scene.scale:g})")
     cfg.description = "rspiv synth campaign: the paper's optics and flow, exact ground truth"
     cfg.calibration.target = root / "target.tif"
@@ -315,149 +337,13 @@ def synth_campaign(
     cfg.statistics.two_point_heights = heights
     cfg.statistics.two_point_height_units = "px"
     cfg.statistics.quadrant = True
+    cfg.statistics.vorticity = True
     cfg.output.fields = True  # the quadrant analysis's second pass reads them
     cfg.output.dir = root / "out"
     return cfg.save(root / "campaign.toml")
 
 
 # ---------------------------------------------------------------------------- verdicts
-def _truth(directory: pathlib.Path) -> dict[str, Any]:
-    p = pathlib.Path(directory) / "truth.json"
-    try:
-        return json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InvalidInputError(f"{p}: cannot read the synthetic truth ({exc})") from None
-
-
-def _filtered_profile(directory: pathlib.Path, info: dict[str, Any]):
-    import xarray as xr
-
-
-    with xr.open_dataset(pathlib.Path(directory) / "truth_filtered.nc", engine="h5netcdf") as ds:
-        acc = FieldAccumulator.from_xarray(ds.load())
-    prof = profile_from_accumulator(acc)
-    d = np.asarray(info["filtered_wall_distance_px"])
-    ut_px = info["u_inf_px"] / info["u_inf_plus"]
-    return {
-        "y_plus": d / info["viscous_length_px"],
-        "u_plus": prof["U"] / ut_px,
-        "uu_plus": prof["uu"] / ut_px**2,
-        "vv_plus": prof["vv"] / ut_px**2,
-        "uv_plus": prof["uv"] / ut_px**2,
-        **{k: prof[k] for k in _MOMENT_KEYS},
-    }
-
-
-#: The skewness and flatness compared with the exact field (:func:`_moment_errors`).
-_MOMENT_KEYS = ("S_u", "F_u", "S_v", "F_v")
-
-
-def _moment_errors(r, filt: dict[str, Any], ut: float, nu: float, re_tau: float) -> dict:
-    """Largest deviation of the measured skewness and flatness of u and v from the
-    window-averaged exact field ``filt``, from 2.5 window heights off the wall (the rows not
-    flagged ``near_wall``) to 0.5 delta+."""
-    yp = r.y * ut / nu
-    mom = r.extra
-    if not all(k in mom for k in (*_MOMENT_KEYS, "near_wall")):
-        return {k: float("nan") for k in _MOMENT_KEYS}
-    out = {}
-    for k in _MOMENT_KEYS:
-        meas = np.asarray(mom[k])
-        m = (mom["near_wall"] == 0) & (yp <= 0.5 * re_tau) & np.isfinite(meas)
-        ref = np.interp(yp[m], filt["y_plus"], filt[k])
-        out[k] = float(np.max(np.abs(meas[m] - ref))) if m.any() else float("nan")
-    return out
-
-
-def _stress_errors(r, filt: dict[str, Any], ut: float, nu: float, re_tau: float) -> dict:
-    """Largest relative deviation of the measured uu+, vv+ and -uv+ (true wall units) from the
-    window-averaged exact field ``filt`` over 30 <= y+ <= 0.5 delta+."""
-    yp = r.y * ut / nu
-    scale = (r.u_tau / ut) ** 2
-    out = {}
-    for comp in ("uu", "vv", "uv"):
-        meas = getattr(r, f"{comp}_plus") * scale
-        m = (yp >= 30) & (yp <= 0.5 * re_tau) & np.isfinite(meas)
-        if not m.any():
-            out[comp] = float("nan")
-            continue
-        ref = np.interp(yp[m], filt["y_plus"], filt[f"{comp}_plus"])
-        out[comp] = float(np.max(np.abs(meas[m] / ref - 1.0)))
-    return out
-
-
-def _two_point_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
-    """Largest deviation of a run's streamwise correlation coefficients ``R_uu, R_vv`` (lags
-    within two correlation lengths) and largest relative deviation of their integral lengths
-    from the same pairs' exact field (``truth_two_point.nc``), over the rows from 2.5 window
-    heights off the wall (not ``near_wall``) to 0.5 delta, at the rows' measured distances;
-    and the largest deviation of the maps about each reference row up to 0.8 delta (beyond, the
-    layer's fluctuations fade into the free stream and the coefficients into noise), at the
-    same separation from the reference row."""
-    import xarray as xr
-
-    keys = ("R_uu", "R_vv", "L_uu", "L_vv", "map_uu", "map_vv")
-    if prof is None or "R_uu_map" not in prof:
-        return {k: float("nan") for k in keys}
-    with xr.open_dataset(directory / "truth_two_point.nc", engine="h5netcdf") as ds:
-        acc = TwoPointAccumulator.from_dataset_vars(ds.load(), set())
-    exact, exact_maps = acc.correlation(), acc.maps()
-    d = np.asarray(info["filtered_wall_distance_px"])
-    delta_px = info["delta99_mm"] * PAPER_M
-    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * delta_px)
-    m = (prof["R_uu"].shape[1] - 1) // 2
-    step = float(prof["dx"][m + 1] - prof["dx"][m])  # one grid step, in the run's length unit
-    grid_px = info["grid_step_px"]
-    # lags (grid steps) held by both, within two correlation lengths
-    lags = np.arange(-m, m + 1)
-    reach = np.abs(lags) * grid_px <= 2 * info["scene"]["correlation_px"]
-    use = np.flatnonzero(np.isin(lags, exact["lag"]) & reach)
-    col = np.searchsorted(exact["lag"], lags[use])
-    out = {}
-    for q in ("uu", "vv"):
-        ref = np.array([np.interp(prof["dist_px"][rows], d, exact[f"R_{q}"][:, c]) for c in col]).T
-        out[f"R_{q}"] = float(np.nanmax(np.abs(prof[f"R_{q}"][rows][:, use] - ref)))
-        length = integral_length(exact["lag"], exact[f"R_{q}"]) * grid_px
-        ref_l = np.interp(prof["dist_px"][rows], d, length)
-        out[f"L_{q}"] = float(np.nanmax(np.abs(prof[f"L_{q}"][rows] / step * grid_px / ref_l - 1)))
-    # the maps, in the separation from each reference row (the exact rows about their own)
-    d_map = d[exact_maps["rows"]]
-    for q in ("uu", "vv"):
-        worst = 0.0
-        for i, ref in enumerate(exact_maps["refs"]):
-            sep = prof["map_dist_px"] - prof["ref_dist_px"][i] + d[ref]
-            inside = (sep >= d_map[0]) & (sep <= d_map[-1])
-            inside &= prof["map_dist_px"] <= 0.8 * delta_px  # beyond, the free stream's noise
-            ref_m = np.array(
-                [np.interp(sep[inside], d_map, exact_maps[f"R_{q}"][i][:, c]) for c in col]
-            ).T
-            diff = prof[f"R_{q}_map"][i][inside][:, use] - ref_m
-            worst = max(worst, float(np.nanmax(np.abs(diff))))
-        out[f"map_{q}"] = worst
-    return out
-
-
-def _quadrant_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
-    """Largest deviation of a run's shares of u'v' carried by ejections (Q2) and sweeps (Q4)
-    at hole sizes 0 and 2 from those of the same pairs' exact field (``truth_quadrant.nc``),
-    over the rows from 2.5 window heights off the wall (not ``near_wall``) to 0.5 delta, at the
-    rows' measured distances."""
-    import xarray as xr
-
-    keys = {"Q2 H0": (1, 0.0), "Q4 H0": (3, 0.0), "Q2 H2": (1, 2.0), "Q4 H2": (3, 2.0)}
-    if prof is None:
-        return {k: float("nan") for k in keys}
-    with xr.open_dataset(directory / "truth_quadrant.nc", engine="h5netcdf") as ds:
-        d, holes, frac = ds["y"].values, list(ds["hole"].values), ds["fraction"].values
-    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * info["delta99_mm"] * PAPER_M)
-    mine = list(prof["holes"])
-    out = {}
-    for k, (q, h) in keys.items():
-        ref = np.interp(prof["dist_px"][rows], d, frac[:, q, holes.index(h)])
-        out[k] = float(np.nanmax(np.abs(prof["fraction"][rows, q, mine.index(h)] - ref)))
-    return out
-
-
 def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
     """Compare a processed synthetic campaign with its truth.
 
@@ -469,10 +355,10 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
     """
 
     directory = pathlib.Path(directory)
-    info = _truth(directory)
+    info = read_truth(directory)
     flow = TBLFlow(re_tau=info["re_tau"], u_inf=info["u_inf"], delta99_mm=info["delta99_mm"])
     ut, nu = info["u_tau"], info["nu"]
-    filt = _filtered_profile(directory, info)
+    filt = filtered_profile(directory, info)
     rows: list[dict[str, Any]] = []
     runs = result.context.runs
     main = runs[0]
@@ -575,7 +461,7 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
         # the synthetic turbulence of a few pairs is a sample, so the ensemble (DNS) stresses
         # are not the reference here; away from the wall, where the window's gradient
         # averaging and the reflection do not act
-        e_s = _stress_errors(r, filt, ut, nu, flow.re_tau)
+        e_s = stress_errors(r, filt, ut, nu, flow.re_tau)
         rows.append(
             {
                 "claim": f"{run.label}: uu+, vv+, -uv+ within 5 % of these pairs' exact field "
@@ -587,7 +473,7 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
         )
         # skewness and flatness alike: the flow's are Gaussian (0 and 3 about); at the wall
         # the measured ones are not the flow's (flagged, `profile_moments`)
-        e_m = _moment_errors(r, filt, ut, nu, flow.re_tau)
+        e_m = moment_errors(r, filt, ut, nu, flow.re_tau)
         ok_m = all(np.isfinite(v) for v in e_m.values())
         rows.append(
             {
@@ -597,14 +483,14 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
                 "limit": "0.05 / 0.1",
                 "pass": (
                     ok_m
-                    and all(e_m[k] <= (0.05 if k[0] == "S" else 0.1) for k in _MOMENT_KEYS)
+                    and all(e_m[k] <= (0.05 if k[0] == "S" else 0.1) for k in MOMENT_KEYS)
                 )
                 if corrected
                 else None,
             }
         )
         # streamwise correlations and their integral lengths alike
-        e_t = _two_point_errors(result.two_point.get(run.name), directory, info)
+        e_t = two_point_errors(result.two_point.get(run.name), directory, info)
         ok_t = all(np.isfinite(v) for v in e_t.values())
         rows.append(
             {
@@ -626,7 +512,7 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
             }
         )
         # the quadrant analysis alike (a second pass over the fields the campaign wrote)
-        e_q = _quadrant_errors(result.quadrant.get(run.name), directory, info)
+        e_q = quadrant_errors(result.quadrant.get(run.name), directory, info)
         rows.append(
             {
                 "claim": f"{run.label}: ejections' and sweeps' shares of u'v' (hole sizes 0 "
@@ -635,6 +521,23 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
                 "measured": ", ".join(f"{k} {v:.3f}" for k, v in e_q.items()),
                 "limit": "0.05",
                 "pass": all(v <= 0.05 for v in e_q.values()) if corrected else None,
+            }
+        )
+        # the vorticity alike (the same scheme on the exact field; the noise raises the rms)
+        e_v = vorticity_errors(result.vorticity.get(run.name), directory, info)
+        rows.append(
+            {
+                "claim": f"{run.label}: vorticity rms within 15 % and mean vorticity within 5 % "
+                "of these pairs' exact field by the same differences, 2.5 window heights <= y "
+                "<= 0.5 delta",
+                "measured": ", ".join(
+                    f"{k} {v:.3f}" if k[0] == "m" else f"{k} {100 * v:.1f} %"
+                    for k, v in e_v.items()
+                ),
+                "limit": "15 % / 5 %",
+                "pass": (e_v["omega_rms"] <= 0.15 and e_v["omega_mean"] <= 0.05)
+                if corrected
+                else None,
             }
         )
         if not corrected and run.name in result.analyses:

@@ -49,6 +49,9 @@ class DNSProfile:
     skewness_u, flatness_u : ndarray
         Skewness ``S(u)`` and flatness ``F(u)`` of the streamwise fluctuations (columns 11, 12;
         the values at the wall itself, ``y+ = 0``, are the DNS's limits, not a measurement).
+    dudy_plus, omzrms_plus : ndarray
+        The mean shear ``dU+/dy+`` and the spanwise vorticity's rms ``omega_z,rms nu / u_tau^2``
+        (columns 13 and 17).
     re_delta_star, h12, cf : float or None
         Integral quantities stated in the file header (only the ``.txt`` station has them).
     source : str
@@ -66,6 +69,8 @@ class DNSProfile:
     uv_plus: np.ndarray
     skewness_u: np.ndarray
     flatness_u: np.ndarray
+    dudy_plus: np.ndarray
+    omzrms_plus: np.ndarray
     re_delta_star: float | None
     h12: float | None
     cf: float | None
@@ -136,6 +141,8 @@ def _parse(name: str, text: str) -> DNSProfile:
         uv_plus=data[:, 6],
         skewness_u=data[:, 10],
         flatness_u=data[:, 11],
+        dudy_plus=data[:, 12],
+        omzrms_plus=data[:, 16],
         re_delta_star=header.get("Re_delta^*"),
         h12=header.get("H_12"),
         cf=header.get("c_f"),

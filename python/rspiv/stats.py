@@ -65,6 +65,7 @@ import numpy as np
 from rspiv import moments
 from rspiv.errors import InvalidInputError
 from rspiv.two_point import TwoPointAccumulator
+from rspiv.vorticity import VorticityAccumulator
 
 _STATE = (
     "count",
@@ -148,6 +149,8 @@ class FieldAccumulator:
         #: optional :class:`rspiv.two_point.TwoPointAccumulator` of the same fields (a
         #: campaign's streamwise spectra and correlations), carried alike
         self.two_point: Any = None
+        #: optional :class:`rspiv.vorticity.VorticityAccumulator` of the same fields, alike
+        self.vorticity: Any = None
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -345,7 +348,7 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        for name in ("ensemble", "pixel", "two_point"):
+        for name in ("ensemble", "pixel", "two_point", "vorticity"):
             theirs = getattr(other, name)
             if theirs is not None:
                 mine = getattr(self, name)
@@ -526,6 +529,7 @@ class FieldAccumulator:
         self.__dict__.setdefault("ensemble", None)
         self.__dict__.setdefault("pixel", None)
         self.__dict__.setdefault("two_point", None)
+        self.__dict__.setdefault("vorticity", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
             if name not in self.__dict__:
@@ -614,6 +618,10 @@ class FieldAccumulator:
             for k, val in variables.items():
                 ds[k] = val
             ds.attrs.update(tp_attrs)
+        if self.vorticity is not None:
+            variables, v_attrs = self.vorticity.to_dataset_vars()
+            ds = ds.assign(variables)
+            ds.attrs.update(v_attrs)
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:
@@ -669,6 +677,8 @@ class FieldAccumulator:
             acc.pixel = _pixel_from_dataset(ds)
         if "two_point_count" in ds:
             acc.two_point = TwoPointAccumulator.from_dataset_vars(ds, acc.pair_ids)
+        if "vorticity_omega_count" in ds:
+            acc.vorticity = VorticityAccumulator.from_dataset_vars(ds, acc.pair_ids)
         return acc
 
     def __repr__(self) -> str:

@@ -25,6 +25,7 @@ from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import two_point as two_point_work
+from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
 from rspiv.campaign_config import CampaignConfig
@@ -62,7 +63,7 @@ def scaled_accumulator(
     """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
     and axis flips; every moment of the state transforms exactly)."""
     # not the ensemble's sums
-    attached = (acc.ensemble, acc.pixel, acc.two_point)
+    attached = (acc.ensemble, acc.pixel, acc.two_point, acc.vorticity)
     out = copy.deepcopy(acc, memo={id(a): None for a in attached})
     ku, kv = k * sign_u, k * sign_v
     out.mean_u = acc.mean_u * ku
@@ -472,6 +473,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("single_pixel", "single-pixel", ensemble_work.write_pixel_outputs, res.pixel_profiles),
             ("two_point", "two-point", two_point_work.write_outputs, res.two_point),
             ("quadrant", "quadrant", quadrant_work.write_outputs, res.quadrant),
+            ("vorticity", "vorticity", vorticity_work.write_outputs, res.vorticity),
         )
         for key, what, write, store in bands:
             try:
@@ -557,7 +559,11 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:
             extra.insert(0, sec)
-    for store, work in ((res.two_point, two_point_work), (res.quadrant, quadrant_work)):
+    for store, work in (
+        (res.two_point, two_point_work),
+        (res.quadrant, quadrant_work),
+        (res.vorticity, vorticity_work),
+    ):
         sec = work.report_section(camp, res) if store else None
         if sec is not None:
             extra.append(sec)

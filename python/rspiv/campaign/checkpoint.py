@@ -137,8 +137,9 @@ def load_checkpoint(
         )
     if state.get("fingerprint") != ctx.fingerprint():
         raise InvalidInputError(
-            f"{path}: checkpoint of a different configuration (calibration, PIV or runs "
-            "changed); delete the checkpoint folder or choose another output folder"
+            f"{path}: checkpoint of a different configuration (calibration, PIV, runs or the "
+            "statistics carried with the pairs changed); delete the checkpoint folder or choose "
+            "another output folder"
         )
     if pairs is not None and "pair_keys" in state:
         for i, key in zip(state["finished"], state["pair_keys"].tolist(), strict=True):

@@ -154,6 +154,8 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         ctx = _plan_ensemble(camp, ctx, pairs, cal, info)
     if cfg.statistics.two_point:
         ctx = _plan_two_point(camp, ctx, pairs, cal, info)
+    if cfg.statistics.vorticity:
+        ctx = dataclasses.replace(ctx, vorticity=cfg.statistics.vorticity_scheme, _cache={})
     camp.calibration = cal
     if cal is not None:
         cal.save(out / "calibration.json")

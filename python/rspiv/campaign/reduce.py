@@ -12,22 +12,37 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from rspiv.campaign.spec import PairResult
+from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import two_point as two_point_work
+from rspiv.campaign import vorticity as vorticity_work
+from rspiv.campaign.spec import PairContext, PairResult
 from rspiv.campaign.state import RunLog, RunState
 from rspiv.stats import FieldAccumulator
 
-__all__ = ["RunReducer", "add_fields", "logged_warnings"]
+__all__ = ["RunReducer", "add_fields", "logged_warnings", "new_accumulators"]
+
+
+def new_accumulators(ctx: PairContext) -> dict[str, FieldAccumulator]:
+    """One empty FieldAccumulator per run of ``ctx``, carrying what the context plans beside
+    the statistics (the ensemble band, the two-point sums, the vorticity statistics): the same
+    for the local loop and every Dask chunk, so that their parts merge whole."""
+    gx, _ = ctx.grid()
+    accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
+    for work in (ensemble_work, two_point_work, vorticity_work):
+        accs = work.attach(ctx, accs)
+    return accs
 
 
 def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
-    """Add a processed pair's fields to the accumulators and the two-point sums they carry
-    (keyed by its pair id, so a pair is never counted twice); returns the seconds it took."""
+    """Add a processed pair's fields to the accumulators and the two-point sums and vorticity
+    statistics they carry (keyed by its pair id, so a pair is never counted twice); returns the
+    seconds it took."""
     t0 = time.perf_counter()
     for name, (u, v, valid, su, sv) in result.fields.items():
         accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
-        two_point = getattr(accs[name], "two_point", None)
-        if two_point is not None:
-            two_point.add(u, v, valid, pair_id=result.pair_id)
+        for extra in (accs[name].two_point, accs[name].vorticity):
+            if extra is not None:
+                extra.add(u, v, valid, pair_id=result.pair_id)
     return time.perf_counter() - t0
 
 

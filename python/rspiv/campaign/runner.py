@@ -15,13 +15,11 @@ from typing import Any
 import tifffile
 
 from rspiv.campaign import checkpoint
-from rspiv.campaign import ensemble as ensemble_work
-from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
 from rspiv.campaign.fields import FieldWriter
 from rspiv.campaign.prepare import prepare_context
-from rspiv.campaign.reduce import logged_warnings
+from rspiv.campaign.reduce import logged_warnings, new_accumulators
 from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_shard, shard_slice
 from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
@@ -142,8 +140,13 @@ class Campaign:
     def config_hash(self) -> str:
         """Hash of the configuration that the prepared context depends on."""
         d = self.config.to_dict()
-        sections = ("calibration", "correction", "piv", "preprocess", "wall")
+        sections = ("calibration", "correction", "piv", "preprocess", "wall", "ensemble")
         keep = {k: d[k] for k in sections if k in d}
+        # the statistics that ride on the pairs (planned in the context), not the analysis's
+        keep["statistics"] = {
+            k: v for k, v in d.get("statistics", {}).items()
+            if k.startswith(("two_point", "vorticity"))
+        }  # fmt: skip
         keep["extra"] = list(self.extra_methods)
         keep["pilot"] = self.pilot_pairs
         return hashlib.sha256(json.dumps(keep, sort_keys=True, default=str).encode()).hexdigest()[
@@ -241,15 +244,13 @@ class Campaign:
         ctx = self.prepare(state.all_pairs)
         state.t_prepare = time.perf_counter() - t0
         state.ctx = ctx
-        gx, _ = ctx.grid()
         ckpt = self.load_checkpoint(ctx)
         if ckpt is not None:
             state.accs = ckpt["accumulators"]
             state.finished = set(ckpt["finished"])
             state.timings = dict(ckpt.get("timings", {}))
         else:
-            accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
-            state.accs = two_point_work.attach(ctx, ensemble_work.attach(ctx, accs))
+            state.accs = new_accumulators(ctx)
             state.finished = set()
             state.timings = {k: 0.0 for k in STAGES}
         state.n_resumed = sum(1 for p in state.sel if p.pair_id in state.finished)

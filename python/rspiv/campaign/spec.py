@@ -114,6 +114,8 @@ class PairContext:
     #: the streamwise spectra's columns and the two-point maps' rows per run, and
     #: ``min_valid`` (:func:`rspiv.campaign.two_point.plan`), or None
     two_point: dict[str, Any] | None = None
+    #: the difference scheme of the vorticity statistics (:mod:`rspiv.vorticity`), or None
+    vorticity: str | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -195,6 +197,7 @@ class PairContext:
             "runs": [dataclasses.asdict(r) for r in self.runs],
             **({} if self.ensemble is None else {"ensemble": self.ensemble}),
             **({} if self.two_point is None else {"two_point": self.two_point}),
+            **({} if self.vorticity is None else {"vorticity": self.vorticity}),
         }
 
     @classmethod
@@ -212,6 +215,7 @@ class PairContext:
             ),
             ensemble=d.get("ensemble"),
             two_point=d.get("two_point"),
+            vorticity=d.get("vorticity"),
         )
 
     def fingerprint(self) -> str:

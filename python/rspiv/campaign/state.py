@@ -138,6 +138,8 @@ class CampaignResult:
         two_point``; empty without).
     quadrant : dict
         Run name -> its quadrant analysis (``[statistics] quadrant``; empty without).
+    vorticity : dict
+        Run name -> its vorticity profile (``[statistics] vorticity``; empty without).
     """
 
     out_dir: pathlib.Path
@@ -161,6 +163,8 @@ class CampaignResult:
     two_point: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its quadrant analysis (:mod:`rspiv.campaign.quadrant`)
     quadrant: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
+    vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
     @property
     def report(self) -> pathlib.Path | None:

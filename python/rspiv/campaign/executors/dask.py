@@ -64,7 +64,7 @@ import numpy as np
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair as pair_work
 from rspiv.campaign.fields import FieldWriter
-from rspiv.campaign.reduce import RunReducer, add_fields
+from rspiv.campaign.reduce import RunReducer, add_fields, new_accumulators
 from rspiv.campaign.runner import Campaign
 from rspiv.campaign.spec import STAGES, PairContext, PairSpec
 from rspiv.campaign.state import CampaignResult, RunState
@@ -136,8 +136,9 @@ def process_chunk(
     """
     # one parsed context (mapping, mask) per worker process and campaign
     context = _CONTEXTS.setdefault(context.fingerprint(), context)
-    gx, _ = context.grid()
-    accs = ensemble_work.attach(context, {r.name: FieldAccumulator(gx.shape) for r in context.runs})
+    # the same carried sums as the client's (ensemble band, two-point, vorticity): a chunk's
+    # part merges whole
+    accs = new_accumulators(context)
     ens = ensemble_work.band_accumulators(accs)
     first = None
     done: list[int] = []

@@ -1,6 +1,9 @@
-"""A campaign's quadrant analysis (``[statistics] quadrant``, rspiv.campaign.quadrant): the second
-pass over the fields the pair loop wrote equals direct sums over those files about the run's own
-statistics; missing and foreign field files are said."""
+"""A campaign's statistics beyond the moments, on one small synthetic campaign (quadrant and
+vorticity on, as the demo has them): the quadrant analysis (``[statistics] quadrant``,
+rspiv.campaign.quadrant), a second pass over the fields the pair loop wrote, equals direct sums
+over those files about the run's own statistics, and missing and foreign field files are said;
+the vorticity statistics (``[statistics] vorticity``, rspiv.campaign.vorticity) equal the
+vorticity of those files, row by row."""
 
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ def processed(tmp_path_factory):
     d = tmp_path_factory.mktemp("quadrant")
     synth_campaign(d, scene=SCENE)  # quadrant and fields on, as the demo has them
     cfg = load_campaign_config(d / "campaign.toml")
-    assert cfg.statistics.quadrant and cfg.output.fields
+    assert cfg.statistics.quadrant and cfg.output.fields and cfg.statistics.vorticity
     camp = Campaign.load(d / "campaign.toml", progress=False)
     return d, camp, camp.run()
 
@@ -130,3 +133,75 @@ def test_a_foreign_field_file_stops_the_run_in_one_line(processed, tmp_path):
     assert "pair_000002.nc: a grid of 10 x" in err and "\n" not in err
     assert any("quadrant profile failed" in m for m in said)
     assert "uncorrected" in res.quadrant
+
+
+def test_the_vorticity_profile_equals_that_of_the_fields(processed):
+    """``vorticity_<run>.nc``: per row, the mean of the per-vector means and the root of the
+    mean per-vector variance of omega_z over the usable vectors, in 1/s and the flow's frame,
+    equal those of the written fields (float32: to 1e-5); the rows whose differences reach
+    into the wall's rows are flagged; the figure is drawn."""
+    import xarray as xr
+    from rspiv.derivatives import vorticity
+
+    _, camp, res = processed
+    out = res.out_dir
+    dt = camp.config.flow.dt
+    for run in ("method_II", "uncorrected"):
+        acc = res.accumulators[run]
+        prof = res.analyses[run].profile
+        gx, gy = res.context.grid()
+        omegas = []
+        for f in sorted((out / "fields" / run).glob("pair_*.nc")):
+            with xr.open_dataset(f, engine="h5netcdf") as ds:
+                u, v = ds["u"].values.astype(float), ds["v"].values.astype(float)
+            omegas.append(vorticity(u, v, gx[0, 1] - gx[0, 0], gy[1, 0] - gy[0, 0]))
+        w = np.array(omegas)
+        n = np.isfinite(w).sum(axis=0)
+        usable = (acc.count >= 2) & (prof["dist_px"] > 0)[:, None] & (n > 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.where(np.isfinite(w), w, 0).sum(axis=0) / n
+            var = np.where(np.isfinite(w), (w - mean) ** 2, 0).sum(axis=0) / (n - 1)
+        orient = prof["sign_x"] * -prof["sign_y"]
+        k = usable.sum(axis=1)
+        rows = np.argsort(prof["dist_px"])
+        rows = rows[(prof["dist_px"][rows] > 0) & (k[rows] > 0)]
+        want_mean = orient * np.where(usable, mean, 0).sum(1)[rows] / k[rows] / dt
+        want_rms = np.sqrt(np.where(usable, var, 0).sum(1)[rows] / k[rows]) / dt
+        with xr.open_dataset(out / f"vorticity_{run}.nc", engine="h5netcdf") as ds:
+            assert ds.attrs["pairs"] == 3 and ds.attrs["scheme"] == "least_squares"
+            assert ds["omega_rms"].attrs["units"] == "s-1"
+            # float32 fields: about 1e-7 px of each displacement, 1e-6 of the largest mean
+            np.testing.assert_allclose(ds["omega_mean"].values, want_mean, rtol=1e-5,
+                                       atol=1e-6 * np.abs(want_mean).max())  # fmt: skip
+            np.testing.assert_allclose(ds["omega_rms"].values, want_rms, rtol=1e-5)
+            # a boundary layer's mean vorticity is -dU/dy < 0 in the flow's frame
+            away = ~ds["near_wall"].values & (ds["y"].values < 0.3 * res.analyses[run]
+                                               .result.delta99)  # fmt: skip
+            assert np.all(ds["omega_mean"].values[away] < 0)
+            # flagged: 2.5 window heights (20 px) and the scheme's two rows (8 px)
+            dist = ds["y"].values / prof["m_per_px"]
+            np.testing.assert_array_equal(ds["near_wall"].values, dist < 28.0)
+    assert (out / "report" / "figures" / "vorticity.png").is_file()
+    assert "Vorticity" in (out / "report" / "report.html").read_text()
+
+
+def test_statistics_carried_with_the_pairs_are_part_of_the_checkpoint(processed, tmp_path, capsys):
+    """Switching vorticity off after the run (a statistic carried with every pair) rebuilds the
+    context and refuses the old checkpoint in one line, rather than resuming without it; the
+    quadrant analysis (a second pass at the end) does not touch the checkpoint."""
+    from rspiv.cli import main
+
+    d, _, full = processed
+    out = tmp_path / "out"
+    shutil.copytree(full.out_dir, out)
+    cfg = load_campaign_config(d / "campaign.toml")
+    cfg.output.dir = out
+    cfg.statistics.quadrant_holes = (0.0, 3.0)
+    same = cfg.save(tmp_path / "same.toml")
+    assert main(["process", str(same), "-q"]) == 0
+    assert "3 from the checkpoint" in capsys.readouterr().out
+    cfg.statistics.vorticity = False
+    other = cfg.save(tmp_path / "other.toml")
+    assert main(["process", str(other), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "checkpoint of a different configuration" in err and len(err.splitlines()) == 1

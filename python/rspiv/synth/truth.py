@@ -1,0 +1,196 @@
+"""A processed synthetic campaign against its exact answers (the files
+:func:`rspiv.demo.synth_campaign` writes beside the frames): the helpers of
+:func:`rspiv.demo.verdicts`, one per statistic, each giving the largest deviation over the rows
+or heights its claim names.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+from typing import Any
+
+import numpy as np
+
+from rspiv.errors import InvalidInputError
+from rspiv.profiles import profile_from_accumulator
+from rspiv.stats import FieldAccumulator
+from rspiv.synth.target import PAPER_OPTICS
+from rspiv.two_point import TwoPointAccumulator, integral_length
+
+__all__ = [
+    "MOMENT_KEYS",
+    "PAPER_M",
+    "filtered_profile",
+    "moment_errors",
+    "quadrant_errors",
+    "read_truth",
+    "stress_errors",
+    "two_point_errors",
+    "vorticity_errors",
+]
+
+#: The paper's magnification, px/mm (the synthetic scenes keep it at every scale).
+PAPER_M = PAPER_OPTICS.magnification
+
+
+def read_truth(directory: pathlib.Path) -> dict[str, Any]:
+    p = pathlib.Path(directory) / "truth.json"
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InvalidInputError(f"{p}: cannot read the synthetic truth ({exc})") from None
+
+
+def filtered_profile(directory: pathlib.Path, info: dict[str, Any]):
+    import xarray as xr
+
+
+    with xr.open_dataset(pathlib.Path(directory) / "truth_filtered.nc", engine="h5netcdf") as ds:
+        acc = FieldAccumulator.from_xarray(ds.load())
+    prof = profile_from_accumulator(acc)
+    d = np.asarray(info["filtered_wall_distance_px"])
+    ut_px = info["u_inf_px"] / info["u_inf_plus"]
+    return {
+        "y_plus": d / info["viscous_length_px"],
+        "u_plus": prof["U"] / ut_px,
+        "uu_plus": prof["uu"] / ut_px**2,
+        "vv_plus": prof["vv"] / ut_px**2,
+        "uv_plus": prof["uv"] / ut_px**2,
+        **{k: prof[k] for k in MOMENT_KEYS},
+    }
+
+
+#: The skewness and flatness compared with the exact field (:func:`moment_errors`).
+MOMENT_KEYS = ("S_u", "F_u", "S_v", "F_v")
+
+
+def moment_errors(r, filt: dict[str, Any], ut: float, nu: float, re_tau: float) -> dict:
+    """Largest deviation of the measured skewness and flatness of u and v from the
+    window-averaged exact field ``filt``, from 2.5 window heights off the wall (the rows not
+    flagged ``near_wall``) to 0.5 delta+."""
+    yp = r.y * ut / nu
+    mom = r.extra
+    if not all(k in mom for k in (*MOMENT_KEYS, "near_wall")):
+        return {k: float("nan") for k in MOMENT_KEYS}
+    out = {}
+    for k in MOMENT_KEYS:
+        meas = np.asarray(mom[k])
+        m = (mom["near_wall"] == 0) & (yp <= 0.5 * re_tau) & np.isfinite(meas)
+        ref = np.interp(yp[m], filt["y_plus"], filt[k])
+        out[k] = float(np.max(np.abs(meas[m] - ref))) if m.any() else float("nan")
+    return out
+
+
+def stress_errors(r, filt: dict[str, Any], ut: float, nu: float, re_tau: float) -> dict:
+    """Largest relative deviation of the measured uu+, vv+ and -uv+ (true wall units) from the
+    window-averaged exact field ``filt`` over 30 <= y+ <= 0.5 delta+."""
+    yp = r.y * ut / nu
+    scale = (r.u_tau / ut) ** 2
+    out = {}
+    for comp in ("uu", "vv", "uv"):
+        meas = getattr(r, f"{comp}_plus") * scale
+        m = (yp >= 30) & (yp <= 0.5 * re_tau) & np.isfinite(meas)
+        if not m.any():
+            out[comp] = float("nan")
+            continue
+        ref = np.interp(yp[m], filt["y_plus"], filt[f"{comp}_plus"])
+        out[comp] = float(np.max(np.abs(meas[m] / ref - 1.0)))
+    return out
+
+
+def two_point_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
+    """Largest deviation of a run's streamwise correlation coefficients ``R_uu, R_vv`` (lags
+    within two correlation lengths) and largest relative deviation of their integral lengths
+    from the same pairs' exact field (``truth_two_point.nc``), over the rows from 2.5 window
+    heights off the wall (not ``near_wall``) to 0.5 delta, at the rows' measured distances;
+    and the largest deviation of the maps about each reference row up to 0.8 delta (beyond, the
+    layer's fluctuations fade into the free stream and the coefficients into noise), at the
+    same separation from the reference row."""
+    import xarray as xr
+
+    keys = ("R_uu", "R_vv", "L_uu", "L_vv", "map_uu", "map_vv")
+    if prof is None or "R_uu_map" not in prof:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_two_point.nc", engine="h5netcdf") as ds:
+        acc = TwoPointAccumulator.from_dataset_vars(ds.load(), set())
+    exact, exact_maps = acc.correlation(), acc.maps()
+    d = np.asarray(info["filtered_wall_distance_px"])
+    delta_px = info["delta99_mm"] * PAPER_M
+    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * delta_px)
+    m = (prof["R_uu"].shape[1] - 1) // 2
+    step = float(prof["dx"][m + 1] - prof["dx"][m])  # one grid step, in the run's length unit
+    grid_px = info["grid_step_px"]
+    # lags (grid steps) held by both, within two correlation lengths
+    lags = np.arange(-m, m + 1)
+    reach = np.abs(lags) * grid_px <= 2 * info["scene"]["correlation_px"]
+    use = np.flatnonzero(np.isin(lags, exact["lag"]) & reach)
+    col = np.searchsorted(exact["lag"], lags[use])
+    out = {}
+    for q in ("uu", "vv"):
+        ref = np.array([np.interp(prof["dist_px"][rows], d, exact[f"R_{q}"][:, c]) for c in col]).T
+        out[f"R_{q}"] = float(np.nanmax(np.abs(prof[f"R_{q}"][rows][:, use] - ref)))
+        length = integral_length(exact["lag"], exact[f"R_{q}"]) * grid_px
+        ref_l = np.interp(prof["dist_px"][rows], d, length)
+        out[f"L_{q}"] = float(np.nanmax(np.abs(prof[f"L_{q}"][rows] / step * grid_px / ref_l - 1)))
+    # the maps, in the separation from each reference row (the exact rows about their own)
+    d_map = d[exact_maps["rows"]]
+    for q in ("uu", "vv"):
+        worst = 0.0
+        for i, ref in enumerate(exact_maps["refs"]):
+            sep = prof["map_dist_px"] - prof["ref_dist_px"][i] + d[ref]
+            inside = (sep >= d_map[0]) & (sep <= d_map[-1])
+            inside &= prof["map_dist_px"] <= 0.8 * delta_px  # beyond, the free stream's noise
+            ref_m = np.array(
+                [np.interp(sep[inside], d_map, exact_maps[f"R_{q}"][i][:, c]) for c in col]
+            ).T
+            diff = prof[f"R_{q}_map"][i][inside][:, use] - ref_m
+            worst = max(worst, float(np.nanmax(np.abs(diff))))
+        out[f"map_{q}"] = worst
+    return out
+
+
+def quadrant_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
+    """Largest deviation of a run's shares of u'v' carried by ejections (Q2) and sweeps (Q4)
+    at hole sizes 0 and 2 from those of the same pairs' exact field (``truth_quadrant.nc``),
+    over the rows from 2.5 window heights off the wall (not ``near_wall``) to 0.5 delta, at the
+    rows' measured distances."""
+    import xarray as xr
+
+    keys = {"Q2 H0": (1, 0.0), "Q4 H0": (3, 0.0), "Q2 H2": (1, 2.0), "Q4 H2": (3, 2.0)}
+    if prof is None:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_quadrant.nc", engine="h5netcdf") as ds:
+        d, holes, frac = ds["y"].values, list(ds["hole"].values), ds["fraction"].values
+    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * info["delta99_mm"] * PAPER_M)
+    mine = list(prof["holes"])
+    out = {}
+    for k, (q, h) in keys.items():
+        ref = np.interp(prof["dist_px"][rows], d, frac[:, q, holes.index(h)])
+        out[k] = float(np.nanmax(np.abs(prof["fraction"][rows, q, mine.index(h)] - ref)))
+    return out
+
+
+def vorticity_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
+    """Largest relative deviation of a run's vorticity rms and of its mean vorticity from the
+    same pairs' exact field by the same scheme on the same grid (``truth_vorticity.nc``), over
+    the rows from 2.5 window heights off the wall (not ``near_wall``) to 0.5 delta, at the
+    rows' measured distances; and the median ratio of the rms to the exact one (the
+    measurement noise, which the differences amplify, raises it)."""
+    import xarray as xr
+
+    keys = ("omega_rms", "omega_mean", "median rms ratio")
+    if prof is None or "omega_rms" not in prof:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_vorticity.nc", engine="h5netcdf") as ds:
+        d, rms, mean = ds["y"].values, ds["omega_rms"].values, ds["omega_mean"].values
+    rows = ~prof["near_wall"] & (prof["dist_px"] <= 0.5 * info["delta99_mm"] * PAPER_M)
+    per_pair = info["dt"] if prof.get("per_s") else 1.0  # the run's 1/s back to 1/pair
+    y = prof["dist_px"][rows]
+    ratio = prof["omega_rms"][rows] * per_pair / np.interp(y, d, rms)
+    dev = prof["omega_mean"][rows] * per_pair / np.interp(y, d, mean) - 1.0
+    return {
+        "omega_rms": float(np.nanmax(np.abs(ratio - 1.0))),
+        "omega_mean": float(np.nanmax(np.abs(dev))),
+        "median rms ratio": float(np.nanmedian(ratio)),
+    }
