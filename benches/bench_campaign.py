@@ -20,6 +20,7 @@ Usage::
     python benches/bench_campaign.py [--scales 0.4 1.0] [--pairs 4] [--workdir /tmp/rspiv-bench]
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --roi-rows 0.25
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --two-point
+    python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --extras
     python benches/bench_campaign.py --scales 0.146 0.505 1.0 --methods II --threads 1 2 --no-peer
 
 Prints a Markdown table (for benches/RESULTS.md). With ``--threads``, each configuration runs
@@ -51,6 +52,9 @@ cfg.correction.method = method
 cfg.correction.compare_uncorrected = False
 # the synthetic campaign's [statistics] two_point (spectra, maps and their pilot) only if asked
 cfg.statistics.two_point = os.environ.get("RSPIV_BENCH_TWO_POINT") == "1"
+# its vorticity statistics, each pair's fields and the quadrant analysis's pass over them, alike
+extras = os.environ.get("RSPIV_BENCH_EXTRAS") == "1"
+cfg.statistics.vorticity = cfg.statistics.quadrant = cfg.output.fields = extras
 
 cfg.calibration.monte_carlo_samples = 0
 cfg.output.report = False
@@ -129,6 +133,11 @@ def main() -> int:
         help="keep the synthetic campaign's [statistics] two_point (spectra and maps)",
     )
     ap.add_argument(
+        "--extras",
+        action="store_true",
+        help="keep the synthetic campaign's vorticity statistics, fields and quadrant analysis",
+    )
+    ap.add_argument(
         "--roi-rows",
         type=float,
         default=None,
@@ -169,6 +178,7 @@ def main() -> int:
                 if threads is not None:
                     env["RAYON_NUM_THREADS"] = str(threads)
                 env["RSPIV_BENCH_TWO_POINT"] = "1" if args.two_point else "0"
+                env["RSPIV_BENCH_EXTRAS"] = "1" if args.extras else "0"
                 roi = [] if args.roi_rows is None else [str(args.roi_rows)]
                 r = subprocess.run(
                     [sys.executable, "-c", CHILD, str(toml), method, str(out), *roi],

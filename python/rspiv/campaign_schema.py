@@ -10,6 +10,7 @@ import os
 import pathlib
 from typing import Any
 
+from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError
 from rspiv.settings import (
     DEFORMATIONS,
@@ -136,26 +137,26 @@ def _pair(ctx, where, v, *, integer, minimum):
     return tuple(out)
 
 
-def _heights(ctx, where, v):
-    """A list of at most 8 positive heights, increasing (the two-point maps' references)."""
-    msg = "expected a list of at most 8 increasing positive numbers"
-    if not isinstance(v, list) or len(v) > 8:
+def _increasing(ctx, where, v, *, positive: bool, min_len: int):
+    """A list of ``min_len`` to 8 increasing numbers, > 0 (``positive``) or >= 0."""
+    count = "at most 8" if min_len == 0 else f"{min_len} to 8"
+    msg = f"expected a list of {count} increasing numbers {'> 0' if positive else '>= 0'}"
+    if not isinstance(v, list) or not min_len <= len(v) <= 8:
         raise ctx.err(where, f"{msg}, got {v!r}")
-    out = [_number(ctx, where, t, minimum=0, exclusive_min=True) for t in v]
+    out = [_number(ctx, where, t, minimum=0, exclusive_min=positive) for t in v]
     if any(b <= a for a, b in zip(out, out[1:], strict=False)):
         raise ctx.err(where, f"{msg}, got {v!r}")
-    return tuple(out)
+    return tuple(float(t) for t in out)
+
+
+def _heights(ctx, where, v):
+    """The two-point maps' reference heights: at most 8, positive, increasing."""
+    return _increasing(ctx, where, v, positive=True, min_len=0)
 
 
 def _holes(ctx, where, v):
-    """A list of 1 to 8 hole sizes >= 0, increasing (the quadrant analysis)."""
-    msg = "expected a list of 1 to 8 increasing numbers >= 0"
-    if not isinstance(v, list) or not 1 <= len(v) <= 8:
-        raise ctx.err(where, f"{msg}, got {v!r}")
-    out = [float(_number(ctx, where, t, minimum=0)) for t in v]
-    if any(b <= a for a, b in zip(out, out[1:], strict=False)):
-        raise ctx.err(where, f"{msg}, got {v!r}")
-    return tuple(out)
+    """The quadrant analysis's hole sizes: 1 to 8, >= 0, increasing."""
+    return _increasing(ctx, where, v, positive=False, min_len=1)
 
 
 def _method(ctx, where, v):
@@ -256,9 +257,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "quadrant": _boolean,
         "quadrant_holes": _holes,
         "vorticity": _boolean,
-        "vorticity_scheme": lambda c, w, v: _choice(
-            c, w, v, ("central", "least_squares", "richardson"), fold=str.lower
-        ),
+        "vorticity_scheme": lambda c, w, v: _choice(c, w, v, tuple(SCHEMES), fold=str.lower),
     },
     "ensemble": {
         "enabled": _boolean,

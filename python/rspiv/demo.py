@@ -17,9 +17,11 @@ correlation length of 96 px (as on the full sensor).
 interrogation window on wall-parallel rows, accumulated over the same pairs;
 ``truth_two_point.nc``: the same fields' streamwise spectra and correlations,
 :class:`rspiv.two_point.TwoPointAccumulator`; ``truth_quadrant.nc``: their quadrant analysis,
-:class:`rspiv.quadrant.QuadrantAccumulator`) and ``campaign.toml`` (with ``[statistics]
-two_point`` and ``quadrant``, and so ``[output] fields``). :func:`verdicts` compares a processed
-campaign with the truth;
+:class:`rspiv.quadrant.QuadrantAccumulator`; ``truth_vorticity.nc``: their vorticity by the
+campaign's differences, :class:`rspiv.vorticity.VorticityAccumulator`) and ``campaign.toml``
+(with ``[statistics]`` ``two_point``, ``quadrant`` and ``vorticity``, and so ``[output]
+fields``). :func:`verdicts` compares a processed campaign with the truth
+(:mod:`rspiv.synth.truth`);
 :func:`run_demo` is ``rspiv demo``.
 """
 
@@ -187,8 +189,8 @@ def synth_campaign(
     ----------
     directory : path
         Created if missing; ``target.tif``, ``raw/``, ``truth.json``, ``truth_filtered.nc``,
-        ``truth_two_point.nc``, ``truth_quadrant.nc`` and ``campaign.toml`` are written there
-        (output folder of the campaign: ``out``).
+        ``truth_two_point.nc``, ``truth_quadrant.nc``, ``truth_vorticity.nc`` and
+        ``campaign.toml`` are written there (output folder of the campaign: ``out``).
     pairs, scale : optional
         Override the scene's ``pairs`` and ``scale``.
     scene : DemoScene

@@ -46,7 +46,15 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["SCHEMES", "derivative", "divergence", "gradients", "swirling_strength", "vorticity"]
+__all__ = [
+    "SCHEMES",
+    "derivative",
+    "divergence",
+    "gradients",
+    "swirl_from_gradients",
+    "swirling_strength",
+    "vorticity",
+]
 
 #: The difference schemes: offsets and weights (times 1 / h).
 SCHEMES: dict[str, tuple[tuple[int, ...], tuple[float, ...]]] = {
@@ -128,7 +136,11 @@ def swirling_strength(
 ) -> np.ndarray:
     """The swirling strength ``lambda_ci`` (1/pair, 0 where the local motion does not swirl),
     with ``signed=True`` times the sign of the vorticity (module docstring)."""
-    g = gradients(u, v, dx, dy, scheme)
+    return swirl_from_gradients(gradients(u, v, dx, dy, scheme), signed)
+
+
+def swirl_from_gradients(g: dict[str, np.ndarray], signed: bool = False) -> np.ndarray:
+    """:func:`swirling_strength` from :func:`gradients`' dictionary (NaN where they are)."""
     a, b, c, d = g["dudx"], g["dudy"], g["dvdx"], g["dvdy"]
     disc = 0.25 * (a - d) ** 2 + b * c
     with np.errstate(invalid="ignore"):

@@ -290,7 +290,7 @@ class PivField:
             for name, val, what in (
                 ("vorticity", omega, "vorticity, counter-clockwise positive"),
                 ("divergence", g["dudx"] + g["dvdy"], "in-plane divergence"),
-                ("swirling_strength", self.swirling_strength(derived, signed=True),
+                ("swirling_strength", derivatives.swirl_from_gradients(g, signed=True),
                  "swirling strength signed by the vorticity"),
             ):  # fmt: skip
                 data[name] = (dims, val, {"units": "1/pair", "long_name": f"{what} {long}"})

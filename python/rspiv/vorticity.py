@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rspiv.derivatives import gradients
+from rspiv.derivatives import gradients, swirl_from_gradients
 from rspiv.errors import InvalidInputError
 
 __all__ = ["VorticityAccumulator"]
@@ -59,11 +59,7 @@ class VorticityAccumulator:
         """``omega_z`` and signed ``lambda_ci`` (1/pair) of one field's valid vectors."""
         ok = np.asarray(valid, bool) & np.isfinite(u) & np.isfinite(v)
         g = gradients(np.where(ok, u, np.nan), np.where(ok, v, np.nan), dx, dy, scheme)
-        a, b, c, d = g["dudx"], g["dudy"], g["dvdx"], g["dvdy"]
-        omega = c - b
-        with np.errstate(invalid="ignore"):
-            swirl = np.sqrt(np.maximum(-(0.25 * (a - d) ** 2 + b * c), 0.0)) * np.sign(omega)
-        return omega, np.where(np.isfinite(omega), swirl, np.nan)
+        return g["dvdx"] - g["dudy"], swirl_from_gradients(g, signed=True)
 
     def add(self, u, v, valid=None, *, pair_id: int | None = None) -> None:
         """Add one field (pixel frame, px): ``u``, ``v`` of the grid's shape.

@@ -125,8 +125,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     k2 = float(p.get("k", 1.0)) ** 2
     orient = float(p.get("sign_x", 1.0)) * float(p.get("sign_y", 1.0))
     with np.errstate(invalid="ignore", divide="ignore"):
-        rho = np.where(usable, acc.uv / np.sqrt(acc.uu * acc.vv), np.nan)
-        rho_row = np.nanmean(rho[keep], axis=1) * orient  # the flow's signs
+        rho = np.where(usable, acc.uv / np.sqrt(acc.uu * acc.vv), np.nan)[keep]
+        finite = np.isfinite(rho)
+        rho_row = np.where(finite, rho, 0.0).sum(1) / finite.sum(1) * orient  # the flow's signs
     gauss = np.full((keep.size, 4), np.nan)
     for i, rr in enumerate(rho_row):
         if np.isfinite(rr) and abs(rr) < 1:
