@@ -93,7 +93,7 @@ def test_gaussian_field_gives_the_exact_shares():
     mu, mv, su, sv, u, v, _ = _fields(rng, 200, 8, 500, rho, nan_share=0.0)
     acc = QuadrantAccumulator(mu, mv, su, sv, sign_y=-1.0, holes=HOLES)
     for k in range(u.shape[0]):
-        acc.add(u[k], v[k])
+        acc.add(u[k], v[k], batch=k * 8 // u.shape[0])
     r = acc.results()
     g = gaussian_quadrant(rho, HOLES)
     got = r["fraction"].mean(axis=-1)
@@ -103,6 +103,11 @@ def test_gaussian_field_gives_the_exact_shares():
     assert np.all(np.diff(g["fraction"][1]) < 0) and g["fraction"][1, 0] > 0.6
     # mean about the exact means (not the sample means): uv = rho u_rms v_rms
     np.testing.assert_allclose(r["uv"].mean(), rho * np.mean(su * sv), rtol=0.01)
+    # the batch means' standard error of uv against the exact one of independent samples,
+    # sqrt((1 + rho^2) <(su sv)^2> / N) per row (8 batches: each estimate within about 27 %)
+    exact = np.sqrt((1 + rho**2) * np.mean((su * sv) ** 2, axis=1) / r["count"])
+    assert np.all(r["uv_batches"] == 8)
+    assert np.mean(r["uv_se"] / exact) == pytest.approx(1.0, abs=0.2)
 
 
 def test_gaussian_reference_values():

@@ -73,6 +73,10 @@ class QuadrantAccumulator:
     bins, extent : int, float
         The joint PDF's grid: ``bins`` x ``bins`` cells over ``[-extent, extent]^2`` in
         standard deviations.
+    batches : int
+        Batches of fields for the standard error of ``<u'v'>`` (batch means: each field is
+        added to the batch the caller names, contiguous runs of pairs, so that the correlation
+        of neighbouring vectors and of consecutive pairs stays inside a batch).
 
     Raises
     ------
@@ -94,6 +98,7 @@ class QuadrantAccumulator:
         holes=(0.0, 1.0, 2.0, 4.0),
         bins: int = 64,
         extent: float = 4.0,
+        batches: int = 8,
     ):
         self.mean_u = _grid("mean_u", mean_u)
         self.shape: tuple[int, int] = self.mean_u.shape  # type: ignore[assignment]
@@ -132,12 +137,18 @@ class QuadrantAccumulator:
         self.s_level = np.zeros((ny, 4, nl), np.float64)  # their sum of u'v'
         self.jpdf_count = np.zeros((ny, self.bins, self.bins), np.int64)  # [row, v bin, u bin]
         self.count = np.zeros(ny, np.int64)  # samples per row
+        self.batches = max(int(batches), 1)
+        self.batch_n = np.zeros((self.batches, ny), np.int64)  # samples per batch and row
+        self.batch_s = np.zeros((self.batches, ny))  # their sum of u'v'
         self.n_fields = 0
         self.pair_ids: set[int] = set()
 
-    def add(self, u, v, valid=None, *, pair_id: int | None = None) -> None:
+    def add(
+        self, u, v, valid=None, *, pair_id: int | None = None, batch: int = 0
+    ) -> None:
         """Add one field: ``u``, ``v`` of shape (ny, nx) in the means' frame and units; NaN or
-        ``valid == 0`` vectors are left out.
+        ``valid == 0`` vectors are left out; ``batch`` (``0 <= batch < batches``) for the
+        standard error.
 
         Raises
         ------
@@ -173,7 +184,11 @@ class QuadrantAccumulator:
         self.jpdf_count += np.bincount(jidx, minlength=ny * self.bins**2).reshape(
             ny, self.bins, self.bins
         )
-        self.count += np.bincount(rows, minlength=ny)
+        per_row = np.bincount(rows, minlength=ny)
+        self.count += per_row
+        b = min(max(int(batch), 0), self.batches - 1)
+        self.batch_n[b] += per_row
+        self.batch_s[b] += np.bincount(rows, weights=uv, minlength=ny)
         self.n_fields += 1
         if pair_id is not None:
             self.pair_ids.add(int(pair_id))
@@ -190,8 +205,8 @@ class QuadrantAccumulator:
         same = (
             self.shape == other.shape
             and np.array_equal(self.holes, other.holes)
-            and (self.sign_x, self.sign_y, self.bins, self.extent)
-            == (other.sign_x, other.sign_y, other.bins, other.extent)
+            and (self.sign_x, self.sign_y, self.bins, self.extent, self.batches)
+            == (other.sign_x, other.sign_y, other.bins, other.extent, other.batches)
             and all(
                 np.array_equal(getattr(self, k), getattr(other, k), equal_nan=True)
                 for k in ("mean_u", "mean_v", "rms_u", "rms_v", "usable")
@@ -207,9 +222,21 @@ class QuadrantAccumulator:
         self.s_level += other.s_level
         self.jpdf_count += other.jpdf_count
         self.count += other.count
+        self.batch_n += other.batch_n
+        self.batch_s += other.batch_s
         self.n_fields += other.n_fields
         self.pair_ids |= other.pair_ids
         return self
+
+    def _batch_se(self) -> tuple[np.ndarray, np.ndarray]:
+        """Standard error of each row's ``<u'v'>`` from the spread of its batch means, and the
+        number of batches it rests on."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            means = np.where(self.batch_n > 0, self.batch_s / self.batch_n, np.nan)
+            k = np.isfinite(means).sum(axis=0)
+            mu = np.where(np.isfinite(means), means, 0).sum(axis=0) / k
+            var = np.where(np.isfinite(means), (means - mu) ** 2, 0).sum(axis=0) / (k - 1)
+            return np.where(k > 1, np.sqrt(var / k), np.nan), k
 
     def _at_holes(self, a: np.ndarray) -> np.ndarray:
         """Per-level sums -> sums over the events outside each hole, shape (4, nH, ny)."""
@@ -218,11 +245,14 @@ class QuadrantAccumulator:
         return np.moveaxis(above[..., pick], 0, -1)
 
     def results(self) -> dict[str, np.ndarray]:
-        """Per row: ``count`` (N), ``uv`` (``<u'v'>``), ``stress``, ``fraction`` and
+        """Per row: ``count`` (N), ``uv`` (``<u'v'>``), ``uv_se`` (its standard error from the
+        batch means, NaN with fewer than two batches) and ``uv_batches`` (the batches it rests
+        on), ``stress``, ``fraction`` and
         ``time_fraction`` of shape (4, n_holes, ny) (Q1..Q4, ``holes``), ``jpdf`` (ny, bins,
         bins; [row, v', u']) with its cell centres ``centres`` (standard deviations); rows
         without samples are NaN."""
         n = self.count.astype(np.float64)
+        se, k = self._batch_se()
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.where(n > 0, 1.0 / n, np.nan)
             stress = self._at_holes(self.s_level) * inv
@@ -231,6 +261,8 @@ class QuadrantAccumulator:
             jpdf = self.jpdf_count * (inv / (w * w))[:, None, None]
             return {
                 "count": self.count.copy(),
+                "uv_se": se,
+                "uv_batches": k,
                 "holes": self.holes.copy(),
                 "uv": uv,
                 "stress": stress,

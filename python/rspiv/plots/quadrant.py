@@ -26,7 +26,8 @@ _COLOURS = ("tab:grey", "tab:red", "tab:olive", "tab:blue")
 
 def plot_quadrant(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Path:
     """Write the figure of ``prof`` (:func:`rspiv.campaign.quadrant.write_outputs`, in wall
-    units) to ``path``; rows flagged ``near_wall`` and rows beyond delta_99 are left out."""
+    units) to ``path``; rows flagged ``near_wall`` or ``uv_unresolved`` and rows beyond delta_99
+    are left out."""
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
 
@@ -35,6 +36,7 @@ def plot_quadrant(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Path
     # beyond delta_99 u'v' tends to 0 and its fractions to noise over noise
     ok = ~np.asarray(prof["near_wall"], bool) & np.isfinite(prof["fraction"][:, 0, 0])
     ok &= np.asarray(prof["y"]) <= prof["delta_99"]
+    ok &= ~np.asarray(prof.get("uv_unresolved", np.zeros(ok.shape, bool)), bool)
     if ok.sum() < 2:
         raise InvalidInputError("quadrant figure: fewer than 2 rows away from the wall")
     yp = prof["y_plus"][ok]
