@@ -209,3 +209,26 @@ def test_statistics_carried_with_the_pairs_are_part_of_the_checkpoint(processed,
     assert main(["process", str(other), "-q"]) == 2
     err = capsys.readouterr().err.strip()
     assert "checkpoint of a different configuration" in err and len(err.splitlines()) == 1
+
+
+def test_the_second_pass_in_threads_equals_one_thread(processed):
+    """The field files added by 1 and by 3 threads (contiguous runs of pairs, parts merged)
+    give the same sums, batches included; a missing file is named whichever thread meets it."""
+    from rspiv.campaign.quadrant import accumulate
+    from rspiv.quadrant import QuadrantAccumulator
+
+    _, camp, res = processed
+    acc = res.accumulators["method_II"]
+    writer = camp.field_writer()
+    paths = {pid: writer.path("method_II", pid) for pid in sorted(acc.pair_ids)}
+    paths[99] = writer.path("method_II", 99)  # no such file
+    out = []
+    for workers in (1, 3):
+        q = QuadrantAccumulator(acc.mean_u, acc.mean_v, np.sqrt(acc.uu), np.sqrt(acc.vv),
+                                usable=acc.count >= 2, batches=4)  # fmt: skip
+        n, missing = accumulate(q, paths, "method_II", workers=workers)
+        assert n == 3 and missing == [99]
+        out.append(q.results())
+    for key in ("count", "uv", "stress", "time_fraction", "jpdf", "uv_se", "uv_batches"):
+        np.testing.assert_allclose(out[1][key], out[0][key], rtol=1e-12, atol=1e-300)
+    assert out[0]["uv_batches"].max() == 3  # 4 pairs over 4 batches: the missing one's empty

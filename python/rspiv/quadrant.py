@@ -143,6 +143,15 @@ class QuadrantAccumulator:
         self.n_fields = 0
         self.pair_ids: set[int] = set()
 
+    def empty_copy(self) -> QuadrantAccumulator:
+        """A new, empty accumulator about the same means, signs, holes, grid and batches (a
+        part to :meth:`merge` back)."""
+        return QuadrantAccumulator(
+            self.mean_u, self.mean_v, self.rms_u, self.rms_v, usable=self.usable,
+            sign_x=self.sign_x, sign_y=self.sign_y, holes=self.holes, bins=self.bins,
+            extent=self.extent, batches=self.batches,
+        )  # fmt: skip
+
     def add(
         self, u, v, valid=None, *, pair_id: int | None = None, batch: int = 0
     ) -> None:
