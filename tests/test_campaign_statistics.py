@@ -31,6 +31,20 @@ def processed(tmp_path_factory):
     return d, camp, camp.run()
 
 
+def _fields(out: pathlib.Path, run: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``u, v, valid`` of every field file the campaign wrote for ``run``, stacked in pair
+    order (read with xarray, not the code under test)."""
+    import xarray as xr
+
+    u, v, ok = [], [], []
+    for f in sorted((out / "fields" / run).glob("pair_*.nc")):
+        with xr.open_dataset(f, engine="h5netcdf") as ds:
+            u.append(ds["u"].values.astype(np.float64))
+            v.append(ds["v"].values.astype(np.float64))
+            ok.append(ds["valid"].values.astype(bool))
+    return np.array(u), np.array(v), np.array(ok)
+
+
 def test_the_file_equals_direct_sums_over_the_fields(processed):
     import xarray as xr
 
@@ -41,15 +55,8 @@ def test_the_file_equals_direct_sums_over_the_fields(processed):
         acc = res.accumulators[run]
         prof = res.analyses[run].profile
         sx, sy, k = prof["sign_x"], prof["sign_y"], prof["k"]
-        files = sorted((out / "fields" / run).glob("pair_*.nc"))
-        assert len(files) == 3
-        u, v, ok = [], [], []
-        for f in files:
-            with xr.open_dataset(f, engine="h5netcdf") as ds:
-                u.append(ds["u"].values.astype(np.float64))
-                v.append(ds["v"].values.astype(np.float64))
-                ok.append(ds["valid"].values.astype(bool))
-        u, v, ok = np.array(u), np.array(v), np.array(ok)
+        u, v, ok = _fields(out, run)
+        assert len(u) == 3
         usable = (acc.count >= 2) & (prof["dist_px"] > 0)[:, None]
         ok &= usable & np.isfinite(u) & np.isfinite(v)
         du, dv = sx * (u - acc.mean_u), sy * (v - acc.mean_v)
@@ -154,12 +161,8 @@ def test_the_vorticity_profile_equals_that_of_the_fields(processed):
         acc = res.accumulators[run]
         prof = res.analyses[run].profile
         gx, gy = res.context.grid()
-        omegas = []
-        for f in sorted((out / "fields" / run).glob("pair_*.nc")):
-            with xr.open_dataset(f, engine="h5netcdf") as ds:
-                u, v = ds["u"].values.astype(float), ds["v"].values.astype(float)
-            omegas.append(vorticity(u, v, gx[0, 1] - gx[0, 0], gy[1, 0] - gy[0, 0]))
-        w = np.array(omegas)
+        w = np.array([vorticity(u, v, gx[0, 1] - gx[0, 0], gy[1, 0] - gy[0, 0])
+                      for u, v, _ in zip(*_fields(out, run), strict=True)])  # fmt: skip
         n = np.isfinite(w).sum(axis=0)
         usable = (acc.count >= 2) & (prof["dist_px"] > 0)[:, None] & (n > 1)
         with np.errstate(invalid="ignore", divide="ignore"):
