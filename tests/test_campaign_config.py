@@ -291,3 +291,29 @@ def test_vorticity_keys(tmp_path):
     bad = FULL.replace("[statistics]\n", '[statistics]\nvorticity_scheme = "fourier"\n')
     with pytest.raises(InvalidInputError, match=r"\[statistics\]\.vorticity_scheme: .*richardson"):
         load_campaign_config(_write(tmp_path, bad))
+
+
+def test_pod_keys(tmp_path):
+    """``[statistics] pod``: off by default, needs ``[output] fields``; the modes 1-200, the
+    snapshots >= 2, the height >= 0 (delta_99; 0 the whole flow side); anything else named in
+    one line."""
+    st = load_campaign_config(_write(tmp_path, FULL)).statistics
+    assert (st.pod, st.pod_modes, st.pod_snapshots, st.pod_height) == (False, 10, 1000, 0.0)
+    keys = "[statistics]\npod = true\npod_modes = 4\npod_snapshots = 50\npod_height = 1.2\n"
+    on = FULL.replace("[statistics]\n", keys)
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.pod: needs each pair's"):
+        load_campaign_config(_write(tmp_path, on))
+    with_fields = on.replace("[output]\n", "[output]\nfields = true\n")
+    s = load_campaign_config(_write(tmp_path, with_fields)).statistics
+    assert (s.pod, s.pod_modes, s.pod_snapshots, s.pod_height) == (True, 4, 50, 1.2)
+    for key, value, msg in (
+        ("pod_modes", "0", ">= 1"),
+        ("pod_modes", "201", "<= 200"),
+        ("pod_modes", "2.5", "an integer"),
+        ("pod_snapshots", "1", ">= 2"),
+        ("pod_height", "-1", ">= 0"),
+        ("pod", "1", "true or false|boolean"),
+    ):
+        bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
+        with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*({msg})"):
+            load_campaign_config(_write(tmp_path, bad))

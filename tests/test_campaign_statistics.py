@@ -3,7 +3,8 @@ vorticity on, as the demo has them): the quadrant analysis (``[statistics] quadr
 rspiv.campaign.quadrant), a second pass over the fields the pair loop wrote, equals direct sums
 over those files about the run's own statistics, and missing and foreign field files are said;
 the vorticity statistics (``[statistics] vorticity``, rspiv.campaign.vorticity) equal the
-vorticity of those files, row by row."""
+vorticity of those files, row by row; the POD (``[statistics] pod``, rspiv.campaign.pod) equals
+an SVD of those files' fluctuations, streamed by blocks of rows or read at once."""
 
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ def processed(tmp_path_factory):
     synth_campaign(d, scene=SCENE)  # quadrant and fields on, as the demo has them
     cfg = load_campaign_config(d / "campaign.toml")
     assert cfg.statistics.quadrant and cfg.output.fields and cfg.statistics.vorticity
+    assert cfg.statistics.pod
     camp = Campaign.load(d / "campaign.toml", progress=False)
     return d, camp, camp.run()
 
@@ -125,6 +127,10 @@ def test_a_missing_field_file_is_said(processed, tmp_path):
     assert summary["runs"]["method_II"]["quadrant"]["missing_fields"] == 1
     assert "no field file" in (out / "report" / "report.html").read_text()
     assert res.quadrant["uncorrected"]["pairs"] == 3  # the other run's files are all there
+    pod = res.pod["method_II"]
+    assert pod["pairs"] == 2 and pod["missing"] == [1] and pod["energy"].size == 2
+    assert "1 of 3 pairs chosen have no field file (first: pair 1)" in pod["warning"]
+    assert summary["runs"]["method_II"]["pod"]["missing_fields"] == 1
 
 
 def test_a_foreign_field_file_stops_the_run_in_one_line(processed, tmp_path):
@@ -144,6 +150,9 @@ def test_a_foreign_field_file_stops_the_run_in_one_line(processed, tmp_path):
     assert "pair_000002.nc: a grid of 10 x" in err and "\n" not in err
     assert any("quadrant profile failed" in m for m in said)
     assert "uncorrected" in res.quadrant
+    err = summary["runs"]["method_II"]["pod_error"]
+    assert "pair_000002.nc: a grid of 10 x" in err and "\n" not in err
+    assert "method_II" not in res.pod and "uncorrected" in res.pod
 
 
 def test_the_vorticity_profile_equals_that_of_the_fields(processed):
@@ -235,3 +244,81 @@ def test_the_second_pass_in_threads_equals_one_thread(processed):
     for key in ("count", "uv", "stress", "time_fraction", "jpdf", "uv_se", "uv_batches"):
         np.testing.assert_allclose(out[1][key], out[0][key], rtol=1e-12, atol=1e-300)
     assert out[0]["uv_batches"].max() == 3  # 4 pairs over 4 batches: the missing one's empty
+
+
+def _pod_domain(camp, res, run):
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS
+
+    acc = res.accumulators[run]
+    dist = res.analyses[run].profile["dist_px"]
+    rows = (dist > 0) & (dist >= NEAR_WALL_HEIGHTS * res.context.piv.final_window[1])
+    height = camp.config.statistics.pod_height  # delta_99, as the demo sets it
+    assert height > 0
+    an = res.analyses[run]
+    rows &= dist * an.profile["m_per_px"] <= height * an.result.delta99
+    return (acc.count >= 2) & rows[:, None]
+
+
+def test_the_pod_file_equals_an_svd_of_the_fields(processed):
+    """``pod_<run>.nc``: the eigenvalues, modes and coefficients of the fluctuations of the
+    written fields about the run's means, over the vectors off the wall (rows within 2.5
+    window heights left out), rejected vectors filled with the mean; in the flow's frame."""
+    import xarray as xr
+
+    _, camp, res = processed
+    for run in ("method_II", "uncorrected"):
+        acc = res.accumulators[run]
+        prof = res.analyses[run].profile
+        sx, sy, k = prof["sign_x"], prof["sign_y"], prof["k"]
+        u, v, ok = _fields(res.out_dir, run)
+        dom = _pod_domain(camp, res, run)
+        ok &= np.isfinite(u) & np.isfinite(v)
+        x = np.concatenate(
+            [np.where(ok, u - acc.mean_u, 0)[:, dom], np.where(ok, v - acc.mean_v, 0)[:, dom]], 1
+        )
+        a, s, vt = np.linalg.svd(x, full_matrices=False)
+        with xr.open_dataset(res.out_dir / f"pod_{run}.nc", engine="h5netcdf") as ds:
+            assert ds.attrs["pairs"] == 3 and ds.attrs["vectors"] == dom.sum()
+            assert ds["energy"].attrs["units"] == "m2 s-2"
+            n_modes = ds.sizes["mode"]
+            assert n_modes == 2  # 3 snapshots about their own mean span 2 modes
+            np.testing.assert_allclose(ds["energy"].values, s[:2] ** 2 / 3 * k * k, rtol=1e-9)
+            assert ds.attrs["total_energy"] == pytest.approx((x**2).sum() / 3 * k * k, rel=1e-9)
+            assert ds.attrs["gaps"] == pytest.approx(1 - ok[:, dom].mean(), rel=1e-9)
+            rows = np.argsort(prof["dist_px"])
+            rows = rows[dom[rows].any(axis=1)]
+            np.testing.assert_allclose(ds["y"].values, prof["dist_px"][rows] * prof["m_per_px"])
+            d = int(dom.sum())
+            for i in range(n_modes):
+                phi_u = np.full(dom.shape, np.nan)
+                phi_v = np.full(dom.shape, np.nan)
+                phi_u[dom], phi_v[dom] = sx * vt[i, :d], sy * vt[i, d:]
+                sign = np.sign(np.nansum(ds["phi_u"].values[i] * phi_u[rows]))
+                np.testing.assert_allclose(ds["phi_u"].values[i], sign * phi_u[rows], atol=1e-6)
+                np.testing.assert_allclose(ds["phi_v"].values[i], sign * phi_v[rows], atol=1e-6)
+                np.testing.assert_allclose(
+                    ds["coefficient"].values[:, i], sign * a[:, i] * s[i] * k, rtol=1e-6
+                )
+    assert (res.out_dir / "report" / "figures" / "pod.png").is_file()
+    assert "Proper orthogonal decomposition" in (res.out_dir / "report" / "report.html").read_text()
+
+
+def test_the_pod_streamed_by_blocks_equals_one_read(processed):
+    """Blocks of one row (every file read once per block, then once more for the modes) give
+    the decomposition of one block read at once."""
+    from rspiv.campaign.pod import decompose
+    from rspiv.pod import PodBuilder
+
+    _, camp, res = processed
+    acc = res.accumulators["method_II"]
+    dom = _pod_domain(camp, res, "method_II")
+    writer = camp.field_writer()
+    paths = [writer.path("method_II", pid) for pid in sorted(acc.pair_ids)]
+    out = []
+    for block in (1 << 40, 1):
+        b = PodBuilder(acc.mean_u, acc.mean_v, dom, 3)
+        decompose(b, paths, "method_II", 5, block_bytes=block)
+        out.append(b.result())
+    np.testing.assert_allclose(out[1].energy, out[0].energy, rtol=1e-12)
+    np.testing.assert_allclose(out[1].modes_u, out[0].modes_u, atol=1e-12)
+    np.testing.assert_allclose(out[1].coefficients, out[0].coefficients, rtol=1e-9)

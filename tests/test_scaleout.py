@@ -233,6 +233,13 @@ def test_dask_workers_write_each_pairs_fields(synth, local, client, tmp_path):
         u = np.nansum(np.stack([ds["u"].values.astype(np.float64) for ds in dss]), axis=0)
         seen = ref.count > 0
         np.testing.assert_allclose(u[seen] / ref.count[seen], ref.mean_u[seen], atol=1e-5)
+    # the POD's second pass reads the workers' files about the merged statistics: the local
+    # run's decomposition
+    assert set(local.pod) == set(res.pod) == set(local.accumulators)
+    for run, prof in local.pod.items():
+        np.testing.assert_allclose(res.pod[run]["energy"], prof["energy"], rtol=1e-9)
+        np.testing.assert_allclose(np.abs(res.pod[run]["coefficient"]),
+                                   np.abs(prof["coefficient"]), rtol=1e-6, atol=1e-12)  # fmt: skip
 
 
 def test_dask_resumes_an_interrupted_local_run(synth, local, client, tmp_path, monkeypatch):

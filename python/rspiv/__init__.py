@@ -26,6 +26,7 @@ from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.particle_size import particle_diameter
 from rspiv.piv import PivField, piv, piv_at, window_response
+from rspiv.pod import PodResult, pod
 from rspiv.quadrant import QuadrantAccumulator, gaussian_quadrant
 from rspiv.reference import load_dns
 from rspiv.repeatability import Repeatability, repeatability
@@ -47,5 +48,5 @@ __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
-__all__ += ["QuadrantAccumulator", "gaussian_quadrant"]
+__all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod"]
 __all__ += ["Repeatability", "repeatability"]

@@ -94,6 +94,12 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # pass over the fields (rspiv.quadrant; needs [output] fields;
                                  # quadrant_<run>.nc, a report section)
     quadrant_holes = [0, 1, 2, 4]  # hole sizes H: |u'v'| >= H u_rms v_rms
+    pod = false                  # snapshot POD of the fluctuations, a second pass over the
+                                 # fields (rspiv.pod; needs [output] fields; pod_<run>.nc, a
+                                 # report section)
+    pod_modes = 10               # modes kept (1-200)
+    pod_snapshots = 1000         # at most this many pairs, spread evenly over the run
+    pod_height = 0.0             # domain up to this many delta_99 from the wall (0: all)
     vorticity = false            # per-vector statistics of the vorticity and swirling strength
                                  # (rspiv.vorticity; vorticity_<run>.nc, a report figure)
     vorticity_scheme = "least_squares"  # "central" | "least_squares" | "richardson"
@@ -359,6 +365,10 @@ class StatisticsConfig:
     two_point_height_units: str = "delta"
     quadrant: bool = False
     quadrant_holes: tuple[float, ...] = (0.0, 1.0, 2.0, 4.0)
+    pod: bool = False
+    pod_modes: int = 10
+    pod_snapshots: int = 1000
+    pod_height: float = 0.0
     vorticity: bool = False
     vorticity_scheme: str = "least_squares"
 
@@ -596,11 +606,12 @@ def parse_campaign_config(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
         )
-    if cfg.statistics.quadrant and not cfg.output.fields:
-        raise ctx.err(
-            "[statistics].quadrant",
-            "needs each pair's fields ([output] fields = true): the second pass reads them",
-        )
+    for key in ("quadrant", "pod"):
+        if getattr(cfg.statistics, key) and not cfg.output.fields:
+            raise ctx.err(
+                f"[statistics].{key}",
+                "needs each pair's fields ([output] fields = true): the second pass reads them",
+            )
     if cfg.ensemble.single_pixel and not cfg.ensemble.enabled:
         raise ctx.err(
             "[ensemble].single_pixel", "needs the ensemble band ([ensemble] enabled = true)"

@@ -18,8 +18,9 @@ interrogation window on wall-parallel rows, accumulated over the same pairs;
 ``truth_two_point.nc``: the same fields' streamwise spectra and correlations,
 :class:`rspiv.two_point.TwoPointAccumulator`; ``truth_quadrant.nc``: their quadrant analysis,
 :class:`rspiv.quadrant.QuadrantAccumulator`; ``truth_vorticity.nc``: their vorticity by the
-campaign's differences, :class:`rspiv.vorticity.VorticityAccumulator`) and ``campaign.toml``
-(with ``[statistics]`` ``two_point``, ``quadrant`` and ``vorticity``, and so ``[output]
+campaign's differences, :class:`rspiv.vorticity.VorticityAccumulator`; ``truth_pod.nc``: their
+snapshot POD over the campaign's domain, :func:`rspiv.pod.pod`) and ``campaign.toml`` (with
+``[statistics]`` ``two_point``, ``quadrant``, ``vorticity`` and ``pod``, and so ``[output]
 fields``). :func:`verdicts` compares a processed campaign with the truth
 (:mod:`rspiv.synth.truth`);
 :func:`run_demo` is ``rspiv demo``.
@@ -50,13 +51,17 @@ from rspiv.synth.tbl import TBLFlow, tbl_pair
 from rspiv.synth.truth import (
     MOMENT_KEYS,
     PAPER_M,
+    POD_HEIGHT,
+    POD_MODES,
     filtered_profile,
     moment_errors,
+    pod_errors,
     quadrant_errors,
     read_truth,
     stress_errors,
     two_point_errors,
     vorticity_errors,
+    write_pod_truth,
 )
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vorticity import VorticityAccumulator
@@ -189,7 +194,8 @@ def synth_campaign(
     ----------
     directory : path
         Created if missing; ``target.tif``, ``raw/``, ``truth.json``, ``truth_filtered.nc``,
-        ``truth_two_point.nc``, ``truth_quadrant.nc``, ``truth_vorticity.nc`` and
+        ``truth_two_point.nc``, ``truth_quadrant.nc``, ``truth_vorticity.nc``,
+        ``truth_pod.nc`` and
         ``campaign.toml`` are written there (output folder of the campaign: ``out``).
     pairs, scale : optional
         Override the scene's ``pairs`` and ``scale``.
@@ -320,6 +326,7 @@ def synth_campaign(
                           f"distance, px; {va.scheme} differences"}),  # fmt: skip
         root / "truth_vorticity.nc",
     )
+    write_pod_truth(root / "truth_pod.nc", exact, d, delta_px, scene.passes[-1][1])
     cfg = CampaignConfig(name=f"synthetic boundary layer (scale {scene.scale:g})")
     cfg.description = "rspiv synth campaign: the paper's optics and flow, exact ground truth"
     cfg.calibration.target = root / "target.tif"
@@ -340,7 +347,9 @@ def synth_campaign(
     cfg.statistics.two_point_height_units = "px"
     cfg.statistics.quadrant = True
     cfg.statistics.vorticity = True
-    cfg.output.fields = True  # the quadrant analysis's second pass reads them
+    cfg.statistics.pod = True
+    cfg.statistics.pod_height = POD_HEIGHT
+    cfg.output.fields = True  # the quadrant analysis's and the POD's second pass read them
     cfg.output.dir = root / "out"
     return cfg.save(root / "campaign.toml")
 
@@ -538,6 +547,28 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
                 ),
                 "limit": "15 % / 5 %",
                 "pass": (e_v["omega_rms"] <= 0.15 and e_v["omega_mean"] <= 0.05)
+                if corrected
+                else None,
+            }
+        )
+        # the POD alike (the exact fields' over the same domain; the noise adds energy)
+        e_p = pod_errors(result.pod.get(run.name), directory)
+        rows.append(
+            {
+                "claim": f"{run.label}: POD fluctuation energy and first {POD_MODES} eigenvalues "
+                "per vector within 5 % of these pairs' exact field, their coefficients' span "
+                f"(smallest principal cosine) >= 0.95, 2.5 window heights <= y <= {POD_HEIGHT:g} "
+                "delta",
+                "measured": ", ".join(
+                    f"{k} {v:.3f}" if k == "subspace" else f"{k} {100 * v:+.1f} %"
+                    for k, v in e_p.items()
+                ),
+                "limit": "5 % / 0.95",
+                "pass": (
+                    abs(e_p["total"]) <= 0.05
+                    and e_p["eigenvalues"] <= 0.05
+                    and e_p["subspace"] >= 0.95
+                )
                 if corrected
                 else None,
             }

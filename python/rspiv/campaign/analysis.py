@@ -23,6 +23,7 @@ from rspiv import moments
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vorticity as vorticity_work
@@ -473,6 +474,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("single_pixel", "single-pixel", ensemble_work.write_pixel_outputs, res.pixel_profiles),
             ("two_point", "two-point", two_point_work.write_outputs, res.two_point),
             ("quadrant", "quadrant", quadrant_work.write_outputs, res.quadrant),
+            ("pod", "POD", pod_work.write_outputs, res.pod),
             ("vorticity", "vorticity", vorticity_work.write_outputs, res.vorticity),
         )
         for key, what, write, store in bands:
@@ -562,6 +564,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     for store, work in (
         (res.two_point, two_point_work),
         (res.quadrant, quadrant_work),
+        (res.pod, pod_work),
         (res.vorticity, vorticity_work),
     ):
         sec = work.report_section(camp, res) if store else None

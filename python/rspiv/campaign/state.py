@@ -138,6 +138,8 @@ class CampaignResult:
         two_point``; empty without).
     quadrant : dict
         Run name -> its quadrant analysis (``[statistics] quadrant``; empty without).
+    pod : dict
+        Run name -> its proper orthogonal decomposition (``[statistics] pod``; empty without).
     vorticity : dict
         Run name -> its vorticity profile (``[statistics] vorticity``; empty without).
     """
@@ -163,6 +165,8 @@ class CampaignResult:
     two_point: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its quadrant analysis (:mod:`rspiv.campaign.quadrant`)
     quadrant: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its POD (:mod:`rspiv.campaign.pod`)
+    pod: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
     vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 

@@ -13,6 +13,8 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import write_netcdf
+from rspiv.pod import pod
 from rspiv.profiles import profile_from_accumulator
 from rspiv.stats import FieldAccumulator
 from rspiv.synth.target import PAPER_OPTICS
@@ -23,12 +25,19 @@ __all__ = [
     "PAPER_M",
     "filtered_profile",
     "moment_errors",
+    "pod_errors",
     "quadrant_errors",
     "read_truth",
     "stress_errors",
     "two_point_errors",
     "vorticity_errors",
+    "write_pod_truth",
 ]
+
+#: The demo's POD domain: up to this many delta_99 from the wall (``[statistics] pod_height``).
+POD_HEIGHT = 1.0
+#: The modes the demo's POD claim compares.
+POD_MODES = 5
 
 #: The paper's magnification, px/mm (the synthetic scenes keep it at every scale).
 PAPER_M = PAPER_OPTICS.magnification
@@ -193,4 +202,62 @@ def vorticity_errors(prof: dict | None, directory: pathlib.Path, info: dict[str,
         "omega_rms": float(np.nanmax(np.abs(ratio - 1.0))),
         "omega_mean": float(np.nanmax(np.abs(dev))),
         "median rms ratio": float(np.nanmedian(ratio)),
+    }
+
+
+def write_pod_truth(
+    path: pathlib.Path, exact: list, d: np.ndarray, delta_px: float, window_h: float
+) -> pathlib.Path:
+    """The snapshot POD (:func:`rspiv.pod.pod`) of the pairs' exact fields ``exact`` (``(u, v)``
+    per pair on rows ``d`` px from the wall) over the campaign's domain (from 2.5 window heights
+    off the wall to ``POD_HEIGHT`` delta_99), written to ``path``: ``energy`` (px^2 per pair^2,
+    summed over the domain), ``coefficient`` (pair, mode), attributes ``total_energy`` and
+    ``vectors``."""
+    import xarray as xr
+
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: the campaign's rule
+
+    u = np.array([e[0] for e in exact])
+    v = np.array([e[1] for e in exact])
+    rows = (d >= NEAR_WALL_HEIGHTS * window_h) & (d <= POD_HEIGHT * delta_px)
+    r = pod(u, v, n_modes=2 * POD_MODES, domain=np.broadcast_to(rows[:, None], u.shape[1:]))
+    return write_netcdf(
+        xr.Dataset(
+            {"energy": ("mode", r.energy), "coefficient": (("pair", "mode"), r.coefficients)},
+            coords={"mode": np.arange(1, r.n_modes + 1)},
+            attrs={
+                "total_energy": r.total,
+                "vectors": int(r.domain.sum()),
+                "description": "snapshot POD of the exact field (rspiv.pod), px per pair",
+            },
+        ),
+        path,
+    )
+
+
+def pod_errors(prof: dict | None, directory: pathlib.Path) -> dict:
+    """A run's POD against that of the same pairs' exact field (``truth_pod.nc``), both per
+    vector of their domains (the grids differ by a fraction of a row): the relative deviation
+    of the total fluctuation energy and the largest of the first ``POD_MODES`` eigenvalues; and
+    the smallest cosine of the principal angles between the spans of the first ``POD_MODES``
+    coefficient vectors (the modes' subspace seen in the snapshots, grid-free: 1 when the
+    measurement orders the pairs' structures as the truth does, even where modes mix)."""
+    import xarray as xr
+
+    keys = ("total", "eigenvalues", "subspace")
+    if prof is None:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_pod.nc", engine="h5netcdf") as ds:
+        lam, coef = ds["energy"].values, ds["coefficient"].values
+        total, vectors = float(ds.attrs["total_energy"]), int(ds.attrs["vectors"])
+    k2 = prof["k"] ** 2
+    k = min(POD_MODES, lam.size, prof["energy"].size)
+    mine = prof["energy"][:k] / k2 / prof["vectors"]
+    ref = lam[:k] / vectors
+    qa, _ = np.linalg.qr(coef[:, :k])
+    qb, _ = np.linalg.qr(prof["coefficient"][:, :k])
+    return {
+        "total": float(prof["total"] / k2 / prof["vectors"] / (total / vectors) - 1.0),
+        "eigenvalues": float(np.max(np.abs(mine / ref - 1.0))),
+        "subspace": float(np.linalg.svd(qa.T @ qb, compute_uv=False).min()),
     }
