@@ -317,3 +317,26 @@ def test_pod_keys(tmp_path):
         bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
         with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*({msg})"):
             load_campaign_config(_write(tmp_path, bad))
+
+
+def test_vortex_keys(tmp_path):
+    """``[statistics] vortices``: off by default, needs ``[output] fields`` and the vorticity
+    statistics (its threshold is their swirl's rms); threshold and min_diameter > 0."""
+    st = load_campaign_config(_write(tmp_path, FULL)).statistics
+    assert (st.vortices, st.vortex_threshold, st.vortex_min_diameter) == (False, 1.5, 1.0)
+    on = FULL.replace("[statistics]\n", "[statistics]\nvortices = true\nvortex_threshold = 2\n")
+    on = on.replace("[output]\n", "[output]\nfields = true\n")
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.vortices: needs the vorticity"):
+        load_campaign_config(_write(tmp_path, on))
+    s = load_campaign_config(
+        _write(tmp_path, on.replace("[statistics]\n", "[statistics]\nvorticity = true\n"))
+    ).statistics
+    assert s.vortices and s.vortex_threshold == 2.0
+    for key, value, msg in (
+        ("vortex_threshold", "0", "> 0"),
+        ("vortex_min_diameter", "0", "> 0"),
+        ("vortex_min_diameter", "true", "a number"),
+    ):
+        bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
+        with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*{msg}"):
+            load_campaign_config(_write(tmp_path, bad))

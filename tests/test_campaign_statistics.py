@@ -216,7 +216,7 @@ def test_statistics_carried_with_the_pairs_are_part_of_the_checkpoint(processed,
     same = cfg.save(tmp_path / "same.toml")
     assert main(["process", str(same), "-q"]) == 0
     assert "3 from the checkpoint" in capsys.readouterr().out
-    cfg.statistics.vorticity = False
+    cfg.statistics.vorticity = cfg.statistics.vortices = False  # the vortices need it
     other = cfg.save(tmp_path / "other.toml")
     assert main(["process", str(other), "-q"]) == 2
     err = capsys.readouterr().err.strip()
@@ -322,3 +322,58 @@ def test_the_pod_streamed_by_blocks_equals_one_read(processed):
     np.testing.assert_allclose(out[1].energy, out[0].energy, rtol=1e-12)
     np.testing.assert_allclose(out[1].modes_u, out[0].modes_u, atol=1e-12)
     np.testing.assert_allclose(out[1].coefficients, out[0].coefficients, rtol=1e-9)
+
+
+def test_the_vortex_population_equals_the_cores_of_the_fields(processed):
+    """``vortices_<run>.nc``: per row and kind, the cores found in the written fields' signed
+    swirling strength (their valid vectors, the flow's frame) beyond 1.5 times its rms at the
+    row (each vector's mean square over the pairs, averaged along the row), counted at their
+    centroid's row; prograde turns with the mean shear (clockwise in the flow's frame)."""
+    import xarray as xr
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS
+    from rspiv.derivatives import gradients, swirl_from_gradients
+    from rspiv.vortices import find_vortices, min_core_vectors
+
+    _, camp, res = processed
+    st = camp.config.statistics
+    for run in ("method_II", "uncorrected"):
+        acc = res.accumulators[run]
+        prof = res.analyses[run].profile
+        orient = prof["sign_x"] * -prof["sign_y"]
+        u, v, ok = _fields(res.out_dir, run)
+        ok &= np.isfinite(u) & np.isfinite(v)
+        dx, dy = acc.vorticity.dx, acc.vorticity.dy
+        lam, om = [], []
+        for k in range(len(u)):
+            g = gradients(np.where(ok[k], u[k], np.nan), np.where(ok[k], v[k], np.nan), dx, dy)
+            lam.append(swirl_from_gradients(g, signed=True) * orient)
+            om.append((g["dvdx"] - g["dudy"]) * orient)
+        lam, om = np.array(lam), np.array(om)
+        dist = prof["dist_px"]
+        rows = (dist > 0) & (dist >= NEAR_WALL_HEIGHTS * res.context.piv.final_window[1] + 2 * dy)
+        fin = np.isfinite(lam)
+        usable = (acc.count >= 2) & (fin.sum(0) >= 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per_vector = np.where(fin, lam, 0.0) ** 2
+            per_vector = per_vector.sum(0) / fin.sum(0)
+            rms = np.sqrt(np.where(usable, per_vector, 0).sum(1) / usable.sum(1))
+        rows &= usable.any(1)
+        thr = np.where(rows & (rms > 0), st.vortex_threshold * rms, np.inf)[:, None]
+        # the smallest core: a disc as wide as the final window (32 px: 13 vectors of 16 x 4)
+        least = min_core_vectors(max(res.context.piv.final_window), dx, dy)
+        count = np.zeros((acc.shape[0], 2), int)
+        for k in range(len(u)):
+            c = find_vortices(lam[k], om[k], thr, dx, dy, y=np.arange(acc.shape[0], dtype=float),
+                              min_vectors=least)  # fmt: skip
+            np.add.at(count, (np.rint(c["y"]).astype(int), (c["sign"] > 0).astype(int)), 1)
+        keep = np.flatnonzero(rows)
+        keep = keep[np.argsort(dist[keep])]
+        with xr.open_dataset(res.out_dir / f"vortices_{run}.nc", engine="h5netcdf") as ds:
+            assert ds.attrs["pairs"] == 3 and ds.attrs["prograde_sign"] == -1
+            assert ds.attrs["min_vectors"] == least
+            np.testing.assert_array_equal(ds["count"].values, count[keep])
+            assert ds["count"].values.sum() > 20
+            np.testing.assert_allclose(ds["y"].values, dist[keep] * prof["m_per_px"])
+            assert ds.sizes["core"] == count.sum()
+            assert ds["density"].attrs["units"] == "m-2"
+    assert (res.out_dir / "report" / "figures" / "vortices.png").is_file()

@@ -33,6 +33,7 @@ from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
 from rspiv.stats import FieldAccumulator
 from rspiv.two_point import TwoPointAccumulator
+from rspiv.vortices import find_vortices
 from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
 
@@ -48,5 +49,5 @@ __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
-__all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod"]
+__all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
 __all__ += ["Repeatability", "repeatability"]

@@ -103,6 +103,12 @@ A complete file (every key optional except where noted; defaults shown)::
     vorticity = false            # per-vector statistics of the vorticity and swirling strength
                                  # (rspiv.vorticity; vorticity_<run>.nc, a report figure)
     vorticity_scheme = "least_squares"  # "central" | "least_squares" | "richardson"
+    vortices = false             # vortex cores per pair and their population by height, a
+                                 # second pass over the fields (rspiv.vortices; needs [output]
+                                 # fields and vorticity; vortices_<run>.nc, a report figure)
+    vortex_threshold = 1.5       # |Lambda_ci| >= this times its rms at the core's height
+    vortex_min_diameter = 1.0    # cores smaller than a disc this many final windows wide
+                                 # are dropped (not resolved; mostly noise)
 
     [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
                                  # correlation planes summed over every pair, then the peak
@@ -371,6 +377,9 @@ class StatisticsConfig:
     pod_height: float = 0.0
     vorticity: bool = False
     vorticity_scheme: str = "least_squares"
+    vortices: bool = False
+    vortex_threshold: float = 1.5
+    vortex_min_diameter: float = 1.0
 
 
 @dataclasses.dataclass
@@ -606,12 +615,18 @@ def parse_campaign_config(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
         )
-    for key in ("quadrant", "pod"):
+    for key in ("quadrant", "pod", "vortices"):
         if getattr(cfg.statistics, key) and not cfg.output.fields:
             raise ctx.err(
                 f"[statistics].{key}",
                 "needs each pair's fields ([output] fields = true): the second pass reads them",
             )
+    if cfg.statistics.vortices and not cfg.statistics.vorticity:
+        raise ctx.err(
+            "[statistics].vortices",
+            "needs the vorticity statistics ([statistics] vorticity = true): the threshold is "
+            "a multiple of the swirling strength's rms",
+        )
     if cfg.ensemble.single_pixel and not cfg.ensemble.enabled:
         raise ctx.err(
             "[ensemble].single_pixel", "needs the ensemble band ([ensemble] enabled = true)"

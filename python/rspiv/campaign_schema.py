@@ -262,6 +262,9 @@ PARSERS: dict[str, dict[str, Any]] = {
         "pod_height": lambda c, w, v: _number(c, w, v, minimum=0),
         "vorticity": _boolean,
         "vorticity_scheme": lambda c, w, v: _choice(c, w, v, tuple(SCHEMES), fold=str.lower),
+        "vortices": _boolean,
+        "vortex_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "vortex_min_diameter": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
     },
     "ensemble": {
         "enabled": _boolean,

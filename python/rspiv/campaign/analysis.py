@@ -26,6 +26,7 @@ from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import two_point as two_point_work
+from rspiv.campaign import vortices as vortices_work
 from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
@@ -476,6 +477,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("quadrant", "quadrant", quadrant_work.write_outputs, res.quadrant),
             ("pod", "POD", pod_work.write_outputs, res.pod),
             ("vorticity", "vorticity", vorticity_work.write_outputs, res.vorticity),
+            ("vortices", "vortex", vortices_work.write_outputs, res.vortices),
         )
         for key, what, write, store in bands:
             try:
@@ -566,6 +568,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         (res.quadrant, quadrant_work),
         (res.pod, pod_work),
         (res.vorticity, vorticity_work),
+        (res.vortices, vortices_work),
     ):
         sec = work.report_section(camp, res) if store else None
         if sec is not None:

@@ -37,21 +37,29 @@ Reading them back as one dataset with a ``pair`` dimension (dask installed)::
 
     ds = xr.open_mfdataset("OUT/fields/method_II/pair_*.nc", combine="nested",
                            concat_dim="pair", engine="h5netcdf")
+
+Reading them back, a second pass at the end of a run (the quadrant analysis, the POD, the
+vortex population): :func:`read_field` (a whole field or a block of rows, the run and the grid
+checked) and :func:`each_field` (every pair's file, contiguous runs of the pairs on each core).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import pathlib
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
 from rspiv.campaign.spec import PairContext, PairResult, PairSpec
+from rspiv.errors import InvalidInputError
 from rspiv.outputs import write_netcdf
 
-__all__ = ["FieldWriter"]
+__all__ = ["FieldWriter", "each_field", "grid_x", "read_field"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,3 +148,81 @@ def _frame(path: str, index: int | None) -> str:
 
 def _px(axis: str) -> dict[str, str]:
     return {"units": "pix", "long_name": f"displacement along {axis}, frame A to frame B"}
+
+
+def read_field(
+    path: pathlib.Path, shape: tuple[int, int], run: str, rows: slice | None = None
+) -> tuple[np.ndarray, ...]:
+    """``u, v, valid`` of a field file of ``run`` (rows ``rows`` only, when given).
+
+    Raises
+    ------
+    InvalidInputError
+        The file cannot be read, is another run's, or its grid is not ``shape``.
+    """
+    import h5py  # deferred: only a second pass reads fields
+
+    try:
+        with h5py.File(path, "r") as f:
+            got = f.attrs.get("run")
+            got = got.decode() if isinstance(got, bytes) else got
+            if got is not None and str(got) != run:
+                raise InvalidInputError(f"{path}: a field of run {got!r}, not {run!r}")
+            ds = [f[k] for k in ("u", "v", "valid")]
+            if any(d.shape != shape for d in ds):
+                s = ds[0].shape
+                raise InvalidInputError(
+                    f"{path}: a grid of {s[-1]} x {s[0]} vectors, the campaign's is "
+                    f"{shape[1]} x {shape[0]}"
+                )
+            sel = slice(None) if rows is None else rows
+            return tuple(np.asarray(d[sel]) for d in ds)
+    except (OSError, KeyError) as exc:
+        raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
+
+
+def grid_x(path: pathlib.Path) -> np.ndarray:
+    """The ``x`` coordinate (px) of a field file."""
+    import h5py  # deferred: only a second pass reads fields
+
+    try:
+        with h5py.File(path, "r") as f:
+            return np.asarray(f["x"], np.float64)
+    except (OSError, KeyError) as exc:
+        raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
+
+
+def each_field(
+    paths: dict[int, pathlib.Path],
+    shape: tuple[int, int],
+    run: str,
+    new_part: Callable[[int], Any],
+    add: Callable[..., None],
+    workers: int | None = None,
+) -> tuple[list[Any], list[int]]:
+    """Read every field file of ``paths`` (pair id -> file) of ``run`` and hand it to
+    ``add(part, i, pair_id, u, v, valid)`` (``i`` the pair's position in id order); returns the
+    parts and the pair ids whose file is missing.
+
+    ``workers`` threads (default: the cores, at most 4) each take a contiguous run of the
+    pairs, in order, with a part of their own from ``new_part(w)`` (w = 0 first), so the parts
+    in order hold the pairs in order (numpy and h5py release the GIL in the sums and reads).
+    """
+    ids = sorted(paths)
+    n = len(ids)
+    workers = max(1, min(workers or os.cpu_count() or 1, 4, n))
+
+    def work(w: int) -> tuple[Any, list[int]]:
+        part = new_part(w)
+        missing = []
+        for i in range(w * n // workers, (w + 1) * n // workers):
+            path = paths[ids[i]]
+            if not path.exists():
+                missing.append(ids[i])
+                continue
+            add(part, i, ids[i], *read_field(path, shape, run))
+        return part, missing
+
+    with ThreadPoolExecutor(workers) as pool:
+        done = list(pool.map(work, range(workers)))
+    return [p for p, _ in done], sorted(pid for _, miss in done for pid in miss)

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.quadrant import read_field
+from rspiv.campaign.fields import grid_x, read_field
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import write_netcdf
@@ -68,28 +68,6 @@ def select_snapshots(ids, limit: int) -> list:
         return ids
     take = np.unique(np.round(np.linspace(0, len(ids) - 1, limit)).astype(int))
     return [ids[i] for i in take]
-
-
-def _read_rows(path: pathlib.Path, rows: slice, shape: tuple[int, int], run: str):
-    """``u, v, valid`` of rows ``rows`` of a field file (the whole file's grid checked)."""
-    import h5py  # deferred: only the second pass reads fields
-
-    try:
-        with h5py.File(path, "r") as f:
-            got = f.attrs.get("run")
-            got = got.decode() if isinstance(got, bytes) else got
-            if got is not None and str(got) != run:
-                raise InvalidInputError(f"{path}: a field of run {got!r}, not {run!r}")
-            ds = [f[k] for k in ("u", "v", "valid")]
-            if any(d.shape != shape for d in ds):
-                s = ds[0].shape
-                raise InvalidInputError(
-                    f"{path}: a grid of {s[-1]} x {s[0]} vectors, the campaign's is "
-                    f"{shape[1]} x {shape[0]}"
-                )
-            return tuple(d[rows] for d in ds)
-    except (OSError, KeyError) as exc:
-        raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
 
 
 def decompose(
@@ -116,7 +94,7 @@ def decompose(
         v = np.empty_like(u)
         ok = np.empty(u.shape, np.uint8)
         for i, path in enumerate(paths):
-            u[i], v[i], ok[i] = _read_rows(path, blk, shape, run)
+            u[i], v[i], ok[i] = read_field(path, shape, run, blk)
         builder.add_rows(blk, u, v, ok)
         if len(blocks) == 1:
             held = (u, v, ok)
@@ -184,7 +162,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     keep = np.flatnonzero(domain.any(axis=1))
     keep = keep[np.argsort(dist[keep])]
     k = float(p.get("k", 1.0))
-    x = _grid_x(paths[ids[0]])
+    x = grid_x(paths[ids[0]])
     sep = r.separated
     prof: dict[str, Any] = {
         "y": dist[keep] * m,
@@ -243,14 +221,6 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             _dataset(prof, run), camp.out_dir / f"pod_{run.name}.nc"
         )
     return prof
-
-
-def _grid_x(path: pathlib.Path) -> np.ndarray:
-    """The ``x`` coordinate (px) of a field file."""
-    import h5py  # deferred: only the second pass reads fields
-
-    with h5py.File(path, "r") as f:
-        return np.asarray(f["x"], np.float64)
 
 
 def _dataset(prof: dict, run: RunSpec) -> Any:

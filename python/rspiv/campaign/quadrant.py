@@ -35,48 +35,20 @@ stops the analysis of that run with one line naming it.
 
 from __future__ import annotations
 
-import os
 import pathlib
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
+from rspiv.campaign.fields import each_field
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import write_netcdf
 from rspiv.quadrant import QUADRANTS, QuadrantAccumulator, gaussian_quadrant
 from rspiv.report import ReportSection
 
-__all__ = ["accumulate", "read_field", "report_section", "write_outputs"]
-
-
-def read_field(path: pathlib.Path, shape: tuple[int, int], run: str) -> tuple[np.ndarray, ...]:
-    """``u, v, valid`` of a field file (:mod:`rspiv.campaign.fields`) of ``run``.
-
-    Raises
-    ------
-    InvalidInputError
-        The file cannot be read, is another run's, or its grid is not ``shape``.
-    """
-    import h5py  # deferred: only the second pass reads fields
-
-    try:
-        with h5py.File(path, "r") as f:
-            got = f.attrs.get("run")
-            got = got.decode() if isinstance(got, bytes) else got
-            if got is not None and str(got) != run:
-                raise InvalidInputError(f"{path}: a field of run {got!r}, not {run!r}")
-            u, v, valid = (np.asarray(f[k]) for k in ("u", "v", "valid"))
-    except (OSError, KeyError) as exc:
-        raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
-    if u.shape != shape or v.shape != shape or valid.shape != shape:
-        raise InvalidInputError(
-            f"{path}: a grid of {u.shape[1]} x {u.shape[0]} vectors, the campaign's is "
-            f"{shape[1]} x {shape[0]}"
-        )
-    return u, v, valid
+__all__ = ["accumulate", "report_section", "write_outputs"]
 
 
 def _t95(batches: np.ndarray) -> np.ndarray:
@@ -101,27 +73,17 @@ def accumulate(
     to a part of their own, merged into ``acc`` at the end (numpy releases the GIL in the
     sums: 1.8x on 2 cores at 47 MP).
     """
-    ids = sorted(paths)
-    n = len(ids)
-    workers = max(1, min(workers or os.cpu_count() or 1, 4, n))
+    n = len(paths)
 
-    def part(w: int) -> tuple[QuadrantAccumulator, list[int]]:
-        mine = acc if w == 0 else acc.empty_copy()
-        missing = []
-        for i in range(w * n // workers, (w + 1) * n // workers):
-            path = paths[ids[i]]
-            if not path.exists():
-                missing.append(ids[i])
-                continue
-            u, v, valid = read_field(path, acc.shape, run)
-            mine.add(u, v, valid, pair_id=ids[i], batch=i * acc.batches // n)
-        return mine, missing
+    def add(part: QuadrantAccumulator, i: int, pid: int, u, v, valid) -> None:
+        part.add(u, v, valid, pair_id=pid, batch=i * acc.batches // n)
 
-    with ThreadPoolExecutor(workers) as pool:
-        parts = list(pool.map(part, range(workers)))
-    for other, _ in parts[1:]:
+    parts, missing = each_field(
+        paths, acc.shape, run, lambda w: acc if w == 0 else acc.empty_copy(), add, workers
+    )
+    for other in parts[1:]:
         acc.merge(other)
-    return acc.n_fields, sorted(pid for _, miss in parts for pid in miss)
+    return acc.n_fields, missing
 
 
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:

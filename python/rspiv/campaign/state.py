@@ -140,6 +140,8 @@ class CampaignResult:
         Run name -> its quadrant analysis (``[statistics] quadrant``; empty without).
     pod : dict
         Run name -> its proper orthogonal decomposition (``[statistics] pod``; empty without).
+    vortices : dict
+        Run name -> its vortex population (``[statistics] vortices``; empty without).
     vorticity : dict
         Run name -> its vorticity profile (``[statistics] vorticity``; empty without).
     """
@@ -167,6 +169,8 @@ class CampaignResult:
     quadrant: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its POD (:mod:`rspiv.campaign.pod`)
     pod: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its vortex population (:mod:`rspiv.campaign.vortices`)
+    vortices: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
     vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 

@@ -19,6 +19,8 @@ from rspiv.profiles import profile_from_accumulator
 from rspiv.stats import FieldAccumulator
 from rspiv.synth.target import PAPER_OPTICS
 from rspiv.two_point import TwoPointAccumulator, integral_length
+from rspiv.vortices import VortexAccumulator, find_vortices, min_core_vectors
+from rspiv.vorticity import VorticityAccumulator
 
 __all__ = [
     "MOMENT_KEYS",
@@ -30,8 +32,10 @@ __all__ = [
     "read_truth",
     "stress_errors",
     "two_point_errors",
+    "vortex_errors",
     "vorticity_errors",
     "write_pod_truth",
+    "write_vortex_truth",
 ]
 
 #: The demo's POD domain: up to this many delta_99 from the wall (``[statistics] pod_height``).
@@ -260,4 +264,91 @@ def pod_errors(prof: dict | None, directory: pathlib.Path) -> dict:
         "total": float(prof["total"] / k2 / prof["vectors"] / (total / vectors) - 1.0),
         "eigenvalues": float(np.max(np.abs(mine / ref - 1.0))),
         "subspace": float(np.linalg.svd(qa.T @ qb, compute_uv=False).min()),
+    }
+
+
+def write_vortex_truth(
+    path: pathlib.Path,
+    exact: list,
+    d: np.ndarray,
+    dx: float,
+    window: tuple[int, int],
+    scheme: str,
+    threshold: float,
+    min_diameter: float,
+) -> pathlib.Path:
+    """The vortex population of the pairs' exact fields ``exact`` (``(u, v)`` per pair on rows
+    ``d`` px from the wall, spacing ``dx``), found as a campaign finds it
+    (:mod:`rspiv.campaign.vortices`: the same scheme, ``threshold`` times each row's rms of
+    the signed swirling strength, rows from 2.5 heights of the final ``window`` plus the
+    stencil's reach, cores smaller than a disc ``min_diameter`` windows wide dropped), written
+    to ``path``: ``count`` per row and kind (prograde, retrograde), ``radius_sum``, ``area`` (the
+    row's strip, px^2), attribute ``pairs``."""
+    import xarray as xr
+
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: the campaign's rule
+    from rspiv.derivatives import SCHEMES  # deferred: beside the rule
+
+    dy = float(d[1] - d[0])
+    # rows turned to the image's (down, towards the wall): its y-up frame is the flow's
+    fields = [VorticityAccumulator.fields(u[::-1], -v[::-1], np.ones(u.shape, bool), dx, dy,
+                                          scheme) for u, v in exact]  # fmt: skip
+    omega = np.array([w[::-1] for w, _ in fields])
+    swirl = np.array([s[::-1] for _, s in fields])
+    reach = max(abs(k) for k in SCHEMES[scheme][0]) * dy
+    rows = d >= NEAR_WALL_HEIGHTS * window[1] + reach
+    min_vectors = min_core_vectors(min_diameter * max(window), dx, dy)
+    fin = np.isfinite(swirl)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt((np.where(fin, swirl, 0.0) ** 2).sum(axis=(0, 2)) / fin.sum(axis=(0, 2)))
+        mean = np.where(fin, omega, 0.0).sum(axis=(0, 2)) / fin.sum(axis=(0, 2))
+    thr = np.where(rows & (rms > 0), threshold * rms, np.inf)[:, None]
+    prograde = -1.0 if np.nanmedian(mean[rows]) <= 0 else 1.0
+    acc = VortexAccumulator(d.size, prograde)
+    for w, s in zip(omega, swirl, strict=True):
+        cores = find_vortices(s, w, thr, dx, dy, y=np.arange(d.size, dtype=np.float64),
+                              min_vectors=min_vectors)  # fmt: skip
+        acc.add(cores, np.rint(cores["y"]).astype(np.int64))
+    area = np.isfinite(swirl).any(axis=0).sum(axis=1) * dx * dy
+    return write_netcdf(
+        xr.Dataset(
+            {
+                "count": (("y", "kind"), acc.count.T),
+                "radius_sum": (("y", "kind"), acc.radius_sum.T),
+                "area": ("y", area),
+            },
+            coords={"y": d, "kind": ["prograde", "retrograde"]},
+            attrs={"pairs": len(exact), "description": "vortex cores of the exact field "
+                   "(rspiv.vortices); y = wall distance, px"},  # fmt: skip
+        ),
+        path,
+    )
+
+
+def vortex_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, Any]) -> dict:
+    """A run's vortex population against that of the same pairs' exact field
+    (``truth_vortices.nc``), over the rows of both from the first searched row to 0.5 delta:
+    the relative deviation of the prograde and retrograde cores per area and pair, and of
+    their mean radius."""
+    import xarray as xr
+
+    keys = ("prograde", "retrograde", "radius")
+    if prof is None:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_vortices.nc", engine="h5netcdf") as ds:
+        d, count, rsum = ds["y"].values, ds["count"].values, ds["radius_sum"].values
+        area, pairs = ds["area"].values, int(ds.attrs["pairs"])
+    top = 0.5 * info["delta99_mm"] * PAPER_M
+    lo = max(float(prof["dist_px"][0]), float(d[np.flatnonzero(count.sum(1) > 0)[0]]))
+    mine = (prof["dist_px"] >= lo) & (prof["dist_px"] <= top)
+    ref = (d >= lo) & (d <= top)
+    m = prof["y"][0] / prof["dist_px"][0] if prof["dist_px"][0] > 0 else 1.0  # m per px
+    dens = prof["count"][mine].sum(0) / (prof["pairs"] * prof["area"][mine].sum() / m**2)
+    dens_ref = count[ref].sum(0) / (pairs * area[ref].sum())
+    rad = np.nansum(prof["radius"][mine] * prof["count"][mine]) / prof["count"][mine].sum() / m
+    rad_ref = rsum[ref].sum() / count[ref].sum()
+    return {
+        "prograde": float(dens[0] / dens_ref[0] - 1.0),
+        "retrograde": float(dens[1] / dens_ref[1] - 1.0),
+        "radius": float(rad / rad_ref - 1.0),
     }

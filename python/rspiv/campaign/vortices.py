@@ -1,0 +1,264 @@
+"""A campaign's vortex population (``[statistics] vortices``).
+
+A second pass over the fields the pair loop wrote (``[output] fields = true``), at the end of a
+run, that finds every pair's vortex cores (:func:`rspiv.vortices.find_vortices`) and counts them
+by height, prograde and retrograde apart (Wu & Christensen 2006). It needs the run's vorticity
+statistics (``[statistics] vorticity = true``, which the configuration requires): the
+threshold at each row is ``vortex_threshold`` (1.5) times the root mean square of the signed
+swirling strength over that row's vectors and pairs, so it is known before the first core.
+
+Frame and sign: the flow's (x downstream, y away from the wall); a core is prograde when it turns
+with the mean shear, i.e. its sign is that of the domain's mean vorticity (negative in a
+boundary layer). The rows searched are those on the flow side off the wall (2.5 final window
+heights plus the differences' reach, ``near_wall`` in the vorticity file), with statistics of at
+least ``min_count`` pairs.
+
+Output ``vortices_<run>.nc``: per row (``y`` from the wall, ``y_plus``) and ``kind`` (prograde,
+retrograde): ``count``, ``density`` (cores per m^2 of the row's strip per pair, 1/px^2 without a
+calibration; cores are counted at the row nearest their centroid), ``density_delta2`` (times
+delta_99^2), ``radius`` and ``circulation`` (means of the cores; m and m^2/s, with ``_plus`` in
+wall units), ``threshold`` (1/s); and every core (dim ``core``, at most ``MAX_CORES``): ``pair``,
+``x``, ``y``, ``sign``, ``radius``, ``circulation``, ``peak``. A report figure.
+
+Noise also makes cores, mostly small ones: cores smaller than a disc ``vortex_min_diameter``
+(1.0) final windows wide are dropped (:func:`rspiv.vortices.min_core_vectors`; not resolved by
+the windows). The threshold is a multiple of the *measured* rms, which the noise raises too.
+Said in one line: a missing field file (left out); the core table cut at ``MAX_CORES``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.fields import each_field, grid_x
+from rspiv.campaign.spec import RunSpec
+from rspiv.derivatives import SCHEMES
+from rspiv.errors import InvalidInputError
+from rspiv.outputs import write_netcdf
+from rspiv.report import ReportSection
+from rspiv.vortices import CORE_FIELDS, VortexAccumulator, find_vortices, min_core_vectors
+from rspiv.vorticity import VorticityAccumulator
+
+__all__ = ["MAX_CORES", "report_section", "write_outputs"]
+
+#: The most cores ``vortices_<run>.nc`` lists one by one (the counts hold every core).
+MAX_CORES = 2_000_000
+
+
+def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
+    """The vortex population of ``run`` (module docstring), written as
+    ``OUT/vortices_<run>.nc`` (with ``[output] netcdf``); None when ``[statistics] vortices``
+    is off."""
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    st = camp.config.statistics
+    if not st.vortices:
+        return None
+    acc = res.accumulators[run.name]
+    va = getattr(acc, "vorticity", None)
+    if va is None:
+        raise InvalidInputError("the run carries no vorticity statistics to set the threshold")
+    if not acc.pair_ids:
+        raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
+    t0 = time.perf_counter()
+    p = an.profile
+    dist = np.asarray(p["dist_px"], np.float64)
+    usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None] & (va.swirl_count > 1)
+    orient = float(p.get("sign_x", 1.0)) * -float(p.get("sign_y", 1.0))
+    reach = max(abs(k) for k in SCHEMES[va.scheme][0]) * va.dy
+    near = dist < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1] + reach
+    rows_in = (dist > 0) & ~near & usable.any(axis=1)
+    if not rows_in.any():
+        raise InvalidInputError("no row off the wall holds swirling-strength statistics")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # each vector's mean square over its pairs, averaged along the row: 1/pair, about zero
+        msq = va.swirl_m2 / np.maximum(va.swirl_count, 1) + va.swirl_mean**2
+        rms = np.sqrt(np.where(usable, msq, 0.0).sum(1) / usable.sum(1))
+        omega = np.where(usable, va.mean("omega"), 0.0).sum(1) / usable.sum(1) * orient
+    thr = np.where(rows_in & (rms > 0), st.vortex_threshold * rms, np.inf)
+    prograde = -1.0 if np.nanmedian(omega[rows_in]) <= 0 else 1.0
+    writer = camp.field_writer()
+    ids = sorted(acc.pair_ids)
+    paths = {pid: writer.path(run.name, pid) for pid in ids}
+    first = next((paths[i] for i in ids if paths[i].exists()), None)
+    if first is None:
+        raise InvalidInputError(
+            f"none of the {len(paths)} pairs has a field file in {paths[ids[0]].parent}"
+        )
+    x = grid_x(first)
+    min_vectors = min_core_vectors(
+        st.vortex_min_diameter * max(res.context.piv.final_window), va.dx, va.dy
+    )
+    counts = VortexAccumulator(acc.shape[0], prograde)
+    row_index = np.arange(acc.shape[0], dtype=np.float64)
+
+    def add(part: dict, i: int, pid: int, u, v, valid) -> None:
+        w, s = VorticityAccumulator.fields(u, v, valid, va.dx, va.dy, va.scheme)
+        cores = find_vortices(s * orient, w * orient, thr[:, None], va.dx, va.dy, x=x,
+                              y=row_index, min_vectors=min_vectors)  # fmt: skip
+        part["acc"].add(cores, np.rint(cores["y"]).astype(np.int64))
+        if part["n"] < MAX_CORES:
+            part["cores"].append((pid, cores))
+            part["n"] += cores["x"].size
+
+    def new_part(w: int) -> dict:
+        return {"acc": counts.empty_copy(), "cores": [], "n": 0}
+
+    parts, missing = each_field(paths, acc.shape, run.name, new_part, add)
+    for part in parts:
+        counts.merge(part["acc"])
+    table = _core_table([c for part in parts for c in part["cores"]], dist, p, camp, MAX_CORES)
+    si = bool(p.get("si"))
+    m = p["m_per_px"] if si else 1.0
+    dt = camp.config.flow.dt
+    per_s = 1.0 / dt if dt > 0 else 1.0
+    keep = np.flatnonzero(rows_in)
+    keep = keep[np.argsort(dist[keep])]
+    strip = usable.sum(1)[keep] * va.dx * va.dy * m * m  # each row's searched area
+    n = max(counts.n_fields, 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = counts.count[:, keep].T.astype(np.float64)  # (y, kind)
+        prof: dict[str, Any] = {
+            "y": dist[keep] * m,
+            "dist_px": dist[keep],
+            "rows": keep,
+            "count": counts.count[:, keep].T,
+            "density": c / (n * strip[:, None]),
+            "radius": counts.radius_sum[:, keep].T / c * m,
+            "circulation": counts.circulation_sum[:, keep].T / c * m * m * per_s,
+            "threshold": thr[keep] * per_s,
+            "area": strip,
+            "min_vectors": min_vectors,
+            "prograde_sign": prograde,
+            "cores": table,
+            "si": si,
+            "per_s": dt > 0,
+            "pairs": int(counts.n_fields),
+            "missing": missing,
+        }
+    r = an.result
+    if r is not None and si and dt > 0:
+        prof["y_plus"] = prof["y"] * r.u_tau / r.nu
+        prof["radius_plus"] = prof["radius"] * r.u_tau / r.nu
+        prof["circulation_plus"] = prof["circulation"] / r.nu
+        prof["density_delta2"] = prof["density"] * r.delta99**2
+        prof["delta_99"] = float(r.delta99)
+    prof["seconds"] = time.perf_counter() - t0
+    total = int(counts.count.sum())
+    camp.say(
+        f"{run.label}: {total} vortex cores in {counts.n_fields} pairs' fields "
+        f"({int(counts.count[0].sum())} prograde; {prof['seconds']:.1f} s)"
+    )
+    said = []
+    if missing:
+        said.append(
+            f"{len(missing)} of {len(paths)} pairs have no field file (first: pair "
+            f"{missing[0]}): the vortex population holds {counts.n_fields} pairs"
+        )
+    if table["x"].size < total:
+        said.append(f"the core table lists the first {table['x'].size} of {total} cores")
+    if said:
+        prof["warning"] = "; ".join(said)
+        camp.say(f"WARNING: {run.label}: vortices: {prof['warning']}")
+    if camp.config.output.netcdf:
+        res.files[f"vortices_{run.name}"] = write_netcdf(
+            _dataset(prof, run), camp.out_dir / f"vortices_{run.name}.nc"
+        )
+    return prof
+
+
+def _core_table(found: list, dist: np.ndarray, p: dict, camp: Any, limit: int) -> dict:
+    """Every core of ``found`` (``(pair id, cores)``, in pair order), at most ``limit``, in the
+    flow's units: y the distance from the wall."""
+    found = sorted(found, key=lambda t: t[0])
+    m = p["m_per_px"] if p.get("si") else 1.0
+    dt = camp.config.flow.dt
+    per_s = 1.0 / dt if dt > 0 else 1.0
+    cols = {k: [c[k] for _, c in found] for k in CORE_FIELDS}
+    out = {k: np.concatenate(v)[:limit] if v else np.zeros(0) for k, v in cols.items()}
+    pair = [np.full(c["x"].size, pid) for pid, c in found]
+    out["pair"] = np.concatenate(pair)[:limit] if pair else np.zeros(0, np.int64)
+    out["y"] = np.interp(out["y"], np.arange(dist.size), dist) * m
+    out["x"] = out["x"] * m
+    out["radius"] = out["radius"] * m
+    out["circulation"] = out["circulation"] * m * m * per_s
+    out["peak"] = out["peak"] * per_s
+    return out
+
+
+def _dataset(prof: dict, run: RunSpec) -> Any:
+    import xarray as xr
+
+    length = "m" if prof["si"] else "pix"
+    circ = ("m2 s-1" if prof["per_s"] else "m2") if prof["si"] else "pix2"
+    rate = "s-1" if prof["per_s"] else "1"
+    dims = ("y", "kind")
+    t = prof["cores"]
+    ds = xr.Dataset(
+        coords={
+            "y": ("y", prof["y"], {"units": length, "long_name": "distance from the wall"}),
+            "kind": ("kind", ["prograde", "retrograde"]),
+        }
+    )
+    ds["count"] = (dims, prof["count"], {"long_name": "cores whose centroid is in the row"})
+    ds["density"] = (dims, prof["density"], {"units": f"{length}-2",
+                     "long_name": "cores per area of the row's strip per pair"})  # fmt: skip
+    ds["radius"] = (dims, prof["radius"], {"units": length,
+                    "long_name": "mean radius of a disc of the core's area"})  # fmt: skip
+    ds["circulation"] = (dims, prof["circulation"], {"units": circ,
+                         "long_name": "mean circulation inside the threshold"})  # fmt: skip
+    ds["threshold"] = ("y", prof["threshold"], {"units": rate,
+                       "long_name": "|Lambda_ci| of a core's vectors at least"})  # fmt: skip
+    for k in ("pair", "x", "y", "sign", "radius", "circulation", "peak"):
+        ds[f"core_{k}"] = ("core", t[k])
+    if "y_plus" in prof:
+        ds["y_plus"] = ("y", prof["y_plus"], {"units": "1"})
+        for k in ("radius_plus", "circulation_plus", "density_delta2"):
+            ds[k] = (dims, prof[k], {"units": "1"})
+        ds.attrs["delta_99"] = prof["delta_99"]
+    ds.attrs.update(
+        {
+            "run": run.name,
+            "label": run.label,
+            "pairs": prof["pairs"],
+            "min_vectors": prof["min_vectors"],
+            "prograde_sign": prof["prograde_sign"],
+            "description": "rspiv vortex cores (rspiv.vortices): connected vectors of signed "
+            "swirling strength beyond the row's threshold; the flow's frame (x downstream, y "
+            "away from the wall), sign +1 counter-clockwise",
+        }
+    )
+    if "warning" in prof:
+        ds.attrs["warning"] = prof["warning"]
+    return ds
+
+
+def report_section(camp: Any, res: Any) -> Any:
+    """The report's section on the main run's vortex population, or None."""
+    main = res.context.runs[0]
+    prof = res.vortices.get(main.name)
+    if prof is None or "y_plus" not in prof:
+        return None
+    figures = []
+    try:
+        from rspiv.plots.vortices import plot_vortices  # deferred: matplotlib
+
+        path = plot_vortices(camp.out_dir / "report" / "figures" / "vortices.png", prof)
+        figures.append((path, f"{main.label}: vortex population"))
+    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
+        camp.say(f"vortex figure failed: {exc}")
+    total = prof["count"].sum(axis=0)
+    text = (
+        f"Vortex cores over {prof['pairs']} pairs (connected vectors whose signed swirling "
+        f"strength exceeds {camp.config.statistics.vortex_threshold:g} times its rms at their "
+        f"height, at least {prof['min_vectors']} vectors: a disc as wide as "
+        f"{camp.config.statistics.vortex_min_diameter:g} final window): {total[0]} "
+        f"prograde (turning with the mean shear) and {total[1]} retrograde. Densities are per "
+        "delta_99^2 and pair; the measurement noise makes cores too and raises the threshold."
+    )
+    if "warning" in prof:
+        text += f"\n\nWarning: {prof['warning']}."
+    return ReportSection("Vortex population", text=text, figures=figures)
