@@ -52,10 +52,11 @@ cfg.correction.method = method
 cfg.correction.compare_uncorrected = False
 # the synthetic campaign's [statistics] two_point (spectra, maps and their pilot) only if asked
 cfg.statistics.two_point = os.environ.get("RSPIV_BENCH_TWO_POINT") == "1"
-# its vorticity statistics, each pair's fields and the quadrant analysis's and the POD's passes
-# over them, alike
+# its vorticity statistics, each pair's fields and the passes over them (quadrant, POD, vortices)
+# alike
 extras = os.environ.get("RSPIV_BENCH_EXTRAS") == "1"
-cfg.statistics.vorticity = cfg.statistics.quadrant = cfg.statistics.pod = extras
+cfg.statistics.vorticity = cfg.statistics.quadrant = extras
+cfg.statistics.pod = cfg.statistics.vortices = extras
 cfg.output.fields = extras
 
 cfg.calibration.monte_carlo_samples = 0
@@ -137,7 +138,7 @@ def main() -> int:
     ap.add_argument(
         "--extras",
         action="store_true",
-        help="keep the synthetic campaign's vorticity statistics, fields, quadrant and POD",
+        help="keep the synthetic campaign's vorticity statistics, fields, quadrant, POD, vortices",
     )
     ap.add_argument(
         "--roi-rows",
