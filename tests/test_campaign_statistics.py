@@ -279,6 +279,8 @@ def test_the_pod_file_equals_an_svd_of_the_fields(processed):
         a, s, vt = np.linalg.svd(x, full_matrices=False)
         with xr.open_dataset(res.out_dir / f"pod_{run}.nc", engine="h5netcdf") as ds:
             assert ds.attrs["pairs"] == 3 and ds.attrs["vectors"] == dom.sum()
+            # 3 snapshots: 2 modes of sampling errors sqrt(2/3) of themselves, said
+            assert "no mode kept is separated from its neighbours" in ds.attrs["warning"]
             assert ds["energy"].attrs["units"] == "m2 s-2"
             n_modes = ds.sizes["mode"]
             assert n_modes == 2  # 3 snapshots about their own mean span 2 modes
@@ -377,3 +379,21 @@ def test_the_vortex_population_equals_the_cores_of_the_fields(processed):
             assert ds.sizes["core"] == count.sum()
             assert ds["density"].attrs["units"] == "m-2"
     assert (res.out_dir / "report" / "figures" / "vortices.png").is_file()
+
+
+def test_pod_gaps_are_said(processed, tmp_path):
+    """Rejected vectors in a tenth of the domain's samples (the field files' ``valid`` cleared
+    in every other row of one pair): the POD says how many were filled with the mean."""
+    import h5py
+
+    def reject(out: pathlib.Path):
+        with h5py.File(out / "fields" / "method_II" / "pair_000001.nc", "r+") as f:
+            valid = f["valid"][...]
+            valid[::2] = 0
+            f["valid"][...] = valid
+
+    res, said, _ = _reanalyse(processed, tmp_path, reject)
+    prof = res.pod["method_II"]
+    assert 0.05 < prof["gaps"] < 0.25
+    assert f"{100 * prof['gaps']:.1f} % of the domain's samples were rejected" in prof["warning"]
+    assert any("WARNING" in m and "POD" in m and "filled with their mean" in m for m in said)

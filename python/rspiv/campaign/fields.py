@@ -40,7 +40,8 @@ Reading them back as one dataset with a ``pair`` dimension (dask installed)::
 
 Reading them back, a second pass at the end of a run (the quadrant analysis, the POD, the
 vortex population): :func:`read_field` (a whole field or a block of rows, the run and the grid
-checked) and :func:`each_field` (every pair's file, contiguous runs of the pairs on each core).
+checked), :func:`each_field` (every pair's file, contiguous runs of the pairs on each core) and
+:func:`finish_pass` (its warnings said in one line, its file written).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ from rspiv.campaign.spec import PairContext, PairResult, PairSpec
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import write_netcdf
 
-__all__ = ["FieldWriter", "each_field", "grid_x", "read_field"]
+__all__ = ["FieldWriter", "each_field", "finish_pass", "grid_x", "read_field"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -226,3 +227,27 @@ def each_field(
     with ThreadPoolExecutor(workers) as pool:
         done = list(pool.map(work, range(workers)))
     return [p for p, _ in done], sorted(pid for _, miss in done for pid in miss)
+
+
+def finish_pass(
+    camp: Any,
+    res: Any,
+    run: Any,
+    prof: dict[str, Any],
+    said: list[str],
+    stem: str,
+    what: str,
+    dataset: Callable[[dict, Any], Any],
+) -> dict[str, Any]:
+    """The end of a second pass over ``run``'s fields: ``said`` joined into one line
+    (``prof["warning"]``, the log's ``WARNING: <run>: <what>: ...``), and
+    ``OUT/<stem>_<run>.nc`` written from ``dataset(prof, run)`` with ``[output] netcdf``;
+    returns ``prof``."""
+    if said:
+        prof["warning"] = "; ".join(said)
+        camp.say(f"WARNING: {run.label}: {what}: {prof['warning']}")
+    if camp.config.output.netcdf:
+        res.files[f"{stem}_{run.name}"] = write_netcdf(
+            dataset(prof, run), camp.out_dir / f"{stem}_{run.name}.nc"
+        )
+    return prof

@@ -48,10 +48,9 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import grid_x, read_field
+from rspiv.campaign.fields import finish_pass, grid_x, read_field
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
-from rspiv.outputs import write_netcdf
 from rspiv.pod import PodBuilder
 from rspiv.report import ReportSection
 
@@ -213,14 +212,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             "independent snapshots): the spectrum is flat within its sampling error and no "
             "mode's shape is determined by these snapshots"
         )
-    if said:
-        prof["warning"] = "; ".join(said)
-        camp.say(f"WARNING: {run.label}: POD: {prof['warning']}")
-    if camp.config.output.netcdf:
-        res.files[f"pod_{run.name}"] = write_netcdf(
-            _dataset(prof, run), camp.out_dir / f"pod_{run.name}.nc"
-        )
-    return prof
+    return finish_pass(camp, res, run, prof, said, "pod", "POD", _dataset)
 
 
 def _dataset(prof: dict, run: RunSpec) -> Any:

@@ -41,10 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field
+from rspiv.campaign.fields import each_field, finish_pass
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
-from rspiv.outputs import write_netcdf
 from rspiv.quadrant import QUADRANTS, QuadrantAccumulator, gaussian_quadrant
 from rspiv.report import ReportSection
 
@@ -190,14 +189,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"with {n_typ} pairs per vector |u'v'| / (u_rms v_rms) cannot exceed {reach:.2f}: "
             "the shares of larger holes are 0 by construction"
         )
-    if said:
-        prof["warning"] = "; ".join(said)
-        camp.say(f"WARNING: {run.label}: quadrant: {prof['warning']}")
-    if camp.config.output.netcdf:
-        res.files[f"quadrant_{run.name}"] = write_netcdf(
-            _dataset(prof, run), camp.out_dir / f"quadrant_{run.name}.nc"
-        )
-    return prof
+    return finish_pass(camp, res, run, prof, said, "quadrant", "quadrant", _dataset)
 
 
 def _dataset(prof: dict, run: RunSpec) -> Any:

@@ -33,11 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, grid_x
+from rspiv.campaign.fields import each_field, finish_pass, grid_x
 from rspiv.campaign.spec import RunSpec
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError
-from rspiv.outputs import write_netcdf
 from rspiv.report import ReportSection
 from rspiv.vortices import CORE_FIELDS, VortexAccumulator, find_vortices, min_core_vectors
 from rspiv.vorticity import VorticityAccumulator
@@ -160,14 +159,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         )
     if table["x"].size < total:
         said.append(f"the core table lists the first {table['x'].size} of {total} cores")
-    if said:
-        prof["warning"] = "; ".join(said)
-        camp.say(f"WARNING: {run.label}: vortices: {prof['warning']}")
-    if camp.config.output.netcdf:
-        res.files[f"vortices_{run.name}"] = write_netcdf(
-            _dataset(prof, run), camp.out_dir / f"vortices_{run.name}.nc"
-        )
-    return prof
+    return finish_pass(camp, res, run, prof, said, "vortices", "vortices", _dataset)
 
 
 def _core_table(found: list, dist: np.ndarray, p: dict, camp: Any, limit: int) -> dict:
