@@ -324,6 +324,47 @@ def test_fields_that_cannot_be_written_stop_the_run_in_one_line(recording, tmp_p
     assert "[output] fields: cannot write " in err and "pair_000000.nc" in err, err
 
 
+def test_fields_written_behind_the_pairs_keep_the_checkpoint_whole(recording, tmp_path,
+                                                                    monkeypatch):
+    """The local loop writes each pair's fields while the next pair is processed: a write that
+    fails (pair 2's) stops the run with its error, and the checkpoint (every pair) holds only
+    pairs whose files were written; every file written equals a run that waits for its disk."""
+    import xarray as xr
+    from rspiv.campaign.fields import FieldWriter
+
+    out = tmp_path / "out"
+    cfg = _config(recording, out, pairing="sequential")
+    cfg.output.fields = True
+    real = FieldWriter.write
+
+    def failing(self, context, pair, result):
+        if pair.pair_id == 2:
+            raise OSError(f"[output] fields: cannot write {self.path('uncorrected', 2)}: full")
+        return real(self, context, pair, result)
+
+    monkeypatch.setattr(FieldWriter, "write", failing)
+    camp = Campaign(cfg, progress=False, out_dir=out, checkpoint_every=1)
+    with pytest.raises(OSError, match="pair_000002.nc: full"):
+        camp.run()
+    ckpt = camp.load_checkpoint(camp.prepare())
+    written = {int(f.stem[5:]) for f in (out / "fields" / "uncorrected").glob("pair_*.nc")}
+    assert set(ckpt["finished"]) == written == {0, 1}
+    # resumed without the failure: every pair, files equal to a run that never failed
+    monkeypatch.setattr(FieldWriter, "write", real)
+    res = Campaign(cfg, progress=False, out_dir=out).run()
+    assert res.n_done == FRAMES - 1
+    ref_out = tmp_path / "ref"
+    ref_cfg = _config(recording, ref_out, pairing="sequential")
+    ref_cfg.output.fields = True
+    _run(ref_cfg, ref_out)
+    for k in range(FRAMES - 1):
+        name = f"uncorrected/pair_{k:06d}.nc"
+        with xr.open_dataset(out / "fields" / name, engine="h5netcdf") as a, xr.open_dataset(
+            ref_out / "fields" / name, engine="h5netcdf"
+        ) as b:
+            np.testing.assert_array_equal(a["u"].values, b["u"].values)
+
+
 def test_a_dask_chunk_records_a_pair_whose_fields_cannot_be_written(recording, tmp_path):
     from rspiv.campaign.executors.dask import process_chunk
     from rspiv.campaign.fields import FieldWriter
