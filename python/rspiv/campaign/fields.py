@@ -30,8 +30,9 @@ Attributes
 
 Size and time: 17 bytes per vector and run, 12 MB per pair and run for a 47 MP frame with
 32 x 8 px windows at 50 % overlap (730,000 vectors): a 35,000-pair campaign with Method II and
-the uncorrected comparison writes about 0.9 TB, and the two files of a pair take about 0.1 s in
-the pair loop (2 cores, local disk).
+the uncorrected comparison writes about 0.9 TB. The two files of a pair take about 0.1 s (2
+cores, local disk); a local run writes them by a thread while the next pair is processed
+(:class:`rspiv.campaign.executors.local.LocalExecutor`), a Dask task in its chunk.
 
 Reading them back as one dataset with a ``pair`` dimension (dask installed)::
 
