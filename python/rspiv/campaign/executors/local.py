@@ -109,7 +109,7 @@ class LocalExecutor:
         except KeyboardInterrupt:
             try:
                 written()
-            except OSError:
+            except Exception:  # noqa: BLE001 - the interrupt propagates, not the write's error
                 consistent = False  # a pair finished without its fields: no checkpoint
             if consistent:  # keep what is done: a restart resumes from here
                 campaign.save_checkpoint(state.ctx, state.accs, state.finished, state.timings)
