@@ -241,14 +241,15 @@ def finish_pass(
     dataset: Callable[[dict, Any], Any],
 ) -> dict[str, Any]:
     """The end of a second pass over ``run``'s fields: ``said`` joined into one line
-    (``prof["warning"]``, the log's ``WARNING: <run>: <what>: ...``), and
-    ``OUT/<stem>_<run>.nc`` written from ``dataset(prof, run)`` with ``[output] netcdf``;
-    returns ``prof``."""
+    (``prof["warning"]``, the log's ``WARNING: <run>: <what>: ...``, the file's ``warning``
+    attribute), and ``OUT/<stem>_<run>.nc`` written from ``dataset(prof, run)`` with ``[output]
+    netcdf``; returns ``prof``."""
     if said:
         prof["warning"] = "; ".join(said)
         camp.say(f"WARNING: {run.label}: {what}: {prof['warning']}")
     if camp.config.output.netcdf:
-        res.files[f"{stem}_{run.name}"] = write_netcdf(
-            dataset(prof, run), camp.out_dir / f"{stem}_{run.name}.nc"
-        )
+        ds = dataset(prof, run)
+        if said:
+            ds.attrs["warning"] = prof["warning"]
+        res.files[f"{stem}_{run.name}"] = write_netcdf(ds, camp.out_dir / f"{stem}_{run.name}.nc")
     return prof

@@ -259,8 +259,6 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
             "vector's mean; rejected vectors filled with the mean",
         }
     )
-    if "warning" in prof:
-        ds.attrs["warning"] = prof["warning"]
     return ds
 
 

@@ -240,8 +240,6 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
             "from the wall, each vector's fluctuation about its own mean",
         }
     )
-    if "warning" in prof:
-        ds.attrs["warning"] = prof["warning"]
     return ds
 
 

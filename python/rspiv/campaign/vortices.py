@@ -223,8 +223,6 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
             "away from the wall), sign +1 counter-clockwise",
         }
     )
-    if "warning" in prof:
-        ds.attrs["warning"] = prof["warning"]
     return ds
 
 
