@@ -10,8 +10,11 @@ swirling strength over that row's vectors and pairs, so it is known before the f
 Frame and sign: the flow's (x downstream, y away from the wall); a core is prograde when it turns
 with the mean shear, i.e. its sign is that of the domain's mean vorticity (negative in a
 boundary layer). The rows searched are those on the flow side off the wall (2.5 final window
-heights plus the differences' reach, ``near_wall`` in the vorticity file), with statistics of at
-least ``min_count`` pairs.
+heights plus the differences' reach, ``near_wall`` in the vorticity file) up to delta_99, with
+statistics of at least ``min_count`` pairs. Above the layer the swirl's rms is the noise's and a
+threshold relative to it counts noise (on the demo's frame above 1.25 delta_99: 425 cores where
+its exact field has none), so a run without a boundary-layer fit (a calibration, ``[flow] dt``)
+is refused in one line.
 
 Output ``vortices_<run>.nc``: per row (``y`` from the wall, ``y_plus``) and ``kind`` (prograde,
 retrograde): ``count``, ``density`` (cores per m^2 of the row's strip per pair, 1/px^2 without a
@@ -69,7 +72,16 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     orient = float(p.get("sign_x", 1.0)) * -float(p.get("sign_y", 1.0))
     reach = max(abs(k) for k in SCHEMES[va.scheme][0]) * va.dy
     near = dist < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1] + reach
-    rows_in = (dist > 0) & ~near & usable.any(axis=1)
+    # above the layer the row's rms is the noise's, and a threshold relative to it counts noise
+    # (the demo's frame above 1.25 delta_99: 425 cores where its exact field has none)
+    bl = an.result
+    if bl is None or not p.get("si") or not np.isfinite(bl.delta99):
+        raise InvalidInputError(
+            "the vortex population needs the run's delta_99 to bound its rows (a calibration, "
+            "[flow] dt and a boundary-layer fit): above the layer a threshold relative to the "
+            "row's swirl counts the noise"
+        )
+    rows_in = (dist > 0) & ~near & usable.any(axis=1) & (dist * p["m_per_px"] <= bl.delta99)
     if not rows_in.any():
         raise InvalidInputError("no row off the wall holds swirling-strength statistics")
     with np.errstate(invalid="ignore", divide="ignore"):
