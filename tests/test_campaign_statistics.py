@@ -133,6 +133,34 @@ def test_a_missing_field_file_is_said(processed, tmp_path):
     assert summary["runs"]["method_II"]["pod"]["missing_fields"] == 1
 
 
+def test_a_refused_pass_leaves_no_older_file(processed, tmp_path):
+    """A pass refused now removes the file an earlier analysis wrote for it (the folder held
+    PIVlab's Karman campaign's older ``vortices_uncorrected.nc`` beside a refusal): named in the
+    log and in ``summary.json``; other runs' files and files rspiv does not name stay."""
+
+    def drop(out: pathlib.Path):
+        for f in (out / "fields" / "method_II").glob("pair_*.nc"):
+            f.unlink()
+        (out / "notes_method_II.nc").write_text("mine")
+        (out / "quadrant_other_run.nc").write_text("mine")
+
+    d, _, full = processed
+    before = {p.name for p in full.out_dir.glob("*_method_II.nc")}
+    assert {"quadrant_method_II.nc", "pod_method_II.nc", "vortices_method_II.nc"} <= before
+    res, said, out = _reanalyse(processed, tmp_path, drop)
+    assert "method_II" not in res.quadrant and "method_II" not in res.pod
+    gone = {"quadrant_method_II.nc", "pod_method_II.nc", "vortices_method_II.nc"}
+    for name in gone:
+        assert not (out / name).exists(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert gone <= set(summary["removed"])
+    assert "statistics_method_II.nc" not in summary["removed"]  # written again
+    assert any(m.startswith("removed ") and "quadrant_method_II.nc" in m for m in said)
+    for name in ("quadrant_uncorrected.nc", "statistics_method_II.nc", "notes_method_II.nc",
+                 "quadrant_other_run.nc"):
+        assert (out / name).is_file(), name
+
+
 def test_a_foreign_field_file_stops_the_run_in_one_line(processed, tmp_path):
     import xarray as xr
 

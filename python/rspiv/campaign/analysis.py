@@ -8,6 +8,11 @@ boundary layer is analysed (:func:`rspiv.analyse_profile`), and the outputs are 
 atomically: ``statistics_<run>.nc`` (pivpy names, CF units), ``profile_<run>.nc``,
 ``profile_<run>.csv``, ``summary.json`` and ``report/report.{md,html}``. A shard writes its raw
 accumulators instead (:func:`write_shard`).
+
+The output folder describes the last analysis only: a run's file that an earlier analysis
+wrote and this one did not (its pass refused or failed, turned off, or ``[output] netcdf`` /
+``csv`` off) is removed and named in the log and in ``summary.json`` (``removed``), so that a
+refused pass never leaves an older result beside the new ones (:func:`remove_stale`).
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ __all__ = [
     "calibration_table",
     "find_run_wall",
     "partial_correlation_note",
+    "remove_stale",
     "scaled_accumulator",
     "wall_dict",
     "wall_figure",
@@ -342,6 +348,37 @@ def partial_correlation_note(res: CampaignResult) -> str:
     )
 
 
+#: The stems of a run's analysis files, ``OUT/<stem>_<run>.nc`` and ``.csv``.
+ANALYSIS_STEMS = (
+    "statistics",
+    "profile",
+    "profile_ensemble",
+    "profile_pixel",
+    "two_point",
+    "quadrant",
+    "pod",
+    "vorticity",
+    "vortices",
+)
+
+
+def remove_stale(out: pathlib.Path, runs, written) -> list[str]:
+    """Remove the analysis files of ``runs`` in ``out`` (``<stem>_<run>.nc`` / ``.csv`` of
+    :data:`ANALYSIS_STEMS`) that are not among ``written`` (paths this analysis wrote): what
+    an earlier analysis left. Returns the removed files' names. Files of runs this campaign
+    does not have, and anything not named so, are left alone."""
+    keep = {pathlib.Path(p).resolve() for p in written if isinstance(p, (str, pathlib.Path))}
+    removed = []
+    for run in runs:
+        for stem in ANALYSIS_STEMS:
+            for suffix in (".nc", ".csv"):
+                path = out / f"{stem}_{run.name}{suffix}"
+                if path.is_file() and path.resolve() not in keep:
+                    path.unlink()
+                    removed.append(path.name)
+    return removed
+
+
 def write_shard(camp: Any, res: CampaignResult) -> None:
     """Write the accumulators of a sharded run of ``camp``, one NetCDF file per run.
 
@@ -517,6 +554,13 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             "files": {r.name: len(list((fields_dir / r.name).glob("pair_*.nc"))) for r in ctx.runs},
         }
         res.files["fields"] = fields_dir
+    removed = remove_stale(out, ctx.runs, res.files.values())
+    if removed:
+        summary["removed"] = removed
+        camp.say(
+            f"removed {len(removed)} file(s) an earlier analysis wrote and this one did not: "
+            + ", ".join(removed)
+        )
     res.files["summary"] = atomic_write_text(
         out / "summary.json", json.dumps(summary, indent=1, default=json_default)
     )
