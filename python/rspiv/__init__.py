@@ -28,6 +28,7 @@ from rspiv.particle_size import particle_diameter
 from rspiv.piv import PivField, piv, piv_at, window_response
 from rspiv.pod import PodResult, pod
 from rspiv.quadrant import QuadrantAccumulator, gaussian_quadrant
+from rspiv.recording import RecordingCheck, check_recording
 from rspiv.reference import load_dns
 from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
@@ -50,4 +51,4 @@ __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
-__all__ += ["Repeatability", "repeatability"]
+__all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]

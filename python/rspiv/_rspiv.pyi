@@ -303,6 +303,22 @@ def correlation_check(
 
 MIN_PARTICLE_DIAMETER: float
 
+MIN_NOISE: float
+
+def seeding(
+    frame: npt.NDArray[np.generic],
+    block: int,
+    k: float,
+    rel: float,
+    full: float | None = None,
+    mask: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, object]:
+    """Each ``block`` px block's ``background``, ``noise``, ``top`` (99.5th percentile),
+    ``median`` (counts), ``peaks`` (particle images above ``b + max(k s, rel signal)``),
+    ``heights`` (their summed heights above ``b``), ``saturated`` (those at ``full`` or above)
+    and ``searched`` (pixels), as ``(rows, cols)`` arrays, with the frame's ``signal`` and the
+    ``block`` (``piv_core::seeding``)."""
+
 def particle_diameter(
     frame_a: npt.NDArray[np.generic],
     frame_b: npt.NDArray[np.generic],

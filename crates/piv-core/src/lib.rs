@@ -19,6 +19,8 @@
 //!   flatness);
 //! - [`particle_size`]: the particle images' diameter from the correlation peaks, and the
 //!   peak-locking check;
+//! - [`seeding`]: each block's background and noise, and the particle images standing out of
+//!   them (the seeding density);
 //! - [`synth::render_particles`]: synthetic particle images.
 
 pub mod condition;
@@ -32,6 +34,7 @@ pub mod image;
 pub mod moments;
 pub mod multipass;
 pub mod particle_size;
+pub mod seeding;
 pub mod synth;
 pub mod validate;
 pub mod weighting;

@@ -14,6 +14,7 @@ mod mapping;
 mod moments;
 mod piv;
 mod remap;
+mod seeding;
 
 #[pymodule]
 fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -26,5 +27,6 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     condition::register(m)?;
     ensemble::register(m)?;
     moments::register(m)?;
+    seeding::register(m)?;
     Ok(())
 }

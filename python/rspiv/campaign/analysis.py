@@ -542,7 +542,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     summary["timings_s"] = res.timings
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
-    for key in ("particle_diameter_px", "particle_size_warnings"):
+    info_keys = ("particle_diameter_px", "particle_size_warnings", "recording")
+    for key in (*info_keys, "recording_warnings"):
         if key in camp.info:
             summary[key] = camp.info[key]
     if cfg.images.pairing_info() is not None:
@@ -620,6 +621,9 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     if camp.info.get("particle_size_warnings"):
         said = "\n\n".join(f"Warning: {w}." for w in camp.info["particle_size_warnings"].values())
         extra.append(ReportSection("Particle images too small", text=said))
+    if camp.info.get("recording_warnings"):
+        said = "\n\n".join(f"Warning: {w}." for w in camp.info["recording_warnings"].values())
+        extra.append(ReportSection("The recording (first pair)", text=said))
     no_free_stream = [
         f"{an.run.label}: {an.result.warning}."
         for an in res.analyses.values()

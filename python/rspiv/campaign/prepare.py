@@ -32,6 +32,7 @@ from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.piv import piv
 from rspiv.preprocess import Background
+from rspiv.recording import check_recording
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["prepare_context"]
@@ -178,7 +179,8 @@ def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) 
     ``info["particle_diameter_px"]``. Particle images too small for a sub-pixel fit or for the
     hot-pixel rule (:func:`rspiv.particle_size.warnings_for`) are said once and kept in
     ``info["particle_size_warnings"]`` for ``summary.json`` and the report: the optics do not
-    change within a campaign, and every pair's displacements carry the same bias."""
+    change within a campaign, and every pair's displacements carry the same bias. The same
+    pair's recording check (:func:`_recording`) follows."""
     for p in pairs[: max(camp.pilot_pairs, 1)]:
         frames = pair_work.read_ahead(p, ctx.image_shape)
         if isinstance(frames, str):
@@ -194,7 +196,40 @@ def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) 
             info["particle_size_warnings"] = said
         for line in said.values():
             camp.say(f"WARNING: {line}")
+        _recording(camp, ctx, p, frames, info)
         return
+
+
+def _recording(camp, ctx: PairContext, p: PairSpec, frames, info: dict) -> None:
+    """:func:`rspiv.check_recording` of pair ``p`` as recorded with the campaign's passes:
+    ``info["recording"]`` (every figure) and one line in the log; its warnings that the
+    campaign does not answer already are said and kept in ``info["recording_warnings"]`` (the
+    particle size is said above, the correlation by the pair loop, the background where the
+    conditioning subtracts it or high-passes, the deformation where the passes deform)."""
+    try:
+        check = check_recording(*frames, mask=ctx.mask(), passes=ctx.piv.passes)
+    except (RspivError, ValueError) as exc:
+        camp.say(f"recording check of pair {p.pair_id} failed: {exc}")
+        return
+    info["recording"] = check.to_dict()
+    own = ", ".join(f"{w}x{h} {check.per_window[f'{w}x{h}']:.1f}" for w, h in ctx.piv.passes)
+    rec = " -> ".join(f"{w}x{h}" for w, h in check.passes) if check.passes else "none"
+    camp.say(
+        f"recording (pair {p.pair_id}): {check.density:.4f}"
+        f"{' or more' if check.density_bound else ''} particle images per px; per window {own}; "
+        f"recommended passes {rec}"
+    )
+    pre = ctx.preprocess
+    answered = {"peak_locking", "correlation"}
+    if pre.background != "none" or pre.high_pass > 0:
+        answered |= {"background_A", "background_B"}
+    if ctx.piv.deformation == "symmetric":
+        answered.add("deformation")
+    said = {k: v for k, v in check.warnings.items() if k not in answered}
+    if said:
+        info["recording_warnings"] = said
+    for line in said.values():
+        camp.say(f"WARNING: recording: {line}")
 
 
 def _pilot(

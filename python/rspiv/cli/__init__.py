@@ -17,6 +17,7 @@ _COMMANDS: list[str] = [
     # "rspiv.cli.<name>" modules are appended here by each feature.
     "rspiv.cli.mapping",
     "rspiv.cli.calibrate",
+    "rspiv.cli.check",
     "rspiv.cli.piv",
     "rspiv.cli.dewarp",
     "rspiv.cli.wall",

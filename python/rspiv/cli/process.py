@@ -86,6 +86,8 @@ def _process(args: argparse.Namespace) -> int:
         print(f"warning: {note}", file=sys.stderr)
     for line in camp.info.get("particle_size_warnings", {}).values():
         print(f"warning: {line}", file=sys.stderr)
+    for line in camp.info.get("recording_warnings", {}).values():
+        print(f"warning: recording: {line}", file=sys.stderr)
     for a in res.analyses.values():
         if a.result is not None:
             s = a.result.summary()

@@ -1,0 +1,182 @@
+"""The recording check (``rspiv.check_recording``, ``rspiv check``) against synthetic particle
+images whose density, diameter, displacement, noise and lighting the generator sets."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+from rspiv.cli import main
+from rspiv.errors import InvalidInputError
+from rspiv.recording import MIN_PARTICLES_PER_WINDOW, SIZES, check_recording
+from rspiv.synth.particles import particle_pair
+
+SHAPE = (512, 768)
+
+
+def _pair(displacement=(6.0, 1.0), density=0.02, diameter=2.5, noise=0.05, seed=3, **kw):
+    return particle_pair(SHAPE, displacement, density, diameter, noise, seed, **kw)
+
+
+@pytest.mark.parametrize("diameter", [1.5, 2.5, 3.5])
+@pytest.mark.parametrize("density", [0.005, 0.01, 0.02, 0.04])
+def test_the_density_is_the_generators_or_a_lower_bound(diameter, density):
+    """Within 10 % of the particles drawn per px; where the images overlap or hide in the
+    noise the check says it is a lower bound, and then it is not above the truth."""
+    a, b = particle_pair((768, 768), (4.0, 1.0), density, diameter, 0.05, seed=5)
+    r = check_recording(a, b)
+    if r.density_bound:
+        assert r.density <= 1.1 * density
+        assert any("lower bound" in w for w in r.warnings.values())
+    else:
+        assert abs(r.density / density - 1.0) < 0.1, r.density
+    assert r.source_density == pytest.approx(r.density * np.pi * np.mean(r.diameter) ** 2 / 4)
+
+
+def test_sparse_images_are_measured_not_bounded():
+    """The usual seeding of a large-sensor recording (0.01-0.02 particles/px of 2.5 px) is
+    counted, not only bounded."""
+    for density in (0.01, 0.02):
+        r = check_recording(*_pair(density=density))
+        assert not r.density_bound
+        assert r.lit_fraction == 1.0
+
+
+def test_the_recommendation_follows_the_rules():
+    """The first window is the smallest size at least four times the largest displacement, the
+    final window the smallest holding ten particle images of the true density, halving in
+    between; the displacement and diameter are the generator's."""
+    density = 0.02
+    r = check_recording(*_pair(displacement=(9.0, -2.0), density=density))
+    assert r.correlates and r.median_displacement == pytest.approx((9.0, -2.0), abs=0.02)
+    assert r.p99_displacement[0] == pytest.approx(9.0, abs=0.1)
+    assert np.all(np.abs(np.array(r.diameter) - 2.7) < 0.3)  # 2.5 px, pixel-integrated
+    first, final = r.passes[0][0], r.passes[-1][0]
+    assert first == min(s for s in SIZES if s >= 4 * 9.0)  # 48
+    true_n = {s: density * s * s for s in SIZES}
+    assert true_n[final] >= 0.9 * MIN_PARTICLES_PER_WINDOW
+    smaller = max(s for s in SIZES if s < final)
+    assert true_n[smaller] < 1.1 * MIN_PARTICLES_PER_WINDOW
+    assert r.passes == [(48, 48), (24, 24)]
+    assert r.deformation == "offset" and r.gradient < 0.01
+    assert r.per_window["24x24"] == pytest.approx(r.density * 576)
+    assert not r.warnings
+
+
+def test_a_shear_asks_for_deformation_and_small_displacements_for_a_longer_dt():
+    """du/dy of 0.06 px/px moves the window's rows 6 % of it apart: deform the windows (Keane &
+    Adrian's 5 %); displacements under a tenth of the final window are said, with the factor
+    of a pulse separation that puts them at a quarter of it."""
+    r = check_recording(*_pair(displacement=lambda x, y: (0.06 * (y - 256.0), 0.0 * y)))
+    assert r.gradient == pytest.approx(0.06, rel=0.2)  # the coarse pass's noise adds
+    assert r.deformation == "symmetric"
+    assert any("deform the windows" in w for w in r.warnings.values())
+    r = check_recording(*_pair(displacement=(1.0, 0.2)))
+    assert r.deformation == "offset"
+    final = r.passes[-1][0]
+    said = r.warnings["displacement"]
+    assert "pulse separation" in said
+    assert f"up to {final / 4 / r.p99_displacement[0]:.0f} times" in said
+
+
+def test_the_sensor_is_checked():
+    """Saturated particle images, particle images in the noise and a background that varies
+    more than their signal are said, frame by frame."""
+    a, b = _pair()
+    sat = check_recording(*(np.minimum(f, 1500).astype(np.uint16) for f in (a, b)))
+    assert sat.saturated[0] == 0.0  # 1500 is not a full scale
+    bright = [np.minimum(f.astype(np.int64) * 2, 4095).astype(np.uint16) for f in (a, b)]
+    r = check_recording(*bright)
+    assert r.saturated[0] > 0.3 and any("full scale" in w for w in r.warnings.values())
+    clean = check_recording(a, b)
+    # 12-bit frames: where particle images overlap a few reach 4095
+    assert max(clean.saturated) < 0.01 and not clean.warnings
+    noisy = check_recording(*_pair(noise=0.4))
+    assert any("above the camera noise" in w for w in noisy.warnings.values())
+    ramp = np.linspace(0, 3000, SHAPE[1])[None, :]
+    glare = [(f + ramp).clip(0, 65535).astype(np.uint16) for f in (a, b)]
+    r = check_recording(*glare)
+    assert r.background_spread[0] > 2000
+    assert any("background varies" in w for w in r.warnings.values())
+
+
+def test_an_unlit_part_is_found_and_a_region_proposed():
+    a, b = _pair()
+    a[:, 384:] = 0
+    b[:, 384:] = 0
+    r = check_recording(a, b)
+    assert r.lit_fraction == pytest.approx(0.5, abs=0.05)
+    assert r.lit_box[0] == 0 and r.lit_box[2] == 384
+    assert any("region of interest" in w for w in r.warnings.values())
+    assert abs(r.density / 0.02 - 1.0) < 0.1  # the lit part's density
+
+
+def test_frames_that_do_not_correlate_get_no_recommendation():
+    a, _ = _pair(seed=1)
+    _, b = _pair(seed=2)
+    r = check_recording(a, b)
+    assert not r.correlates and r.passes is None and r.deformation is None
+    assert any("do not correlate" in w for w in r.warnings.values())
+    assert abs(r.density / 0.02 - 1.0) < 0.1  # the particle images are still counted
+
+
+def test_the_campaigns_passes_are_checked():
+    """Windows under 7 particle images, and a first window that keeps under 10 pairs at the
+    largest displacement or whose displacement passes a third of it, are said; the paper's
+    passes at the demo's seeding and displacement (20 px in 64 px windows) are not."""
+    r = check_recording(*_pair(displacement=(24.0, 0.0)), passes=[(64, 64), (32, 32), (32, 8)])
+    assert "32 x 8 px windows hold 5." in r.warnings["windows_32x8"]  # 0.02 x 256
+    assert "one-quarter rule" in r.warnings["quarter_rule"]
+    assert r.per_window["32x8"] == pytest.approx(r.density * 256)
+    assert r.passes[0][0] == min(s for s in SIZES if s >= 4 * r.p99_displacement[0])
+    sparse = check_recording(*_pair(displacement=(12.0, 0.0), density=0.004), passes=[(48, 48)])
+    assert "pairs stay in a window" in sparse.warnings["quarter_rule"]  # 9.2 * 0.75 = 6.9
+    ok = check_recording(
+        *_pair(displacement=(20.0, 1.5), density=0.03), passes=[(64, 64), (32, 32), (32, 8)]
+    )
+    assert "quarter_rule" not in ok.warnings and "windows_32x8" not in ok.warnings
+    assert ok.passes[0] == (96, 96)  # the recommendation keeps to the one-quarter rule
+
+
+def test_bad_input_is_refused_in_one_line():
+    a, b = _pair()
+    for args, match in [
+        ((a, b[:, :-1]), "one shape and dtype"),
+        ((a, b.astype(np.float32)), "one shape and dtype"),
+        ((a[:20, :20], b[:20, :20]), "too small"),
+    ]:
+        with pytest.raises(InvalidInputError, match=match):
+            check_recording(*args)
+    with pytest.raises(InvalidInputError, match="differs in shape"):
+        check_recording(a, b, mask=np.zeros((10, 10), bool))
+    with pytest.raises(InvalidInputError, match=">= 4"):
+        check_recording(a, b, passes=[(2, 2)])
+    fa, fb = a.astype(np.float32), b.astype(np.float32)
+    fa[100, 200] = np.nan
+    with pytest.raises(InvalidInputError, match="not finite") as exc:
+        check_recording(fa, fb)
+    assert "\n" not in str(exc.value)
+    blank = np.zeros(SHAPE, np.uint8)  # every block at its floor: nothing counted, no panic
+    r = check_recording(blank, blank)
+    assert r.density == 0.0 and any("nothing to count" in w for w in r.warnings.values())
+
+
+def test_the_command(tmp_path, capsys):
+    a, b = _pair()
+    pa, pb = tmp_path / "a.tif", tmp_path / "b.tif"
+    tifffile.imwrite(pa, a)
+    tifffile.imwrite(pb, b)
+    out = tmp_path / "check.json"
+    assert main(["check", str(pa), str(pb), "--passes", "64x64,32x8", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "recommended passes: 48x48 -> 24x24" not in text  # 6 px: 32 px first windows
+    assert "recommended passes: 32x32 -> 24x24, deformation offset" in text
+    assert "warning: 32 x 8 px windows hold" in text
+    d = json.loads(out.read_text())
+    assert d["passes"] == [[32, 32], [24, 24]] and d["correlates"] is True
+    tifffile.imwrite(pb, b[:, :-3])
+    assert main(["check", str(pa), str(pb)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and str(pa) in err and "one shape" in err
