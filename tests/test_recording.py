@@ -180,3 +180,51 @@ def test_the_command(tmp_path, capsys):
     assert main(["check", str(pa), str(pb)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and str(pa) in err and "one shape" in err
+
+
+def test_the_drift_over_a_run_is_said():
+    """Pairs spread over a run: the seeding thinning at one pair, frame B's brightness and
+    frame A's background drifting are each said once; steady pairs say nothing."""
+    from rspiv.recording import check_drift
+
+    def pairs(drift: bool):
+        for k in range(4):
+            density = 0.008 if (drift and k == 2) else 0.02
+            a, b = _pair(density=density, seed=10 + k)
+            if drift:
+                a = a + np.uint16(500 * k)  # the background creeping up
+                b = (b.astype(np.float64) * (1.0 + 0.4 * k)).clip(0, 4095).astype(np.uint16)
+            yield 100 * k, a, b
+
+    steady = check_drift(pairs(False), passes=[(64, 64), (32, 8)])
+    assert steady.pairs == [0, 100, 200, 300] and not steady.warnings
+    assert all(abs(d / 0.02 - 1) < 0.1 for d in steady.density)
+    r = check_drift(pairs(True), passes=[(64, 64), (32, 8)])
+    assert "at pair 200" in r.warnings["seeding"] and "32 x 8 px windows" in r.warnings["seeding"]
+    assert r.density[2] == pytest.approx(0.008, rel=0.1)
+    assert "frame B's particle images vary in brightness" in r.warnings["signal_B"]
+    assert "background_window" in r.warnings["background_A"]
+    assert r.background[3][0] - r.background[0][0] == pytest.approx(1500, abs=40)
+    assert set(r.warnings) == {"seeding", "signal_B", "background_A"}
+    with pytest.raises(InvalidInputError, match="at least one pair"):
+        check_drift(iter(()))
+
+
+def test_the_command_on_a_campaign(tmp_path, capsys):
+    """``rspiv check campaign.toml``: the first pair with the campaign's passes, then pairs
+    spread over the run."""
+    import dataclasses
+
+    from rspiv.demo import DEFAULT_SCENE, synth_campaign
+
+    d = tmp_path / "camp"
+    synth_campaign(d, scene=dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=4))
+    out = tmp_path / "c.json"
+    assert main(["check", str(d / "campaign.toml"), "--samples", "3", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "recommended passes" in text and "particle images per window: " in text
+    assert "32x8" in text  # the campaign's own passes are checked
+    assert "pairs spread over the run: 0, 2, 3" in text
+    data = json.loads(out.read_text())
+    assert data["drift"]["pairs"] == [0, 2, 3] and "first" in data
+    assert not data["drift"]["warnings"]

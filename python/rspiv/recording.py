@@ -50,6 +50,10 @@ line in :attr:`RecordingCheck.warnings`, keyed by what it is about (``correlatio
 ``quarter_rule``). A campaign runs the check on its first pair
 (``summary.json``'s ``recording``).
 
+:func:`check_drift` follows pairs spread over a run (one in memory at a time): each pair's
+seeding (the same count), background and brightness, and says where the seeding thins out,
+the laser's energy drifts or the background creeps (``rspiv check campaign.toml``).
+
 Lengths in px, intensities in the frames' counts, displacements in px per pair.
 """
 
@@ -67,7 +71,14 @@ from rspiv.errors import InvalidInputError
 from rspiv.multipass import mask_array
 from rspiv.piv import piv
 
-__all__ = ["MIN_PARTICLES_PER_WINDOW", "RecordingCheck", "check_recording", "exclusion_area"]
+__all__ = [
+    "MIN_PARTICLES_PER_WINDOW",
+    "RecordingCheck",
+    "RecordingDrift",
+    "check_drift",
+    "check_recording",
+    "exclusion_area",
+]
 
 #: Particle images a window needs: Keane & Adrian (1992) give a valid detection probability
 #: over 95 % for ``N_I F_I F_O > 7`` with a window offset; 10 leaves room for the out-of-plane
@@ -491,3 +502,128 @@ def check_recording(
         per_window=per_window,
         warnings=said,
     )
+
+
+#: A sampled pair whose seeding falls under this share of the run's median is said.
+MIN_SEEDING_SHARE = 0.7
+#: The particle images' brightness (signal) varying more than this factor over the run is said.
+MAX_SIGNAL_RATIO = 1.5
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordingDrift:
+    """What :func:`check_drift` measured on pairs spread over a run: per pair (``pairs``, in
+    the order given) the particle images per px (corrected for overlap, the two frames'
+    mean), each frame's background (median of its blocks' medians) and signal (counts); the
+    per-window count of the smallest given window at the thinnest seeding; and one line per
+    concern (``seeding``, ``signal_A``/``_B``, ``background_A``/``_B``)."""
+
+    pairs: list[int]
+    density: list[float]
+    background: list[tuple[float, float]]
+    signal: list[tuple[float, float]]
+    warnings: dict[str, str]
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict of every field."""
+        return dataclasses.asdict(self)
+
+    def lines(self) -> list[str]:
+        """A table of the pairs, then the warnings."""
+        out = ["pair  particles/px  background A / B  signal A / B (counts)"]
+        for k, d, b, s in zip(self.pairs, self.density, self.background, self.signal, strict=True):
+            out.append(f"{k:>5}  {d:12.4f}  {b[0]:8.0f} / {b[1]:<6.0f}  {s[0]:6.0f} / {s[1]:.0f}")
+        return out + [f"warning: {w}" for w in self.warnings.values()]
+
+
+def _pair_figures(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None, diameter: float):
+    """``(density, (background A, B), (signal A, B))`` of one pair (module docstring)."""
+    stats = [_frame_stats(f, mask) for f in (a, b)]
+    measured = np.isfinite(stats[0]["background"]) & (stats[0]["searched"] > 0)
+    if not np.any(measured):
+        return 0.0, (np.nan, np.nan), (np.nan, np.nan)
+    both = sum(s["peaks"] / np.maximum(s["searched"], 1) for s in stats) / 2
+    ref = np.percentile(both[measured], 90)
+    lit = measured & (both >= LIT_SHARE * ref) & (ref > 0)
+    counted = float(np.median(both[lit])) if np.any(lit) else 0.0
+    density, _ = _corrected(counted, exclusion_area(diameter))
+    sel = lit if np.any(lit) else measured
+    bg = tuple(float(np.nanmedian(s["median"][sel])) for s in stats)
+    return density, bg, tuple(float(s["signal"]) for s in stats)
+
+
+def check_drift(
+    pairs,
+    *,
+    mask: Any = None,
+    diameter: float = 2.5,
+    passes: Sequence[tuple[int, int]] | None = None,
+) -> RecordingDrift:
+    """The seeding, background and brightness of pairs spread over a run, and how they drift.
+
+    Parameters
+    ----------
+    pairs : iterable of (int, ndarray, ndarray)
+        ``(pair id, frame A, frame B)`` as recorded, one pair in memory at a time.
+    mask : array_like of bool or path, optional
+        True where nothing is measured.
+    diameter : float
+        The particle images' e^-2 diameter (px) for the overlap correction (:func:`check_recording`
+        measures it).
+    passes : sequence of (w, h), optional
+        The run's passes: the thinnest seeding is also given per window of the smallest.
+
+    Returns
+    -------
+    RecordingDrift
+        Said: a pair whose seeding is under :data:`MIN_SEEDING_SHARE` of the median (the
+        seeding thins out as a run goes on, or a pulse of the seeder), particle images whose
+        brightness varies by more than :data:`MAX_SIGNAL_RATIO` (the laser's energy), and a
+        background that drifts by more than half the signal (a background over the whole run
+        leaves the rest in the frames: a sliding window of frames follows it).
+    """
+    ids, dens, bgs, sigs = [], [], [], []
+    m = None
+    for k, a, b in pairs:
+        a, b = np.asarray(a), np.asarray(b)
+        if m is None and mask is not None:
+            m = mask_array(mask, a.shape)
+        d, bg, sig = _pair_figures(a, b, m, diameter)
+        ids.append(int(k))
+        dens.append(d)
+        bgs.append(bg)
+        sigs.append(sig)
+    if not ids:
+        raise InvalidInputError("check_drift needs at least one pair")
+    said: dict[str, str] = {}
+    med = float(np.median(dens))
+    low = int(np.argmin(dens))
+    if med > 0 and dens[low] < MIN_SEEDING_SHARE * med:
+        per = ""
+        if passes:
+            w, h = min(passes, key=lambda p: p[0] * p[1])
+            per = f" ({w} x {h} px windows then hold {dens[low] * w * h:.1f} particle images)"
+        said["seeding"] = (
+            f"the seeding thins to {dens[low]:.4f} particle images per px at pair {ids[low]}, "
+            f"{100 * dens[low] / med:.0f} % of the run's median {med:.4f}{per}: the seeder or "
+            "the mixing changed during the run"
+        )
+    sig, bg = np.array(sigs, float), np.array(bgs, float)
+    for j, name in enumerate("AB"):
+        s = sig[:, j][np.isfinite(sig[:, j]) & (sig[:, j] > 0)]
+        if s.size and s.max() > MAX_SIGNAL_RATIO * s.min():
+            said[f"signal_{name}"] = (
+                f"frame {name}'s particle images vary in brightness by {s.max() / s.min():.1f} "
+                f"times over the pairs ({s.min():.0f}-{s.max():.0f} counts): the laser's energy "
+                "or the sheet's position drifts"
+            )
+        b = bg[:, j][np.isfinite(bg[:, j])]
+        typical = float(np.median(s)) if s.size else np.nan
+        if b.size and np.isfinite(typical) and np.ptp(b) > MAX_BACKGROUND_SPREAD * typical:
+            said[f"background_{name}"] = (
+                f"frame {name}'s background drifts by {np.ptp(b):.0f} counts over the pairs "
+                f"({np.ptp(b) / typical:.1f} times the particle images' signal): a background "
+                "over the whole run leaves the rest in the frames; a sliding window of frames "
+                "([preprocess] background_window) follows it"
+            )
+    return RecordingDrift(ids, dens, [tuple(x) for x in bgs], [tuple(x) for x in sigs], said)

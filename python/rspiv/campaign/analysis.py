@@ -590,6 +590,17 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         piv["image pairs"] = camp.config.images.describe_pairing()
     if "particle_diameter_px" in camp.info:
         piv["particle image diameter x, y (px)"] = tuple(camp.info["particle_diameter_px"])
+    rec = camp.info.get("recording")
+    if rec:  # the recording check of the first pair (rspiv.check_recording)
+        bound = " or more" if rec["density_bound"] else ""
+        piv["particle images per px (first pair)"] = f"{rec['density']:.4f}{bound}"
+        piv["particle images per window (first pair)"] = ", ".join(
+            f"{pw}x{ph} {rec['per_window'][f'{pw}x{ph}']:.1f}" for pw, ph in ctx.piv.passes
+        )
+        if rec["passes"]:
+            piv["passes the recording check recommends"] = " -> ".join(
+                f"{pw}x{ph}" for pw, ph in rec["passes"]
+            )
     r0 = res.analyses.get(main.name)
     if r0 is not None and r0.result is not None and camp.calibration is not None:
         lv_px = r0.result.nu / r0.result.u_tau * 1e3 * camp.calibration.magnification

@@ -1,10 +1,14 @@
-"""``rspiv check A.tif B.tif``: is a recording fit for PIV, and which passes does it need?
+"""``rspiv check A.tif B.tif`` or ``rspiv check campaign.toml``: is a recording fit for PIV, and
+which passes does it need?
 
-Prints what :func:`rspiv.check_recording` measured on the pair (particle images per px and per
+For a pair, prints what :func:`rspiv.check_recording` measured (particle images per px and per
 window, their diameter, the sensor's saturation, noise and background, the displacement of a
-coarse pass) and the passes it recommends, then one ``warning:`` line per concern. ``--passes``
-checks the passes a campaign will use as well; ``--json FILE`` writes every figure. The exit
-status is 0 when the check ran (warnings included), 2 for input it cannot read.
+coarse pass) and the passes it recommends, then one ``warning:`` line per concern; ``--passes``
+checks the passes a campaign will use as well. For a campaign file, the same for its first pair
+with the campaign's passes and mask, then :func:`rspiv.recording.check_drift` over
+``--samples`` pairs spread evenly over the run (seeding, background, brightness). ``--json
+FILE`` writes every figure. The exit status is 0 when the check ran (warnings included), 2 for
+input it cannot read.
 """
 
 from __future__ import annotations
@@ -12,27 +16,72 @@ from __future__ import annotations
 import json
 import pathlib
 
+import numpy as np
+
 from rspiv.cli.piv import _passes
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask, read_pair
 from rspiv.outputs import atomic_write_text
-from rspiv.recording import check_recording
+from rspiv.recording import check_drift, check_recording
+
+
+def _campaign(args) -> dict:
+    """A campaign file's first pair and the drift over its run; the JSON-ready figures."""
+    from rspiv.campaign import Campaign  # deferred: the campaign stack only for a campaign file
+    from rspiv.campaign.pair import read_checked_pair, read_frame  # deferred: as above
+
+    if args.samples < 1:
+        raise InvalidInputError(f"--samples must be at least 1, got {args.samples}")
+    camp = Campaign.load(args.frame_a, progress=False)
+    cfg = camp.config
+    pairs = camp.pairs()
+    if not pairs:
+        raise InvalidInputError(f"{args.frame_a}: the campaign lists no image pair")
+    shape = read_frame(pairs[0].a, pairs[0].frame_a).shape
+    mask = read_mask(cfg.piv.mask, shape) if cfg.piv.mask else None
+    passes = [tuple(p) for p in cfg.piv.passes]
+    a, b = read_checked_pair(pairs[0], shape)
+    try:
+        first = check_recording(a, b, mask=mask, passes=passes)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{pairs[0].describe()}: {exc}") from exc
+    del a, b
+    print(f"first pair ({pairs[0].describe()}):")
+    for line in first.lines():
+        print(f"  {line}")
+    picks = np.unique(np.linspace(0, len(pairs) - 1, min(args.samples, len(pairs))).round())
+    chosen = [pairs[int(i)] for i in picks]
+    print("pairs spread over the run: " + ", ".join(str(p.pair_id) for p in chosen))
+    diameter = float(np.nanmean(first.diameter)) if np.any(np.isfinite(first.diameter)) else 2.5
+    drift = check_drift(
+        ((p.pair_id, *read_checked_pair(p, shape)) for p in chosen),
+        mask=mask,
+        diameter=diameter,
+        passes=passes,
+    )
+    for line in drift.lines():
+        print(f"  {line}")
+    return {"first": first.to_dict(), "drift": drift.to_dict()}
 
 
 def _run(args) -> int:
-    a, b = read_pair(args.frame_a, args.frame_b)
-    names = args.frame_a if args.frame_b is None else f"{args.frame_a}, {args.frame_b}"
-    mask = read_mask(args.mask, a.shape) if args.mask is not None else None
-    passes = _passes(args.passes) if args.passes else None
-    try:
-        check = check_recording(a, b, mask=mask, passes=passes)
-    except InvalidInputError as exc:
-        raise InvalidInputError(f"{names}: {exc}") from exc
-    for line in check.lines():
-        print(line)
+    if args.frame_b is None and str(args.frame_a).lower().endswith(".toml"):
+        figures = _campaign(args)
+    else:
+        a, b = read_pair(args.frame_a, args.frame_b)
+        names = args.frame_a if args.frame_b is None else f"{args.frame_a}, {args.frame_b}"
+        mask = read_mask(args.mask, a.shape) if args.mask is not None else None
+        passes = _passes(args.passes) if args.passes else None
+        try:
+            check = check_recording(a, b, mask=mask, passes=passes)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{names}: {exc}") from exc
+        for line in check.lines():
+            print(line)
+        figures = check.to_dict()
     if args.json:
         path = atomic_write_text(
-            pathlib.Path(args.json), json.dumps(check.to_dict(), indent=1, default=float)
+            pathlib.Path(args.json), json.dumps(figures, indent=1, default=float)
         )
         print(f"-> {path}")
     return 0
@@ -49,12 +98,17 @@ def register(sub) -> None:
     )
     p.add_argument(
         "frame_a",
-        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), or a two-frame TIFF or DaVis buffer",
+        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), a two-frame TIFF or DaVis buffer, or "
+        "a campaign file (.toml: its first pair with its passes and mask, then the drift over "
+        "its run)",
     )
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
     p.add_argument("--mask", default=None, help="mask image or polygon JSON (True = excluded)")
     p.add_argument(
         "--passes", default=None, help="the passes a campaign will use, WxH,... (64x64,32x32,32x8)"
+    )
+    p.add_argument(
+        "--samples", type=int, default=20, help="a campaign's pairs checked for drift (20)"
     )
     p.add_argument("--json", default=None, help="write every figure to this JSON file")
     p.set_defaults(func=_run)
