@@ -228,3 +228,21 @@ def test_the_command_on_a_campaign(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["drift"]["pairs"] == [0, 2, 3] and "first" in data
     assert not data["drift"]["warnings"]
+
+
+def test_a_band_of_thin_seeding_is_found():
+    """The bottom rows with a third of the seeding (particles thinning at a wall): the band of
+    block rows is said with its particle images per window; a uniform frame says nothing."""
+    a, b = _pair(density=0.03, seed=21)
+    sa, sb = _pair(density=0.01, seed=22)
+    a[448:], b[448:] = sa[448:], sb[448:]
+    r = check_recording(a, b, passes=[(64, 64), (32, 8)])
+    said = r.warnings["seeding_rows"]
+    assert "rows y 448-512 px" in said and "32 x 8 px windows hold" in said
+    share = float(said.split("thins to ")[1].split(" %")[0])
+    assert 25 <= share <= 45  # a third of the frame's
+    assert "seeding_columns" not in r.warnings
+    assert not any(k.startswith("seeding") for k in check_recording(*_pair()).warnings)
+    # said only where it fails the smallest window: 64 x 32 px windows hold enough there
+    assert "seeding_rows" not in check_recording(a, b, passes=[(64, 32)]).warnings
+    assert "seeding_rows" in check_recording(a, b).warnings  # a third: under half

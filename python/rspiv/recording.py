@@ -46,9 +46,12 @@ fewer than 7 particle images (:data:`MIN_PARTICLES_WARN`), a first window that k
 Every concern is one
 line in :attr:`RecordingCheck.warnings`, keyed by what it is about (``correlation``,
 ``density``, ``peak_locking``, ``diameter``, ``saturated_A``/``_B``, ``noise_A``/``_B``,
-``background_A``/``_B``, ``lit``, ``displacement``, ``deformation``, ``windows_WxH``,
-``quarter_rule``). A campaign runs the check on its first pair
-(``summary.json``'s ``recording``).
+``background_A``/``_B``, ``lit``, ``seeding_rows``/``_columns``: the widest band of 64 px
+block rows or columns whose lit blocks hold under :data:`MIN_SEEDING_SHARE` of the frame's
+density, said where the smallest given window holds under 7 particle images there but not
+over the frame (under half the frame's density without given passes), ``displacement``,
+``deformation``, ``windows_WxH``, ``quarter_rule``). A campaign runs the check on its first
+pair (``summary.json``'s ``recording``).
 
 :func:`check_drift` follows pairs spread over a run (one in memory at a time): each pair's
 seeding (the same count), background and brightness, and says where the seeding thins out,
@@ -102,6 +105,9 @@ BLOCK, K_NOISE, REL_SIGNAL = 64, 4.0, 0.1
 MAX_COUNTED_OVERLAP = 0.25
 #: A lit block holds at least this share of the 90th percentile's density.
 LIT_SHARE = 0.2
+#: A band of blocks (or a sampled pair, :func:`check_drift`) whose seeding falls under this
+#: share of the frame's (the run's median) is said.
+MIN_SEEDING_SHARE = 0.7
 #: Thresholds of the warnings (module docstring and :func:`check_recording`).
 MIN_SNR, MAX_DIAMETER, MAX_SATURATED, MIN_LIT, MAX_BACKGROUND_SPREAD = 5.0, 6.0, 0.05, 0.8, 0.5
 
@@ -246,6 +252,29 @@ def _coarse(frame_a, frame_b, mask, shape) -> Any:
             w *= 2
             continue
         return f, w
+
+
+def _thin_band(both: np.ndarray, lit: np.ndarray, counted: float, axis: int):
+    """The widest run of block rows (``axis`` 0) or columns (1) whose lit blocks' median density
+    is under :data:`MIN_SEEDING_SHARE` of ``counted``: ``(first, last + 1, share)`` in blocks,
+    or None."""
+    n = both.shape[axis]
+    share = np.full(n, np.nan)
+    for i in range(n):  # a few dozen block rows or columns, not pixels
+        d = both[i] if axis == 0 else both[:, i]
+        ok = lit[i] if axis == 0 else lit[:, i]
+        if np.count_nonzero(ok) * 2 >= ok.size:
+            share[i] = np.median(d[ok]) / counted
+    thin = share < MIN_SEEDING_SHARE
+    best, start = None, None
+    for i in range(n + 1):
+        if i < n and thin[i]:
+            start = i if start is None else start
+        elif start is not None:
+            if best is None or i - start > best[1] - best[0]:
+                best = (start, i, float(np.mean(share[start:i])))
+            start = None
+    return best
 
 
 def _first_fit(need: float) -> int:
@@ -438,6 +467,26 @@ def check_recording(
             f"{lit_box[0]}-{lit_box[2]}, y {lit_box[1]}-{lit_box[3]} px): mask the rest or set "
             "a region of interest"
         )
+    if counted > 0:
+        for axis, name, size in ((0, "rows", a.shape[0]), (1, "columns", a.shape[1])):
+            band = _thin_band(both, lit, counted, axis)
+            if band is None:
+                continue
+            lo, hi = band[0] * BLOCK, min(band[1] * BLOCK, size)
+            per = ""
+            if given:  # said where it fails the smallest window, not the frame as a whole
+                w, h = min(given, key=lambda p: p[0] * p[1])
+                n = band[2] * n_in(w, h)
+                if n >= MIN_PARTICLES_WARN or n_in(w, h) < MIN_PARTICLES_WARN:
+                    continue
+                per = f" ({w} x {h} px windows hold {n:.1f} particle images there)"
+            elif band[2] >= 0.5:
+                continue
+            said[f"seeding_{name}"] = (
+                f"the seeding thins to {100 * band[2]:.0f} % of the frame's in {name} "
+                f"{'y' if axis == 0 else 'x'} {lo}-{hi} px{per}: near a wall the particles "
+                "thin out or glare hides them; larger windows there, or more seeding"
+            )
     if correlates and rec:
         final = rec[-1][0]
         top = max(p99)
@@ -503,9 +552,6 @@ def check_recording(
         warnings=said,
     )
 
-
-#: A sampled pair whose seeding falls under this share of the run's median is said.
-MIN_SEEDING_SHARE = 0.7
 #: The particle images' brightness (signal) varying more than this factor over the run is said.
 MAX_SIGNAL_RATIO = 1.5
 
