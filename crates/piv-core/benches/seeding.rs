@@ -14,7 +14,9 @@ fn seeding(c: &mut Criterion) {
     let n = (0.03 * (h * w) as f64) as usize;
     let xs: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * w as f64).collect();
     let ys: Vec<f64> = (0..n).map(|_| rng.random::<f64>() * h as f64).collect();
-    let it: Vec<f64> = (0..n).map(|_| 1500.0 + 1000.0 * rng.random::<f64>()).collect();
+    let it: Vec<f64> = (0..n)
+        .map(|_| 1500.0 + 1000.0 * rng.random::<f64>())
+        .collect();
     let img = render_particles(h, w, &xs, &ys, &it, &[2.5], 100.0, 4095, 1).unwrap();
     let mut g = c.benchmark_group("seeding");
     g.throughput(Throughput::Elements((h * w) as u64));

@@ -2,7 +2,8 @@
 //! frame of any pixel type (the conversion fused with the first steps), what the Python facade
 //! `rspiv.preprocess` uses.
 
-use crate::errors::{invalid, PyRspivErr};
+use crate::errors::PyRspivErr;
+use crate::frames::with_frame;
 use numpy::{PyArray2, PyArrayMethods, PyReadonlyArray2};
 use piv_core::Conditioning;
 use pyo3::prelude::*;
@@ -32,30 +33,18 @@ fn conditioned<'py>(
         min_max_window: min_max,
     };
     let bg = background.as_ref().map(|b| b.as_array());
-    macro_rules! run {
-        ($t:ty) => {
-            if let Ok(a) = frame.extract::<PyReadonlyArray2<'py, $t>>() {
-                let view = a.as_array();
-                // numpy's allocator (huge pages for large arrays: first touch is cheap)
-                // SAFETY: every element is written by `conditioned_into` before it is read.
-                let out = unsafe { PyArray2::<f32>::new(py, view.dim(), false) };
-                {
-                    let mut rw = out.readwrite();
-                    let ov = rw.as_array_mut();
-                    py.detach(|| piv_core::conditioned_into(view, ov, &c, bg))
-                        .map_err(PyRspivErr::from)?;
-                }
-                return Ok(out);
-            }
-        };
-    }
-    run!(u16);
-    run!(u8);
-    run!(f32);
-    run!(f64);
-    Err(invalid(
-        "frame must be a 2D uint8, uint16, float32 or float64 array",
-    ))
+    with_frame!(frame, |view| {
+        // numpy's allocator (huge pages for large arrays: first touch is cheap)
+        // SAFETY: every element is written by `conditioned_into` before it is read.
+        let out = unsafe { PyArray2::<f32>::new(py, view.dim(), false) };
+        {
+            let mut rw = out.readwrite();
+            let ov = rw.as_array_mut();
+            py.detach(|| piv_core::conditioned_into(view, ov, &c, bg))
+                .map_err(PyRspivErr::from)?;
+        }
+        Ok(out)
+    })
 }
 
 /// Register the conditioning function in the module.

@@ -10,6 +10,33 @@ use numpy::{Element, PyReadonlyArray2};
 use piv_core::{PivError, PivField, PivSettings, Pixel, Predictor};
 use pyo3::prelude::*;
 
+/// Evaluate `$body` (a `PyResult`) with `$view` the `ArrayView2` of one frame read in place as
+/// its own pixel type (uint16, uint8, float32, float64: the same types as [`frames`]), or fail
+/// in one line for any other array.
+macro_rules! with_frame {
+    ($frame:expr, |$view:ident| $body:expr) => {{
+        use numpy::PyReadonlyArray2;
+        if let Ok(a) = $frame.extract::<PyReadonlyArray2<'_, u16>>() {
+            let $view = a.as_array();
+            $body
+        } else if let Ok(a) = $frame.extract::<PyReadonlyArray2<'_, u8>>() {
+            let $view = a.as_array();
+            $body
+        } else if let Ok(a) = $frame.extract::<PyReadonlyArray2<'_, f32>>() {
+            let $view = a.as_array();
+            $body
+        } else if let Ok(a) = $frame.extract::<PyReadonlyArray2<'_, f64>>() {
+            let $view = a.as_array();
+            $body
+        } else {
+            Err($crate::errors::invalid(
+                "frame must be a 2D uint8, uint16, float32 or float64 array",
+            ))
+        }
+    }};
+}
+pub(crate) use with_frame;
+
 /// The frames as views of one pixel type.
 pub(crate) enum Frames<'py> {
     U8(PyReadonlyArray2<'py, u8>, PyReadonlyArray2<'py, u8>),

@@ -1,7 +1,8 @@
 //! Binding of piv-core's seeding count (`piv_core::seeding`): each block's background, noise
 //! and particle images of one frame, for the Python facade `rspiv.recording`.
 
-use crate::errors::{invalid, PyRspivErr};
+use crate::errors::PyRspivErr;
+use crate::frames::with_frame;
 use ndarray::Array2;
 use numpy::{IntoPyArray, PyReadonlyArray2};
 use pyo3::prelude::*;
@@ -24,48 +25,29 @@ fn seeding<'py>(
     mask: Option<PyReadonlyArray2<'py, bool>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let mask = mask.as_ref().map(|m| m.as_array());
-    macro_rules! run {
-        ($t:ty) => {
-            if let Ok(a) = frame.extract::<PyReadonlyArray2<'py, $t>>() {
-                let view = a.as_array();
-                let s = py
-                    .detach(|| {
-                        piv_core::seeding::measure(
-                            view,
-                            mask,
-                            block,
-                            k,
-                            rel,
-                            full.unwrap_or(f32::INFINITY),
-                        )
-                    })
-                    .map_err(PyRspivErr::from)?;
-                let shape = (s.rows, s.cols);
-                fn grid<T>(shape: (usize, usize), v: Vec<T>) -> Array2<T> {
-                    Array2::from_shape_vec(shape, v).expect("rows x cols blocks")
-                }
-                let d = PyDict::new(py);
-                d.set_item("background", grid(shape, s.background).into_pyarray(py))?;
-                d.set_item("noise", grid(shape, s.noise).into_pyarray(py))?;
-                d.set_item("top", grid(shape, s.top).into_pyarray(py))?;
-                d.set_item("median", grid(shape, s.median).into_pyarray(py))?;
-                d.set_item("saturated", grid(shape, s.saturated).into_pyarray(py))?;
-                d.set_item("peaks", grid(shape, s.peaks).into_pyarray(py))?;
-                d.set_item("heights", grid(shape, s.heights).into_pyarray(py))?;
-                d.set_item("searched", grid(shape, s.searched).into_pyarray(py))?;
-                d.set_item("signal", s.signal)?;
-                d.set_item("block", s.block)?;
-                return Ok(d);
-            }
-        };
-    }
-    run!(u16);
-    run!(u8);
-    run!(f32);
-    run!(f64);
-    Err(invalid(
-        "frame must be a 2D uint8, uint16, float32 or float64 array",
-    ))
+    with_frame!(frame, |view| {
+        let s = py
+            .detach(|| {
+                piv_core::seeding::measure(view, mask, block, k, rel, full.unwrap_or(f32::INFINITY))
+            })
+            .map_err(PyRspivErr::from)?;
+        fn grid<T>(shape: (usize, usize), v: Vec<T>) -> Array2<T> {
+            Array2::from_shape_vec(shape, v).expect("rows x cols blocks")
+        }
+        let shape = (s.rows, s.cols);
+        let d = PyDict::new(py);
+        d.set_item("background", grid(shape, s.background).into_pyarray(py))?;
+        d.set_item("noise", grid(shape, s.noise).into_pyarray(py))?;
+        d.set_item("top", grid(shape, s.top).into_pyarray(py))?;
+        d.set_item("median", grid(shape, s.median).into_pyarray(py))?;
+        d.set_item("saturated", grid(shape, s.saturated).into_pyarray(py))?;
+        d.set_item("peaks", grid(shape, s.peaks).into_pyarray(py))?;
+        d.set_item("heights", grid(shape, s.heights).into_pyarray(py))?;
+        d.set_item("searched", grid(shape, s.searched).into_pyarray(py))?;
+        d.set_item("signal", s.signal)?;
+        d.set_item("block", s.block)?;
+        Ok(d)
+    })
 }
 
 /// Register the seeding function in the module.
