@@ -340,3 +340,17 @@ def test_vortex_keys(tmp_path):
         bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
         with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*{msg}"):
             load_campaign_config(_write(tmp_path, bad))
+
+
+def test_check_pairs_key(tmp_path):
+    """``[images] check_pairs``: the pairs checked for drift before the PIV, 5 by default, 0 off,
+    a negative or fractional count named in one line; kept by the round trip."""
+    assert load_campaign_config(_write(tmp_path, FULL)).images.check_pairs == 5
+    on = FULL.replace("max_pairs = 4\n", "max_pairs = 4\ncheck_pairs = 0\n")
+    cfg = load_campaign_config(_write(tmp_path, on))
+    assert cfg.images.check_pairs == 0 and cfg.to_dict()["images"]["check_pairs"] == 0
+    for value in ("-1", "2.5"):
+        bad = FULL.replace("max_pairs = 4\n", f"max_pairs = 4\ncheck_pairs = {value}\n")
+        with pytest.raises(InvalidInputError, match=r"\[images\]\.check_pairs") as exc:
+            load_campaign_config(_write(tmp_path, bad))
+        assert "\n" not in str(exc.value)

@@ -246,3 +246,41 @@ def test_a_band_of_thin_seeding_is_found():
     # said only where it fails the smallest window: 64 x 32 px windows hold enough there
     assert "seeding_rows" not in check_recording(a, b, passes=[(64, 32)]).warnings
     assert "seeding_rows" in check_recording(a, b).warnings  # a third: under half
+
+
+def test_a_campaign_checks_its_run_before_the_piv(tmp_path):
+    """The campaign's preparation checks its first pair and ``[images] check_pairs`` pairs
+    spread over the run: one pair's frame A recorded at 40 % of the laser energy is said, in
+    the campaign's info (``summary.json``); ``check_pairs = 0`` checks the first pair only."""
+    import dataclasses
+
+    from rspiv.campaign import Campaign
+    from rspiv.campaign_config import load_campaign_config
+    from rspiv.demo import DEFAULT_SCENE, synth_campaign
+
+    d = tmp_path / "camp"
+    synth_campaign(d, scene=dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=4))
+    cfg = load_campaign_config(d / "campaign.toml")
+    assert cfg.images.check_pairs == 5
+    cfg.calibration.monte_carlo_samples = 0
+    cfg.correction.compare_uncorrected = False
+    last = sorted((d / "raw").glob("*.tif"))[-2]  # frame A of the last pair
+    f = tifffile.imread(last)
+    tifffile.imwrite(last, (f.astype(np.float64) * 0.4).astype(f.dtype))
+    toml = tmp_path / "c.toml"
+    cfg.save(toml)
+    said = []
+    camp = Campaign.load(toml, progress=False, out_dir=tmp_path / "out", log=said.append)
+    camp.prepare()
+    drift = camp.info["recording_drift"]
+    assert drift["pairs"] == [0, 1, 2, 3]
+    assert "frame A's particle images vary in brightness" in camp.info["recording_warnings"][
+        "drift_signal_A"
+    ]
+    assert "drift_signal_B" not in camp.info["recording_warnings"]
+    assert any(m.startswith("recording over the run: 4 pairs") for m in said)
+    cfg.images.check_pairs = 0
+    cfg.save(toml)
+    camp = Campaign.load(toml, progress=False, out_dir=tmp_path / "out0", log=said.append)
+    camp.prepare()
+    assert "recording" in camp.info and "recording_drift" not in camp.info

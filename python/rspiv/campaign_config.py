@@ -30,6 +30,8 @@ A complete file (every key optional except where noted; defaults shown)::
     frame_gap = 1                # sequential: frame B is frame_gap frames after frame A
                                  # ([flow] dt is then the time across those frame_gap frames)
     pair_step = 1                # sequential: frames between the first frames of two pairs
+    check_pairs = 5              # pairs spread over the run whose seeding, background and
+                                 # brightness are checked before the PIV (0: off)
 
     [correction]
     method = "II"                # "I" (dewarp images, then PIV) | "II" (PIV, then map) | "none"
@@ -188,6 +190,9 @@ class ImagesConfig:
     pairing: str = "pairs"
     frame_gap: int = 1
     pair_step: int = 1
+    #: pairs spread over the run checked for drift before the PIV
+    #: (:func:`rspiv.recording.check_drift`; 0: off)
+    check_pairs: int = 5
 
     def frame_pairs(self, n: int, source: str, *, odd_ok: bool = False) -> list[tuple[int, int]]:
         """The (frame A, frame B) indices of ``n`` frames in order (files of ``glob``, pages
@@ -485,6 +490,7 @@ class CampaignConfig:
         imd["pairing"] = im.pairing
         imd["frame_gap"] = im.frame_gap
         imd["pair_step"] = im.pair_step
+        imd["check_pairs"] = im.check_pairs
         out["images"] = imd
         out["correction"] = dataclasses.asdict(self.correction)
         pv = dataclasses.asdict(self.piv)

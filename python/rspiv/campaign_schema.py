@@ -194,6 +194,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "pairing": lambda c, w, v: _choice(c, w, v, ("pairs", "sequential"), fold=str.lower),
         "frame_gap": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
         "pair_step": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "check_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
     },
     "correction": {
         "method": _method,

@@ -542,7 +542,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     summary["timings_s"] = res.timings
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
-    info_keys = ("particle_diameter_px", "particle_size_warnings", "recording")
+    info_keys = ("particle_diameter_px", "particle_size_warnings", "recording", "recording_drift")
     for key in (*info_keys, "recording_warnings"):
         if key in camp.info:
             summary[key] = camp.info[key]
@@ -601,6 +601,11 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["passes the recording check recommends"] = " -> ".join(
                 f"{pw}x{ph}" for pw, ph in rec["passes"]
             )
+    drift = camp.info.get("recording_drift")
+    if drift:
+        piv[f"particle images per px over the run ({len(drift['pairs'])} pairs)"] = (
+            f"{min(drift['density']):.4f}-{max(drift['density']):.4f}"
+        )
     r0 = res.analyses.get(main.name)
     if r0 is not None and r0.result is not None and camp.calibration is not None:
         lv_px = r0.result.nu / r0.result.u_tau * 1e3 * camp.calibration.magnification

@@ -32,7 +32,7 @@ from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.piv import piv
 from rspiv.preprocess import Background
-from rspiv.recording import check_recording
+from rspiv.recording import check_drift, check_recording
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["prepare_context"]
@@ -196,16 +196,17 @@ def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) 
             info["particle_size_warnings"] = said
         for line in said.values():
             camp.say(f"WARNING: {line}")
-        _recording(camp, ctx, p, frames, info)
+        _recording(camp, ctx, p, frames, pairs, info)
         return
 
 
-def _recording(camp, ctx: PairContext, p: PairSpec, frames, info: dict) -> None:
+def _recording(camp, ctx: PairContext, p: PairSpec, frames, pairs, info: dict) -> None:
     """:func:`rspiv.check_recording` of pair ``p`` as recorded with the campaign's passes:
     ``info["recording"]`` (every figure) and one line in the log; its warnings that the
     campaign does not answer already are said and kept in ``info["recording_warnings"]`` (the
     particle size is said above, the correlation by the pair loop, the background where the
-    conditioning subtracts it or high-passes, the deformation where the passes deform)."""
+    conditioning subtracts it or high-passes, the deformation where the passes deform); then
+    the drift over the run (:func:`_drift`)."""
     try:
         check = check_recording(*frames, mask=ctx.mask(), passes=ctx.piv.passes)
     except (RspivError, ValueError) as exc:
@@ -226,10 +227,40 @@ def _recording(camp, ctx: PairContext, p: PairSpec, frames, info: dict) -> None:
     if ctx.piv.deformation == "symmetric":
         answered.add("deformation")
     said = {k: v for k, v in check.warnings.items() if k not in answered}
+    said.update(_drift(camp, ctx, pairs, check, info))
     if said:
         info["recording_warnings"] = said
     for line in said.values():
         camp.say(f"WARNING: recording: {line}")
+
+
+def _drift(camp, ctx: PairContext, pairs: list[PairSpec], check, info: dict) -> dict[str, str]:
+    """:func:`rspiv.recording.check_drift` over ``[images] check_pairs`` pairs spread evenly
+    over the run (unreadable ones left to the pair loop): ``info["recording_drift"]`` and one
+    line in the log; its warnings keyed ``drift_<key>``."""
+    n = min(camp.config.images.check_pairs, len(pairs))
+    if n < 2:
+        return {}
+    chosen = [pairs[int(i)] for i in np.unique(np.linspace(0, len(pairs) - 1, n).round())]
+
+    def frames():
+        for p in chosen:
+            got = pair_work.read_ahead(p, ctx.image_shape)
+            if not isinstance(got, str):
+                yield (p.pair_id, *got)
+
+    d = float(np.nanmean(check.diameter)) if np.any(np.isfinite(check.diameter)) else 2.5
+    try:
+        drift = check_drift(frames(), mask=ctx.mask(), diameter=d, passes=ctx.piv.passes)
+    except (RspivError, ValueError) as exc:
+        camp.say(f"recording drift check failed: {exc}")
+        return {}
+    info["recording_drift"] = drift.to_dict()
+    camp.say(
+        f"recording over the run: {len(drift.pairs)} pairs, "
+        f"{min(drift.density):.4f}-{max(drift.density):.4f} particle images per px"
+    )
+    return {f"drift_{k}": v for k, v in drift.warnings.items()}
 
 
 def _pilot(
