@@ -220,6 +220,10 @@ def test_a_campaign_in_a_region_holding_the_wall(synth, tmp_path):
     whole = Campaign.load(synth / "campaign.toml", progress=False).run()
     part = Campaign.load(_with_roi(synth, tmp_path, (0, 100, 1330, 793)), progress=False).run()
     assert part.n_done == whole.n_done == 3
+    # the recording checks look at the region only (its lit blocks within it)
+    rec = json.loads((part.out_dir / "summary.json").read_text())["recording"]
+    assert rec["lit_box"][1] >= 64 and rec["lit_fraction"] > 0.9
+    assert json.loads((whole.out_dir / "summary.json").read_text())["recording"]["lit_box"][1] == 0
     sw = json.loads((whole.out_dir / "summary.json").read_text())["runs"]
     sp = json.loads((part.out_dir / "summary.json").read_text())["runs"]
     for run in ("method_II", "uncorrected"):

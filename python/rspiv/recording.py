@@ -234,6 +234,19 @@ def _frame_stats(frame: np.ndarray, mask: np.ndarray | None) -> dict[str, Any]:
     return _rspiv.seeding(frame, BLOCK, K_NOISE, REL_SIGNAL, full, mask)
 
 
+def _lit_blocks(sa: dict, sb: dict):
+    """``(both, measured, lit, counted)`` of two frames' block counts: the particle images per
+    px of each block (the frames' mean), the blocks measured, the lit ones (at least
+    :data:`LIT_SHARE` of the 90th percentile's density) and the lit blocks' median density as
+    counted."""
+    both = 0.5 * sum(s["peaks"] / np.maximum(s["searched"], 1) for s in (sa, sb))
+    measured = np.isfinite(sa["background"]) & (sa["searched"] > 0)
+    ref = np.percentile(both[measured], 90) if np.any(measured) else 0.0
+    lit = measured & (both >= LIT_SHARE * ref) & (ref > 0)
+    counted = float(np.median(both[lit])) if np.any(lit) else 0.0
+    return both, measured, lit, counted
+
+
 def _coarse(frame_a, frame_b, mask, shape) -> Any:
     """The coarse pass (module docstring): the field and its window."""
     limit = min(shape) // 2
@@ -328,12 +341,7 @@ def check_recording(
     said: dict[str, str] = {}
 
     # particle images: the lit blocks' median density, both frames
-    dens = [s["peaks"] / np.maximum(s["searched"], 1) for s in (sa, sb)]
-    measured = np.isfinite(sa["background"]) & (sa["searched"] > 0)
-    both = 0.5 * (dens[0] + dens[1])
-    ref = np.percentile(both[measured], 90) if np.any(measured) else 0.0
-    lit = measured & (both >= LIT_SHARE * ref) & (ref > 0)
-    counted = float(np.median(both[lit])) if np.any(lit) else 0.0
+    both, measured, lit, counted = _lit_blocks(sa, sb)
     diameter = tuple(float(d) for d in field.particle_diameter)
     d_eff = float(np.nanmean(diameter)) if np.any(np.isfinite(diameter)) else 2.5
     density, bound = _corrected(counted, exclusion_area(d_eff))
@@ -585,13 +593,9 @@ class RecordingDrift:
 def _pair_figures(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None, diameter: float):
     """``(density, (background A, B), (signal A, B))`` of one pair (module docstring)."""
     stats = [_frame_stats(f, mask) for f in (a, b)]
-    measured = np.isfinite(stats[0]["background"]) & (stats[0]["searched"] > 0)
+    _, measured, lit, counted = _lit_blocks(*stats)
     if not np.any(measured):
         return 0.0, (np.nan, np.nan), (np.nan, np.nan)
-    both = sum(s["peaks"] / np.maximum(s["searched"], 1) for s in stats) / 2
-    ref = np.percentile(both[measured], 90)
-    lit = measured & (both >= LIT_SHARE * ref) & (ref > 0)
-    counted = float(np.median(both[lit])) if np.any(lit) else 0.0
     density, _ = _corrected(counted, exclusion_area(diameter))
     sel = lit if np.any(lit) else measured
     bg = tuple(float(np.nanmedian(s["median"][sel])) for s in stats)

@@ -201,14 +201,16 @@ def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) 
 
 
 def _recording(camp, ctx: PairContext, p: PairSpec, frames, pairs, info: dict) -> None:
-    """:func:`rspiv.check_recording` of pair ``p`` as recorded with the campaign's passes:
+    """:func:`rspiv.check_recording` of pair ``p`` as recorded with the campaign's passes and
+    its mask and region of interest (:func:`_roi_mask`):
     ``info["recording"]`` (every figure) and one line in the log; its warnings that the
     campaign does not answer already are said and kept in ``info["recording_warnings"]`` (the
     particle size is said above, the correlation by the pair loop, the background where the
     conditioning subtracts it or high-passes, the deformation where the passes deform); then
     the drift over the run (:func:`_drift`)."""
+    mask = _roi_mask(ctx)
     try:
-        check = check_recording(*frames, mask=ctx.mask(), passes=ctx.piv.passes)
+        check = check_recording(*frames, mask=mask, passes=ctx.piv.passes)
     except (RspivError, ValueError) as exc:
         camp.say(f"recording check of pair {p.pair_id} failed: {exc}")
         return
@@ -227,14 +229,29 @@ def _recording(camp, ctx: PairContext, p: PairSpec, frames, pairs, info: dict) -
     if ctx.piv.deformation == "symmetric":
         answered.add("deformation")
     said = {k: v for k, v in check.warnings.items() if k not in answered}
-    said.update(_drift(camp, ctx, pairs, check, info))
+    said.update(_drift(camp, ctx, pairs, check, mask, info))
     if said:
         info["recording_warnings"] = said
     for line in said.values():
         camp.say(f"WARNING: recording: {line}")
 
 
-def _drift(camp, ctx: PairContext, pairs: list[PairSpec], check, info: dict) -> dict[str, str]:
+def _roi_mask(ctx: PairContext) -> np.ndarray | None:
+    """The PIV mask with everything outside ``[piv] roi`` excluded too (raw px; with a
+    correction the region is in object px, which the distortion shifts by at most its
+    displacement: a few 64 px blocks' worth at most), for the recording checks."""
+    mask, roi = ctx.mask(), ctx.piv.roi
+    if roi is None:
+        return mask
+    out = np.ones(tuple(ctx.image_shape), bool)
+    x0, y0, x1, y1 = roi
+    out[y0:y1, x0:x1] = False
+    return out if mask is None else out | mask
+
+
+def _drift(
+    camp, ctx: PairContext, pairs: list[PairSpec], check, mask, info: dict
+) -> dict[str, str]:
     """:func:`rspiv.recording.check_drift` over ``[images] check_pairs`` pairs spread evenly
     over the run (unreadable ones left to the pair loop): ``info["recording_drift"]`` and one
     line in the log; its warnings keyed ``drift_<key>``."""
@@ -251,7 +268,7 @@ def _drift(camp, ctx: PairContext, pairs: list[PairSpec], check, info: dict) -> 
 
     d = float(np.nanmean(check.diameter)) if np.any(np.isfinite(check.diameter)) else 2.5
     try:
-        drift = check_drift(frames(), mask=ctx.mask(), diameter=d, passes=ctx.piv.passes)
+        drift = check_drift(frames(), mask=mask, diameter=d, passes=ctx.piv.passes)
     except (RspivError, ValueError) as exc:
         camp.say(f"recording drift check failed: {exc}")
         return {}
