@@ -284,3 +284,17 @@ def test_a_campaign_checks_its_run_before_the_piv(tmp_path):
     camp = Campaign.load(toml, progress=False, out_dir=tmp_path / "out0", log=said.append)
     camp.prepare()
     assert "recording" in camp.info and "recording_drift" not in camp.info
+
+
+def test_noise_on_a_clipped_background_is_not_counted():
+    """A background clipped at zero and noised again (a camera's offset removed, then its
+    read noise): the quantiles read the noise low, and the signal's share keeps the noise's
+    maxima out of the count; a glare line adds its own row of blocks, not the frame's
+    density."""
+    a, b = particle_pair((768, 1024), (8.0, 0.5), 0.02, 2.5, 0.05, seed=4)
+    rng = np.random.default_rng(0)
+    glare = 1500 * np.exp(-0.5 * ((np.arange(768)[:, None] - 600) / 4.0) ** 2)
+    frames = [(f + glare + rng.normal(0, 30, f.shape)).clip(0, 4095).astype(np.uint16)
+              for f in (a, b)]  # fmt: skip
+    r = check_recording(*frames)
+    assert abs(r.density / 0.02 - 1.0) < 0.1, r.density
