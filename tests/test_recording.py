@@ -298,3 +298,17 @@ def test_noise_on_a_clipped_background_is_not_counted():
               for f in (a, b)]  # fmt: skip
     r = check_recording(*frames)
     assert abs(r.density / 0.02 - 1.0) < 0.1, r.density
+
+
+def test_a_region_of_interest_masks_the_rest():
+    """``roi_mask``: outside ``(x0, y0, x1, y1)`` excluded, added to a mask; none: the mask."""
+    from rspiv.recording import roi_mask
+
+    m = roi_mask(None, (10, 5, 30, 20), (40, 50))
+    assert m.shape == (40, 50) and not m[5:20, 10:30].any()
+    assert m.sum() == 40 * 50 - 15 * 20
+    own = np.zeros((40, 50), bool)
+    own[10, 12] = True
+    both = roi_mask(own, (10, 5, 30, 20), (40, 50))
+    assert both[10, 12] and both.sum() == m.sum() + 1
+    assert roi_mask(own, None, (40, 50)) is own

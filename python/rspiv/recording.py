@@ -83,6 +83,7 @@ __all__ = [
     "check_drift",
     "check_recording",
     "exclusion_area",
+    "roi_mask",
 ]
 
 #: Particle images a window needs: Keane & Adrian (1992) give a valid detection probability
@@ -223,6 +224,21 @@ class RecordingCheck:
         )
         out += [f"warning: {w}" for w in self.warnings.values()]
         return out
+
+
+def roi_mask(
+    mask: np.ndarray | None, roi: Sequence[int] | None, shape: tuple[int, int]
+) -> np.ndarray | None:
+    """``mask`` (True = excluded, or None) with everything outside ``roi = (x0, y0, x1, y1)``
+    px (``x0 <= x < x1``) excluded too, for frames of ``shape``; ``mask`` itself without a
+    region. A campaign's region of interest is in object px with a correction: the distortion
+    shifts it by at most its displacement, a few 64 px blocks' worth at most."""
+    if roi is None:
+        return mask
+    out = np.ones(tuple(shape), bool)
+    x0, y0, x1, y1 = (int(v) for v in roi)
+    out[y0:y1, x0:x1] = False
+    return out if mask is None else out | mask
 
 
 def _frame_stats(frame: np.ndarray, mask: np.ndarray | None) -> dict[str, Any]:

@@ -32,7 +32,7 @@ from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.piv import piv
 from rspiv.preprocess import Background
-from rspiv.recording import check_drift, check_recording
+from rspiv.recording import check_drift, check_recording, roi_mask
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["prepare_context"]
@@ -202,13 +202,13 @@ def _particle_images(camp, ctx: PairContext, pairs: list[PairSpec], info: dict) 
 
 def _recording(camp, ctx: PairContext, p: PairSpec, frames, pairs, info: dict) -> None:
     """:func:`rspiv.check_recording` of pair ``p`` as recorded with the campaign's passes and
-    its mask and region of interest (:func:`_roi_mask`):
+    its mask and region of interest (:func:`rspiv.recording.roi_mask`):
     ``info["recording"]`` (every figure) and one line in the log; its warnings that the
     campaign does not answer already are said and kept in ``info["recording_warnings"]`` (the
     particle size is said above, the correlation by the pair loop, the background where the
     conditioning subtracts it or high-passes, the deformation where the passes deform); then
     the drift over the run (:func:`_drift`)."""
-    mask = _roi_mask(ctx)
+    mask = roi_mask(ctx.mask(), ctx.piv.roi, tuple(ctx.image_shape))
     try:
         check = check_recording(*frames, mask=mask, passes=ctx.piv.passes)
     except (RspivError, ValueError) as exc:
@@ -234,19 +234,6 @@ def _recording(camp, ctx: PairContext, p: PairSpec, frames, pairs, info: dict) -
         info["recording_warnings"] = said
     for line in said.values():
         camp.say(f"WARNING: recording: {line}")
-
-
-def _roi_mask(ctx: PairContext) -> np.ndarray | None:
-    """The PIV mask with everything outside ``[piv] roi`` excluded too (raw px; with a
-    correction the region is in object px, which the distortion shifts by at most its
-    displacement: a few 64 px blocks' worth at most), for the recording checks."""
-    mask, roi = ctx.mask(), ctx.piv.roi
-    if roi is None:
-        return mask
-    out = np.ones(tuple(ctx.image_shape), bool)
-    x0, y0, x1, y1 = roi
-    out[y0:y1, x0:x1] = False
-    return out if mask is None else out | mask
 
 
 def _drift(

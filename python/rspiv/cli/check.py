@@ -5,10 +5,10 @@ For a pair, prints what :func:`rspiv.check_recording` measured (particle images 
 window, their diameter, the sensor's saturation, noise and background, the displacement of a
 coarse pass) and the passes it recommends, then one ``warning:`` line per concern; ``--passes``
 checks the passes a campaign will use as well. For a campaign file, the same for its first pair
-with the campaign's passes and mask, then :func:`rspiv.recording.check_drift` over
-``--samples`` pairs spread evenly over the run (seeding, background, brightness). ``--json
-FILE`` writes every figure. The exit status is 0 when the check ran (warnings included), 2 for
-input it cannot read.
+with the campaign's passes, mask and region of interest, then
+:func:`rspiv.recording.check_drift` over ``--samples`` pairs spread evenly over the run
+(seeding, background, brightness). ``--json FILE`` writes every figure. The exit status is 0
+when the check ran (warnings included), 2 for input it cannot read.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from rspiv.cli.piv import _passes
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask, read_pair
 from rspiv.outputs import atomic_write_text
-from rspiv.recording import check_drift, check_recording
+from rspiv.recording import check_drift, check_recording, roi_mask
 
 
 def _campaign(args) -> dict:
@@ -38,7 +38,7 @@ def _campaign(args) -> dict:
     if not pairs:
         raise InvalidInputError(f"{args.frame_a}: the campaign lists no image pair")
     shape = read_frame(pairs[0].a, pairs[0].frame_a).shape
-    mask = read_mask(cfg.piv.mask, shape) if cfg.piv.mask else None
+    mask = roi_mask(read_mask(cfg.piv.mask, shape) if cfg.piv.mask else None, cfg.piv.roi, shape)
     passes = [tuple(p) for p in cfg.piv.passes]
     a, b = read_checked_pair(pairs[0], shape)
     try:
