@@ -83,7 +83,9 @@ __all__ = [
     "check_drift",
     "check_recording",
     "exclusion_area",
+    "mean_diameter",
     "roi_mask",
+    "spread",
 ]
 
 #: Particle images a window needs: Keane & Adrian (1992) give a valid detection probability
@@ -113,6 +115,26 @@ LIT_SHARE = 0.2
 MIN_SEEDING_SHARE = 0.7
 #: Thresholds of the warnings (module docstring and :func:`check_recording`).
 MIN_SNR, MAX_DIAMETER, MAX_SATURATED, MIN_LIT, MAX_BACKGROUND_SPREAD = 5.0, 6.0, 0.05, 0.8, 0.5
+
+
+#: The e^-2 diameter (px) the overlap correction takes where the diameter was not measured.
+DEFAULT_DIAMETER = 2.5
+
+
+def mean_diameter(diameter: Sequence[float]) -> float:
+    """The mean of the measured diameters ``(x, y)`` px, :data:`DEFAULT_DIAMETER` when neither
+    was measured (NaN)."""
+    d = [float(v) for v in diameter if np.isfinite(v)]
+    return float(np.mean(d)) if d else DEFAULT_DIAMETER
+
+
+def spread(items: Sequence[Any], n: int) -> list[Any]:
+    """Up to ``n`` of ``items`` spread evenly from the first to the last (the pairs
+    :func:`check_drift` follows)."""
+    if not items or n < 1:
+        return []
+    picks = np.unique(np.linspace(0, len(items) - 1, min(n, len(items))).round())
+    return [items[int(i)] for i in picks]
 
 
 def exclusion_area(diameter: float) -> float:
@@ -361,7 +383,7 @@ def check_recording(
     # particle images: the lit blocks' median density, both frames
     both, measured, lit, counted = _lit_blocks(sa, sb)
     diameter = tuple(float(d) for d in field.particle_diameter)
-    d_eff = float(np.nanmean(diameter)) if np.any(np.isfinite(diameter)) else 2.5
+    d_eff = mean_diameter(diameter)
     density, bound = _corrected(counted, exclusion_area(d_eff))
     # a threshold over half the signal leaves most particle images uncounted: overlapping
     # images (their tails raise the background's quantiles) or camera noise
@@ -624,7 +646,7 @@ def check_drift(
     pairs,
     *,
     mask: Any = None,
-    diameter: float = 2.5,
+    diameter: float = DEFAULT_DIAMETER,
     passes: Sequence[tuple[int, int]] | None = None,
 ) -> RecordingDrift:
     """The seeding, background and brightness of pairs spread over a run, and how they drift.

@@ -542,8 +542,13 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     summary["timings_s"] = res.timings
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
-    info_keys = ("particle_diameter_px", "particle_size_warnings", "recording", "recording_drift")
-    for key in (*info_keys, "recording_warnings"):
+    for key in (
+        "particle_diameter_px",
+        "particle_size_warnings",
+        "recording",
+        "recording_drift",
+        "recording_warnings",
+    ):
         if key in camp.info:
             summary[key] = camp.info[key]
     if cfg.images.pairing_info() is not None:

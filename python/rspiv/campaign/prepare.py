@@ -32,7 +32,7 @@ from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.piv import piv
 from rspiv.preprocess import Background
-from rspiv.recording import check_drift, check_recording, roi_mask
+from rspiv.recording import check_drift, check_recording, mean_diameter, roi_mask, spread
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["prepare_context"]
@@ -242,10 +242,9 @@ def _drift(
     """:func:`rspiv.recording.check_drift` over ``[images] check_pairs`` pairs spread evenly
     over the run (unreadable ones left to the pair loop): ``info["recording_drift"]`` and one
     line in the log; its warnings keyed ``drift_<key>``."""
-    n = min(camp.config.images.check_pairs, len(pairs))
-    if n < 2:
+    chosen = spread(pairs, camp.config.images.check_pairs)
+    if len(chosen) < 2:
         return {}
-    chosen = [pairs[int(i)] for i in np.unique(np.linspace(0, len(pairs) - 1, n).round())]
 
     def frames():
         for p in chosen:
@@ -253,7 +252,7 @@ def _drift(
             if not isinstance(got, str):
                 yield (p.pair_id, *got)
 
-    d = float(np.nanmean(check.diameter)) if np.any(np.isfinite(check.diameter)) else 2.5
+    d = mean_diameter(check.diameter)
     try:
         drift = check_drift(frames(), mask=mask, diameter=d, passes=ctx.piv.passes)
     except (RspivError, ValueError) as exc:

@@ -16,13 +16,11 @@ from __future__ import annotations
 import json
 import pathlib
 
-import numpy as np
-
 from rspiv.cli.piv import _passes
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask, read_pair
 from rspiv.outputs import atomic_write_text
-from rspiv.recording import check_drift, check_recording, roi_mask
+from rspiv.recording import check_drift, check_recording, mean_diameter, roi_mask, spread
 
 
 def _campaign(args) -> dict:
@@ -49,14 +47,12 @@ def _campaign(args) -> dict:
     print(f"first pair ({pairs[0].describe()}):")
     for line in first.lines():
         print(f"  {line}")
-    picks = np.unique(np.linspace(0, len(pairs) - 1, min(args.samples, len(pairs))).round())
-    chosen = [pairs[int(i)] for i in picks]
+    chosen = spread(pairs, args.samples)
     print("pairs spread over the run: " + ", ".join(str(p.pair_id) for p in chosen))
-    diameter = float(np.nanmean(first.diameter)) if np.any(np.isfinite(first.diameter)) else 2.5
     drift = check_drift(
         ((p.pair_id, *read_checked_pair(p, shape)) for p in chosen),
         mask=mask,
-        diameter=diameter,
+        diameter=mean_diameter(first.diameter),
         passes=passes,
     )
     for line in drift.lines():
