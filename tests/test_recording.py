@@ -312,3 +312,13 @@ def test_a_region_of_interest_masks_the_rest():
     both = roi_mask(own, (10, 5, 30, 20), (40, 50))
     assert both[10, 12] and both.sum() == m.sum() + 1
     assert roi_mask(own, None, (40, 50)) is own
+
+
+def test_frame_a_given_twice_is_said_not_measured():
+    """The same frame twice correlates to 1 at zero lag: said in one line, no displacement, no
+    passes and no advice on the pulse separation (a first version advised 6000 times as long)."""
+    a, _ = _pair()
+    r = check_recording(a, a.copy())
+    assert not r.correlates and r.passes is None
+    assert "the same pixels" in r.warnings["same_frames"] and "displacement" not in r.warnings
+    assert abs(r.density / 0.02 - 1.0) < 0.1  # the particle images are still counted

@@ -45,15 +45,15 @@ the displacement varies by more than 5 % of the final window across it. The pass
 will use are held to what makes a pass fail rather than to the rules of thumb: a window with
 fewer than 7 particle images (:data:`MIN_PARTICLES_WARN`), a first window that keeps fewer than
 10 particle image pairs at the largest displacement or whose displacement passes a third of it.
-Every concern is one
-line in :attr:`RecordingCheck.warnings`, keyed by what it is about (``correlation``,
-``density``, ``peak_locking``, ``diameter``, ``saturated_A``/``_B``, ``noise_A``/``_B``,
-``background_A``/``_B``, ``lit``, ``seeding_rows``/``_columns``: the widest band of 64 px
-block rows or columns whose lit blocks hold under :data:`MIN_SEEDING_SHARE` of the frame's
-density, said where the smallest given window holds under 7 particle images there but not
-over the frame (under half the frame's density without given passes), ``displacement``,
-``deformation``, ``windows_WxH``, ``quarter_rule``). A campaign runs the check on its first
-pair (``summary.json``'s ``recording``).
+Every concern is one line in :attr:`RecordingCheck.warnings`, keyed by what it is about
+(``correlation``, ``same_frames``, ``density``, ``peak_locking``, ``diameter``,
+``saturated_A``/``_B``, ``noise_A``/``_B``, ``background_A``/``_B``, ``lit``,
+``seeding_rows``/``_columns``: the widest band of 64 px block rows or columns whose lit blocks
+hold under :data:`MIN_SEEDING_SHARE` of the frame's density, said where the smallest given
+window holds under 7 particle images there but not over the frame (under half the frame's
+density without given passes), ``displacement``, ``deformation``, ``windows_WxH``,
+``quarter_rule``). A campaign runs the check on its first pair (``summary.json``'s
+``recording``).
 
 :func:`check_drift` follows pairs spread over a run (one in memory at a time): each pair's
 seeding (the same count), background and brightness, and says where the seeding thins out,
@@ -113,6 +113,9 @@ LIT_SHARE = 0.2
 #: A band of blocks (or a sampled pair, :func:`check_drift`) whose seeding falls under this
 #: share of the frame's (the run's median) is said.
 MIN_SEEDING_SHARE = 0.7
+#: A coarse pass whose median correlation coefficient reaches this correlates the same pixels
+#: (``piv_core::particle_size::DIAMETER_MAX_COEF``'s reasoning: real pairs give 0.3-0.9).
+SAME_FRAMES_COEF = 0.999
 #: Thresholds of the warnings (module docstring and :func:`check_recording`).
 MIN_SNR, MAX_DIAMETER, MAX_SATURATED, MIN_LIT, MAX_BACKGROUND_SPREAD = 5.0, 6.0, 0.05, 0.8, 0.5
 
@@ -424,8 +427,20 @@ def check_recording(
 
     # the displacement
     good = field.valid & ~field.replaced & ~field.masked
-    correlates = not field.uncorrelated() and bool(np.any(good))
-    if correlates:
+    # frame A given twice (or a static pattern over the particles): the same pixels correlate
+    # to 1 at zero lag, as particle images that moved never do (real pairs give 0.3-0.9)
+    same = bool(np.any(good)) and float(np.median(field.coef[good])) >= SAME_FRAMES_COEF
+    correlates = not field.uncorrelated() and bool(np.any(good)) and not same
+    if same:
+        med = p99 = (np.nan, np.nan)
+        gradient = np.nan
+        said["same_frames"] = (
+            f"frames A and B are the same pixels (median correlation coefficient "
+            f"{float(np.median(field.coef[good])):.4f}): frame A given twice, or a static "
+            "pattern that hides the particle images; no displacement measured and no passes "
+            "recommended"
+        )
+    elif correlates:
         med = (float(np.median(field.u[good])), float(np.median(field.v[good])))
         p99 = (
             float(np.percentile(np.abs(field.u[good]), 99)),
