@@ -185,7 +185,7 @@ def test_the_command(tmp_path, capsys):
 def test_the_drift_over_a_run_is_said():
     """Pairs spread over a run: the seeding thinning at one pair, frame B's brightness and
     frame A's background drifting are each said once; steady pairs say nothing."""
-    from rspiv.recording import check_drift
+    from rspiv.recording_drift import check_drift
 
     def pairs(drift: bool):
         for k in range(4):

@@ -75,6 +75,13 @@ def test_two_workers_give_the_local_statistics(synth, local, client, tmp_path):
     # the outputs of a local run are all there
     for run in local.accumulators:
         assert (out / f"statistics_{run}.nc").is_file() and (out / f"profile_{run}.csv").is_file()
+        # each pair's figures came back from the workers: the local run's series
+        got, ref = (
+            np.loadtxt(d / f"pairs_{run}.csv", delimiter=",", skiprows=1, usecols=range(6))
+            for d in (out, local.out_dir)
+        )
+        assert got.shape == (N_PAIRS, 6)
+        np.testing.assert_allclose(got, ref, atol=1e-4)
     # work was really spread: both worker processes returned chunks
     info = res.info["dask"]
     assert info["workers"] == 2 and info["worker_processes_seen"] == 2 and info["chunks"] == 3

@@ -30,8 +30,11 @@ A complete file (every key optional except where noted; defaults shown)::
     frame_gap = 1                # sequential: frame B is frame_gap frames after frame A
                                  # ([flow] dt is then the time across those frame_gap frames)
     pair_step = 1                # sequential: frames between the first frames of two pairs
-    check_pairs = 5              # pairs spread over the run whose seeding, background and
-                                 # brightness are checked before the PIV (0: off)
+    check_pairs = 5              # pairs spread over the run whose seeding, background,
+                                 # brightness and displacement are checked before the PIV
+                                 # (0: off; under 2: reversed pairs are not looked for)
+    exclude_pairs = []           # pair ids (0-based positions in the pair list) left out,
+                                 # e.g. the pairs summary.json's pair_outliers names
 
     [correction]
     method = "II"                # "I" (dewarp images, then PIV) | "II" (PIV, then map) | "none"
@@ -191,8 +194,10 @@ class ImagesConfig:
     frame_gap: int = 1
     pair_step: int = 1
     #: pairs spread over the run checked for drift before the PIV
-    #: (:func:`rspiv.recording.check_drift`; 0: off)
+    #: (:func:`rspiv.recording_drift.check_drift`; 0: off)
     check_pairs: int = 5
+    #: pair ids (positions in the full pair list) left out of the campaign
+    exclude_pairs: list[int] = dataclasses.field(default_factory=list)
 
     def frame_pairs(self, n: int, source: str, *, odd_ok: bool = False) -> list[tuple[int, int]]:
         """The (frame A, frame B) indices of ``n`` frames in order (files of ``glob``, pages
@@ -491,6 +496,7 @@ class CampaignConfig:
         imd["frame_gap"] = im.frame_gap
         imd["pair_step"] = im.pair_step
         imd["check_pairs"] = im.check_pairs
+        imd["exclude_pairs"] = list(im.exclude_pairs)
         out["images"] = imd
         out["correction"] = dataclasses.asdict(self.correction)
         pv = dataclasses.asdict(self.piv)

@@ -159,6 +159,15 @@ def _holes(ctx, where, v):
     return _increasing(ctx, where, v, positive=False, min_len=1)
 
 
+def _pair_ids(ctx, where, v):
+    """``[id, ...]``: pair ids (positions in the campaign's pair list, >= 0), sorted, once each."""
+    if not isinstance(v, list) or any(
+        isinstance(k, bool) or not isinstance(k, int) or k < 0 for k in v
+    ):
+        raise ctx.err(where, f"expected a list of pair ids (integers >= 0), got {v!r}")
+    return sorted(set(v))
+
+
 def _method(ctx, where, v):
     try:
         return parse_method(v)
@@ -195,6 +204,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "frame_gap": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
         "pair_step": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
         "check_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+        "exclude_pairs": _pair_ids,
     },
     "correction": {
         "method": _method,

@@ -55,9 +55,10 @@ density without given passes), ``displacement``, ``deformation``, ``windows_WxH`
 ``quarter_rule``). A campaign runs the check on its first pair (``summary.json``'s
 ``recording``).
 
-:func:`check_drift` follows pairs spread over a run (one in memory at a time): each pair's
-seeding (the same count), background and brightness, and says where the seeding thins out,
-the laser's energy drifts or the background creeps (``rspiv check campaign.toml``).
+:func:`rspiv.recording_drift.check_drift` follows pairs spread over a run (one in memory at a
+time): each pair's seeding (the same count), background, brightness and displacement, and says
+where the seeding thins out, the laser's energy drifts, the background creeps or a pair's frames
+are in reverse order (``rspiv check campaign.toml``).
 
 Lengths in px, intensities in the frames' counts, displacements in px per pair.
 """
@@ -79,11 +80,11 @@ from rspiv.piv import piv
 __all__ = [
     "MIN_PARTICLES_PER_WINDOW",
     "RecordingCheck",
-    "RecordingDrift",
-    "check_drift",
     "check_recording",
+    "coarse_pass",
     "exclusion_area",
     "mean_diameter",
+    "median_displacement",
     "roi_mask",
     "spread",
 ]
@@ -110,8 +111,8 @@ BLOCK, K_NOISE, REL_SIGNAL = 64, 4.0, 0.2
 MAX_COUNTED_OVERLAP = 0.25
 #: A lit block holds at least this share of the 90th percentile's density.
 LIT_SHARE = 0.2
-#: A band of blocks (or a sampled pair, :func:`check_drift`) whose seeding falls under this
-#: share of the frame's (the run's median) is said.
+#: A band of blocks (or a sampled pair, :func:`rspiv.recording_drift.check_drift`) whose
+#: seeding falls under this share of the frame's (the run's median) is said.
 MIN_SEEDING_SHARE = 0.7
 #: A coarse pass whose median correlation coefficient reaches this correlates the same pixels
 #: (``piv_core::particle_size::DIAMETER_MAX_COEF``'s reasoning: real pairs give 0.3-0.9).
@@ -133,7 +134,7 @@ def mean_diameter(diameter: Sequence[float]) -> float:
 
 def spread(items: Sequence[Any], n: int) -> list[Any]:
     """Up to ``n`` of ``items`` spread evenly from the first to the last (the pairs
-    :func:`check_drift` follows)."""
+    :func:`rspiv.recording_drift.check_drift` follows)."""
     if not items or n < 1:
         return []
     picks = np.unique(np.linspace(0, len(items) - 1, min(n, len(items))).round())
@@ -290,8 +291,8 @@ def _lit_blocks(sa: dict, sb: dict):
     return both, measured, lit, counted
 
 
-def _coarse(frame_a, frame_b, mask, shape) -> Any:
-    """The coarse pass (module docstring): the field and its window."""
+def coarse_pass(frame_a, frame_b, mask, shape) -> Any:
+    """The coarse pass (module docstring): the field and its window (px)."""
     limit = min(shape) // 2
     w = min(64, max(16, limit))
     while True:
@@ -308,6 +309,25 @@ def _coarse(frame_a, frame_b, mask, shape) -> Any:
             w *= 2
             continue
         return f, w
+
+
+def _correlation_state(field) -> tuple[np.ndarray, bool, bool]:
+    """``(good, same, correlates)`` of a coarse field: its vectors measured (valid, not
+    replaced, not masked); the same pixels correlating (frame A given twice, or a static
+    pattern over the particles: they correlate to 1 at zero lag, as particle images that moved
+    never do, real pairs giving 0.3-0.9); and a field that correlates otherwise."""
+    good = field.valid & ~field.replaced & ~field.masked
+    same = bool(np.any(good)) and float(np.median(field.coef[good])) >= SAME_FRAMES_COEF
+    return good, same, not field.uncorrelated() and bool(np.any(good)) and not same
+
+
+def median_displacement(field) -> tuple[float, float]:
+    """The median ``(u, v)`` px of a coarse field's measured vectors, NaN where the frames do
+    not correlate or correlate the same pixels (:func:`coarse_pass`)."""
+    good, _, correlates = _correlation_state(field)
+    if not correlates:
+        return (np.nan, np.nan)
+    return (float(np.median(field.u[good])), float(np.median(field.v[good])))
 
 
 def _thin_band(both: np.ndarray, lit: np.ndarray, counted: float, axis: int):
@@ -380,7 +400,7 @@ def check_recording(
         raise InvalidInputError(f"passes must be window sizes (w, h) >= 4 px, got {given}")
     m = mask_array(mask, a.shape)
     sa, sb = _frame_stats(a, m), _frame_stats(b, m)
-    field, cw = _coarse(a, b, m, a.shape)
+    field, cw = coarse_pass(a, b, m, a.shape)
     said: dict[str, str] = {}
 
     # particle images: the lit blocks' median density, both frames
@@ -426,11 +446,7 @@ def check_recording(
     )
 
     # the displacement
-    good = field.valid & ~field.replaced & ~field.masked
-    # frame A given twice (or a static pattern over the particles): the same pixels correlate
-    # to 1 at zero lag, as particle images that moved never do (real pairs give 0.3-0.9)
-    same = bool(np.any(good)) and float(np.median(field.coef[good])) >= SAME_FRAMES_COEF
-    correlates = not field.uncorrelated() and bool(np.any(good)) and not same
+    good, same, correlates = _correlation_state(field)
     if same:
         med = p99 = (np.nan, np.nan)
         gradient = np.nan
@@ -441,7 +457,7 @@ def check_recording(
             "recommended"
         )
     elif correlates:
-        med = (float(np.median(field.u[good])), float(np.median(field.v[good])))
+        med = median_displacement(field)
         p99 = (
             float(np.percentile(np.abs(field.u[good]), 99)),
             float(np.percentile(np.abs(field.v[good]), 99)),
@@ -614,121 +630,3 @@ def check_recording(
         per_window=per_window,
         warnings=said,
     )
-
-#: The particle images' brightness (signal) varying more than this factor over the run is said.
-MAX_SIGNAL_RATIO = 1.5
-
-
-@dataclasses.dataclass(frozen=True)
-class RecordingDrift:
-    """What :func:`check_drift` measured on pairs spread over a run: per pair (``pairs``, in
-    the order given) the particle images per px (corrected for overlap, the two frames'
-    mean), each frame's background (median of its blocks' medians) and signal (counts); the
-    per-window count of the smallest given window at the thinnest seeding; and one line per
-    concern (``seeding``, ``signal_A``/``_B``, ``background_A``/``_B``)."""
-
-    pairs: list[int]
-    density: list[float]
-    background: list[tuple[float, float]]
-    signal: list[tuple[float, float]]
-    warnings: dict[str, str]
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict of every field."""
-        return dataclasses.asdict(self)
-
-    def lines(self) -> list[str]:
-        """A table of the pairs, then the warnings."""
-        out = ["pair  particles/px  background A / B  signal A / B (counts)"]
-        for k, d, b, s in zip(self.pairs, self.density, self.background, self.signal, strict=True):
-            out.append(f"{k:>5}  {d:12.4f}  {b[0]:8.0f} / {b[1]:<6.0f}  {s[0]:6.0f} / {s[1]:.0f}")
-        return out + [f"warning: {w}" for w in self.warnings.values()]
-
-
-def _pair_figures(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None, diameter: float):
-    """``(density, (background A, B), (signal A, B))`` of one pair (module docstring)."""
-    stats = [_frame_stats(f, mask) for f in (a, b)]
-    _, measured, lit, counted = _lit_blocks(*stats)
-    if not np.any(measured):
-        return 0.0, (np.nan, np.nan), (np.nan, np.nan)
-    density, _ = _corrected(counted, exclusion_area(diameter))
-    sel = lit if np.any(lit) else measured
-    bg = tuple(float(np.nanmedian(s["median"][sel])) for s in stats)
-    return density, bg, tuple(float(s["signal"]) for s in stats)
-
-
-def check_drift(
-    pairs,
-    *,
-    mask: Any = None,
-    diameter: float = DEFAULT_DIAMETER,
-    passes: Sequence[tuple[int, int]] | None = None,
-) -> RecordingDrift:
-    """The seeding, background and brightness of pairs spread over a run, and how they drift.
-
-    Parameters
-    ----------
-    pairs : iterable of (int, ndarray, ndarray)
-        ``(pair id, frame A, frame B)`` as recorded, one pair in memory at a time.
-    mask : array_like of bool or path, optional
-        True where nothing is measured.
-    diameter : float
-        The particle images' e^-2 diameter (px) for the overlap correction (:func:`check_recording`
-        measures it).
-    passes : sequence of (w, h), optional
-        The run's passes: the thinnest seeding is also given per window of the smallest.
-
-    Returns
-    -------
-    RecordingDrift
-        Said: a pair whose seeding is under :data:`MIN_SEEDING_SHARE` of the median (the
-        seeding thins out as a run goes on, or a pulse of the seeder), particle images whose
-        brightness varies by more than :data:`MAX_SIGNAL_RATIO` (the laser's energy), and a
-        background that drifts by more than half the signal (a background over the whole run
-        leaves the rest in the frames: a sliding window of frames follows it).
-    """
-    ids, dens, bgs, sigs = [], [], [], []
-    m = None
-    for k, a, b in pairs:
-        a, b = np.asarray(a), np.asarray(b)
-        if m is None and mask is not None:
-            m = mask_array(mask, a.shape)
-        d, bg, sig = _pair_figures(a, b, m, diameter)
-        ids.append(int(k))
-        dens.append(d)
-        bgs.append(bg)
-        sigs.append(sig)
-    if not ids:
-        raise InvalidInputError("check_drift needs at least one pair")
-    said: dict[str, str] = {}
-    med = float(np.median(dens))
-    low = int(np.argmin(dens))
-    if med > 0 and dens[low] < MIN_SEEDING_SHARE * med:
-        per = ""
-        if passes:
-            w, h = min(passes, key=lambda p: p[0] * p[1])
-            per = f" ({w} x {h} px windows then hold {dens[low] * w * h:.1f} particle images)"
-        said["seeding"] = (
-            f"the seeding thins to {dens[low]:.4f} particle images per px at pair {ids[low]}, "
-            f"{100 * dens[low] / med:.0f} % of the run's median {med:.4f}{per}: the seeder or "
-            "the mixing changed during the run"
-        )
-    sig, bg = np.array(sigs, float), np.array(bgs, float)
-    for j, name in enumerate("AB"):
-        s = sig[:, j][np.isfinite(sig[:, j]) & (sig[:, j] > 0)]
-        if s.size and s.max() > MAX_SIGNAL_RATIO * s.min():
-            said[f"signal_{name}"] = (
-                f"frame {name}'s particle images vary in brightness by {s.max() / s.min():.1f} "
-                f"times over the pairs ({s.min():.0f}-{s.max():.0f} counts): the laser's energy "
-                "or the sheet's position drifts"
-            )
-        b = bg[:, j][np.isfinite(bg[:, j])]
-        typical = float(np.median(s)) if s.size else np.nan
-        if b.size and np.isfinite(typical) and np.ptp(b) > MAX_BACKGROUND_SPREAD * typical:
-            said[f"background_{name}"] = (
-                f"frame {name}'s background drifts by {np.ptp(b):.0f} counts over the pairs "
-                f"({np.ptp(b) / typical:.1f} times the particle images' signal): a background "
-                "over the whole run leaves the rest in the frames; a sliding window of frames "
-                "([preprocess] background_window) follows it"
-            )
-    return RecordingDrift(ids, dens, [tuple(x) for x in bgs], [tuple(x) for x in sigs], said)

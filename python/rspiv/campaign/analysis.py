@@ -28,13 +28,14 @@ from rspiv import moments
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vortices as vortices_work
 from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import STAGES, RunSpec
-from rspiv.campaign.state import CampaignResult, RunAnalysis, json_default
+from rspiv.campaign.state import CampaignResult, RunAnalysis, RunLog, json_default
 from rspiv.campaign_config import CampaignConfig
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outputs import (
@@ -359,6 +360,7 @@ ANALYSIS_STEMS = (
     "pod",
     "vorticity",
     "vortices",
+    "pairs",
 )
 
 
@@ -437,6 +439,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         summary["partly_correlated"] = res.warned
         summary["warning"] = note
         camp.say(f"warning: {note}")
+    res.pair_quality = pair_quality.write_outputs(camp, res, RunLog(out / "run_log.jsonl"))
+    summary.update(pair_quality.summary_entries(camp, res))
     for run in ctx.runs:
         acc = res.accumulators[run.name]
         try:
@@ -625,6 +629,9 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     extra = list(extra_sections)
+    sec = pair_quality.report_section(camp, res, res.pair_quality)
+    if sec is not None:
+        extra.append(sec)
     if res.ensembles or res.pixel_profiles:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:

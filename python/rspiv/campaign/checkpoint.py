@@ -153,8 +153,8 @@ def load_checkpoint(
                 raise InvalidInputError(
                     f"{path}: the pair list changed under the checkpoint: finished pair {i} "
                     f"{what} (files added, removed or renamed before it, or another [images] "
-                    "pairing or max_pairs); delete the checkpoint folder or choose another "
-                    "output folder"
+                    "pairing, max_pairs or exclude_pairs); delete the checkpoint folder or choose "
+                    "another output folder"
                 )
     return state
 

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import pair_quality
 from rspiv.campaign.ensemble_pixel import saturation_level
 from rspiv.campaign.spec import STAGES, PairContext, PairResult, PairSpec
 from rspiv.correction import dewarp_pair, method_two
@@ -289,6 +290,19 @@ def process_pair(
             return PairResult(pair.pair_id, False, reason, timings=t)
         if said:
             warning = f"{name}: {said}"
+    # each run's figures for the run's series; a pair whose displacement points the other way
+    # from the run's (frames in reverse order) is left out, as the first run's field tells
+    t0 = time.perf_counter()
+    quality = {name: pair_quality.measure(f, fields[name]) for name, f in piv_fields.items()}
+    name = next(iter(piv_fields))
+    run0 = next(r for r in context.runs if r.name == name)
+    backwards = pair_quality.reversed_reason(
+        quality[name], pair_quality.run_direction(context, run0)
+    )
+    t["piv"] += time.perf_counter() - t0
+    if backwards:
+        reason = f"{pair.describe()}: {name}: {backwards}"
+        return PairResult(pair.pair_id, False, reason, timings=t, quality=quality)
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
     raw = None
@@ -300,4 +314,4 @@ def process_pair(
             fa, fb, fm = ens_frames[run.name]
             ensemble_work.accumulate(context, run, band, fa, fb, fm, raw=raw)
     t["ensemble"] = time.perf_counter() - t0
-    return PairResult(pair.pair_id, True, "", fields, t, warning)
+    return PairResult(pair.pair_id, True, "", fields, t, warning, quality)

@@ -32,7 +32,8 @@ from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.piv import piv
 from rspiv.preprocess import Background
-from rspiv.recording import check_drift, check_recording, mean_diameter, roi_mask, spread
+from rspiv.recording import check_recording, mean_diameter, roi_mask, spread
+from rspiv.recording_drift import check_drift
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["prepare_context"]
@@ -151,6 +152,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         mapping_json = cal.mapping.to_json()
     ctx = dataclasses.replace(base, mapping_json=mapping_json, _cache={})
     _particle_images(camp, ctx, pairs, info)
+    ctx = _direction(camp, ctx, info)
     if cfg.ensemble.enabled:
         ctx = _plan_ensemble(camp, ctx, pairs, cal, info)
     if cfg.statistics.two_point:
@@ -236,10 +238,36 @@ def _recording(camp, ctx: PairContext, p: PairSpec, frames, pairs, info: dict) -
         camp.say(f"WARNING: recording: {line}")
 
 
+def _direction(camp, ctx: PairContext, info: dict) -> PairContext:
+    """``ctx`` with the run's direction from the drift check's sampled pairs
+    (``info["recording_drift"]["direction"]``, :func:`rspiv.recording_drift.flow_direction`),
+    which the pair loop holds each pair against (:mod:`rspiv.campaign.pair_quality`); said
+    either way, and why not (``info["reversed_check"]``)."""
+    fd = (info.get("recording_drift") or {}).get("direction") or {}
+    ref = fd.get("displacement")
+    if ref is None:
+        n = camp.config.images.check_pairs
+        why = fd.get("note") or (
+            f"[images] check_pairs = {n} (at least 2 are needed)"
+            if n < 2
+            else "the recording's drift check did not run"
+        )
+        info["reversed_check"] = {"direction": None, "note": why}
+        camp.say(f"pairs with frames in reverse order are not looked for: {why}")
+        return ctx
+    ref = (float(ref[0]), float(ref[1]))
+    info["reversed_check"] = {"direction": list(ref), "pairs": fd.get("pairs", [])}
+    camp.say(
+        f"the run's direction ({ref[0]:.2f}, {ref[1]:.2f}) px from {len(fd.get('pairs', []))} "
+        "sampled pairs: a pair displacing the other way (frames in reverse order) is left out"
+    )
+    return dataclasses.replace(ctx, reference=ref, _cache={})
+
+
 def _drift(
     camp, ctx: PairContext, pairs: list[PairSpec], check, mask, info: dict
 ) -> dict[str, str]:
-    """:func:`rspiv.recording.check_drift` over ``[images] check_pairs`` pairs spread evenly
+    """:func:`rspiv.recording_drift.check_drift` over ``[images] check_pairs`` pairs spread evenly
     over the run (unreadable ones left to the pair loop): ``info["recording_drift"]`` and one
     line in the log; its warnings keyed ``drift_<key>``."""
     chosen = spread(pairs, camp.config.images.check_pairs)

@@ -88,8 +88,17 @@ class RunReducer:
         for k, v in timings.items():
             t[k] = t.get(k, 0.0) + v
 
-    def done(self, pair_id: int, timings: dict[str, float], **extra: Any) -> None:
-        """Record a pair added to the statistics (``pair`` event)."""
+    def done(
+        self,
+        pair_id: int,
+        timings: dict[str, float],
+        quality: dict[str, dict[str, float]] | None = None,
+        **extra: Any,
+    ) -> None:
+        """Record a pair added to the statistics (``pair`` event; with its figures per run,
+        :mod:`rspiv.campaign.pair_quality`, under the context's fingerprint)."""
+        if quality:
+            extra.update(quality=quality, fingerprint=self.state.ctx.fingerprint())
         self.state.log.write("pair", pair_id=pair_id, timings=timings, **extra)
         self.n_ok += 1
 

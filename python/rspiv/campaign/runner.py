@@ -91,7 +91,8 @@ class Campaign:
 
     # ------------------------------------------------------------------ pairs
     def pairs(self) -> list[PairSpec]:
-        """The campaign's full pair list (ids are positions in it)."""
+        """The campaign's pair list: ids are positions in the full list, the pairs of
+        ``[images] exclude_pairs`` left out."""
         im = self.config.images
         if im.multiframe is not None:
             p = pathlib.Path(im.multiframe)
@@ -103,11 +104,24 @@ class Campaign:
             except Exception as exc:  # noqa: BLE001
                 raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
             idx = im.frame_pairs(n, f"[images].multiframe {p}", odd_ok=True)
-            return [PairSpec(k, str(p), str(p), i, j) for k, (i, j) in enumerate(idx)]
+            return self._kept([PairSpec(k, str(p), str(p), i, j) for k, (i, j) in enumerate(idx)])
         if im.double_frame is not None:
             files = im.double_frame_files()
-            return [PairSpec(k, str(f), str(f), 0, 1) for k, f in enumerate(files)]
-        return [PairSpec(k, str(a), str(b)) for k, (a, b) in enumerate(im.pair_files())]
+            return self._kept([PairSpec(k, str(f), str(f), 0, 1) for k, f in enumerate(files)])
+        files = im.pair_files()
+        return self._kept([PairSpec(k, str(a), str(b)) for k, (a, b) in enumerate(files)])
+
+    def _kept(self, pairs: list[PairSpec]) -> list[PairSpec]:
+        """``pairs`` without those of ``[images] exclude_pairs`` (ids stay positions in the full
+        list)."""
+        gone = set(self.config.images.exclude_pairs)
+        beyond = sorted(k for k in gone if k >= len(pairs))
+        if beyond:
+            raise InvalidInputError(
+                f"[images].exclude_pairs: pair {beyond[0]} is not among the campaign's "
+                f"{len(pairs)} pairs (ids are 0-based positions in the pair list)"
+            )
+        return [p for p in pairs if p.pair_id not in gone] if gone else pairs
 
     def runs(self) -> tuple[RunSpec, ...]:
         """The runs: the main method, the extra methods, and the uncorrected comparison."""

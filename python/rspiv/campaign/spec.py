@@ -116,6 +116,10 @@ class PairContext:
     two_point: dict[str, Any] | None = None
     #: the difference scheme of the vorticity statistics (:mod:`rspiv.vorticity`), or None
     vorticity: str | None = None
+    #: the run's direction ``(u, v)`` px per pair in the raw frame, from the pairs sampled
+    #: before the run (:func:`rspiv.recording_drift.flow_direction`): a pair pointing the other
+    #: way is left out (:mod:`rspiv.campaign.pair_quality`); None: not looked for
+    reference: tuple[float, float] | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -198,6 +202,7 @@ class PairContext:
             **({} if self.ensemble is None else {"ensemble": self.ensemble}),
             **({} if self.two_point is None else {"two_point": self.two_point}),
             **({} if self.vorticity is None else {"vorticity": self.vorticity}),
+            **({} if self.reference is None else {"reference": list(self.reference)}),
         }
 
     @classmethod
@@ -216,6 +221,7 @@ class PairContext:
             ensemble=d.get("ensemble"),
             two_point=d.get("two_point"),
             vorticity=d.get("vorticity"),
+            reference=None if d.get("reference") is None else tuple(d["reference"]),
         )
 
     def fingerprint(self) -> str:
@@ -243,6 +249,10 @@ class PairResult:
         For a pair processed (``ok``) whose frames correlate only in part (a region unlit or
         with too few particle images, :meth:`rspiv.PivField.warning`): the run and the
         warning; its vectors are in the statistics, random ones among them. Empty otherwise.
+    quality : dict
+        Run name -> the pair's figures (:func:`rspiv.campaign.pair_quality.measure`: the
+        valid share, the median peak ratio, the mean displacement); empty when the PIV did
+        not run to the end.
     """
 
     pair_id: int
@@ -255,6 +265,7 @@ class PairResult:
     ] = dataclasses.field(default_factory=dict)
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     warning: str = ""
+    quality: dict[str, dict[str, float]] = dataclasses.field(default_factory=dict)
 
 
 def parse_shard(text: str | tuple[int, int] | None) -> tuple[int, int]:

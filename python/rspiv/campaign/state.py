@@ -173,6 +173,9 @@ class CampaignResult:
     vortices: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
     vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: each pair's figures per run and the pairs unlike the main run
+    #: (:func:`rspiv.campaign.pair_quality.write_outputs`: ``series``, ``outliers``)
+    pair_quality: dict[str, Any] = dataclasses.field(default_factory=dict)
 
     @property
     def report(self) -> pathlib.Path | None:

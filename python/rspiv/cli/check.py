@@ -6,7 +6,7 @@ window, their diameter, the sensor's saturation, noise and background, the displ
 coarse pass) and the passes it recommends, then one ``warning:`` line per concern; ``--passes``
 checks the passes a campaign will use as well. For a campaign file, the same for its first pair
 with the campaign's passes, mask and region of interest, then
-:func:`rspiv.recording.check_drift` over ``--samples`` pairs spread evenly over the run
+:func:`rspiv.recording_drift.check_drift` over ``--samples`` pairs spread evenly over the run
 (seeding, background, brightness). ``--json FILE`` writes every figure. The exit status is 0
 when the check ran (warnings included), 2 for input it cannot read.
 """
@@ -20,7 +20,8 @@ from rspiv.cli.piv import _passes
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask, read_pair
 from rspiv.outputs import atomic_write_text
-from rspiv.recording import check_drift, check_recording, mean_diameter, roi_mask, spread
+from rspiv.recording import check_recording, mean_diameter, roi_mask, spread
+from rspiv.recording_drift import check_drift
 
 
 def _campaign(args) -> dict:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from rspiv.campaign import Campaign
+from rspiv.campaign import Campaign, pair_quality
 from rspiv.campaign.analysis import partial_correlation_note
 from rspiv.campaign.executors.dask import run_dask
 from rspiv.settings import parse_method
@@ -88,6 +88,8 @@ def _process(args: argparse.Namespace) -> int:
         print(f"warning: {line}", file=sys.stderr)
     for line in camp.info.get("recording_warnings", {}).values():
         print(f"warning: recording: {line}", file=sys.stderr)
+    for line in pair_quality.warning_lines(res):
+        print(f"warning: {line}", file=sys.stderr)
     for a in res.analyses.values():
         if a.result is not None:
             s = a.result.summary()

@@ -108,6 +108,8 @@ class ChunkResult:
     warned : dict
         Pair id -> ``(files, warning)`` for pairs added whose frames correlate only in part
         (:attr:`rspiv.campaign.PairResult.warning`).
+    pair_quality : dict
+        Pair id -> the pair's figures per run (:attr:`rspiv.campaign.PairResult.quality`).
     """
 
     accumulators: dict[str, FieldAccumulator]
@@ -119,6 +121,7 @@ class ChunkResult:
     timings: dict[str, float]
     worker: str = ""
     warned: dict[int, tuple[str, str]] = dataclasses.field(default_factory=dict)
+    pair_quality: dict[int, dict[str, dict[str, float]]] = dataclasses.field(default_factory=dict)
 
 
 _CONTEXTS: dict[str, PairContext] = {}
@@ -145,6 +148,7 @@ def process_chunk(
     skipped: dict[int, tuple[str, str]] = {}
     failed: dict[int, tuple[str, str]] = {}
     warned: dict[int, tuple[str, str]] = {}
+    quality: dict[int, dict[str, dict[str, float]]] = {}
     pair_timings: dict[int, dict[str, float]] = {}
     timings = {k: 0.0 for k in STAGES}
     cache = pair_work.FrameCache.for_pairs(pairs)  # sequential pairing: frames read once
@@ -183,6 +187,7 @@ def process_chunk(
         dt = time.perf_counter() - t0 + add_fields(accs, r)
         timings["statistics"] = timings.get("statistics", 0.0) + dt
         done.append(p.pair_id)
+        quality[p.pair_id] = r.quality
         if r.warning:
             warned[p.pair_id] = (p.describe(), r.warning)
     return ChunkResult(
@@ -195,6 +200,7 @@ def process_chunk(
         timings,
         f"{socket.gethostname()}:{os.getpid()}",
         warned,
+        quality,
     )
 
 
@@ -717,7 +723,9 @@ class DaskExecutor:
         self.workers_seen.add(res.worker)
         red.add_timings(res.timings)
         for pid in res.done:
-            red.done(pid, res.pair_timings.get(pid, {}), worker=res.worker)
+            red.done(
+                pid, res.pair_timings.get(pid, {}), res.pair_quality.get(pid), worker=res.worker
+            )
         for pid, (files, warning) in res.warned.items():
             red.warn(pid, files, warning)
         for pid, (files, reason) in res.skipped.items():

@@ -93,7 +93,9 @@ class LocalExecutor:
                 consistent = True
 
                 def record(p=p, r=r) -> None:
-                    red.done(p.pair_id, {k: round(v, 4) for k, v in r.timings.items()})
+                    red.done(
+                        p.pair_id, {k: round(v, 4) for k, v in r.timings.items()}, r.quality
+                    )
                     if r.warning:
                         red.warn(p.pair_id, p.describe(), r.warning)
                     progress.advance()

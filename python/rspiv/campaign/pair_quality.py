@@ -1,0 +1,336 @@
+"""Each pair's quality over a campaign: pairs whose frames are in reverse order left out, and
+the pairs unlike the rest of their run said.
+
+Per pair and run (:func:`measure`, in the pair's work, a few ms at 47 MP): the share of the
+final grid's windows (not masked) whose vectors enter the statistics (``valid``), the median
+peak ratio of those vectors (``peak_ratio``), and their mean displacement (``u``, ``v``, px per
+pair in the run's frame). The figures go to the run log's ``pair`` event (``quality``, with the
+context's fingerprint), so that the series survives an interruption, Dask chunks and shards.
+
+**Frames in reverse order** (:mod:`rspiv.recording_drift`): a campaign's preparation takes the
+run's direction from the pairs its drift check samples (``[images] check_pairs``,
+:func:`rspiv.recording_drift.flow_direction`). A pair whose mean displacement along that
+direction is at most :data:`REVERSED_SHARE` of it measures the flow backwards: it is left out of
+every statistic (a ``skipped`` event naming the figures). The first run's field decides (the
+uncorrected run when there is one; a corrected run holds the direction mapped into its object
+frame by the mapping's Jacobian at the frame's centre). Where the samples give no direction
+(fewer than two correlate, a flow whose mean turns, a displacement under 1 px), nothing is left
+out and the campaign says why.
+
+**Pairs unlike the run** (:func:`screen`, at the end of the run, from the series of the main
+run): robust scores against the run's median (a median absolute deviation times 1.4826 as the
+spread, :data:`OUTLIER_SPREADS` of them, and never less than a fixed share): a mean
+displacement along the run's median one off by more than :data:`ALONG_SHARE` of it (another
+pulse separation, a pairing unlike the others), a share of valid vectors more than
+:data:`VALID_DROP` under the median (a bubble, a misfire of part of the sheet), a median peak
+ratio under :data:`PEAK_SHARE` of the median (a weak pulse, fog). These pairs stay in the
+statistics (a real flow has rare events; only the user can tell): they are said in the log,
+``summary.json`` (``pair_outliers``) and the report, and can be left out by ``[images]
+exclude_pairs``. ``OUT/pairs_<run>.csv`` holds every pair's figures.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.spec import PairContext, RunSpec
+from rspiv.outputs import atomic_write_text
+
+__all__ = [
+    "ALONG_SHARE",
+    "MIN_PAIRS",
+    "OUTLIER_SPREADS",
+    "PEAK_SHARE",
+    "REVERSED_SHARE",
+    "VALID_DROP",
+    "along_run",
+    "measure",
+    "report_section",
+    "reversed_ids",
+    "reversed_reason",
+    "run_direction",
+    "screen",
+    "series",
+    "summary_entries",
+    "warning_lines",
+    "write_outputs",
+]
+
+#: A pair whose mean displacement along the run's direction is at most this share of the
+#: direction's length points the other way: its frames are in reverse order.
+REVERSED_SHARE = -0.5
+#: How a pair left out as reversed is said (its ``skipped`` reason holds it).
+REVERSED_SAID = "frames A and B in reverse order?"
+#: The screen's robust spreads (1.4826 median absolute deviations) from the run's median.
+OUTLIER_SPREADS = 6.0
+#: ... and its floors: the mean displacement along the run's off by this share of it, the
+#: valid share this far under the median, the median peak ratio under this share of the run's.
+ALONG_SHARE, VALID_DROP, PEAK_SHARE = 0.25, 0.1, 0.5
+#: Runs of fewer pairs are not screened (a median and its spread need a few).
+MIN_PAIRS = 8
+#: The figures per pair and run, in the log and ``pairs_<run>.csv``.
+FIGURES = ("valid", "peak_ratio", "u", "v")
+
+
+def measure(field: Any, arrays: tuple) -> dict[str, float]:
+    """One run's figures of a pair (module docstring): ``field`` its PIV field (the peak ratio,
+    the mask), ``arrays`` its ``(u, v, valid, ...)`` as they enter the statistics."""
+    u, v, valid = arrays[0], arrays[1], np.asarray(arrays[2], bool)
+    live = max(int(np.count_nonzero(~np.asarray(field.masked, bool))), 1)
+    n = int(np.count_nonzero(valid))
+    if n == 0:
+        return {"valid": 0.0, "peak_ratio": float("nan"), "u": float("nan"), "v": float("nan")}
+    pr = np.asarray(field.peak_ratio)[valid]
+    pr = pr[pr > 0]
+    return {
+        "valid": round(n / live, 5),
+        "peak_ratio": round(float(np.median(pr)), 4) if pr.size else float("nan"),
+        "u": round(float(np.mean(u, where=valid)), 5),
+        "v": round(float(np.mean(v, where=valid)), 5),
+    }
+
+
+def run_direction(context: PairContext, run: RunSpec) -> tuple[float, float] | None:
+    """The run's direction (``context.reference``, px per pair in the raw frame) in ``run``'s
+    frame: as it is for the uncorrected run; for a corrected run mapped into its object frame
+    by the inverse of the mapping's Jacobian at the object frame's centre (cached); None
+    without a reference."""
+    ref = context.reference
+    if ref is None or run.method == "none" or context.mapping is None:
+        return None if ref is None else (float(ref[0]), float(ref[1]))
+    key = "direction_object"
+    got = context._cache.get(key)
+    if got is None:
+        h, w = context.object_shape
+        jac = context.mapping.forward_jacobian(np.array([[0.5 * (w - 1), 0.5 * (h - 1)]]))[0]
+        d = np.linalg.solve(jac, np.asarray(ref, float))
+        got = (float(d[0]), float(d[1]))
+        context._cache[key] = got
+    return got
+
+
+def reversed_reason(quality: dict[str, float], direction: tuple[float, float] | None) -> str:
+    """Why a pair of these figures points the other way from ``direction``, or ``""`` (also
+    without a direction or a measured displacement)."""
+    if direction is None or not np.isfinite(quality.get("u", np.nan)):
+        return ""
+    dx, dy = direction
+    along = (quality["u"] * dx + quality["v"] * dy) / (dx * dx + dy * dy)
+    if along > REVERSED_SHARE:
+        return ""
+    return (
+        f"its mean displacement ({quality['u']:.2f}, {quality['v']:.2f}) px points the other way "
+        f"from the run's ({dx:.2f}, {dy:.2f}) px ({along:.2f} of it): {REVERSED_SAID} Left out "
+        "of the statistics"
+    )
+
+
+def series(log: Any, fingerprint: str, ids: set) -> dict[str, dict[str, np.ndarray]]:
+    """Run name -> ``{"pair": ids, "valid": ..., "peak_ratio": ..., "u": ..., "v": ...}`` of the
+    pairs of ``ids`` from the run log's ``pair`` events under the context ``fingerprint``
+    (the last event of a pair counts; pairs without figures, e.g. logged by an older rspiv,
+    are missing)."""
+    latest: dict[int, dict] = {}
+    for rec in log.events("pair"):
+        pid, q = rec.get("pair_id"), rec.get("quality")
+        if rec.get("fingerprint") == fingerprint and pid in ids and isinstance(q, dict):
+            latest[int(pid)] = q
+    out: dict[str, dict[str, list]] = {}
+    for pid in sorted(latest):
+        for run, figs in latest[pid].items():
+            col = out.setdefault(run, {"pair": [], **{k: [] for k in FIGURES}})
+            col["pair"].append(pid)
+            for k in FIGURES:
+                val = figs.get(k)
+                col[k].append(np.nan if val is None else float(val))
+    return {
+        run: {k: np.asarray(v, np.int64 if k == "pair" else float) for k, v in cols.items()}
+        for run, cols in out.items()
+    }
+
+
+def _robust(x: np.ndarray) -> tuple[float, float]:
+    """The median and the spread (1.4826 median absolute deviations) of the finite ``x``."""
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return np.nan, np.nan
+    m = float(np.median(x))
+    return m, 1.4826 * float(np.median(np.abs(x - m)))
+
+
+def along_run(s: dict[str, np.ndarray]) -> tuple[np.ndarray, tuple[float, float]]:
+    """Each pair's mean displacement along the run's median one, in units of its length, and
+    that median ``(u, v)`` px (the along share NaN when it is under 1 px)."""
+    du, dv = float(np.nanmedian(s["u"])), float(np.nanmedian(s["v"]))
+    n2 = du * du + dv * dv
+    if not np.isfinite(n2) or n2 < 1.0:
+        return np.full(s["u"].shape, np.nan), (du, dv)
+    return (s["u"] * du + s["v"] * dv) / n2, (du, dv)
+
+
+def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
+    """Pair id -> why the pair is unlike its run (module docstring); empty for a run of fewer
+    than :data:`MIN_PAIRS` pairs."""
+    ids = s["pair"]
+    if ids.size < MIN_PAIRS:
+        return {}
+    along, (du, dv) = along_run(s)
+    tests = []
+    m, sd = _robust(along)
+    if np.isfinite(m):
+        off = np.abs(along - m) > max(OUTLIER_SPREADS * sd, ALONG_SHARE * abs(m))
+        tests.append(
+            (
+                off,
+                lambda j: f"mean displacement ({s['u'][j]:.2f}, {s['v'][j]:.2f}) px, "
+                f"{along[j]:.2f} times the run's median ({du:.2f}, {dv:.2f}) px along it "
+                "(another pulse separation or pairing?)",
+            )
+        )
+    m_v, sd_v = _robust(s["valid"])
+    if np.isfinite(m_v):
+        low = s["valid"] < m_v - max(OUTLIER_SPREADS * sd_v, VALID_DROP)
+        tests.append(
+            (
+                low,
+                lambda j: f"{100 * s['valid'][j]:.0f} % of its vectors valid against the run's "
+                f"median {100 * m_v:.0f} % (a bubble, part of the sheet missing?)",
+            )
+        )
+    m_p, sd_p = _robust(s["peak_ratio"])
+    if np.isfinite(m_p):
+        weak = s["peak_ratio"] < m_p - max(OUTLIER_SPREADS * sd_p, (1 - PEAK_SHARE) * m_p)
+        tests.append(
+            (
+                weak,
+                lambda j: f"median peak ratio {s['peak_ratio'][j]:.2f} against the run's "
+                f"{m_p:.2f} (a weak pulse, fog, particle images out of focus?)",
+            )
+        )
+    out: dict[int, list[str]] = {}
+    for flags, said in tests:
+        for j in np.flatnonzero(flags):
+            out.setdefault(int(ids[j]), []).append(said(int(j)))
+    return {k: "; ".join(v) for k, v in sorted(out.items())}
+
+
+def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
+    """The series of every run of ``res`` from ``log``, the main run's screen, and
+    ``OUT/pairs_<run>.csv`` per run (paths in ``res.files``). Returns ``{"series": ...,
+    "outliers": {pair: reason}}`` (empty when the log holds no figures)."""
+    ctx = res.context
+    ids: set = set()
+    for acc in res.accumulators.values():
+        ids |= set(acc.pair_ids)
+    got = series(log, ctx.fingerprint(), ids)
+    if not got:
+        return {}
+    main = ctx.runs[0].name
+    outliers = screen(got[main]) if main in got else {}
+    for run in ctx.runs:
+        s = got.get(run.name)
+        if s is None:
+            continue
+        along, _ = along_run(s)
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["pair", *FIGURES, "along", "unlike_run"])
+        for j, pid in enumerate(s["pair"]):
+            row = [int(pid), *(repr(float(s[k][j])) for k in FIGURES), repr(float(along[j]))]
+            w.writerow([*row, outliers.get(int(pid), "") if run.name == main else ""])
+        path = camp.out_dir / f"pairs_{run.name}.csv"
+        res.files[f"pairs_{run.name}"] = atomic_write_text(path, buf.getvalue())
+    return {"series": got, "outliers": outliers}
+
+
+def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
+    """The report's section on the main run's pairs over the run (a figure of the series, the
+    pairs unlike the run, the pairs left out as reversed), or None without figures."""
+    from rspiv.report import ReportSection, ReportTable  # deferred: the report's imports
+
+    main = res.context.runs[0]
+    s = quality.get("series", {}).get(main.name)
+    if s is None:
+        return None
+    outliers = quality.get("outliers", {})
+    figures = []
+    try:
+        from rspiv.plots.pairs import plot_pairs  # deferred: matplotlib
+
+        path = camp.out_dir / "report" / "figures" / "pairs.png"
+        along, median = along_run(s)
+        path = plot_pairs(path, s, along, median, outliers)
+        figures.append((path, f"{main.label}: each pair over the run"))
+    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
+        camp.say(f"pairs figure failed: {exc}")
+    rev = reversed_ids(res)
+    text = (
+        f"Each of the {s['pair'].size} pairs' share of valid vectors, median peak ratio and mean "
+        f"displacement (`pairs_{main.name}.csv`)."
+    )
+    if rev:
+        text += (
+            f"\n\nWarning: {len(rev)} pair(s) displace the other way from the run (frames A and "
+            f"B in reverse order?) and are left out of the statistics: {_shown(rev, 20)}."
+        )
+    tables = []
+    if outliers:
+        text += (
+            f"\n\nWarning: {len(outliers)} pair(s) are unlike the rest of the run and are in the "
+            "statistics; list them in `[images] exclude_pairs` to leave them out."
+        )
+        rows = [{"pair": k, "unlike the run": v} for k, v in list(outliers.items())[:50]]
+        tables.append(ReportTable("Pairs unlike the run", rows))
+    return ReportSection("The pairs over the run", text=text, figures=figures, tables=tables)
+
+
+def reversed_ids(res: Any) -> list[int]:
+    """The pairs of ``res`` left out as displacing the other way (:func:`reversed_reason`)."""
+    return sorted(k for k, why in res.skipped.items() if REVERSED_SAID in why)
+
+
+def warning_lines(res: Any) -> list[str]:
+    """Lines for the log and ``rspiv process``: the pairs left out as reversed, the pairs
+    unlike the run; none when there are none."""
+    out = []
+    rev = reversed_ids(res)
+    if rev:
+        out.append(
+            f"{len(rev)} pair(s) displace the other way from the run and are left out (frames A "
+            f"and B in reverse order?): pairs {_shown(rev)}"
+        )
+    unlike = (res.pair_quality or {}).get("outliers") or {}
+    if unlike:
+        out.append(
+            f"{len(unlike)} pair(s) are unlike the rest of the run (pairs {_shown(list(unlike))}; "
+            "summary.json pair_outliers, pairs_<run>.csv): they are in the statistics; "
+            "[images] exclude_pairs leaves them out"
+        )
+    return out
+
+
+def summary_entries(camp: Any, res: Any) -> dict[str, Any]:
+    """``summary.json``'s ``reversed_pairs`` (the direction held against, or why none, and the
+    pairs left out) and ``pair_outliers``; the warnings said in the log."""
+    ctx = res.context
+    out: dict[str, Any] = {}
+    if ctx.reference is not None:
+        out["reversed_pairs"] = {"direction": list(ctx.reference), "left_out": reversed_ids(res)}
+    else:
+        note = (camp.info.get("reversed_check") or {}).get("note", "not looked for")
+        out["reversed_pairs"] = {"direction": None, "note": note}
+    outliers = (res.pair_quality or {}).get("outliers")
+    if outliers:
+        out["pair_outliers"] = outliers
+    for line in warning_lines(res):
+        camp.say(f"warning: {line}")
+    return out
+
+
+def _shown(ids: list[int], n: int = 8) -> str:
+    """The first ``n`` of ``ids``, comma-separated."""
+    return ", ".join(str(k) for k in ids[:n]) + (", ..." if len(ids) > n else "")
