@@ -2,9 +2,10 @@
 
 Ground truth: a synthetic campaign (scale 0.15, 10 pairs) in which pair 6's frames are swapped
 (frames A and B in reverse order: it measures the flow backwards and passes every test within its
-field) and pair 3 is rendered with half the displacement (half the pulse separation). The
-swapped pair must be left out of every statistic, exactly as if it had been excluded; the
-mistimed pair must be said and kept; no other pair may be said. The run's direction and the
+field), pair 3 is rendered with half the displacement (half the pulse separation) and pair 8's
+frame B is moved down by a row (the camera shaken between the exposures). The swapped pair must
+be left out of every statistic, exactly as if it had been excluded; the mistimed and the shaken
+pairs must be said and kept; no other pair may be said. The run's direction and the
 screen are checked on constructed inputs with known answers.
 """
 
@@ -27,7 +28,7 @@ from rspiv.synth.tbl import tbl_pair
 from rspiv.synth.truth import PAPER_M
 
 SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=10, monte_carlo_samples=300)
-SWAPPED, MISTIMED, FACTOR = 6, 3, 0.5
+SWAPPED, MISTIMED, FACTOR, SHAKEN = 6, 3, 0.5, 8
 EXTRAS_OFF = {
     "two_point = true": "two_point = false",
     "quadrant = true": "quadrant = false",
@@ -70,6 +71,9 @@ def runs(tmp_path_factory):
     )  # fmt: skip
     tifffile.imwrite(raw / f"pair_{MISTIMED:05d}_a.tif", fa)
     tifffile.imwrite(raw / f"pair_{MISTIMED:05d}_b.tif", fb)
+    # pair 8: frame B one row lower (its last row wraps to the top)
+    path = raw / f"pair_{SHAKEN:05d}_b.tif"
+    tifffile.imwrite(path, np.roll(tifffile.imread(path), 1, axis=0))
     text = toml.read_text()
     files = {
         "said": _toml(text, "out"),
@@ -109,17 +113,20 @@ def test_a_pair_in_reverse_order_is_left_out_as_if_excluded(runs):
     assert "## The pairs over the run" in md and "reverse order" in md
 
 
-def test_a_mistimed_pair_is_said_and_kept(runs):
-    """The pair of half the displacement is the only one said unlike the run; it stays in
-    the statistics; every pair's figures are in pairs_<run>.csv."""
+def test_mistimed_and_shaken_pairs_are_said_and_kept(runs):
+    """The pair of half the displacement and the pair whose frame B moved by a row are the only
+    ones said unlike the run, each for what it is; they stay in the statistics; every pair's
+    figures are in pairs_<run>.csv."""
     _, out = runs
     _, res = out["said"]
     outliers = res.pair_quality["outliers"]
-    assert list(outliers) == [MISTIMED]
-    assert "times the run's median" in outliers[MISTIMED]
+    assert list(outliers) == [MISTIMED, SHAKEN]
+    assert "times the run's median" in outliers[MISTIMED] and "across" not in outliers[MISTIMED]
+    assert "across the run's median +0.9" in outliers[SHAKEN] and "camera" in outliers[SHAKEN]
+    assert "times the run's median" not in outliers[SHAKEN]
     summary = json.loads((res.out_dir / "summary.json").read_text())
-    assert list(summary["pair_outliers"]) == [str(MISTIMED)]
-    assert MISTIMED in res.accumulators["method_II"].pair_ids
+    assert list(summary["pair_outliers"]) == [str(MISTIMED), str(SHAKEN)]
+    assert {MISTIMED, SHAKEN} <= res.accumulators["method_II"].pair_ids
     for run in res.accumulators:
         with open(res.out_dir / f"pairs_{run}.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))
@@ -128,8 +135,11 @@ def test_a_mistimed_pair_is_said_and_kept(runs):
         assert along[MISTIMED] == pytest.approx(FACTOR, rel=0.1)
         assert all(abs(v - 1) < 0.05 for k, v in along.items() if k != MISTIMED)
         assert all(0.9 < float(r["valid"]) <= 1 and float(r["peak_ratio"]) > 3 for r in rows)
+        across = {int(r["pair"]): float(r["across_px"]) for r in rows}
+        assert across[SHAKEN] == pytest.approx(1.0, abs=0.15)  # its own flow: about 0.1 px
+        assert all(abs(v) < 0.25 for k, v in across.items() if k != SHAKEN)
         flagged = [int(r["pair"]) for r in rows if r["unlike_run"]]
-        assert flagged == ([MISTIMED] if run == "method_II" else [])
+        assert flagged == ([MISTIMED, SHAKEN] if run == "method_II" else [])
 
 
 def test_without_sampled_pairs_reversed_frames_are_not_looked_for(runs):
@@ -142,7 +152,7 @@ def test_without_sampled_pairs_reversed_frames_are_not_looked_for(runs):
     assert summary["reversed_pairs"]["direction"] is None
     assert "check_pairs = 1" in summary["reversed_pairs"]["note"]
     # the screen still finds the mistimed pair; the swapped one is unlike the run too
-    assert set(res.pair_quality["outliers"]) == {MISTIMED, SWAPPED}
+    assert set(res.pair_quality["outliers"]) == {MISTIMED, SWAPPED, SHAKEN}
 
 
 def test_excluding_a_pair_the_checkpoint_holds_is_refused(runs, tmp_path):
@@ -183,8 +193,9 @@ def test_the_runs_direction_from_sampled_pairs():
 
 
 def test_the_screen_names_each_kind_of_outlier():
-    """A constructed series: one pair of twice the displacement, one with a third of its
-    vectors lost, one correlating weakly; the others scattered as a turbulent run's are."""
+    """A constructed series: one pair of twice the displacement, one displaced sideways, one
+    with a third of its vectors lost, one correlating weakly; the others scattered as a
+    turbulent run's are."""
     rng = np.random.default_rng(7)
     n = 40
     s = {
@@ -192,17 +203,19 @@ def test_the_screen_names_each_kind_of_outlier():
         "valid": 0.97 + 0.005 * rng.standard_normal(n),
         "peak_ratio": 5.0 + 0.2 * rng.standard_normal(n),
         "u": 15.0 * (1 + 0.03 * rng.standard_normal(n)),
-        "v": 0.2 * rng.standard_normal(n),
+        "v": 0.02 * rng.standard_normal(n),
     }
     assert pq.screen(s) == {}
     s["u"][5] *= 2.0
     s["valid"][11] = 0.64
     s["peak_ratio"][20] = 2.1
+    s["v"][30] += 0.5
     got = pq.screen(s)
-    assert list(got) == [15, 33, 60]
+    assert list(got) == [15, 33, 60, 90]
     assert "times the run's median" in got[15]
     assert "64 % of its vectors valid" in got[33]
     assert "median peak ratio 2.10" in got[60]
+    assert "across the run's median +0.49" in got[90] and len(got[90].split("; ")) == 1
     assert pq.screen({k: v[: pq.MIN_PAIRS - 1] for k, v in s.items()}) == {}
 
 

@@ -20,8 +20,10 @@ out and the campaign says why.
 **Pairs unlike the run** (:func:`screen`, at the end of the run, from the series of the main
 run): robust scores against the run's median (a median absolute deviation times 1.4826 as the
 spread, :data:`OUTLIER_SPREADS` of them, and never less than a fixed share): a mean
-displacement along the run's median one off by more than :data:`ALONG_SHARE` of it (another
-pulse separation, a pairing unlike the others), a share of valid vectors more than
+displacement along the run's median one (when that is :data:`MIN_SCREEN_PX` or longer) off by
+more than :data:`ALONG_SHARE` of it (another pulse separation, an uneven frame rate, a pairing
+unlike the others) or across it by more than :data:`ACROSS_PX` (the camera or one laser sheet
+moved between the exposures), a share of valid vectors more than
 :data:`VALID_DROP` under the median (a bubble, a misfire of part of the sheet), a median peak
 ratio under :data:`PEAK_SHARE` of the median (a weak pulse, fog). These pairs stay in the
 statistics (a real flow has rare events; only the user can tell): they are said in the log,
@@ -39,10 +41,13 @@ import numpy as np
 
 from rspiv.campaign.spec import PairContext, RunSpec
 from rspiv.outputs import atomic_write_text
+from rspiv.report import ReportSection, ReportTable
 
 __all__ = [
+    "ACROSS_PX",
     "ALONG_SHARE",
     "MIN_PAIRS",
+    "MIN_SCREEN_PX",
     "OUTLIER_SPREADS",
     "PEAK_SHARE",
     "REVERSED_SHARE",
@@ -66,12 +71,17 @@ REVERSED_SHARE = -0.5
 #: How a pair left out as reversed is said (its ``skipped`` reason holds it).
 REVERSED_SAID = "frames A and B in reverse order?"
 #: The screen's robust spreads (1.4826 median absolute deviations) from the run's median.
-OUTLIER_SPREADS = 6.0
+OUTLIER_SPREADS = 5.0
 #: ... and its floors: the mean displacement along the run's off by this share of it, the
 #: valid share this far under the median, the median peak ratio under this share of the run's.
 ALONG_SHARE, VALID_DROP, PEAK_SHARE = 0.25, 0.1, 0.5
+#: ... and the mean displacement across the run's median one off by this much (px).
+ACROSS_PX = 0.2
 #: Runs of fewer pairs are not screened (a median and its spread need a few).
 MIN_PAIRS = 8
+#: The run's median displacement must be this long (px) for the screen to hold pairs against
+#: it (the mean over a field's vectors is good to a few hundredths of a px).
+MIN_SCREEN_PX = 0.5
 #: The figures per pair and run, in the log and ``pairs_<run>.csv``.
 FIGURES = ("valid", "peak_ratio", "u", "v")
 
@@ -162,14 +172,18 @@ def _robust(x: np.ndarray) -> tuple[float, float]:
     return m, 1.4826 * float(np.median(np.abs(x - m)))
 
 
-def along_run(s: dict[str, np.ndarray]) -> tuple[np.ndarray, tuple[float, float]]:
-    """Each pair's mean displacement along the run's median one, in units of its length, and
-    that median ``(u, v)`` px (the along share NaN when it is under 1 px)."""
+def along_run(
+    s: dict[str, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """Each pair's mean displacement along the run's median one (in units of its length) and
+    across it (px, positive to its left in the image: counter-clockwise from it with y down),
+    and that median ``(u, v)`` px; both NaN when the median is under :data:`MIN_SCREEN_PX`."""
     du, dv = float(np.nanmedian(s["u"])), float(np.nanmedian(s["v"]))
     n2 = du * du + dv * dv
-    if not np.isfinite(n2) or n2 < 1.0:
-        return np.full(s["u"].shape, np.nan), (du, dv)
-    return (s["u"] * du + s["v"] * dv) / n2, (du, dv)
+    if not np.isfinite(n2) or n2 < MIN_SCREEN_PX**2:
+        nan = np.full(s["u"].shape, np.nan)
+        return nan, nan.copy(), (du, dv)
+    return (s["u"] * du + s["v"] * dv) / n2, (s["v"] * du - s["u"] * dv) / np.sqrt(n2), (du, dv)
 
 
 def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
@@ -178,7 +192,7 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
     ids = s["pair"]
     if ids.size < MIN_PAIRS:
         return {}
-    along, (du, dv) = along_run(s)
+    along, across, (du, dv) = along_run(s)
     tests = []
     m, sd = _robust(along)
     if np.isfinite(m):
@@ -188,7 +202,17 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
                 off,
                 lambda j: f"mean displacement ({s['u'][j]:.2f}, {s['v'][j]:.2f}) px, "
                 f"{along[j]:.2f} times the run's median ({du:.2f}, {dv:.2f}) px along it "
-                "(another pulse separation or pairing?)",
+                "(another pulse separation or frame interval, another pairing?)",
+            )
+        )
+    m_a, sd_a = _robust(across)
+    if np.isfinite(m_a):
+        side = np.abs(across - m_a) > max(OUTLIER_SPREADS * sd_a, ACROSS_PX)
+        tests.append(
+            (
+                side,
+                lambda j: f"mean displacement across the run's median {across[j]:+.2f} px against "
+                f"its {m_a:+.2f} px (the camera or a laser sheet moved between the exposures?)",
             )
         )
     m_v, sd_v = _robust(s["valid"])
@@ -235,12 +259,13 @@ def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
         s = got.get(run.name)
         if s is None:
             continue
-        along, _ = along_run(s)
+        along, across, _ = along_run(s)
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["pair", *FIGURES, "along", "unlike_run"])
+        w.writerow(["pair", *FIGURES, "along", "across_px", "unlike_run"])
         for j, pid in enumerate(s["pair"]):
-            row = [int(pid), *(repr(float(s[k][j])) for k in FIGURES), repr(float(along[j]))]
+            row = [int(pid), *(repr(float(s[k][j])) for k in FIGURES)]
+            row += [repr(round(float(along[j]), 5)), repr(round(float(across[j]), 5))]
             w.writerow([*row, outliers.get(int(pid), "") if run.name == main else ""])
         path = camp.out_dir / f"pairs_{run.name}.csv"
         res.files[f"pairs_{run.name}"] = atomic_write_text(path, buf.getvalue())
@@ -250,8 +275,6 @@ def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
 def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
     """The report's section on the main run's pairs over the run (a figure of the series, the
     pairs unlike the run, the pairs left out as reversed), or None without figures."""
-    from rspiv.report import ReportSection, ReportTable  # deferred: the report's imports
-
     main = res.context.runs[0]
     s = quality.get("series", {}).get(main.name)
     if s is None:
@@ -262,7 +285,7 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
         from rspiv.plots.pairs import plot_pairs  # deferred: matplotlib
 
         path = camp.out_dir / "report" / "figures" / "pairs.png"
-        along, median = along_run(s)
+        along, _, median = along_run(s)
         path = plot_pairs(path, s, along, median, outliers)
         figures.append((path, f"{main.label}: each pair over the run"))
     except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
