@@ -81,6 +81,7 @@ class RunReducer:
         self.failed: dict[int, str] = {}
         self.n_ok = 0
         self.since = 0
+        self._fingerprint: str | None = None
 
     def add_timings(self, timings: dict[str, float]) -> None:
         """Add seconds per stage to the run's timings."""
@@ -98,7 +99,9 @@ class RunReducer:
         """Record a pair added to the statistics (``pair`` event; with its figures per run,
         :mod:`rspiv.campaign.pair_quality`, under the context's fingerprint)."""
         if quality:
-            extra.update(quality=quality, fingerprint=self.state.ctx.fingerprint())
+            if self._fingerprint is None:  # the context's, once per run
+                self._fingerprint = self.state.ctx.fingerprint()
+            extra.update(quality=quality, fingerprint=self._fingerprint)
         self.state.log.write("pair", pair_id=pair_id, timings=timings, **extra)
         self.n_ok += 1
 
