@@ -121,6 +121,7 @@ def test_mistimed_and_shaken_pairs_are_said_and_kept(runs):
     _, res = out["said"]
     outliers = res.pair_quality["outliers"]
     assert list(outliers) == [MISTIMED, SHAKEN]
+    assert res.pair_quality["trends"] == {}  # nothing drifts over these pairs
     assert "times the run's median" in outliers[MISTIMED] and "across" not in outliers[MISTIMED]
     assert "across the run's median +0.9" in outliers[SHAKEN] and "camera" in outliers[SHAKEN]
     assert "times the run's median" not in outliers[SHAKEN]
@@ -261,3 +262,31 @@ def test_the_drift_check_says_a_reversed_pair():
     assert r.displacement[3] == pytest.approx((-6.0, -1.0), abs=0.1)
     assert "pair(s) 300 displace the other way" in r.warnings["reversed"]
     assert any("the run's direction: (6.0" in line for line in r.lines())
+
+
+def test_a_drift_over_the_run_is_said():
+    """A constructed run: the mean displacement rising by 2 % from the first pair to the last
+    and the valid share falling by 7 points, under a pair-to-pair scatter of 0.5 % and 0.3
+    points, are said with their size; a steady run with one outlier says nothing."""
+    rng = np.random.default_rng(11)
+    n = 60
+    t = np.linspace(0.0, 1.0, n)
+    steady = {
+        "pair": np.arange(n) * 5,
+        "valid": 0.97 + 0.003 * rng.standard_normal(n),
+        "peak_ratio": 5.0 + 0.2 * rng.standard_normal(n),
+        "u": 15.0 * (1 + 0.005 * rng.standard_normal(n)),
+        "v": 0.02 * rng.standard_normal(n),
+    }
+    lone = {k: v.copy() for k, v in steady.items()}
+    lone["u"][-1] *= 2.0  # said as unlike the run, and left out of the line
+    outliers = pq.screen(lone)
+    assert list(outliers) == [5 * (n - 1)] and pq.trends(lone, outliers) == {}
+    drifting = {k: v.copy() for k, v in steady.items()}
+    drifting["u"] *= 1 + 0.02 * t
+    drifting["valid"] -= 0.07 * t
+    got = pq.trends(drifting, pq.screen(drifting))
+    assert set(got) == {"displacement", "valid"}
+    change = float(got["displacement"].split("changes by ")[1].split(" %")[0])
+    assert change == pytest.approx(2.0, abs=0.3)
+    assert "changes by -7." in got["valid"] or "changes by -6.9" in got["valid"]

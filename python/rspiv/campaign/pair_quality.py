@@ -25,7 +25,9 @@ more than :data:`ALONG_SHARE` of it (another pulse separation, an uneven frame r
 unlike the others) or across it by more than :data:`ACROSS_PX` (the camera or one laser sheet
 moved between the exposures), a share of valid vectors more than
 :data:`VALID_DROP` under the median (a bubble, a misfire of part of the sheet), a median peak
-ratio under :data:`PEAK_SHARE` of the median (a weak pulse, fog). These pairs stay in the
+ratio under :data:`PEAK_SHARE` of the median (a weak pulse, fog). What drifts over the run is
+said too (:func:`trends`: the mean displacement, a tunnel's speed; the valid share, the seeding
+or the optics), from a straight line through the pairs. The pairs unlike the run stay in the
 statistics (a real flow has rare events; only the user can tell): they are said in the log,
 ``summary.json`` (``pair_outliers``) and the report, and can be left out by ``[images]
 exclude_pairs``. ``OUT/pairs_<run>.csv`` holds every pair's figures.
@@ -51,6 +53,9 @@ __all__ = [
     "OUTLIER_SPREADS",
     "PEAK_SHARE",
     "REVERSED_SHARE",
+    "TREND_SHARE",
+    "TREND_SIGMAS",
+    "TREND_VALID",
     "VALID_DROP",
     "along_run",
     "measure",
@@ -61,6 +66,7 @@ __all__ = [
     "screen",
     "series",
     "summary_entries",
+    "trends",
     "warning_lines",
     "write_outputs",
 ]
@@ -77,6 +83,11 @@ OUTLIER_SPREADS = 5.0
 ALONG_SHARE, VALID_DROP, PEAK_SHARE = 0.25, 0.1, 0.5
 #: ... and the mean displacement across the run's median one off by this much (px).
 ACROSS_PX = 0.2
+#: A drift over the run is said where the line fitted to the pairs (the pairs unlike the run
+#: left out) changes from the first pair to the last by more than this share of the mean
+#: displacement along the run's median, or these points of valid share, at
+#: :data:`TREND_SIGMAS` standard errors of its slope or more.
+TREND_SHARE, TREND_VALID, TREND_SIGMAS = 0.01, 0.05, 5.0
 #: Runs of fewer pairs are not screened (a median and its spread need a few).
 MIN_PAIRS = 8
 #: The run's median displacement must be this long (px) for the screen to hold pairs against
@@ -242,10 +253,51 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
     return {k: "; ".join(v) for k, v in sorted(out.items())}
 
 
+def trends(s: dict[str, np.ndarray], outliers: dict[int, str]) -> dict[str, str]:
+    """What drifts over the run (module docstring): ``"displacement"`` and ``"valid"`` -> one
+    line each, from a straight line fitted to the pairs by id (those of ``outliers`` left out);
+    empty for fewer than :data:`MIN_PAIRS` pairs or no drift."""
+    ids = np.asarray(s["pair"], float)
+    keep = ~np.isin(s["pair"], np.fromiter(outliers, np.int64, len(outliers)))
+    along, _, (du, dv) = along_run(s)
+    out: dict[str, str] = {}
+    for key, y, floor in (("displacement", along, TREND_SHARE), ("valid", s["valid"], TREND_VALID)):
+        ok = keep & np.isfinite(y)
+        if np.count_nonzero(ok) < MIN_PAIRS:
+            continue
+        x, yy = ids[ok] - ids[ok].mean(), y[ok]
+        sxx = float(x @ x)
+        if sxx <= 0:
+            continue
+        slope = float(x @ (yy - yy.mean())) / sxx
+        resid = yy - yy.mean() - slope * x
+        se = float(np.sqrt(resid @ resid / (yy.size - 2) / sxx))
+        change = slope * float(np.ptp(ids[ok]))
+        if abs(change) <= floor or abs(slope) < TREND_SIGMAS * se:
+            continue
+        sigmas = abs(slope) / se if se > 0 else np.inf
+        if key == "displacement":
+            out[key] = (
+                f"the mean displacement along the run's median ({du:.2f}, {dv:.2f}) px changes "
+                f"by {100 * change:+.1f} % from the first pair to the last (a fitted line, "
+                f"{sigmas:.0f} standard errors): the flow's speed drifts over the run (the "
+                "tunnel, its temperature?) or the pairs span too few of the flow's largest "
+                "scales; the statistics average over it"
+            )
+        else:
+            out[key] = (
+                f"the share of valid vectors changes by {100 * change:+.1f} points from the first "
+                f"pair to the last (a fitted line, {sigmas:.0f} standard errors): the seeding, "
+                "the optics or the laser's energy change over the run"
+            )
+    return out
+
+
 def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
-    """The series of every run of ``res`` from ``log``, the main run's screen, and
+    """The series of every run of ``res`` from ``log``, the main run's screen and trends, and
     ``OUT/pairs_<run>.csv`` per run (paths in ``res.files``). Returns ``{"series": ...,
-    "outliers": {pair: reason}}`` (empty when the log holds no figures)."""
+    "outliers": {pair: reason}, "trends": {what: line}}`` (empty when the log holds no
+    figures)."""
     ctx = res.context
     ids: set = set()
     for acc in res.accumulators.values():
@@ -255,6 +307,7 @@ def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
         return {}
     main = ctx.runs[0].name
     outliers = screen(got[main]) if main in got else {}
+    drifts = trends(got[main], outliers) if main in got else {}
     for run in ctx.runs:
         s = got.get(run.name)
         if s is None:
@@ -269,7 +322,7 @@ def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
             w.writerow([*row, outliers.get(int(pid), "") if run.name == main else ""])
         path = camp.out_dir / f"pairs_{run.name}.csv"
         res.files[f"pairs_{run.name}"] = atomic_write_text(path, buf.getvalue())
-    return {"series": got, "outliers": outliers}
+    return {"series": got, "outliers": outliers, "trends": drifts}
 
 
 def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
@@ -300,6 +353,8 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
             f"\n\nWarning: {len(rev)} pair(s) displace the other way from the run (frames A and "
             f"B in reverse order?) and are left out of the statistics: {_shown(rev, 20)}."
         )
+    for line in (quality.get("trends") or {}).values():
+        text += f"\n\nWarning: over the run, {line}."
     tables = []
     if outliers:
         text += (
@@ -326,6 +381,8 @@ def warning_lines(res: Any) -> list[str]:
             f"{len(rev)} pair(s) displace the other way from the run and are left out (frames A "
             f"and B in reverse order?): pairs {_shown(rev)}"
         )
+    for line in ((res.pair_quality or {}).get("trends") or {}).values():
+        out.append(f"over the run, {line}")
     unlike = (res.pair_quality or {}).get("outliers") or {}
     if unlike:
         out.append(
@@ -349,6 +406,9 @@ def summary_entries(camp: Any, res: Any) -> dict[str, Any]:
     outliers = (res.pair_quality or {}).get("outliers")
     if outliers:
         out["pair_outliers"] = outliers
+    drifts = (res.pair_quality or {}).get("trends")
+    if drifts:
+        out["pair_trends"] = drifts
     for line in warning_lines(res):
         camp.say(f"warning: {line}")
     return out
