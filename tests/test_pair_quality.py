@@ -3,9 +3,10 @@
 Ground truth: a synthetic campaign (scale 0.15, 10 pairs) in which pair 6's frames are swapped
 (frames A and B in reverse order: it measures the flow backwards and passes every test within its
 field), pair 3 is rendered with half the displacement (half the pulse separation) and pair 8's
-frame B is moved down by a row (the camera shaken between the exposures). The swapped pair must
-be left out of every statistic, exactly as if it had been excluded; the mistimed and the shaken
-pairs must be said and kept; no other pair may be said. The run's direction and the
+frame B is moved down by a row (the camera shaken between the exposures), and pair 1's frame B
+is dimmed to 35 % above its background (a weak laser pulse). The swapped pair must be left out of
+every statistic, exactly as if it had been excluded; the mistimed, shaken and dim pairs must be
+said and kept; no other pair may be said. The run's direction and the
 screen are checked on constructed inputs with known answers.
 """
 
@@ -28,7 +29,7 @@ from rspiv.synth.tbl import tbl_pair
 from rspiv.synth.truth import PAPER_M
 
 SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=10, monte_carlo_samples=300)
-SWAPPED, MISTIMED, FACTOR, SHAKEN = 6, 3, 0.5, 8
+SWAPPED, MISTIMED, FACTOR, SHAKEN, DIM = 6, 3, 0.5, 8, 1
 EXTRAS_OFF = {
     "two_point = true": "two_point = false",
     "quadrant = true": "quadrant = false",
@@ -74,6 +75,11 @@ def runs(tmp_path_factory):
     # pair 8: frame B one row lower (its last row wraps to the top)
     path = raw / f"pair_{SHAKEN:05d}_b.tif"
     tifffile.imwrite(path, np.roll(tifffile.imread(path), 1, axis=0))
+    # pair 1: frame B's particle images at 35 % (the background, its median, kept)
+    path = raw / f"pair_{DIM:05d}_b.tif"
+    f = tifffile.imread(path).astype(np.float64)
+    bg = np.median(f)
+    tifffile.imwrite(path, (bg + 0.35 * (f - bg)).clip(0, 4095).round().astype(np.uint16))
     text = toml.read_text()
     files = {
         "said": _toml(text, "out"),
@@ -120,14 +126,16 @@ def test_mistimed_and_shaken_pairs_are_said_and_kept(runs):
     _, out = runs
     _, res = out["said"]
     outliers = res.pair_quality["outliers"]
-    assert list(outliers) == [MISTIMED, SHAKEN]
+    assert list(outliers) == [DIM, MISTIMED, SHAKEN]
+    assert "frame B's particle images at 35 %" in outliers[DIM]
+    assert "frame A" not in outliers[DIM]
     assert res.pair_quality["trends"] == {}  # nothing drifts over these pairs
     assert "times the run's median" in outliers[MISTIMED] and "across" not in outliers[MISTIMED]
     assert "across the run's median +0.9" in outliers[SHAKEN] and "camera" in outliers[SHAKEN]
     assert "times the run's median" not in outliers[SHAKEN]
     summary = json.loads((res.out_dir / "summary.json").read_text())
-    assert list(summary["pair_outliers"]) == [str(MISTIMED), str(SHAKEN)]
-    assert {MISTIMED, SHAKEN} <= res.accumulators["method_II"].pair_ids
+    assert list(summary["pair_outliers"]) == [str(DIM), str(MISTIMED), str(SHAKEN)]
+    assert {DIM, MISTIMED, SHAKEN} <= res.accumulators["method_II"].pair_ids
     for run in res.accumulators:
         with open(res.out_dir / f"pairs_{run}.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))
@@ -140,7 +148,10 @@ def test_mistimed_and_shaken_pairs_are_said_and_kept(runs):
         assert across[SHAKEN] == pytest.approx(1.0, abs=0.15)  # its own flow: about 0.1 px
         assert all(abs(v) < 0.25 for k, v in across.items() if k != SHAKEN)
         flagged = [int(r["pair"]) for r in rows if r["unlike_run"]]
-        assert flagged == ([MISTIMED, SHAKEN] if run == "method_II" else [])
+        assert flagged == ([DIM, MISTIMED, SHAKEN] if run == "method_II" else [])
+        ratio = {int(r["pair"]): float(r["signal_b"]) / float(r["signal_a"]) for r in rows}
+        assert ratio[DIM] == pytest.approx(0.35, abs=0.03)
+        assert all(abs(v - 1) < 0.05 for k, v in ratio.items() if k != DIM)
 
 
 def test_without_sampled_pairs_reversed_frames_are_not_looked_for(runs):
@@ -153,7 +164,7 @@ def test_without_sampled_pairs_reversed_frames_are_not_looked_for(runs):
     assert summary["reversed_pairs"]["direction"] is None
     assert "check_pairs = 1" in summary["reversed_pairs"]["note"]
     # the screen still finds the mistimed pair; the swapped one is unlike the run too
-    assert set(res.pair_quality["outliers"]) == {MISTIMED, SWAPPED, SHAKEN}
+    assert set(res.pair_quality["outliers"]) == {DIM, MISTIMED, SWAPPED, SHAKEN}
 
 
 def test_excluding_a_pair_the_checkpoint_holds_is_refused(runs, tmp_path):
@@ -285,8 +296,12 @@ def test_a_drift_over_the_run_is_said():
     drifting = {k: v.copy() for k, v in steady.items()}
     drifting["u"] *= 1 + 0.02 * t
     drifting["valid"] -= 0.07 * t
+    drifting["signal_b"] = 2000.0 * (1 - 0.4 * t) + 20 * rng.standard_normal(n)
     got = pq.trends(drifting, pq.screen(drifting))
-    assert set(got) == {"displacement", "valid"}
+    assert set(got) == {"displacement", "valid", "signal_B"}
+    said = got["signal_B"]
+    assert said.startswith("frame B's particle images change in brightness from 20")
+    assert float(said.split("counts (")[1].split(" %")[0]) == pytest.approx(-40, abs=2)
     change = float(got["displacement"].split("changes by ")[1].split(" %")[0])
     assert change == pytest.approx(2.0, abs=0.3)
-    assert "changes by -7." in got["valid"] or "changes by -6.9" in got["valid"]
+    assert "changes from 97 % to 90 %" in got["valid"]

@@ -27,6 +27,7 @@ from rspiv.errors import InvalidInputError, RspivError
 from rspiv.io import read_image
 from rspiv.multipass import run_grid
 from rspiv.preprocess import condition_pair
+from rspiv.recording_drift import pair_brightness
 
 __all__ = [
     "FrameCache",
@@ -290,10 +291,15 @@ def process_pair(
             return PairResult(pair.pair_id, False, reason, timings=t)
         if said:
             warning = f"{name}: {said}"
-    # each run's figures for the run's series; a pair whose displacement points the other way
-    # from the run's (frames in reverse order) is left out, as the first run's field tells
+    # each run's figures for the run's series (with the frames' seeding and brightness as
+    # recorded); a pair whose displacement points the other way from the run's (frames in
+    # reverse order) is left out, as the first run's field tells
     t0 = time.perf_counter()
-    quality = {name: pair_quality.measure(f, fields[name]) for name, f in piv_fields.items()}
+    roi = settings.roi
+    seen = pair_brightness(*frames, mask, None if roi is None else (roi[1], roi[3]))
+    quality = {
+        name: {**pair_quality.measure(f, fields[name]), **seen} for name, f in piv_fields.items()
+    }
     name = next(iter(piv_fields))
     run0 = next(r for r in context.runs if r.name == name)
     backwards = pair_quality.reversed_reason(

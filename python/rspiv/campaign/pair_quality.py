@@ -43,6 +43,7 @@ import numpy as np
 
 from rspiv.campaign.spec import PairContext, RunSpec
 from rspiv.outputs import atomic_write_text
+from rspiv.recording import MIN_SEEDING_SHARE
 from rspiv.report import ReportSection, ReportTable
 
 __all__ = [
@@ -93,8 +94,17 @@ MIN_PAIRS = 8
 #: The run's median displacement must be this long (px) for the screen to hold pairs against
 #: it (the mean over a field's vectors is good to a few hundredths of a px).
 MIN_SCREEN_PX = 0.5
+#: ... the particle images' brightness of a frame under this share of the run's, the count
+#: under :data:`rspiv.recording.MIN_SEEDING_SHARE` of it.
+SIGNAL_SHARE = 0.5
+#: A drift of a frame's brightness by this share of the run's median, of the count by this
+#: share, of a background by this share of the particle images' signal is said (the drift
+#: check's bars, :mod:`rspiv.recording_drift`, a little lower over every pair).
+TREND_SIGNAL, TREND_COUNT, TREND_BACKGROUND = 0.25, 0.3, 0.5
+#: Each pair's frames as recorded (:func:`rspiv.recording_drift.pair_brightness`).
+FRAME_FIGURES = ("counted", "signal_a", "signal_b", "background_a", "background_b")
 #: The figures per pair and run, in the log and ``pairs_<run>.csv``.
-FIGURES = ("valid", "peak_ratio", "u", "v")
+FIGURES = ("valid", "peak_ratio", "u", "v", *FRAME_FIGURES)
 
 
 def measure(field: Any, arrays: tuple) -> dict[str, float]:
@@ -197,6 +207,18 @@ def along_run(
     return (s["u"] * du + s["v"] * dv) / n2, (s["v"] * du - s["u"] * dv) / np.sqrt(n2), (du, dv)
 
 
+def _bar(x: np.ndarray, floor: float, relative: bool, low: bool):
+    """``(flags, median)``: the finite ``x`` off the median (under it only with ``low``) by
+    more than :data:`OUTLIER_SPREADS` robust spreads and ``floor`` (a share of the median
+    with ``relative``); None when nothing is finite."""
+    m, sd = _robust(x)
+    if not np.isfinite(m):
+        return None
+    bar = max(OUTLIER_SPREADS * sd, floor * abs(m) if relative else floor)
+    with np.errstate(invalid="ignore"):
+        return ((x - m < -bar) if low else (np.abs(x - m) > bar)), m
+
+
 def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
     """Pair id -> why the pair is unlike its run (module docstring); empty for a run of fewer
     than :data:`MIN_PAIRS` pairs."""
@@ -204,92 +226,125 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
     if ids.size < MIN_PAIRS:
         return {}
     along, across, (du, dv) = along_run(s)
-    tests = []
-    m, sd = _robust(along)
-    if np.isfinite(m):
-        off = np.abs(along - m) > max(OUTLIER_SPREADS * sd, ALONG_SHARE * abs(m))
-        tests.append(
-            (
-                off,
-                lambda j: f"mean displacement ({s['u'][j]:.2f}, {s['v'][j]:.2f}) px, "
-                f"{along[j]:.2f} times the run's median ({du:.2f}, {dv:.2f}) px along it "
-                "(another pulse separation or frame interval, another pairing?)",
-            )
-        )
-    m_a, sd_a = _robust(across)
-    if np.isfinite(m_a):
-        side = np.abs(across - m_a) > max(OUTLIER_SPREADS * sd_a, ACROSS_PX)
-        tests.append(
-            (
-                side,
-                lambda j: f"mean displacement across the run's median {across[j]:+.2f} px against "
-                f"its {m_a:+.2f} px (the camera or a laser sheet moved between the exposures?)",
-            )
-        )
-    m_v, sd_v = _robust(s["valid"])
-    if np.isfinite(m_v):
-        low = s["valid"] < m_v - max(OUTLIER_SPREADS * sd_v, VALID_DROP)
-        tests.append(
-            (
-                low,
-                lambda j: f"{100 * s['valid'][j]:.0f} % of its vectors valid against the run's "
-                f"median {100 * m_v:.0f} % (a bubble, part of the sheet missing?)",
-            )
-        )
-    m_p, sd_p = _robust(s["peak_ratio"])
-    if np.isfinite(m_p):
-        weak = s["peak_ratio"] < m_p - max(OUTLIER_SPREADS * sd_p, (1 - PEAK_SHARE) * m_p)
-        tests.append(
-            (
-                weak,
-                lambda j: f"median peak ratio {s['peak_ratio'][j]:.2f} against the run's "
-                f"{m_p:.2f} (a weak pulse, fog, particle images out of focus?)",
-            )
-        )
+    nan = np.full(ids.shape, np.nan)
+
+    def col(name: str) -> np.ndarray:
+        return s.get(name, nan)
+
+    def pc(x: float, m: float) -> str:
+        return f"{100 * x / m:.0f} %"
+
+    # (values, floor, relative, low only, what it says for pair j against the median m)
+    checks = (
+        (along, ALONG_SHARE, True, False, lambda j, m: (
+            f"mean displacement ({s['u'][j]:.2f}, {s['v'][j]:.2f}) px, {along[j]:.2f} times the "
+            f"run's median ({du:.2f}, {dv:.2f}) px along it (another pulse separation or frame "
+            "interval, another pairing?)")),
+        (across, ACROSS_PX, False, False, lambda j, m: (
+            f"mean displacement across the run's median {across[j]:+.2f} px against its "
+            f"{m:+.2f} px (the camera or a laser sheet moved between the exposures?)")),
+        (col("valid"), VALID_DROP, False, True, lambda j, m: (
+            f"{100 * s['valid'][j]:.0f} % of its vectors valid against the run's median "
+            f"{100 * m:.0f} % (a bubble, part of the sheet missing?)")),
+        (col("peak_ratio"), 1 - PEAK_SHARE, True, True, lambda j, m: (
+            f"median peak ratio {s['peak_ratio'][j]:.2f} against the run's {m:.2f} (a weak "
+            "pulse, fog, particle images out of focus?)")),
+        (col("signal_a"), 1 - SIGNAL_SHARE, True, True, lambda j, m: (
+            f"frame A's particle images at {pc(s['signal_a'][j], m)} of the run's brightness "
+            f"({s['signal_a'][j]:.0f} against {m:.0f} counts: a weak or missed laser pulse?)")),
+        (col("signal_b"), 1 - SIGNAL_SHARE, True, True, lambda j, m: (
+            f"frame B's particle images at {pc(s['signal_b'][j], m)} of the run's brightness "
+            f"({s['signal_b'][j]:.0f} against {m:.0f} counts: a weak or missed laser pulse?)")),
+        (col("counted"), 1 - MIN_SEEDING_SHARE, True, True, lambda j, m: (
+            f"{s['counted'][j]:.4f} particle images counted per px against the run's {m:.4f} "
+            "(the seeding thins, a bubble?)")),
+    )  # fmt: skip
     out: dict[int, list[str]] = {}
-    for flags, said in tests:
+    for values, floor, relative, low, said in checks:
+        got = _bar(values, floor, relative, low)
+        if got is None:
+            continue
+        flags, m = got
         for j in np.flatnonzero(flags):
-            out.setdefault(int(ids[j]), []).append(said(int(j)))
+            out.setdefault(int(ids[j]), []).append(said(int(j), m))
     return {k: "; ".join(v) for k, v in sorted(out.items())}
 
 
+def _line(ids: np.ndarray, y: np.ndarray, keep: np.ndarray) -> tuple[float, float, float] | None:
+    """A straight line fitted to ``y`` by pair id: its values at the first and the last pair
+    and its slope in standard errors; None for fewer than :data:`MIN_PAIRS` pairs."""
+    ok = keep & np.isfinite(y)
+    if np.count_nonzero(ok) < MIN_PAIRS:
+        return None
+    x, yy = ids[ok] - ids[ok].mean(), y[ok]
+    sxx = float(x @ x)
+    if sxx <= 0:
+        return None
+    slope = float(x @ (yy - yy.mean())) / sxx
+    resid = yy - yy.mean() - slope * x
+    se = float(np.sqrt(resid @ resid / (yy.size - 2) / sxx))
+    start, end = (float(yy.mean() + slope * v) for v in (x.min(), x.max()))
+    return start, end, (abs(slope) / se if se > 0 else np.inf)
+
+
 def trends(s: dict[str, np.ndarray], outliers: dict[int, str]) -> dict[str, str]:
-    """What drifts over the run (module docstring): ``"displacement"`` and ``"valid"`` -> one
-    line each, from a straight line fitted to the pairs by id (those of ``outliers`` left out);
-    empty for fewer than :data:`MIN_PAIRS` pairs or no drift."""
+    """What drifts over the run (module docstring): ``"displacement"``, ``"valid"``,
+    ``"seeding"``, ``"signal_A"``/``"_B"``, ``"background_A"``/``"_B"`` -> one line each, from
+    a straight line fitted to the pairs by id (those of ``outliers`` left out); a change is
+    relative to the line's value at the first pair, the valid share's in points and a
+    background's in counts against the particle images' signal. Empty for fewer than
+    :data:`MIN_PAIRS` pairs or no drift."""
     ids = np.asarray(s["pair"], float)
     keep = ~np.isin(s["pair"], np.fromiter(outliers, np.int64, len(outliers)))
     along, _, (du, dv) = along_run(s)
+    nan = np.full(ids.shape, np.nan)
+
+    def col(name: str) -> np.ndarray:
+        return np.asarray(s.get(name, nan), float)
+
+    def pct(a: float, b: float) -> str:
+        return f"{100 * (b - a) / a:+.1f} %"
+
+    tail = "from the first pair to the last (a fitted line, {:.0f} standard errors)"
+    # (key, values, the bar: a share of the first value, or counts/points, what it says)
+    specs = [
+        ("displacement", along, TREND_SHARE, True, lambda a, b, t: (
+            f"the mean displacement along the run's median ({du:.2f}, {dv:.2f}) px changes by "
+            f"{pct(a, b)} {t}: the flow's speed drifts over the run (the tunnel, its "
+            "temperature?) or the pairs span too few of the flow's largest scales; the "
+            "statistics average over it")),
+        ("valid", col("valid"), TREND_VALID, False, lambda a, b, t: (
+            f"the share of valid vectors changes from {100 * a:.0f} % to {100 * b:.0f} % {t}: "
+            "the seeding, the optics or the laser's energy change over the run")),
+        ("seeding", col("counted"), TREND_COUNT, True, lambda a, b, t: (
+            f"the particle images counted per px change from {a:.4f} to {b:.4f} ({pct(a, b)}) "
+            f"{t}: the seeder or the mixing changes over the run")),
+    ]
+    for f in "AB":
+        sig = col(f"signal_{f.lower()}")
+        m = float(np.nanmedian(sig)) if np.any(np.isfinite(sig)) else np.nan
+        specs += [
+            (f"signal_{f}", sig, TREND_SIGNAL, True, lambda a, b, t, f=f: (
+                f"frame {f}'s particle images change in brightness from {a:.0f} to {b:.0f} "
+                f"counts ({pct(a, b)}) {t}: the laser's energy or the sheet's position drifts")),
+            (f"background_{f}", col(f"background_{f.lower()}"), TREND_BACKGROUND * m, False,
+             lambda a, b, t, f=f, m=m: (
+                f"frame {f}'s background changes from {a:.0f} to {b:.0f} counts "
+                f"({abs(b - a) / m:.1f} times the particle images' signal) {t}: a background "
+                "over the whole run leaves the rest in the frames; a sliding window of frames "
+                "([preprocess] background_window) follows it")),
+        ]  # fmt: skip
     out: dict[str, str] = {}
-    for key, y, floor in (("displacement", along, TREND_SHARE), ("valid", s["valid"], TREND_VALID)):
-        ok = keep & np.isfinite(y)
-        if np.count_nonzero(ok) < MIN_PAIRS:
+    for key, y, bar, relative, said in specs:
+        got = _line(ids, y, keep) if np.isfinite(bar) else None
+        if got is None:
             continue
-        x, yy = ids[ok] - ids[ok].mean(), y[ok]
-        sxx = float(x @ x)
-        if sxx <= 0:
+        a, b, sigmas = got
+        size = abs(b - a) / abs(a) if relative else abs(b - a)
+        if relative and a == 0:
             continue
-        slope = float(x @ (yy - yy.mean())) / sxx
-        resid = yy - yy.mean() - slope * x
-        se = float(np.sqrt(resid @ resid / (yy.size - 2) / sxx))
-        change = slope * float(np.ptp(ids[ok]))
-        if abs(change) <= floor or abs(slope) < TREND_SIGMAS * se:
-            continue
-        sigmas = abs(slope) / se if se > 0 else np.inf
-        if key == "displacement":
-            out[key] = (
-                f"the mean displacement along the run's median ({du:.2f}, {dv:.2f}) px changes "
-                f"by {100 * change:+.1f} % from the first pair to the last (a fitted line, "
-                f"{sigmas:.0f} standard errors): the flow's speed drifts over the run (the "
-                "tunnel, its temperature?) or the pairs span too few of the flow's largest "
-                "scales; the statistics average over it"
-            )
-        else:
-            out[key] = (
-                f"the share of valid vectors changes by {100 * change:+.1f} points from the first "
-                f"pair to the last (a fitted line, {sigmas:.0f} standard errors): the seeding, "
-                "the optics or the laser's energy change over the run"
-            )
+        if size > bar and sigmas >= TREND_SIGMAS:
+            out[key] = said(a, b, tail.format(sigmas))
     return out
 
 

@@ -41,7 +41,8 @@ CHECKPOINT_FORMAT = "rspiv-checkpoint"
 CHECKPOINT_VERSION = 3
 #: Stages timed per pair (s), in the run log and the report: ``read`` (the wait for the frames
 #: when they are read ahead), ``condition`` (the frames' preprocessing), ``dewarp`` (Method I),
-#: ``piv`` (with Method II's mapping and the correlation check), ``statistics``, ``ensemble``.
+#: ``piv`` (with Method II's mapping, the correlation check and the pair's figures,
+#: :mod:`rspiv.campaign.pair_quality`), ``statistics``, ``ensemble``.
 STAGES = ("read", "condition", "dewarp", "piv", "statistics", "ensemble")
 
 
@@ -251,8 +252,9 @@ class PairResult:
         warning; its vectors are in the statistics, random ones among them. Empty otherwise.
     quality : dict
         Run name -> the pair's figures (:func:`rspiv.campaign.pair_quality.measure`: the
-        valid share, the median peak ratio, the mean displacement); empty when the PIV did
-        not run to the end.
+        valid share, the median peak ratio, the mean displacement; and the frames' as
+        recorded, :func:`rspiv.recording_drift.pair_brightness`); empty when the PIV did not
+        run to the end.
     """
 
     pair_id: int
