@@ -393,8 +393,8 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
         from rspiv.plots.pairs import plot_pairs  # deferred: matplotlib
 
         path = camp.out_dir / "report" / "figures" / "pairs.png"
-        along, _, median = along_run(s)
-        path = plot_pairs(path, s, along, median, outliers)
+        along, across, median = along_run(s)
+        path = plot_pairs(path, s, along, across, median, outliers)
         figures.append((path, f"{main.label}: each pair over the run"))
     except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
         camp.say(f"pairs figure failed: {exc}")
