@@ -60,5 +60,5 @@ def plot_pairs(
             ax.legend(loc="best")
         ax.set_ylabel(label)
     axes[-1].set_xlabel("pair")
-    axes[0].set_title(f"{ids.size} pairs over the run (median displacement ({du:.2f}, {dv:.2f}) px)")
+    axes[0].set_title(f"{ids.size} pairs over the run, median displacement ({du:.2f}, {dv:.2f}) px")
     return _save(fig, pathlib.Path(path), dpi)
