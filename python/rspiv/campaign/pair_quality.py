@@ -1,11 +1,14 @@
 """Each pair's quality over a campaign: pairs whose frames are in reverse order left out, and
 the pairs unlike the rest of their run said.
 
-Per pair and run (:func:`measure`, in the pair's work, a few ms at 47 MP): the share of the
+Per pair and run (:func:`measure`, in the pair's work, 14 ms at 47 MP): the share of the
 final grid's windows (not masked) whose vectors enter the statistics (``valid``), the median
 peak ratio of those vectors (``peak_ratio``), and their mean displacement (``u``, ``v``, px per
-pair in the run's frame). The figures go to the run log's ``pair`` event (``quality``, with the
-context's fingerprint), so that the series survives an interruption, Dask chunks and shards.
+pair in the run's frame); and per pair its frames as recorded
+(:func:`rspiv.recording_drift.pair_brightness`, 20 ms at 47 MP: ``counted``, ``signal_a``,
+``signal_b``, ``background_a``, ``background_b``). The figures go to the run log's ``pair``
+event (``quality``, with the context's fingerprint), so that the series survives an
+interruption, Dask chunks and shards; pairs logged by an older rspiv have none.
 
 **Frames in reverse order** (:mod:`rspiv.recording_drift`): a campaign's preparation takes the
 run's direction from the pairs its drift check samples (``[images] check_pairs``,
@@ -23,14 +26,17 @@ spread, :data:`OUTLIER_SPREADS` of them, and never less than a fixed share): a m
 displacement along the run's median one (when that is :data:`MIN_SCREEN_PX` or longer) off by
 more than :data:`ALONG_SHARE` of it (another pulse separation, an uneven frame rate, a pairing
 unlike the others) or across it by more than :data:`ACROSS_PX` (the camera or one laser sheet
-moved between the exposures), a share of valid vectors more than
-:data:`VALID_DROP` under the median (a bubble, a misfire of part of the sheet), a median peak
-ratio under :data:`PEAK_SHARE` of the median (a weak pulse, fog). What drifts over the run is
-said too (:func:`trends`: the mean displacement, a tunnel's speed; the valid share, the seeding
-or the optics), from a straight line through the pairs. The pairs unlike the run stay in the
-statistics (a real flow has rare events; only the user can tell): they are said in the log,
-``summary.json`` (``pair_outliers``) and the report, and can be left out by ``[images]
-exclude_pairs``. ``OUT/pairs_<run>.csv`` holds every pair's figures.
+moved between the exposures), a share of valid vectors more than :data:`VALID_DROP` under the
+median (a bubble, a misfire of part of the sheet), a median peak ratio under :data:`PEAK_SHARE`
+of the median (fog, particle images out of focus), a frame's particle images under
+:data:`SIGNAL_SHARE` of their median brightness (a weak or missed laser pulse, which may
+correlate as well as any other), or fewer particle images counted than
+:data:`rspiv.recording.MIN_SEEDING_SHARE` of the median. What drifts over the run is said too
+(:func:`trends`: the mean displacement, a tunnel's speed; the valid share; each frame's
+brightness and background; the seeding), from a straight line through the pairs. The pairs
+unlike the run stay in the statistics (a real flow has rare events; only the user can tell):
+they are said in the log, ``summary.json`` (``pair_outliers``) and the report, and can be left
+out by ``[images] exclude_pairs``. ``OUT/pairs_<run>.csv`` holds every pair's figures.
 """
 
 from __future__ import annotations
