@@ -204,19 +204,24 @@ def test_the_runs_direction_from_sampled_pairs():
     assert "fewer than two" in flow_direction(ids[:2], [(5.0, 0), (np.nan, np.nan)]).note
 
 
+def _series(rng, n: int, step: int, *, valid: float, u: float) -> dict[str, np.ndarray]:
+    """A run's series of ``n`` pairs (ids ``step`` apart) scattered as a turbulent run's: the
+    valid share about 0.97 and the mean displacement about (15, 0) px, with the given relative
+    scatters, the peak ratio about 5."""
+    return {
+        "pair": np.arange(n) * step,
+        "valid": 0.97 + valid * rng.standard_normal(n),
+        "peak_ratio": 5.0 + 0.2 * rng.standard_normal(n),
+        "u": 15.0 * (1 + u * rng.standard_normal(n)),
+        "v": 0.02 * rng.standard_normal(n),
+    }
+
+
 def test_the_screen_names_each_kind_of_outlier():
     """A constructed series: one pair of twice the displacement, one displaced sideways, one
     with a third of its vectors lost, one correlating weakly; the others scattered as a
     turbulent run's are."""
-    rng = np.random.default_rng(7)
-    n = 40
-    s = {
-        "pair": np.arange(n) * 3,
-        "valid": 0.97 + 0.005 * rng.standard_normal(n),
-        "peak_ratio": 5.0 + 0.2 * rng.standard_normal(n),
-        "u": 15.0 * (1 + 0.03 * rng.standard_normal(n)),
-        "v": 0.02 * rng.standard_normal(n),
-    }
+    s = _series(np.random.default_rng(7), 40, 3, valid=0.005, u=0.03)
     assert pq.screen(s) == {}
     s["u"][5] *= 2.0
     s["valid"][11] = 0.64
@@ -282,13 +287,7 @@ def test_a_drift_over_the_run_is_said():
     rng = np.random.default_rng(11)
     n = 60
     t = np.linspace(0.0, 1.0, n)
-    steady = {
-        "pair": np.arange(n) * 5,
-        "valid": 0.97 + 0.003 * rng.standard_normal(n),
-        "peak_ratio": 5.0 + 0.2 * rng.standard_normal(n),
-        "u": 15.0 * (1 + 0.005 * rng.standard_normal(n)),
-        "v": 0.02 * rng.standard_normal(n),
-    }
+    steady = _series(rng, n, 5, valid=0.003, u=0.005)
     lone = {k: v.copy() for k, v in steady.items()}
     lone["u"][-1] *= 2.0  # said as unlike the run, and left out of the line
     outliers = pq.screen(lone)
