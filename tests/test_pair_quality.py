@@ -80,9 +80,18 @@ def runs(tmp_path_factory):
     f = tifffile.imread(path).astype(np.float64)
     bg = np.median(f)
     tifffile.imwrite(path, (bg + 0.35 * (f - bg)).clip(0, 4095).round().astype(np.uint16))
+    # a run whose frames go both ways: pairs 2, 5, 6 and 7 (pair 6 swapped above) reversed
+    both = d / "raw_both"
+    both.mkdir()
+    for k in range(SCENE.pairs):
+        ab = ("b", "a") if k in (2, 5, 7) else ("a", "b")
+        for dst, src in zip(("a", "b"), ab, strict=True):
+            (both / f"pair_{k:05d}_{dst}.tif").symlink_to(raw / f"pair_{k:05d}_{src}.tif")
     text = toml.read_text()
     files = {
         "said": _toml(text, "out"),
+        "both": _toml(text, "out_both").replace("check_pairs = 5", "check_pairs = 10")
+        .replace('glob = "raw/*.tif"', 'glob = "raw_both/*.tif"'),
         "excluded": _toml(text, "out_excluded", exclude_pairs=f"[{SWAPPED}]"),
         "unsampled": _toml(text, "out_unsampled").replace("check_pairs = 5", "check_pairs = 1"),
     }
@@ -167,6 +176,23 @@ def test_without_sampled_pairs_reversed_frames_are_not_looked_for(runs):
     assert set(res.pair_quality["outliers"]) == {DIM, MISTIMED, SWAPPED, SHAKEN}
 
 
+def test_frames_going_both_ways_leave_nothing_out(runs):
+    """Four of ten sampled pairs reversed: either way may be the right one, so no direction is
+    taken and nothing is left out; the preparation says so, and the screen names the four."""
+    _, out = runs
+    camp, res = out["both"]
+    assert not res.skipped and res.n_done == SCENE.pairs
+    summary = json.loads((res.out_dir / "summary.json").read_text())
+    assert summary["reversed_pairs"]["direction"] is None
+    assert "both ways (6 one way, 4 the other: pairs 2, 5, 6, 7)" in (
+        summary["reversed_pairs"]["note"]
+    )
+    assert "leaves no pair out" in summary["recording_warnings"]["drift_reversed"]
+    unlike = res.pair_quality["outliers"]
+    assert {2, 5, 6, 7} <= set(unlike)
+    assert all("-0.9" in unlike[k] or "-1.0" in unlike[k] for k in (2, 5, 6, 7))
+
+
 def test_excluding_a_pair_the_checkpoint_holds_is_refused(runs, tmp_path):
     """A pair excluded after it entered the checkpoint: one line naming exclude_pairs."""
     d, out = runs
@@ -200,6 +226,10 @@ def test_the_runs_direction_from_sampled_pairs():
     fd = flow_direction(ids, turning)
     assert fd.displacement is None and "pair 20" in fd.note and "changes" in fd.note
     assert flow_direction(ids[:4], steady[:2] + [(-12, 0), (-12, 0)]).displacement is None
+    # two of five the other way: either may be right; no direction, both sides named
+    fd = flow_direction(ids, steady[:3] + [(-12.1, -0.4), (-11.9, -0.5)])
+    assert fd.displacement is None and fd.reversed == [30, 40] and fd.pairs == [0, 10, 20]
+    assert "both ways (3 one way, 2 the other: pairs 30, 40)" in fd.note
     assert "under 1 px" in flow_direction(ids[:2], [(0.3, 0.1), (0.2, 0.1)]).note
     assert "fewer than two" in flow_direction(ids[:2], [(5.0, 0), (np.nan, np.nan)]).note
 

@@ -16,8 +16,8 @@ of 20 px adds 1.6 px^2 (the variance of a ``u_rms`` of 1.3 px), and the skewness
 go wild. Nothing in a single
 field tells it; only the run does. :func:`flow_direction` takes the sampled pairs' median
 displacements: where they agree on one direction (every pair's displacement along the run's
-median is at least half of it, or at most minus a half, more pairs the one way than the other,
-and the median at least 1 px), it gives that direction, which a campaign holds each pair's
+median is at least half of it, or at most minus a half; at most a quarter of them the other
+way; the median at least 1 px), it gives that direction, which a campaign holds each pair's
 mean displacement against (:mod:`rspiv.campaign.pair_quality`); where the flow's mean turns
 (a wake, an oscillating flow, a flow at rest), it says why no direction is given rather than
 guess.
@@ -50,6 +50,7 @@ from rspiv.recording import (
 
 __all__ = [
     "MAX_SIGNAL_RATIO",
+    "MAX_REVERSED_SHARE",
     "MIN_DIRECTION_PX",
     "STEADY_SHARE",
     "FlowDirection",
@@ -64,8 +65,9 @@ MAX_SIGNAL_RATIO = 1.5
 #: A run's direction is given only where every sampled pair's median displacement along it is
 #: at least this share of its length, or at most minus this share (the other way: reversed).
 STEADY_SHARE = 0.5
-#: ... and where the run's median displacement is at least this long (px).
-MIN_DIRECTION_PX = 1.0
+#: ... and where the run's median displacement is at least this long (px), and at most this
+#: share of the samples displace the other way.
+MIN_DIRECTION_PX, MAX_REVERSED_SHARE = 1.0, 0.25
 #: The bands of 64 px rows :func:`pair_brightness` measures.
 STRIPES = 2
 
@@ -142,15 +144,17 @@ def flow_direction(
             f"{along[j]:.2f} of the sampled pairs' ({ref[0]:.2f}, {ref[1]:.2f}) px along it: the "
             "flow's direction changes over the run",
         )  # fmt: skip
-    if np.count_nonzero(forward) <= np.count_nonzero(back):
-        return FlowDirection(
-            None, [], [],
-            f"as many sampled pairs displace one way as the other ({np.count_nonzero(forward)} "
-            f"and {np.count_nonzero(back)})",
-        )  # fmt: skip
-    ref = np.median(d[forward], axis=0)
     fwd = [k for k, f in zip(keep, forward, strict=True) if f]
     rev = [k for k, b in zip(keep, back, strict=True) if b]
+    if len(rev) > MAX_REVERSED_SHARE * len(keep):
+        # a minority that large may as well be the right way: refuse to choose
+        return FlowDirection(
+            None, fwd, rev,
+            f"the sampled pairs displace both ways ({len(fwd)} one way, {len(rev)} the other: "
+            f"pairs {', '.join(map(str, rev))}): frames in reverse order in a large part of the "
+            "run? Which way the flow goes cannot be told from the samples",
+        )  # fmt: skip
+    ref = np.median(d[forward], axis=0)
     return FlowDirection((float(ref[0]), float(ref[1])), fwd, rev)
 
 
@@ -337,7 +341,7 @@ def check_drift(
                 "([preprocess] background_window) follows it"
             )
     direction = flow_direction(ids, uvs)
-    if direction.reversed:
+    if direction.reversed and direction.displacement is not None:
         dx, dy = direction.displacement
         which = ", ".join(str(k) for k in direction.reversed)
         said["reversed"] = (
@@ -345,6 +349,11 @@ def check_drift(
             "frames A and B in reverse order there (a dropped frame, a pairing shifted by one "
             "frame)? Such a pair measures the flow backwards and passes every test within its "
             "field; a campaign leaves pairs that point the other way out"
+        )
+    elif direction.reversed:
+        said["reversed"] = (
+            f"{direction.note}; a campaign then leaves no pair out: check the pairing and the "
+            "frames' order before the run"
         )
     return RecordingDrift(
         ids,

@@ -21,7 +21,10 @@ frame by the mapping's Jacobian at the frame's centre). Where the samples give n
 out and the campaign says why.
 
 **Pairs unlike the run** (:func:`screen`, at the end of the run, from the series of the main
-run): robust scores against the run's median (a median absolute deviation times 1.4826 as the
+run): a pair whose mean displacement is at most :data:`REVERSED_SHARE` of the run's median (the
+median of the pairs that go its way) points the other way (frames in reverse order where no
+direction was taken before the run, or the samples went both ways); then robust scores against
+the run's median (a median absolute deviation times 1.4826 as the
 spread, :data:`OUTLIER_SPREADS` of them, and never less than a fixed share): a mean
 displacement along the run's median one (when that is :data:`MIN_SCREEN_PX` or longer) off by
 more than :data:`ALONG_SHARE` of it (another pulse separation, an uneven frame rate, a pairing
@@ -205,12 +208,21 @@ def along_run(
     """Each pair's mean displacement along the run's median one (in units of its length) and
     across it (px, positive to its left in the image: counter-clockwise from it with y down),
     and that median ``(u, v)`` px; both NaN when the median is under :data:`MIN_SCREEN_PX`."""
-    du, dv = float(np.nanmedian(s["u"])), float(np.nanmedian(s["v"]))
+    u, v = np.asarray(s["u"], float), np.asarray(s["v"], float)
+    nan = np.full(u.shape, np.nan)
+    du, dv = np.nan, np.nan
+    if np.any(np.isfinite(u)):
+        du, dv = float(np.nanmedian(u)), float(np.nanmedian(v))
+        # the median of the pairs that go its way: a run whose frames go both ways in part has
+        # a median between the two
+        with np.errstate(invalid="ignore"):
+            ahead = u * du + v * dv > 0
+        if np.any(ahead):
+            du, dv = float(np.median(u[ahead])), float(np.median(v[ahead]))
     n2 = du * du + dv * dv
     if not np.isfinite(n2) or n2 < MIN_SCREEN_PX**2:
-        nan = np.full(s["u"].shape, np.nan)
         return nan, nan.copy(), (du, dv)
-    return (s["u"] * du + s["v"] * dv) / n2, (s["v"] * du - s["u"] * dv) / np.sqrt(n2), (du, dv)
+    return (u * du + v * dv) / n2, (v * du - u * dv) / np.sqrt(n2), (du, dv)
 
 
 def _bar(x: np.ndarray, floor: float, relative: bool, low: bool):
@@ -233,6 +245,9 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
         return {}
     along, across, (du, dv) = along_run(s)
     nan = np.full(ids.shape, np.nan)
+    with np.errstate(invalid="ignore"):
+        back = along <= REVERSED_SHARE
+    ahead = np.where(back, np.nan, along)  # the spread of the pairs that go the run's way
 
     def col(name: str) -> np.ndarray:
         return s.get(name, nan)
@@ -242,7 +257,7 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
 
     # (values, floor, relative, low only, what it says for pair j against the median m)
     checks = (
-        (along, ALONG_SHARE, True, False, lambda j, m: (
+        (ahead, ALONG_SHARE, True, False, lambda j, m: (
             f"mean displacement ({s['u'][j]:.2f}, {s['v'][j]:.2f}) px, {along[j]:.2f} times the "
             f"run's median ({du:.2f}, {dv:.2f}) px along it (another pulse separation or frame "
             "interval, another pairing?)")),
@@ -266,6 +281,12 @@ def screen(s: dict[str, np.ndarray]) -> dict[int, str]:
             "(the seeding thins, a bubble?)")),
     )  # fmt: skip
     out: dict[int, list[str]] = {}
+    for j in np.flatnonzero(back):
+        out[int(ids[j])] = [
+            f"mean displacement ({s['u'][j]:.2f}, {s['v'][j]:.2f}) px, {along[j]:.2f} times the "
+            f"run's median ({du:.2f}, {dv:.2f}) px: the other way (frames A and B in reverse "
+            "order?)"
+        ]
     for values, floor, relative, low, said in checks:
         got = _bar(values, floor, relative, low)
         if got is None:
