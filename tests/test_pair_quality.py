@@ -334,3 +334,23 @@ def test_a_drift_over_the_run_is_said():
     change = float(got["displacement"].split("changes by ")[1].split(" %")[0])
     assert change == pytest.approx(2.0, abs=0.3)
     assert "changes from 97 % to 90 %" in got["valid"]
+
+
+def test_bad_input_is_refused_in_one_line():
+    """The new public functions refuse what they cannot measure, naming it."""
+    from rspiv.recording_drift import pair_brightness
+
+    a = np.zeros((128, 128), np.uint16)
+    with pytest.raises(InvalidInputError, match="2D arrays of one shape"):
+        pair_brightness(a, a[:64], None)
+    with pytest.raises(InvalidInputError, match="2D arrays of one shape"):
+        pair_brightness(a[0], a[0], None)
+    # frames of two dtypes are measured each as it is
+    got = pair_brightness(a, a.astype(np.float32), None)
+    assert got["background_a"] == got["background_b"] == 0
+    with pytest.raises(InvalidInputError, match="the mask is"):
+        pair_brightness(a, a, np.zeros((64, 64), bool))
+    with pytest.raises(InvalidInputError, match="one \\(u, v\\) displacement per pair id"):
+        flow_direction([0, 1, 2], [(1.0, 0.0), (1.0, 0.0)])
+    with pytest.raises(InvalidInputError, match="one \\(u, v\\) displacement per pair id"):
+        flow_direction([0], [1.0, 0.0, 3.0])

@@ -116,9 +116,19 @@ def flow_direction(
     Returns
     -------
     FlowDirection
+
+    Raises
+    ------
+    InvalidInputError
+        Displacements that are not ``(u, v)`` pairs, or not one per id.
     """
-    d = np.asarray(displacement, float).reshape(-1, 2)
+    d = np.asarray(displacement, float)
     ids = [int(k) for k in ids]
+    if d.ndim != 2 or d.shape[1:] != (2,) or d.shape[0] != len(ids):
+        raise InvalidInputError(
+            f"flow_direction: expected one (u, v) displacement per pair id ({len(ids)}), got an "
+            f"array of shape {d.shape}"
+        )
     ok = np.all(np.isfinite(d), axis=1)
     if np.count_nonzero(ok) < 2:
         return FlowDirection(None, [], [], "fewer than two of the sampled pairs correlate")
@@ -242,7 +252,22 @@ def pair_brightness(
     per pair.
 
     The pair loop of a campaign keeps them for every pair (:mod:`rspiv.campaign.pair_quality`):
-    a weak laser pulse, the seeding running out or the background creeping, pair by pair."""
+    a weak laser pulse, the seeding running out or the background creeping, pair by pair.
+
+    Raises
+    ------
+    InvalidInputError
+        Frames that are not 2D arrays of one shape, or a mask of another shape.
+    """
+    a, b = np.asarray(a), np.asarray(b)
+    if a.ndim != 2 or a.shape != b.shape:
+        raise InvalidInputError(
+            f"pair_brightness: frames must be 2D arrays of one shape, got {a.shape} and {b.shape}"
+        )
+    if mask is not None and np.shape(mask) != a.shape:
+        raise InvalidInputError(
+            f"pair_brightness: the mask is {np.shape(mask)}, the frames {a.shape}"
+        )
     y0, y1 = (0, a.shape[0]) if rows is None else (max(int(rows[0]), 0), int(rows[1]))
     y1 = min(y1, a.shape[0])
     if y1 - y0 > stripes * BLOCK:
