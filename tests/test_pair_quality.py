@@ -225,7 +225,8 @@ def test_the_runs_direction_from_sampled_pairs():
     turning = steady[:2] + [(2.0, 0.1)] + steady[3:]
     fd = flow_direction(ids, turning)
     assert fd.displacement is None and "pair 20" in fd.note and "changes" in fd.note
-    assert flow_direction(ids[:4], steady[:2] + [(-12, 0), (-12, 0)]).displacement is None
+    tied = flow_direction(ids[:4], steady[:2] + [(-12, 0), (-12, 0)])
+    assert tied.displacement is None and "both ways (2 one way, 2 the other" in tied.note
     # two of five the other way: either may be right; no direction, both sides named
     fd = flow_direction(ids, steady[:3] + [(-12.1, -0.4), (-11.9, -0.5)])
     assert fd.displacement is None and fd.reversed == [30, 40] and fd.pairs == [0, 10, 20]

@@ -15,9 +15,10 @@ among ``N`` adds ``4 U^2 / N`` to the variance of ``u``, so one in a thousand pa
 of 20 px adds 1.6 px^2 (the variance of a ``u_rms`` of 1.3 px), and the skewness and flatness
 go wild. Nothing in a single
 field tells it; only the run does. :func:`flow_direction` takes the sampled pairs' median
-displacements: where they agree on one direction (every pair's displacement along the run's
-median is at least half of it, or at most minus a half; at most a quarter of them the other
-way; the median at least 1 px), it gives that direction, which a campaign holds each pair's
+displacements: where they agree on one direction (along the axis they share, turned the way
+most of them go, every pair's displacement is at least half of their median, or at most minus
+half; at most a quarter of them the other way; their median length at least 1 px), it gives that
+direction, which a campaign holds each pair's
 mean displacement against (:mod:`rspiv.campaign.pair_quality`); where the flow's mean turns
 (a wake, an oscillating flow, a flow at rest), it says why no direction is given rather than
 guess.
@@ -134,15 +135,20 @@ def flow_direction(
         return FlowDirection(None, [], [], "fewer than two of the sampled pairs correlate")
     keep = [k for k, o in zip(ids, ok, strict=True) if o]
     d = d[ok]
-    ref = np.median(d, axis=0)
-    length = float(np.hypot(*ref))
+    length = float(np.median(np.hypot(d[:, 0], d[:, 1])))
     if length < MIN_DIRECTION_PX:
         return FlowDirection(
             None, [], [],
-            f"the sampled pairs' median displacement ({ref[0]:.2f}, {ref[1]:.2f}) px is under "
+            f"the sampled pairs' median displacement is {length:.2f} px, under "
             f"{MIN_DIRECTION_PX:g} px",
         )  # fmt: skip
-    along = d @ ref / length**2
+    # the axis the displacements share (the principal one), turned the way most of them go
+    axis = np.linalg.eigh(d.T @ d)[1][:, -1]
+    proj = d @ axis
+    if np.count_nonzero(proj > 0) < np.count_nonzero(proj < 0):
+        axis, proj = -axis, -proj
+    ref = axis * float(np.median(np.abs(proj)))
+    along = proj / float(np.median(np.abs(proj)))
     forward = along >= STEADY_SHARE
     back = along <= -STEADY_SHARE
     unsteady = ~(forward | back)
