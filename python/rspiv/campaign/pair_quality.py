@@ -427,8 +427,9 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
         camp.say(f"pairs figure failed: {exc}")
     rev = reversed_ids(res)
     text = (
-        f"Each of the {s['pair'].size} pairs' share of valid vectors, median peak ratio and mean "
-        f"displacement (`pairs_{main.name}.csv`)."
+        f"Each of the {s['pair'].size} pairs' mean displacement along and across the run's "
+        "median, share of valid vectors, median peak ratio and its frames' brightness "
+        f"(`pairs_{main.name}.csv`, with the particle images counted and the backgrounds)."
     )
     if rev:
         text += (
