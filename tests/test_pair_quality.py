@@ -355,3 +355,21 @@ def test_bad_input_is_refused_in_one_line():
         flow_direction([0, 1, 2], [(1.0, 0.0), (1.0, 0.0)])
     with pytest.raises(InvalidInputError, match="one \\(u, v\\) displacement per pair id"):
         flow_direction([0], [1.0, 0.0, 3.0])
+
+
+def test_correlated_pairs_do_not_make_a_drift():
+    """Successive pairs of a time-resolved recording share the flow's slow scales: an AR(1)
+    scatter of lag-1 correlation 0.95 and 3 % (about five independent samples in 200 pairs)
+    has no drift, and none is said in 20 runs; without the correlation's allowance 9 of them
+    read one (a fitted line at 5 naive standard errors and over 1 %)."""
+    n, rho = 200, 0.95
+    said = 0
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        e = np.zeros(n)
+        for i in range(1, n):  # an AR(1) series: 200 values, not pixels
+            e[i] = rho * e[i - 1] + np.sqrt(1 - rho**2) * rng.standard_normal()
+        s = _series(rng, n, 1, valid=0.003, u=0.0)
+        s["u"] = 15.0 * (1 + 0.03 * e)
+        said += "displacement" in pq.trends(s, {})
+    assert said == 0

@@ -36,7 +36,9 @@ of the median (fog, particle images out of focus), a frame's particle images und
 correlate as well as any other), or fewer particle images counted than
 :data:`rspiv.recording.MIN_SEEDING_SHARE` of the median. What drifts over the run is said too
 (:func:`trends`: the mean displacement, a tunnel's speed; the valid share; each frame's
-brightness and background; the seeding), from a straight line through the pairs. The pairs
+brightness and background; the seeding), from a straight line through the pairs (its slope's
+standard error allowing for the residuals' lag-1 correlation: successive pairs of a
+time-resolved recording share the flow's slow scales). The pairs
 unlike the run stay in the statistics (a real flow has rare events; only the user can tell):
 they are said in the log, ``summary.json`` (``pair_outliers``) and the report, and can be left
 out by ``[images] exclude_pairs``. ``OUT/pairs_<run>.csv`` holds every pair's figures.
@@ -310,6 +312,13 @@ def _line(ids: np.ndarray, y: np.ndarray, keep: np.ndarray) -> tuple[float, floa
     slope = float(x @ (yy - yy.mean())) / sxx
     resid = yy - yy.mean() - slope * x
     se = float(np.sqrt(resid @ resid / (yy.size - 2) / sxx))
+    # successive pairs that share the flow's slow scales (a time-resolved recording) leave
+    # correlated residuals: the slope's error grows by sqrt((1 + r) / (1 - r)) for a lag-1
+    # correlation r (an AR(1) model of the residuals)
+    r2 = float(resid @ resid)
+    r = float(resid[1:] @ resid[:-1]) / r2 if r2 > 0 else 0.0
+    r = min(max(r, 0.0), 0.95)
+    se *= np.sqrt((1 + r) / (1 - r))
     start, end = (float(yy.mean() + slope * v) for v in (x.min(), x.max()))
     return start, end, (abs(slope) / se if se > 0 else np.inf)
 
