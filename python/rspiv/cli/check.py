@@ -7,8 +7,9 @@ coarse pass) and the passes it recommends, then one ``warning:`` line per concer
 checks the passes a campaign will use as well. For a campaign file, the same for its first pair
 with the campaign's passes, mask and region of interest, then
 :func:`rspiv.recording_drift.check_drift` over ``--samples`` pairs spread evenly over the run
-(seeding, background, brightness). ``--json FILE`` writes every figure. The exit status is 0
-when the check ran (warnings included), 2 for input it cannot read.
+(seeding, background, brightness, displacement and the run's direction). ``--json FILE``
+writes every figure. The exit status is 0 when the check ran (warnings included), 2 for input it
+cannot read.
 """
 
 from __future__ import annotations
