@@ -447,16 +447,7 @@ def check_recording(
 
     # the displacement
     good, same, correlates = _correlation_state(field)
-    if same:
-        med = p99 = (np.nan, np.nan)
-        gradient = np.nan
-        said["same_frames"] = (
-            f"frames A and B are the same pixels (median correlation coefficient "
-            f"{float(np.median(field.coef[good])):.4f}): frame A given twice, or a static "
-            "pattern that hides the particle images; no displacement measured and no passes "
-            "recommended"
-        )
-    elif correlates:
+    if correlates:
         med = median_displacement(field)
         p99 = (
             float(np.percentile(np.abs(field.u[good]), 99)),
@@ -468,14 +459,22 @@ def check_recording(
         )[good]
         across = across[np.isfinite(across)]
         gradient = float(np.percentile(across, 95)) if across.size else np.nan
-    else:
+    else:  # no displacement measured: frame A given twice, or frames that do not correlate
         med = p99 = (np.nan, np.nan)
         gradient = np.nan
-        said["correlation"] = (
-            f"the frames do not correlate ({field.warning() or 'no window correlated'}; windows "
-            f"up to {cw} px): no displacement measured and no passes recommended; check the "
-            "pairing, both exposures and the laser timing"
-        )
+        if same:
+            said["same_frames"] = (
+                f"frames A and B are the same pixels (median correlation coefficient "
+                f"{float(np.median(field.coef[good])):.4f}): frame A given twice, or a static "
+                "pattern that hides the particle images; no displacement measured and no passes "
+                "recommended"
+            )
+        else:
+            said["correlation"] = (
+                f"the frames do not correlate ({field.warning() or 'no window correlated'}; "
+                f"windows up to {cw} px): no displacement measured and no passes recommended; "
+                "check the pairing, both exposures and the laser timing"
+            )
     pr = field.peak_ratio[~field.masked & (field.peak_ratio > 0)]
     peak_ratio = float(np.median(pr)) if pr.size else np.nan
     live = ~field.masked
