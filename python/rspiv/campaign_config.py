@@ -35,6 +35,8 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # (0: off; under 2: reversed pairs are not looked for)
     exclude_pairs = []           # pair ids (0-based positions in the pair list) left out,
                                  # e.g. the pairs summary.json's pair_outliers names
+                                 # (a finished campaign with [output] fields re-reduces
+                                 # its statistics from the field files, without the PIV)
 
     [correction]
     method = "II"                # "I" (dewarp images, then PIV) | "II" (PIV, then map) | "none"

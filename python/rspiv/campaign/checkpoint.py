@@ -1,8 +1,10 @@
 """Checkpoints of a campaign run: the accumulators and the finished pair ids, written atomically
 every ``checkpoint_every`` pairs and at the end to ``OUT/checkpoint/``; a restarted run (local or
 Dask, either way round) loads them and skips the finished pairs. A checkpoint carries the
-fingerprint of the :class:`PairContext` it was written for and is refused for another one, and
-the identity of every finished pair (:func:`pair_key`: its files' names and frame indices), so
+fingerprint of the :class:`PairContext` it was written for and is refused for another one
+(unless only the statistics planned beside the fields changed, and the fields are kept: its
+statistics are then summed again from the field files, :mod:`rspiv.campaign.rereduce`, as they
+are when finished pairs were left out since), and the identity of every finished pair (:func:`pair_key`: its files' names and frame indices), so
 that a pair list that changed under the finished ids (files added, removed or renamed before
 them, another ``[images] pairing``) is refused rather than resumed with the wrong frames.
 """
@@ -22,7 +24,7 @@ from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_bytes
 from rspiv.stats import FieldAccumulator
 
-__all__ = ["checkpoint_path", "load_checkpoint", "pair_key", "save_checkpoint"]
+__all__ = ["checkpoint_path", "load_checkpoint", "pair_key", "save_checkpoint", "stale_error"]
 
 
 def pair_key(pair: PairSpec) -> int:
@@ -85,6 +87,8 @@ def save_checkpoint(
         "format": CHECKPOINT_FORMAT,
         "version": CHECKPOINT_VERSION,
         "fingerprint": ctx.fingerprint(),
+        # what decides the pairs' fields: statistics re-reduced from field files of this hash
+        "fields_fingerprint": ctx.fields_fingerprint(),
         "shard": list(shard),
         "finished": ids,
         "accumulators": accs,
@@ -95,7 +99,11 @@ def save_checkpoint(
     atomic_write_bytes(path, pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL))
 
 def load_checkpoint(
-    path: pathlib.Path, ctx: PairContext, pairs: Mapping[int, PairSpec] | None = None
+    path: pathlib.Path,
+    ctx: PairContext,
+    pairs: Mapping[int, PairSpec] | None = None,
+    *,
+    stale_ok: bool = False,
 ) -> dict[str, Any] | None:
     """Read the checkpoint ``path`` written by :func:`save_checkpoint`.
 
@@ -106,18 +114,28 @@ def load_checkpoint(
     pairs : mapping of int to PairSpec, optional
         The campaign's pairs by id now: every finished pair must still be the same frames
         (checkpoints written without the pairs' identities are not checked).
+    stale_ok : bool
+        Return a checkpoint of another configuration, or one holding finished pairs that are
+        no longer among ``pairs`` (left out by ``[images] exclude_pairs`` or ``max_pairs``),
+        rather than refuse it; its ``stale`` entry then says how it is stale (the caller
+        re-reduces the statistics without those pairs, :mod:`rspiv.campaign.rereduce`, or
+        raises :func:`stale_error`). A finished pair that is now other frames is refused
+        either way.
 
     Returns
     -------
     dict or None
         The state (keys ``accumulators``, ``finished``, ``timings``, ``shard``, ...), or
-        None when there is no checkpoint.
+        None when there is no checkpoint. With ``stale_ok`` also ``stale``: ``{"config":
+        bool (written for another fingerprint), "gone": [finished ids no longer among
+        pairs]}``.
 
     Raises
     ------
     InvalidInputError
-        The checkpoint is corrupt, of another checkpoint version or belongs to another
-        configuration, or a finished pair is no longer the same frames.
+        The checkpoint is corrupt or of another checkpoint version, a finished pair is no
+        longer the same frames, or (without ``stale_ok``) it belongs to another configuration
+        or holds a pair no longer in the campaign.
     """
     if not path.is_file():
         return None
@@ -135,27 +153,46 @@ def load_checkpoint(
             f"{CHECKPOINT_VERSION} (its sums do not add to the old ones); delete the checkpoint "
             "folder or choose another output folder"
         )
-    if state.get("fingerprint") != ctx.fingerprint():
-        raise InvalidInputError(
-            f"{path}: checkpoint of a different configuration (calibration, PIV, runs or the "
-            "statistics carried with the pairs changed); delete the checkpoint folder or choose "
-            "another output folder"
-        )
+    stale = {"config": state.get("fingerprint") != ctx.fingerprint(), "gone": []}
+    if pairs is not None:
+        stale["gone"] = [i for i in state["finished"] if i not in pairs]
+    if not stale_ok and (stale["config"] or stale["gone"]):
+        raise stale_error(path, stale, len(pairs or ()))
     if pairs is not None and "pair_keys" in state:
         for i, key in zip(state["finished"], state["pair_keys"].tolist(), strict=True):
             p = pairs.get(i)
-            if p is None or pair_key(p) != key:
-                what = (
-                    f"is not among the campaign's {len(pairs)} pairs now"
-                    if p is None
-                    else f"is now {p.describe()}, other frames than when it was processed"
-                )
+            if p is not None and pair_key(p) != key:
                 raise InvalidInputError(
                     f"{path}: the pair list changed under the checkpoint: finished pair {i} "
-                    f"{what} (files added, removed or renamed before it, or another [images] "
-                    "pairing, max_pairs or exclude_pairs); delete the checkpoint folder or choose "
-                    "another output folder"
+                    f"is now {p.describe()}, other frames than when it was processed (files "
+                    "added, removed or renamed before it, or another [images] pairing); delete "
+                    "the checkpoint folder or choose another output folder"
                 )
+    if stale_ok:
+        state["stale"] = stale
     return state
 
-# ------------------------------------------------------------------ run
+
+def stale_error(
+    path: pathlib.Path, stale: dict[str, Any], n_pairs: int, why_not: str = ""
+) -> InvalidInputError:
+    """The one-line refusal of a stale checkpoint (:func:`load_checkpoint`'s ``stale``):
+    another configuration, or finished pairs no longer in the campaign; ``why_not`` says why
+    its statistics could not be re-reduced from the field files instead."""
+    if stale["config"]:
+        what = (
+            "checkpoint of a different configuration (calibration, PIV, runs or the statistics "
+            "carried with the pairs changed)"
+        )
+    else:
+        gone = stale["gone"]
+        what = (
+            f"the pair list changed under the checkpoint: finished pair {gone[0]} is not among "
+            f"the campaign's {n_pairs} pairs now (left out by [images] exclude_pairs or "
+            "max_pairs, or files removed)"
+        )
+    tail = f"; its statistics cannot be re-reduced from the pairs' field files: {why_not}"
+    return InvalidInputError(
+        f"{path}: {what}{tail if why_not else ''}; delete the checkpoint folder or choose "
+        "another output folder"
+    )

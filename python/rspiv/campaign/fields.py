@@ -19,20 +19,30 @@ Variables, dims ``(y, x)``
     ``sigma_u``, ``sigma_v`` (float32, px): each vector's standard uncertainty, when the
     campaign estimates it (``[piv] uncertainty``).
 
+Variables, dim ``replaced``
+    ``replaced_index`` (int64: the flat row-major index in the ``(y, x)`` grid), ``replaced_u``,
+    ``replaced_v`` (float32, px): the PIV's replacements of the vectors not valid (interpolated
+    from their neighbours; the streamwise spectra take them in rows that are mostly valid), so
+    that a campaign can re-reduce its statistics from the files (:func:`read_pair`).
+
 Coordinates
     ``x``, ``y`` (px): the window centres of the final pass in that frame (the grid of the
     statistics files before they are scaled and turned to the wall).
 
 Attributes
     ``pair_id``, ``frame_a``, ``frame_b`` (the files, with ``[index]`` for a page of a stack),
-    ``run``, ``method``, ``campaign``; ``dt_s`` (``[flow] dt``, when given) and ``m_per_px``
-    (from the calibration, when there is one): ``u m_per_px / dt_s`` is in m/s.
+    ``run``, ``method``, ``campaign``, ``fields_fingerprint`` (the context's
+    :meth:`~rspiv.campaign.spec.PairContext.fields_fingerprint`: a campaign re-reduces its
+    statistics from files of its own, :mod:`rspiv.campaign.rereduce`); ``dt_s`` (``[flow]
+    dt``, when given) and ``m_per_px`` (from the calibration, when there is one):
+    ``u m_per_px / dt_s`` is in m/s.
 
-Size and time: 17 bytes per vector and run, 12 MB per pair and run for a 47 MP frame with
-32 x 8 px windows at 50 % overlap (730,000 vectors): a 35,000-pair campaign with Method II and
-the uncorrected comparison writes about 0.9 TB. The two files of a pair take about 0.1 s (2
-cores, local disk); a local run writes them by a thread while the next pair is processed
-(:class:`rspiv.campaign.executors.local.LocalExecutor`), a Dask task in its chunk.
+Size and time: 17 bytes per vector and run (and 16 per replaced vector), 12 MB per pair and run
+for a 47 MP frame with 32 x 8 px windows at 50 % overlap (730,000 vectors): a 35,000-pair
+campaign with Method II and the uncorrected comparison writes about 0.9 TB. The two files of a
+pair take about 0.1 s (2 cores, local disk); a local run writes them by a thread while the next
+pair is processed (:class:`rspiv.campaign.executors.local.LocalExecutor`), a Dask task in its
+chunk.
 
 Reading them back as one dataset with a ``pair`` dimension (dask installed)::
 
@@ -61,7 +71,7 @@ from rspiv.campaign.spec import PairContext, PairResult, PairSpec
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import write_netcdf
 
-__all__ = ["FieldWriter", "each_field", "finish_pass", "grid_x", "read_field"]
+__all__ = ["FieldWriter", "each_field", "finish_pass", "grid_x", "read_field", "read_pair"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +109,9 @@ class FieldWriter:
         t0 = time.perf_counter()
         gx, gy = context.grid()
         methods = {r.name: r.method for r in context.runs}
+        fp = context._cache.get("fields_fingerprint")
+        if fp is None:  # once per process
+            fp = context._cache["fields_fingerprint"] = context.fields_fingerprint()
         dims = ("y", "x")
         for run, (u, v, valid, su, sv) in result.fields.items():
             ok = np.asarray(valid, bool)
@@ -107,6 +120,12 @@ class FieldWriter:
                 "v": (dims, np.where(ok, v, np.nan).astype(np.float32), _px("y (down)")),
                 "valid": (dims, ok.astype(np.uint8), {"long_name": "1 valid, 0 rejected"}),
             }
+            # the PIV's replacements of the vectors not valid (the two-point sums take them in
+            # rows that are mostly valid): kept apart, so that u and v stay NaN there
+            idx = np.flatnonzero(~ok & np.isfinite(u) & np.isfinite(v))
+            data["replaced_index"] = ("replaced", idx.astype(np.int64), _REPLACED)
+            for name, x in (("replaced_u", u), ("replaced_v", v)):
+                data[name] = ("replaced", np.ravel(x)[idx].astype(np.float32), _px(name[-1]))
             for name, s, axis in (("sigma_u", su, "u"), ("sigma_v", sv, "v")):
                 if s is not None:
                     data[name] = (
@@ -122,6 +141,7 @@ class FieldWriter:
                 "method": methods.get(run, ""),
                 "frame": "raw image" if methods.get(run) == "none" else "object",
                 "campaign": self.campaign,
+                "fields_fingerprint": fp,
             }
             if self.dt:
                 attrs["dt_s"] = float(self.dt)
@@ -143,6 +163,9 @@ class FieldWriter:
         return time.perf_counter() - t0
 
 
+_REPLACED = {"long_name": "flat (row-major) index of a vector not valid that the PIV replaced"}
+
+
 def _frame(path: str, index: int | None) -> str:
     """A frame's file, with ``[index]`` for a page of a stack."""
     return path if index is None else f"{path}[{index}]"
@@ -153,23 +176,43 @@ def _px(axis: str) -> dict[str, str]:
 
 
 def read_field(
-    path: pathlib.Path, shape: tuple[int, int], run: str, rows: slice | None = None
-) -> tuple[np.ndarray, ...]:
-    """``u, v, valid`` of a field file of ``run`` (rows ``rows`` only, when given).
+    path: pathlib.Path,
+    shape: tuple[int, int],
+    run: str,
+    rows: slice | None = None,
+    sigmas: bool = False,
+    fingerprint: str | None = None,
+) -> tuple[np.ndarray | None, ...]:
+    """``u, v, valid`` of a field file of ``run`` (rows ``rows`` only, when given), as stored
+    (float32, float32, uint8; u and v NaN where not valid).
+
+    Parameters
+    ----------
+    sigmas : bool
+        Also return ``sigma_u, sigma_v`` (float32, NaN where not valid; None when the file has
+        none).
+    fingerprint : str, optional
+        The file must carry this ``fields_fingerprint`` (a file written by another
+        configuration, or by an rspiv before the attribute, is refused).
 
     Raises
     ------
     InvalidInputError
-        The file cannot be read, is another run's, or its grid is not ``shape``.
+        The file cannot be read, is another run's or of another fingerprint, or its grid is not
+        ``shape``.
     """
     import h5py  # deferred: only a second pass reads fields
 
     try:
         with h5py.File(path, "r") as f:
-            got = f.attrs.get("run")
-            got = got.decode() if isinstance(got, bytes) else got
-            if got is not None and str(got) != run:
+            got = _text(f.attrs.get("run"))
+            if got is not None and got != run:
                 raise InvalidInputError(f"{path}: a field of run {got!r}, not {run!r}")
+            if fingerprint is not None and _text(f.attrs.get("fields_fingerprint")) != fingerprint:
+                raise InvalidInputError(
+                    f"{path}: a field of another configuration (fields_fingerprint "
+                    f"{_text(f.attrs.get('fields_fingerprint'))}, the campaign's is {fingerprint})"
+                )
             ds = [f[k] for k in ("u", "v", "valid")]
             if any(d.shape != shape for d in ds):
                 s = ds[0].shape
@@ -178,9 +221,50 @@ def read_field(
                     f"{shape[1]} x {shape[0]}"
                 )
             sel = slice(None) if rows is None else rows
-            return tuple(np.asarray(d[sel]) for d in ds)
+            out = [np.asarray(d[sel]) for d in ds]
+            if sigmas:
+                has = "sigma_u" in f and "sigma_v" in f
+                out += [np.asarray(f[k][sel]) if has else None for k in ("sigma_u", "sigma_v")]
+            return tuple(out)
     except (OSError, KeyError) as exc:
         raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
+
+
+def read_pair(
+    path: pathlib.Path, shape: tuple[int, int], run: str, fingerprint: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """A field file of ``run`` as the pair loop gave it to the statistics (``(u, v, valid,
+    sigma_u, sigma_v)``, :attr:`rspiv.campaign.spec.PairResult.fields`): float64, the PIV's
+    replacements back in ``u`` and ``v``; equal to the loop's to the float32 rounding of the
+    file (about 6e-8 of each value).
+
+    Raises
+    ------
+    InvalidInputError
+        :func:`read_field`'s, and a file without its replacements (written by an rspiv before
+        them).
+    """
+    import h5py  # deferred: only a re-reduction reads them
+
+    u, v, valid, su, sv = read_field(path, shape, run, sigmas=True, fingerprint=fingerprint)
+    u, v = u.astype(np.float64), v.astype(np.float64)
+    try:
+        with h5py.File(path, "r") as f:
+            idx = np.asarray(f["replaced_index"], np.int64)
+            u.flat[idx] = np.asarray(f["replaced_u"], np.float64)
+            v.flat[idx] = np.asarray(f["replaced_v"], np.float64)
+    except (OSError, KeyError, IndexError) as exc:
+        raise InvalidInputError(f"{path}: no readable replaced vectors ({exc})") from None
+    if su is not None:
+        su, sv = su.astype(np.float64), sv.astype(np.float64)
+    return u, v, valid.astype(bool), su, sv
+
+
+def _text(value: Any) -> str | None:
+    """An HDF5 attribute as text (None when absent)."""
+    if value is None:
+        return None
+    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 def grid_x(path: pathlib.Path) -> np.ndarray:

@@ -31,6 +31,7 @@ from rspiv.recording_drift import pair_brightness
 
 __all__ = [
     "FrameCache",
+    "band_pair",
     "process_pair",
     "read_ahead",
     "read_checked_pair",
@@ -244,12 +245,8 @@ def process_pair(
                 fields[run.name] = _field_arrays(raw, context, False)
                 ens_frames[run.name] = (ens_a, ens_b, mask)
             elif run.method == "I":
-                # Method I; the zero fill stays unmasked: _field_arrays keeps only the vectors
-                # whose windows lie inside the recorded image
-                da, db, dmask = dewarp_pair(
-                    a, b, context.mapping, object_shape=context.object_shape, mask=mask,
-                    zero_fill="keep",
-                )  # fmt: skip
+                # Method I
+                da, db, dmask = _dewarp(context, a, b, mask)
                 t["dewarp"] += time.perf_counter() - t0
                 t0 = time.perf_counter()
                 f = run_grid(da, db, settings, dmask)
@@ -258,10 +255,7 @@ def process_pair(
                 fields[run.name] = _field_arrays(f, context, True)
                 if ensembles.get(run.name) is not None and ens_pre is not None:
                     t0 = time.perf_counter()
-                    da, db, dmask = dewarp_pair(
-                        ens_a, ens_b, context.mapping, object_shape=context.object_shape,
-                        mask=mask, zero_fill="keep",
-                    )  # fmt: skip
+                    da, db, dmask = _dewarp(context, ens_a, ens_b, mask)
                     t["dewarp"] += time.perf_counter() - t0
                 ens_frames[run.name] = (da, db, dmask)
             elif run.method == "II":
@@ -311,13 +305,57 @@ def process_pair(
         return PairResult(pair.pair_id, False, reason, timings=t, quality=quality)
     # the ensemble bands last: a pair is either in every statistic or in none
     t0 = time.perf_counter()
-    raw = None
-    if ensembles:  # the bands count the pixels saturated in the recorded frames
-        raw = (*frames, [saturation_level(f) for f in frames])
+    if ensembles:
+        _add_to_bands(context, ensembles, ens_frames, frames)
+    t["ensemble"] = time.perf_counter() - t0
+    return PairResult(pair.pair_id, True, "", fields, t, warning, quality)
+
+
+def _dewarp(context: PairContext, a: np.ndarray, b: np.ndarray, mask: Any) -> tuple[Any, ...]:
+    """Method I's frames A and B and mask in the object frame; the zero fill stays unmasked
+    (:func:`_field_arrays` keeps only the vectors whose windows lie inside the recorded
+    image)."""
+    return dewarp_pair(
+        a, b, context.mapping, object_shape=context.object_shape, mask=mask, zero_fill="keep"
+    )
+
+
+def _add_to_bands(
+    context: PairContext,
+    ensembles: dict[str, Any],
+    ens_frames: dict[str, tuple[Any, Any, Any]],
+    frames: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """Add a pair to every run's ensemble band: ``ens_frames`` run name -> the frames and mask
+    the band correlates; ``frames`` the pair as recorded (the bands count its saturated
+    pixels)."""
+    raw = (*frames, [saturation_level(f) for f in frames])
     for run in context.runs:
         band = ensembles.get(run.name)
         if band is not None:
             fa, fb, fm = ens_frames[run.name]
             ensemble_work.accumulate(context, run, band, fa, fb, fm, raw=raw)
-    t["ensemble"] = time.perf_counter() - t0
-    return PairResult(pair.pair_id, True, "", fields, t, warning, quality)
+
+
+def band_pair(
+    context: PairContext, frames: tuple[np.ndarray, np.ndarray], ensembles: dict[str, Any]
+) -> None:
+    """Add a pair already in the statistics to the runs' ensemble bands only, without its PIV
+    (:mod:`rspiv.campaign.rereduce`): the frames conditioned and (Method I) dewarped as
+    :func:`process_pair` does for the bands.
+
+    ``ensembles``: run name -> ``(windows, single-pixel)`` band accumulators
+    (:func:`rspiv.campaign.ensemble.band_accumulators`), added to in place.
+    """
+    pre = context.ensemble_preprocess()
+    if pre is None:
+        a, b = context.condition(*frames)
+    else:
+        a, b = condition_pair(*frames, pre, context.backgrounds())
+    mask = context.mask()
+    ens_frames = {
+        run.name: _dewarp(context, a, b, mask) if run.method == "I" else (a, b, mask)
+        for run in context.runs
+        if ensembles.get(run.name) is not None
+    }
+    _add_to_bands(context, ensembles, ens_frames, frames)

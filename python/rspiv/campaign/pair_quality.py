@@ -451,7 +451,9 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
     if outliers:
         text += (
             f"\n\nWarning: {len(outliers)} pair(s) are unlike the rest of the run and are in the "
-            "statistics; list them in `[images] exclude_pairs` to leave them out."
+            "statistics; list them in `[images] exclude_pairs` to leave them out (with "
+            "`[output] fields = true` the statistics are then summed again from the field "
+            "files, without the PIV)."
         )
         rows = [{"pair": k, "unlike the run": v} for k, v in list(outliers.items())[:50]]
         tables.append(ReportTable("Pairs unlike the run", rows))
@@ -480,7 +482,8 @@ def warning_lines(res: Any) -> list[str]:
         out.append(
             f"{len(unlike)} pair(s) are unlike the rest of the run (pairs {_shown(list(unlike))}; "
             "summary.json pair_outliers, pairs_<run>.csv): they are in the statistics; "
-            "[images] exclude_pairs leaves them out"
+            "[images] exclude_pairs leaves them out (re-reduced from the field files when "
+            "[output] fields is on)"
         )
     return out
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import tifffile
 
-from rspiv.campaign import checkpoint
+from rspiv.campaign import checkpoint, rereduce
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
 from rspiv.campaign.fields import FieldWriter
@@ -241,7 +241,9 @@ class Campaign:
         """Prepare the run and resume it from the checkpoint.
 
         Routes the campaign's messages to ``progress`` (unless a ``log`` callable was given),
-        runs :meth:`prepare`, loads the checkpoint (:meth:`load_checkpoint`) or starts new
+        runs :meth:`prepare`, loads the checkpoint (:meth:`load_checkpoint`; one holding pairs
+        left out since, or written before the statistics planned beside the fields changed, is
+        re-reduced from the field files: :mod:`rspiv.campaign.rereduce`) or starts new
         accumulators, and lists the pairs still to do.
 
         Parameters
@@ -258,7 +260,9 @@ class Campaign:
         ctx = self.prepare(state.all_pairs)
         state.t_prepare = time.perf_counter() - t0
         state.ctx = ctx
-        ckpt = self.load_checkpoint(ctx)
+        # a checkpoint holding pairs left out since, or written before the statistics planned
+        # beside the fields changed: re-reduced from the field files when they are kept
+        ckpt = rereduce.resume(self, state, ctx)
         if ckpt is not None:
             state.accs = ckpt["accumulators"]
             state.finished = set(ckpt["finished"])

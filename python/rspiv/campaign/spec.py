@@ -227,8 +227,24 @@ class PairContext:
 
     def fingerprint(self) -> str:
         """Hash of everything that changes the per-pair results (checkpoints must match)."""
-        text = json.dumps(self.to_dict(), sort_keys=True)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        return _hash(self.to_dict())
+
+    def fields_fingerprint(self) -> str:
+        """Hash of what decides each pair's vector fields and whether the pair is kept: the
+        context without the statistics planned beside them (the ensemble bands, the two-point
+        sums, the vorticity). Carried by each field file (:mod:`rspiv.campaign.fields`) and
+        checkpoint: statistics can be re-reduced from field files of the same hash
+        (:mod:`rspiv.campaign.rereduce`)."""
+        d = self.to_dict()
+        for key in ("ensemble", "two_point", "vorticity"):
+            d.pop(key, None)
+        return _hash(d)
+
+
+def _hash(d: dict[str, Any]) -> str:
+    """16 hex digits of the SHA-256 of ``d`` as sorted JSON."""
+    text = json.dumps(d, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 @dataclasses.dataclass
