@@ -4,9 +4,10 @@ Dask, either way round) loads them and skips the finished pairs. A checkpoint ca
 fingerprint of the :class:`PairContext` it was written for and is refused for another one
 (unless only the statistics planned beside the fields changed, and the fields are kept: its
 statistics are then summed again from the field files, :mod:`rspiv.campaign.rereduce`, as they
-are when finished pairs were left out since), and the identity of every finished pair (:func:`pair_key`: its files' names and frame indices), so
-that a pair list that changed under the finished ids (files added, removed or renamed before
-them, another ``[images] pairing``) is refused rather than resumed with the wrong frames.
+are when finished pairs were left out since), and the identity of every finished pair
+(:func:`pair_key`: its files' names and frame indices), so that a pair list that changed under
+the finished ids (files added, removed or renamed before them, another ``[images] pairing``) is
+refused rather than resumed with the wrong frames.
 """
 
 from __future__ import annotations
