@@ -126,6 +126,9 @@ def test_pairs_left_out_are_re_reduced_from_the_fields_without_the_piv(runs):
     events = [json.loads(line) for line in (d / "out" / "run_log.jsonl").open()]
     rer = [e for e in events if e["event"] == "rereduced"]
     assert len(rer) == 1 and rer[0]["left_out"] == [LEFT_OUT] and rer[0]["pairs"] == FIRST - 1
+    summary = json.loads((d / "out" / "summary.json").read_text())
+    assert summary["excluded_pairs"] == [LEFT_OUT]
+    assert summary["rereduced"]["left_out"] == [LEFT_OUT]
     rows = (d / "out" / "pairs_method_II.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in rows] == sorted(kept)
     # the checkpoint now holds the kept pairs: the next run resumes them all

@@ -557,6 +557,10 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             summary[key] = camp.info[key]
     if cfg.images.pairing_info() is not None:
         summary["pairing"] = cfg.images.pairing_info()
+    if cfg.images.exclude_pairs:
+        summary["excluded_pairs"] = sorted(cfg.images.exclude_pairs)
+    if "rereduced" in camp.info:  # this run summed the checkpoint's pairs again from the fields
+        summary["rereduced"] = camp.info["rereduced"]
     if cfg.output.fields:  # each pair's fields, written by the pair loop
         fields_dir = out / "fields"
         summary["fields"] = {

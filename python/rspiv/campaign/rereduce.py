@@ -32,8 +32,9 @@ What equals what
     rounding of the stored fields (about 6e-8 of each displacement: 1e-6 px at 20 px); the
     lag-1 chains join across a pair left out as they do in the fresh run. A pair's figures and
     warning (the run log's ``pair`` and ``warning`` events) are carried over to a new context
-    fingerprint, so that the pairs' series, screen and warnings see it. The run log has a
-    ``rereduced`` event (the pairs, those left out, the seconds).
+    fingerprint, so that the pairs' series, screen and warnings see it. The run log and that
+    run's ``summary.json`` have a ``rereduced`` entry (the pairs, those left out, whether the
+    context changed, the seconds); ``summary.json`` lists ``excluded_pairs`` in every run.
 """
 
 from __future__ import annotations
@@ -158,6 +159,11 @@ def _rebuild(
         seconds=round(seconds, 3), fingerprint=ctx.fingerprint(),
     )  # fmt: skip
     camp.say(f"checkpoint: {len(ids)} pair(s) re-reduced in {seconds:.1f} s")
+    # for this run's summary.json (prepare wrote context.json's info before)
+    camp.info["rereduced"] = {
+        "pairs": len(ids), "left_out": gone, "config": stale["config"],
+        "seconds": round(seconds, 3),
+    }  # fmt: skip
     camp.save_checkpoint(ctx, accs, set(ids), timings)
     return {**ck, "accumulators": accs, "finished": ids, "timings": timings}
 
