@@ -21,12 +21,15 @@ Usage::
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --roi-rows 0.25
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --two-point
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --extras
+    python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --rereduce
     python benches/bench_campaign.py --scales 0.146 0.505 1.0 --methods II --threads 1 2 --no-peer
 
 Prints a Markdown table (for benches/RESULTS.md). With ``--threads``, each configuration runs
 once per thread count (``RAYON_NUM_THREADS``, the pool every rspiv kernel runs on) and a scaling
 table follows: the loop's seconds per pair and per megapixel, and the speed-up over one thread
-(scales 0.146 / 0.505 / 1.0 are 1 / 12 / 47 MP sensors).
+(scales 0.146 / 0.505 / 1.0 are 1 / 12 / 47 MP sensors). With ``--rereduce`` each pair's
+fields are written and the campaign runs again with pair 1 left out: its statistics summed again
+from the field files (:mod:`rspiv.campaign.rereduce`), in seconds per pair against the PIV's.
 """
 
 from __future__ import annotations
@@ -57,7 +60,9 @@ cfg.statistics.two_point = os.environ.get("RSPIV_BENCH_TWO_POINT") == "1"
 extras = os.environ.get("RSPIV_BENCH_EXTRAS") == "1"
 cfg.statistics.vorticity = cfg.statistics.quadrant = extras
 cfg.statistics.pod = cfg.statistics.vortices = extras
-cfg.output.fields = extras
+# each pair's fields, and a second run with pair 1 left out, summed again from them
+rereduce = os.environ.get("RSPIV_BENCH_REREDUCE") == "1"
+cfg.output.fields = extras or rereduce
 
 cfg.calibration.monte_carlo_samples = 0
 cfg.output.report = False
@@ -92,7 +97,16 @@ run_s = time.perf_counter() - t2
 wall = time.perf_counter() - t0
 t = res.timings
 n = res.n_done
-print(json.dumps({
+rer = {}
+if rereduce:
+    _pair.process_pair = _process
+    cfg.images.exclude_pairs = [1]
+    again = Campaign(cfg, progress=False, out_dir=out, pilot_pairs=camp.pilot_pairs)
+    t3 = time.perf_counter()
+    again.run()
+    done = again.info["rereduced"]
+    rer = {"rereduce_s": done["seconds"] / done["pairs"], "rerun_s": time.perf_counter() - t3}
+print(json.dumps({**rer,
     "pairs": n, "total_s": wall,
     # the pair loop's wall time: the run without its analysis and outputs
     "loop_s": run_s - t.get("analysis", 0.0),
@@ -141,6 +155,12 @@ def main() -> int:
         help="keep the synthetic campaign's vorticity statistics, fields, quadrant, POD, vortices",
     )
     ap.add_argument(
+        "--rereduce",
+        action="store_true",
+        help="write each pair's fields, then run again with pair 1 left out: the statistics "
+        "summed again from the field files (s per pair against the PIV's)",
+    )
+    ap.add_argument(
         "--roi-rows",
         type=float,
         default=None,
@@ -182,6 +202,7 @@ def main() -> int:
                     env["RAYON_NUM_THREADS"] = str(threads)
                 env["RSPIV_BENCH_TWO_POINT"] = "1" if args.two_point else "0"
                 env["RSPIV_BENCH_EXTRAS"] = "1" if args.extras else "0"
+                env["RSPIV_BENCH_REREDUCE"] = "1" if args.rereduce else "0"
                 roi = [] if args.roi_rows is None else [str(args.roi_rows)]
                 r = subprocess.run(
                     [sys.executable, "-c", CHILD, str(toml), method, str(out), *roi],
@@ -227,6 +248,20 @@ def main() -> int:
             f"{m['statistics']:.3f} | "
             f"{m['prepare_s']:.1f} | {m['peak_rss_mb']:.0f} | {m['prepare_peak_mb']:.0f} |"
         )
+    if any("rereduce_s" in m for m in rows):
+        print()
+        print(
+            "| sensor | method | PIV s per pair | re-reduced s per pair | PIV / re-reduced | "
+            "second run s |"
+        )
+        print("|---|---|---|---|---|---|")
+        for m in rows:
+            if "rereduce_s" in m:
+                print(
+                    f"| {m['mp']:.1f} MP | {m['method']} | {m['piv']:.2f} | "
+                    f"{m['rereduce_s']:.2f} | {m['piv'] / m['rereduce_s']:.1f} | "
+                    f"{m['rerun_s']:.1f} |"
+                )
     if any(m["threads"] is not None for m in rows):
         print()
         print("| sensor | method | threads | s per pair | s per MP | speed-up over 1 thread |")
