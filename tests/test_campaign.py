@@ -758,7 +758,8 @@ def test_particle_images_too_small_are_said_once(tmp_path, capsys):
     """A campaign whose particle images are 1.6 px (the demo's scene at a nominal 1.2 px):
     measured once on the first pair as recorded, said as peak locking and, with the default
     near-wall preprocessing, as the hot-pixel rule's harm: in ``summary.json``, the report and
-    on ``rspiv process``'s stderr; the demo's 2.7 px images are not warned."""
+    on ``rspiv process``'s stderr (and the locking measured over the pairs, once); the demo's
+    2.7 px images are not warned."""
     d = tmp_path / "small"
     synth_campaign(d, scene=dataclasses.replace(SCENE, diameter=1.2))
     cfg = load_campaign_config(d / "campaign.toml")
@@ -770,8 +771,11 @@ def test_particle_images_too_small_are_said_once(tmp_path, capsys):
     capsys.readouterr()
     assert main(["process", str(toml), "-q", "-o", str(tmp_path / "out")]) == 0
     err = capsys.readouterr().err
-    size = err.count("warning: ") - err.count("warning: recording: ")
+    measured = err.count("warning: peak locking measured")
+    size = err.count("warning: ") - err.count("warning: recording: ") - measured
     assert size == 2 and "peak locking" in err and "hot-pixel rule" in err, err
+    # the lean measured from the displacements' histogram too (rspiv.peak_locking), once
+    assert measured == 1, err
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert max(summary["particle_diameter_px"]) < 1.9, summary["particle_diameter_px"]
     assert set(summary["particle_size_warnings"]) == {"peak_locking", "hot_pixels"}

@@ -25,6 +25,7 @@ from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
 from rspiv.particle_size import particle_diameter
+from rspiv.peak_locking import locking_amplitude
 from rspiv.piv import PivField, piv, piv_at, window_response
 from rspiv.pod import PodResult, pod
 from rspiv.quadrant import QuadrantAccumulator, gaussian_quadrant
@@ -52,3 +53,4 @@ __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
 __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]
+__all__ += ["locking_amplitude"]

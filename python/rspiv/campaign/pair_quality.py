@@ -3,8 +3,11 @@ the pairs unlike the rest of their run said.
 
 Per pair and run (:func:`measure`, in the pair's work, 14 ms at 47 MP): the share of the
 final grid's windows (not masked) whose vectors enter the statistics (``valid``), the median
-peak ratio of those vectors (``peak_ratio``), and their mean displacement (``u``, ``v``, px per
-pair in the run's frame); and per pair its frames as recorded
+peak ratio of those vectors (``peak_ratio``), their mean displacement (``u``, ``v``, px per
+pair in the run's frame) and their lean towards whole pixels (``locking``, px:
+:func:`rspiv.peak_locking.locking_amplitude`, 13 ms at 47 MP; the run's peak locking,
+:func:`rspiv.peak_locking.campaign_locking`, is said at the end); and per pair its frames as
+recorded
 (:func:`rspiv.recording_drift.pair_brightness`, 20 ms at 47 MP: ``counted``, ``signal_a``,
 ``signal_b``, ``background_a``, ``background_b``). The figures go to the run log's ``pair``
 event (``quality``, with the context's fingerprint), so that the series survives an
@@ -54,6 +57,12 @@ import numpy as np
 
 from rspiv.campaign.spec import PairContext, RunSpec
 from rspiv.outputs import atomic_write_text
+from rspiv.peak_locking import (
+    LOCKING_SAID_PX,
+    campaign_locking,
+    locking_amplitude,
+    locking_said,
+)
 from rspiv.recording import MIN_SEEDING_SHARE
 from rspiv.report import ReportSection, ReportTable
 
@@ -115,7 +124,7 @@ TREND_SIGNAL, TREND_COUNT, TREND_BACKGROUND = 0.25, 0.3, 0.5
 #: Each pair's frames as recorded (:func:`rspiv.recording_drift.pair_brightness`).
 FRAME_FIGURES = ("counted", "signal_a", "signal_b", "background_a", "background_b")
 #: The figures per pair and run, in the log and ``pairs_<run>.csv``.
-FIGURES = ("valid", "peak_ratio", "u", "v", *FRAME_FIGURES)
+FIGURES = ("valid", "peak_ratio", "u", "v", "locking", *FRAME_FIGURES)
 
 
 def measure(field: Any, arrays: tuple) -> dict[str, float]:
@@ -125,7 +134,8 @@ def measure(field: Any, arrays: tuple) -> dict[str, float]:
     live = max(int(np.count_nonzero(~np.asarray(field.masked, bool))), 1)
     n = int(np.count_nonzero(valid))
     if n == 0:
-        return {"valid": 0.0, "peak_ratio": float("nan"), "u": float("nan"), "v": float("nan")}
+        nan = float("nan")
+        return {"valid": 0.0, "peak_ratio": nan, "u": nan, "v": nan, "locking": nan}
     pr = np.asarray(field.peak_ratio)[valid]
     pr = pr[pr > 0]
     return {
@@ -133,6 +143,7 @@ def measure(field: Any, arrays: tuple) -> dict[str, float]:
         "peak_ratio": round(float(np.median(pr)), 4) if pr.size else float("nan"),
         "u": round(float(np.mean(u, where=valid)), 5),
         "v": round(float(np.mean(v, where=valid)), 5),
+        "locking": round(locking_amplitude(u, v, valid), 5),
     }
 
 
@@ -413,7 +424,8 @@ def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
             w.writerow([*row, outliers.get(int(pid), "") if run.name == main else ""])
         path = camp.out_dir / f"pairs_{run.name}.csv"
         res.files[f"pairs_{run.name}"] = atomic_write_text(path, buf.getvalue())
-    return {"series": got, "outliers": outliers, "trends": drifts}
+    locking = {run: campaign_locking(s["locking"]) for run, s in got.items()}
+    return {"series": got, "outliers": outliers, "trends": drifts, "locking": locking}
 
 
 def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
@@ -447,6 +459,17 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
         )
     for line in (quality.get("trends") or {}).values():
         text += f"\n\nWarning: over the run, {line}."
+    judged, locked = locking_said(res.context.runs, quality.get("locking") or {})
+    if locked:
+        text += f"\n\nWarning: {locked}."
+    elif judged is not None:
+        got = quality["locking"][judged]
+        se = got["standard_error_px"]
+        text += (
+            f"\n\nPeak locking measured on the {judged} displacements' histogram: amplitude "
+            f"{got['amplitude_px']:.4f}" + ("" if se is None else f" +- {se:.4f}") + " px over "
+            f"{got['pairs']} pairs (said from {LOCKING_SAID_PX} px)."
+        )
     tables = []
     if outliers:
         text += (
@@ -477,6 +500,9 @@ def warning_lines(res: Any) -> list[str]:
         )
     for line in ((res.pair_quality or {}).get("trends") or {}).values():
         out.append(f"over the run, {line}")
+    _, locked = locking_said(res.context.runs, (res.pair_quality or {}).get("locking") or {})
+    if locked:
+        out.append(locked)
     unlike = (res.pair_quality or {}).get("outliers") or {}
     if unlike:
         out.append(
@@ -504,6 +530,12 @@ def summary_entries(camp: Any, res: Any) -> dict[str, Any]:
     drifts = (res.pair_quality or {}).get("trends")
     if drifts:
         out["pair_trends"] = drifts
+    locking = (res.pair_quality or {}).get("locking")
+    if locking:
+        judged, line = locking_said(res.context.runs, locking)
+        out["peak_locking"] = {"runs": locking, "judged_on": judged}
+        if line:
+            out["peak_locking"]["warning"] = line
     for line in warning_lines(res):
         camp.say(f"warning: {line}")
     return out
