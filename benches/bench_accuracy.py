@@ -57,6 +57,7 @@ import time
 
 import numpy as np
 import rspiv
+from rspiv.peak_locking import exact_amplitude
 from rspiv.synth import particle_pair
 
 CASES = {
@@ -366,10 +367,8 @@ def _locking(d, seed, preprocess=None):
     tu, tv = disp(f.x, f.y)
     ok = f.valid & ~f.replaced
     t = np.concatenate([tu[ok], tv[ok]])
-    e = np.concatenate([f.u[ok], f.v[ok]]) - t
-    x = np.stack([np.ones_like(t), np.sin(2 * np.pi * t), np.cos(2 * np.pi * t)], 1)
-    amp = -np.linalg.lstsq(x, e, rcond=None)[0][1]
-    return f, amp, float(np.sqrt(np.mean(e**2)))
+    m = np.concatenate([f.u[ok], f.v[ok]])
+    return f, exact_amplitude(t, m), float(np.sqrt(np.mean((m - t) ** 2)))
 
 
 def particle_size_table():

@@ -19,7 +19,12 @@ import rspiv
 from rspiv.campaign import Campaign
 from rspiv.demo import DEFAULT_SCENE, synth_campaign
 from rspiv.errors import InvalidInputError
-from rspiv.peak_locking import LOCKING_SAID_PX, campaign_locking, locking_amplitude
+from rspiv.peak_locking import (
+    LOCKING_SAID_PX,
+    campaign_locking,
+    exact_amplitude,
+    locking_amplitude,
+)
 from rspiv.synth.particles import particle_pair
 
 
@@ -59,6 +64,13 @@ def test_what_is_counted():
         locking_amplitude(u, u[:10])
     with pytest.raises(InvalidInputError, match="one shape"):
         locking_amplitude(u, valid=valid[:10])
+    with pytest.raises(InvalidInputError, match="arrays of numbers"):
+        locking_amplitude(["a", "b"])
+    # the reference fit against exact displacements
+    t = rng.uniform(0, 5, 10_000)
+    assert exact_amplitude(t, _biased(t, 0.02)) == pytest.approx(0.02, abs=1e-12)
+    with pytest.raises(InvalidInputError, match="as many values"):
+        exact_amplitude(t, t[:5])
     got = campaign_locking([0.01, 0.011, np.nan, 0.009, 0.0105])
     assert got["pairs"] == 4 and got["said"]
     assert got["amplitude_px"] == pytest.approx(0.010125, abs=1e-5)
@@ -90,10 +102,7 @@ def _pair(diameter, clip=1.0):
         f = rspiv.piv(a, b, passes=[(64, 64), (32, 32), (32, 8)])
     tu, tv = _ramp(f.x, f.y)
     ok = f.valid & ~f.replaced
-    t = np.concatenate([tu[ok], tv[ok]])
-    err = np.concatenate([f.u[ok], f.v[ok]]) - t
-    design = np.stack([np.ones_like(t), np.sin(2 * np.pi * t), np.cos(2 * np.pi * t)], 1)
-    exact = -np.linalg.lstsq(design, err, rcond=None)[0][1]
+    exact = exact_amplitude(np.r_[tu[ok], tv[ok]], np.r_[f.u[ok], f.v[ok]])
     return locking_amplitude(f.u, f.v, f.valid), exact, min(f.particle_diameter)
 
 

@@ -62,6 +62,7 @@ __all__ = [
     "MIN_BIN_COUNT",
     "MIN_SMOOTH_PX",
     "campaign_locking",
+    "exact_amplitude",
     "locking_amplitude",
     "locking_said",
 ]
@@ -104,11 +105,14 @@ def locking_amplitude(u: Any, v: Any = None, valid: Any = None) -> float:
     Raises
     ------
     InvalidInputError
-        ``v`` or ``valid`` of another shape than ``u``.
+        ``v`` or ``valid`` of another shape than ``u``, or not numbers.
     """
-    u = np.asarray(u, np.float64)
-    ok = np.ones(u.shape, bool) if valid is None else np.asarray(valid, bool)
-    comps = [u] if v is None else [u, np.asarray(v, np.float64)]
+    try:
+        u = np.asarray(u, np.float64)
+        ok = np.ones(u.shape, bool) if valid is None else np.asarray(valid, bool)
+        comps = [u] if v is None else [u, np.asarray(v, np.float64)]
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"u, v, valid: expected arrays of numbers ({exc})") from None
     if any(c.shape != u.shape for c in comps) or ok.shape != u.shape:
         raise InvalidInputError(
             f"u, v, valid: expected one shape, got {[c.shape for c in comps]} and {ok.shape}"
@@ -153,6 +157,27 @@ def locking_amplitude(u: Any, v: Any = None, valid: Any = None) -> float:
     design = np.stack([np.ones(n), c, s], 1) * sw[:, None]
     coef = np.linalg.lstsq(design, r * sw, rcond=None)[0]
     return float(coef[1] / (2 * np.pi))
+
+
+def exact_amplitude(true: Any, measured: Any) -> float:
+    """The amplitude ``a`` (px) of the bias ``-a sin(2 pi t)`` of ``measured`` displacements
+    against the ``true`` ones ``t`` (a least-squares fit of the error to a constant, ``sin`` and
+    ``cos`` of ``2 pi t``): the reference :func:`locking_amplitude` is checked against, where
+    the exact displacements are known (synthetic images).
+
+    Raises
+    ------
+    InvalidInputError
+        Arrays of different sizes, or fewer than three values.
+    """
+    t = np.ravel(np.asarray(true, np.float64))
+    m = np.ravel(np.asarray(measured, np.float64))
+    if t.size != m.size or t.size < 3:
+        raise InvalidInputError(
+            f"true, measured: expected as many values, at least 3, got {t.size} and {m.size}"
+        )
+    design = np.stack([np.ones_like(t), np.sin(2 * np.pi * t), np.cos(2 * np.pi * t)], 1)
+    return float(-np.linalg.lstsq(design, m - t, rcond=None)[0][1])
 
 
 def campaign_locking(values: Any) -> dict[str, Any]:
