@@ -34,11 +34,16 @@ The estimate (:func:`locking_amplitude`)
     at 1.5 px, 0.015 against 0.011 px with 2.5 px images clipped at 15 % of their peak;
     ``tests/test_peak_locking.py``).
 
-Over a campaign (:func:`campaign_locking`)
+Over a campaign (:class:`LockingHistogram`)
     Each pair's estimate per run is among the pair's figures
-    (:func:`rspiv.campaign.pair_quality.measure`, ``locking`` in ``pairs_<run>.csv``); the run's
-    amplitude is their mean, its standard error their scatter over the square root of their
-    number (the vectors of a field are not independent). It is said
+    (:func:`rspiv.campaign.pair_quality.measure`, ``locking`` in ``pairs_<run>.csv``). Each
+    run's counts are also summed over its pairs (:class:`LockingHistogram`, carried beside the
+    statistics through checkpoints, shards and Dask), in :data:`BATCHES` batches by pair id:
+    the run's amplitude is that of the pooled counts (it tells where a field of a few thousand
+    vectors alone cannot), its standard error the batches' scatter over the square root of
+    their number (the vectors of a field are not independent; three batches that tell are
+    needed). A checkpoint written before the counts falls back to the mean of the pairs' own
+    figures (:func:`campaign_locking`). It is said
     (:data:`LOCKING_SAID_PX` or more, at :data:`LOCKING_SIGMAS` standard errors or more) for a
     run that correlates in its own frame (the uncorrected run, Method I); Method II maps the
     image frame's displacements by the mapping's Jacobian, which blurs the pattern where it is
@@ -54,6 +59,7 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 
 __all__ = [
+    "BATCHES",
     "BINS_PER_PX",
     "LOCKING_SAID_PX",
     "LOCKING_SIGMAS",
@@ -61,6 +67,8 @@ __all__ = [
     "MAX_NOISE",
     "MIN_BIN_COUNT",
     "MIN_SMOOTH_PX",
+    "NBINS",
+    "LockingHistogram",
     "campaign_locking",
     "exact_amplitude",
     "locking_amplitude",
@@ -86,6 +94,10 @@ MAX_PX = 512.0
 LOCKING_SAID_PX = 0.005
 #: ... and at this many standard errors or more is said.
 LOCKING_SIGMAS = 3.0
+#: A campaign's counts are kept in this many batches of pairs (by pair id) for their error.
+BATCHES = 8
+#: Bins of a :class:`LockingHistogram` (over +-MAX_PX px).
+NBINS = int(2 * MAX_PX * BINS_PER_PX)
 
 
 def locking_amplitude(u: Any, v: Any = None, valid: Any = None) -> float:
@@ -107,27 +119,48 @@ def locking_amplitude(u: Any, v: Any = None, valid: Any = None) -> float:
     InvalidInputError
         ``v`` or ``valid`` of another shape than ``u``, or not numbers.
     """
+    u, v, ok = _arrays(u, v, valid)
+    return _estimate([_histogram(d, ok) for d in (u, v) if d is not None])
+
+
+def _arrays(u: Any, v: Any, valid: Any) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """``u``, ``v`` (None stays None) as float64 and ``valid`` as bool (default: all), checked
+    to be numbers of one shape (InvalidInputError)."""
     try:
         u = np.asarray(u, np.float64)
         ok = np.ones(u.shape, bool) if valid is None else np.asarray(valid, bool)
-        comps = [u] if v is None else [u, np.asarray(v, np.float64)]
+        v = None if v is None else np.asarray(v, np.float64)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"u, v, valid: expected arrays of numbers ({exc})") from None
-    if any(c.shape != u.shape for c in comps) or ok.shape != u.shape:
-        raise InvalidInputError(
-            f"u, v, valid: expected one shape, got {[c.shape for c in comps]} and {ok.shape}"
-        )
+    if (v is not None and v.shape != u.shape) or ok.shape != u.shape:
+        got = [u.shape, None if v is None else v.shape, ok.shape]
+        raise InvalidInputError(f"u, v, valid: expected one shape, got {got}")
+    return u, v, ok
+
+
+def _histogram(d: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, int]:
+    """Counts of the finite ``d[ok]`` within :data:`MAX_PX` in bins of 1/:data:`BINS_PER_PX`
+    px, bin ``j`` starting at ``(j + k0) / BINS_PER_PX`` px: ``(counts, k0)``, a pixel of empty
+    bins either side."""
+    x = d[ok & np.isfinite(d) & (np.abs(d) < MAX_PX)]
+    if x.size == 0:
+        return np.zeros(0, np.int64), 0
+    k = np.floor(x * BINS_PER_PX).astype(np.int64)
+    k0 = int(k.min()) - BINS_PER_PX
+    return np.bincount(k - k0, minlength=int(k.max()) - k0 + BINS_PER_PX + 1), k0
+
+
+def _estimate(hists: list[tuple[np.ndarray, int]]) -> float:
+    """The amplitude (px) from histograms ``(counts, k0)`` (:func:`_histogram`) of u and v
+    (module docstring), NaN under :data:`MIN_SMOOTH_PX` px of smooth density."""
     ratio, cos, sin, weight = [], [], [], []
     half = BINS_PER_PX // 2
     # the mean over one pixel centred on a bin (BINS_PER_PX + 1 taps, halves at the ends)
     box = np.r_[0.5, np.ones(BINS_PER_PX - 1), 0.5] / BINS_PER_PX
-    for d in comps:
-        x = d[ok & np.isfinite(d) & (np.abs(d) <= MAX_PX)]
-        if x.size == 0:
+    for counts, k0 in hists:
+        if not counts.any():
             continue
-        k = np.floor(x * BINS_PER_PX).astype(np.int64)
-        k0 = int(k.min()) - BINS_PER_PX
-        h = np.bincount(k - k0, minlength=int(k.max()) - k0 + BINS_PER_PX + 1).astype(float)
+        h = counts.astype(np.float64)
         env = np.convolve(h, box, mode="same")
         below = np.r_[np.full(half, np.inf), env[:-half]]
         above = np.r_[env[half:], np.full(half, np.inf)]
@@ -195,8 +228,8 @@ def campaign_locking(values: Any) -> dict[str, Any]:
     if a.size == 0:
         return {
             "amplitude_px": None, "standard_error_px": None, "pairs": 0, "said": False,
-            "note": "no pair's displacements spread smoothly enough over whole pixels to tell "
-            "(too few vectors per field, or displacements within a pixel or two)",
+            "note": "the displacements do not spread smoothly enough over whole pixels to tell "
+            "(too few vectors, or displacements within a pixel or two)",
         }  # fmt: skip
     mean = float(a.mean())
     se = float(a.std(ddof=1) / np.sqrt(a.size)) if a.size >= 3 else None
@@ -230,3 +263,120 @@ def locking_said(runs: Any, locking: dict[str, dict[str, Any]]) -> tuple[str | N
         "carry it): particle images under 2 px or saturated, defocus slightly or lower the "
         "laser or the gain, or smooth the frames ([preprocess] smooth)"
     )
+
+
+class LockingHistogram:
+    """A run's valid displacements counted over its pairs (u and v apart, in bins of
+    1/:data:`BINS_PER_PX` px over +-:data:`MAX_PX` px), in :data:`BATCHES` batches by pair id:
+    the amplitude of the pooled counts tells where one field is sampled too thinly, the
+    batches' scatter gives its error (module docstring). Streamed and merged exactly (a
+    campaign's checkpoints, shards and Dask chunks carry it beside the statistics).
+
+    Attributes
+    ----------
+    counts : ndarray of int64, shape (BATCHES, 2, NBINS)
+        Per batch, u (0) and v (1): the vectors in bin ``j``, which starts at ``(j - NBINS //
+        2) / BINS_PER_PX`` px.
+    pair_ids : set of int
+    n_fields : int
+    """
+
+    def __init__(self) -> None:
+        self.counts = np.zeros((BATCHES, 2, NBINS), np.int64)
+        self.pair_ids: set[int] = set()
+        self.n_fields = 0
+
+    def add(self, u: Any, v: Any = None, valid: Any = None, pair_id: int | None = None) -> None:
+        """Count one field's valid vectors, in batch ``pair_id % BATCHES`` (without an id, the
+        fields' count's).
+
+        Raises
+        ------
+        InvalidInputError
+            Arrays of different shapes or not numbers, or a pair added before.
+        """
+        if pair_id is not None and int(pair_id) in self.pair_ids:
+            raise InvalidInputError(f"locking: pair {pair_id} was added before")
+        u, v, ok = _arrays(u, v, valid)
+        batch = (self.n_fields if pair_id is None else int(pair_id)) % BATCHES
+        for c, d in enumerate((u, v)):
+            if d is None:
+                continue
+            counts, k0 = _histogram(d, ok)
+            j = k0 + NBINS // 2  # the empty pixel either side may reach past the ends
+            lo, hi = max(-j, 0), min(counts.size, NBINS - j)
+            if hi > lo:
+                self.counts[batch, c, j + lo : j + hi] += counts[lo:hi]
+        self.n_fields += 1
+        if pair_id is not None:
+            self.pair_ids.add(int(pair_id))
+
+    def merge(self, other: LockingHistogram) -> LockingHistogram:
+        """Add ``other``'s counts (no pair in both); returns self."""
+        common = self.pair_ids & other.pair_ids
+        if common:
+            raise InvalidInputError(f"locking: pair {min(common)} in both parts")
+        self.counts += other.counts
+        self.pair_ids |= other.pair_ids
+        self.n_fields += other.n_fields
+        return self
+
+    def result(self) -> dict[str, Any]:
+        """The run's peak locking: :func:`campaign_locking`'s keys, the amplitude from the
+        pooled counts and its standard error from the batches' amplitudes (their scatter over
+        the square root of their number, three batches or more that tell); ``batches`` those
+        that tell."""
+        pooled = _estimate(_trimmed(self.counts.sum(axis=0)))
+        each = np.array([_estimate(_trimmed(b)) for b in self.counts if b.any()])
+        each = each[np.isfinite(each)]
+        pairs = len(self.pair_ids) or self.n_fields
+        if not np.isfinite(pooled):
+            return {**campaign_locking([]), "pairs": pairs, "batches": 0}
+        se = float(each.std(ddof=1) / np.sqrt(each.size)) if each.size >= 3 else None
+        said = se is not None and pooled >= LOCKING_SAID_PX and pooled >= LOCKING_SIGMAS * se
+        out = {
+            "amplitude_px": round(pooled, 5),
+            "standard_error_px": None if se is None else round(se, 5),
+            "pairs": pairs,
+            "batches": int(each.size),
+            "said": bool(said),
+        }
+        if se is None:
+            out["note"] = (
+                f"no standard error: {each.size} of the {BATCHES} batches of pairs tell on their "
+                "own, 3 are needed (more pairs give one)"
+            )
+        return out
+
+    def to_dataset_vars(self) -> tuple[dict, dict]:
+        """``(variables, attrs)`` to write beside a FieldAccumulator's (``locking_counts``)."""
+        dims = ("locking_batch", "locking_component", "locking_bin")
+        return {"locking_counts": (dims, self.counts)}, {"locking_fields": int(self.n_fields)}
+
+    @classmethod
+    def from_dataset_vars(cls, ds: Any, pair_ids: Any) -> LockingHistogram:
+        """Read back :meth:`to_dataset_vars` (the pairs are the statistics')."""
+        acc = cls()
+        counts = np.asarray(ds["locking_counts"].values, np.int64)
+        if counts.shape != acc.counts.shape:
+            raise InvalidInputError(
+                f"locking_counts: shape {counts.shape}, this rspiv counts {acc.counts.shape}"
+            )
+        acc.counts = counts.copy()
+        acc.n_fields = int(ds.attrs.get("locking_fields", 0))
+        acc.pair_ids = {int(i) for i in pair_ids}
+        return acc
+
+
+def _trimmed(counts: np.ndarray) -> list[tuple[np.ndarray, int]]:
+    """:class:`LockingHistogram` counts ``(2, NBINS)`` as :func:`_estimate`'s histograms, cut
+    to the bins held and a pixel either side."""
+    out = []
+    for row in counts:
+        nz = np.flatnonzero(row)
+        if nz.size == 0:
+            continue
+        lo = max(int(nz[0]) - BINS_PER_PX, 0)
+        hi = min(int(nz[-1]) + BINS_PER_PX + 1, row.size)
+        out.append((row[lo:hi], lo - NBINS // 2))
+    return out

@@ -64,6 +64,7 @@ import numpy as np
 
 from rspiv import moments
 from rspiv.errors import InvalidInputError
+from rspiv.peak_locking import LockingHistogram
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vorticity import VorticityAccumulator
 
@@ -151,6 +152,8 @@ class FieldAccumulator:
         self.two_point: Any = None
         #: optional :class:`rspiv.vorticity.VorticityAccumulator` of the same fields, alike
         self.vorticity: Any = None
+        #: optional :class:`rspiv.peak_locking.LockingHistogram` of the same fields, alike
+        self.locking: Any = None
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -348,7 +351,7 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        for name in ("ensemble", "pixel", "two_point", "vorticity"):
+        for name in ("ensemble", "pixel", "two_point", "vorticity", "locking"):
             theirs = getattr(other, name)
             if theirs is not None:
                 mine = getattr(self, name)
@@ -530,6 +533,7 @@ class FieldAccumulator:
         self.__dict__.setdefault("pixel", None)
         self.__dict__.setdefault("two_point", None)
         self.__dict__.setdefault("vorticity", None)
+        self.__dict__.setdefault("locking", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
             if name not in self.__dict__:
@@ -618,10 +622,11 @@ class FieldAccumulator:
             for k, val in variables.items():
                 ds[k] = val
             ds.attrs.update(tp_attrs)
-        if self.vorticity is not None:
-            variables, v_attrs = self.vorticity.to_dataset_vars()
-            ds = ds.assign(variables)
-            ds.attrs.update(v_attrs)
+        for extra in (self.vorticity, self.locking):
+            if extra is not None:
+                variables, v_attrs = extra.to_dataset_vars()
+                ds = ds.assign(variables)
+                ds.attrs.update(v_attrs)
         if x is not None and len(self.shape) == 2:
             ds = ds.assign_coords(x=("x", np.asarray(x, dtype=np.float64)))
         if y is not None and len(self.shape) == 2:
@@ -679,6 +684,8 @@ class FieldAccumulator:
             acc.two_point = TwoPointAccumulator.from_dataset_vars(ds, acc.pair_ids)
         if "vorticity_omega_count" in ds:
             acc.vorticity = VorticityAccumulator.from_dataset_vars(ds, acc.pair_ids)
+        if "locking_counts" in ds:
+            acc.locking = LockingHistogram.from_dataset_vars(ds, acc.pair_ids)
         return acc
 
     def __repr__(self) -> str:

@@ -424,7 +424,12 @@ def write_outputs(camp: Any, res: Any, log: Any) -> dict[str, Any]:
             w.writerow([*row, outliers.get(int(pid), "") if run.name == main else ""])
         path = camp.out_dir / f"pairs_{run.name}.csv"
         res.files[f"pairs_{run.name}"] = atomic_write_text(path, buf.getvalue())
-    locking = {run: campaign_locking(s["locking"]) for run, s in got.items()}
+    # the pooled histogram of each run's pairs (it tells where a field alone is too thin); the
+    # mean of the pairs' own figures for a checkpoint written before it
+    locking = {}
+    for run, s in got.items():
+        hist = getattr(res.accumulators.get(run), "locking", None)
+        locking[run] = hist.result() if hist is not None else campaign_locking(s["locking"])
     return {"series": got, "outliers": outliers, "trends": drifts, "locking": locking}
 
 
@@ -468,7 +473,9 @@ def report_section(camp: Any, res: Any, quality: dict[str, Any]) -> Any:
         text += (
             f"\n\nPeak locking measured on the {judged} displacements' histogram: amplitude "
             f"{got['amplitude_px']:.4f}" + ("" if se is None else f" +- {se:.4f}") + " px over "
-            f"{got['pairs']} pairs (said from {LOCKING_SAID_PX} px)."
+            f"{got['pairs']} pairs (said from {LOCKING_SAID_PX} px"
+            + ("" if se is not None else f"; {got.get('note', 'no standard error')}")
+            + ")."
         )
     tables = []
     if outliers:

@@ -17,6 +17,7 @@ from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import PairContext, PairResult
 from rspiv.campaign.state import RunLog, RunState
+from rspiv.peak_locking import LockingHistogram
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["RunReducer", "add_fields", "logged_warnings", "new_accumulators"]
@@ -24,12 +25,15 @@ __all__ = ["RunReducer", "add_fields", "logged_warnings", "new_accumulators"]
 
 def new_accumulators(ctx: PairContext) -> dict[str, FieldAccumulator]:
     """One empty FieldAccumulator per run of ``ctx``, carrying what the context plans beside
-    the statistics (the ensemble band, the two-point sums, the vorticity statistics): the same
-    for the local loop and every Dask chunk, so that their parts merge whole."""
+    the statistics (the ensemble band, the two-point sums, the vorticity statistics) and the
+    displacements' histogram (:class:`rspiv.peak_locking.LockingHistogram`): the same for the
+    local loop and every Dask chunk, so that their parts merge whole."""
     gx, _ = ctx.grid()
     accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
     for work in (ensemble_work, two_point_work, vorticity_work):
         accs = work.attach(ctx, accs)
+    for acc in accs.values():  # the displacements' histogram (peak locking), for every run
+        acc.locking = LockingHistogram()
     return accs
 
 
@@ -40,7 +44,7 @@ def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
     t0 = time.perf_counter()
     for name, (u, v, valid, su, sv) in result.fields.items():
         accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
-        for extra in (accs[name].two_point, accs[name].vorticity):
+        for extra in (accs[name].two_point, accs[name].vorticity, accs[name].locking):
             if extra is not None:
                 extra.add(u, v, valid, pair_id=result.pair_id)
     return time.perf_counter() - t0
