@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import pickle
 import warnings
 
 import numpy as np
@@ -109,6 +110,10 @@ def test_counts_pooled_over_pairs_tell_where_one_field_cannot():
     back = FieldAccumulator.from_xarray(acc.to_xarray(velocity_units="pix")).locking
     np.testing.assert_array_equal(back.counts, acc.locking.counts)
     assert back.result() == got
+    kept = pickle.loads(pickle.dumps(acc)).locking  # a checkpoint: the bins held only
+    np.testing.assert_array_equal(kept.counts, acc.locking.counts)
+    assert kept.pair_ids == acc.locking.pair_ids and kept.n_fields == 48
+    assert len(pickle.dumps(acc.locking)) < 60_000
     with pytest.raises(InvalidInputError, match="pair 3 was added before"):
         acc.locking.add(u, v, pair_id=3)
     with pytest.raises(InvalidInputError, match="in both parts"):

@@ -88,8 +88,9 @@ MAX_NOISE = 0.1
 MIN_BIN_COUNT = 5.0
 #: Px of smooth density (u and v together) needed for an estimate.
 MIN_SMOOTH_PX = 2.0
-#: Displacements beyond this (px) are not counted (a guard on the histogram's length).
-MAX_PX = 512.0
+#: Displacements beyond this (px) are not counted (the histograms' length: a campaign's
+#: :class:`LockingHistogram` holds 655 kB per run, carried in every checkpoint).
+MAX_PX = 128.0
 #: A campaign's amplitude at or above this (px) ...
 LOCKING_SAID_PX = 0.005
 #: ... and at this many standard errors or more is said.
@@ -310,6 +311,21 @@ class LockingHistogram:
         self.n_fields += 1
         if pair_id is not None:
             self.pair_ids.add(int(pair_id))
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled with the bins that hold counts only (a checkpoint is written every few
+        pairs)."""
+        held = np.flatnonzero(self.counts.any(axis=(0, 1)))
+        lo, hi = (int(held[0]), int(held[-1]) + 1) if held.size else (0, 0)
+        state = self.__dict__.copy()
+        state["counts"] = (lo, self.counts[:, :, lo:hi].copy())
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        lo, held = state.pop("counts")
+        self.__dict__.update(state)
+        self.counts = np.zeros((BATCHES, 2, NBINS), np.int64)
+        self.counts[:, :, lo : lo + held.shape[2]] = held
 
     def merge(self, other: LockingHistogram) -> LockingHistogram:
         """Add ``other``'s counts (no pair in both); returns self."""
