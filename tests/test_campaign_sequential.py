@@ -148,9 +148,12 @@ def test_sequential_campaign_measures_the_frame_gap(recording, tmp_path, gap, mo
     # the frames' shape (frame 0), the background pass, the check of the first two pairs'
     # displacements (gap 1: frames 0, 1, 2; gap 2: 0, 2, 1, 3), the particle images' size on
     # pair 0, the recording's drift on [images] check_pairs = 5 pairs spread over the run, the
-    # pair loop (without the cache: 1 + 10 + 4 + 2 + 10 + 10 for gap 1)
+    # screen's pilot pairs, the pair loop (without the cache: 1 + 10 + 4 + 2 + 10 + 8 + 10 for
+    # gap 1)
     drift = 2 * min(cfg.images.check_pairs, FRAMES - gap)
-    assert len(reads) == 1 + FRAMES + (2 + gap) + 2 + drift + FRAMES, sorted(reads)
+    pilot = 2 * len(camp.info["screen"]["pilot_pairs"])
+    assert pilot == 8
+    assert len(reads) == 1 + FRAMES + (2 + gap) + 2 + drift + pilot + FRAMES, sorted(reads)
     assert [(p.a[-7:-4], p.b[-7:-4]) for p in camp.pairs()] == [
         (f"{k:03d}", f"{k + gap:03d}") for k in range(FRAMES - gap)
     ]

@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pytest
 from rspiv.campaign import Campaign
+from rspiv.campaign.fields import read_field
 from scaleout_cases import assert_same_statistics, make_campaign, prepared_copy
 
 distributed = pytest.importorskip("distributed")
@@ -235,9 +236,14 @@ def test_dask_workers_write_each_pairs_fields(synth, local, client, tmp_path):
         dss = [xr.load_dataset(f, engine="h5netcdf") for f in files]
         assert dss[0].attrs["frame"] == ("raw image" if run == "uncorrected" else "object")
         assert dss[0].attrs["m_per_px"] == pytest.approx(1e-3 / camp.calibration.magnification)
+        # the files keep the PIV's own validation; read with the run's screen, they give the
+        # vectors the statistics took
         valid = np.stack([ds["valid"].values for ds in dss]).astype(bool)
-        np.testing.assert_array_equal(valid.sum(axis=0), ref.count)
-        u = np.nansum(np.stack([ds["u"].values.astype(np.float64) for ds in dss]), axis=0)
+        np.testing.assert_array_equal(valid.sum(axis=0) - ref.screen.count, ref.count)
+        screen = res.context.screens()[run]
+        got = [read_field(f, ref.shape, run, screen=screen) for f in files]
+        np.testing.assert_array_equal(np.stack([g[2] for g in got]).sum(axis=0), ref.count)
+        u = np.nansum(np.stack([g[0].astype(np.float64) for g in got]), axis=0)
         seen = ref.count > 0
         np.testing.assert_allclose(u[seen] / ref.count[seen], ref.mean_u[seen], atol=1e-5)
     # the POD's second pass reads the workers' files about the merged statistics: the local

@@ -116,6 +116,9 @@ A complete file (every key optional except where noted; defaults shown)::
     vortex_threshold = 1.5       # |Lambda_ci| >= this times its rms at the core's height
     vortex_min_diameter = 1.0    # cores smaller than a disc this many final windows wide
                                  # are dropped (not resolved; mostly noise)
+    screen = 7.0                 # leave out of the statistics a vector farther than this
+                                 # many local spreads from its pilot pairs' centre (a random
+                                 # vector the median test passed: rspiv.outlier_screen; 0: off)
 
     [ensemble]                   # ensemble correlation in a band at the wall (rspiv.ensemble):
                                  # correlation planes summed over every pair, then the peak
@@ -165,6 +168,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 from rspiv.campaign_schema import ALIASES, PARSERS, Ctx, parse_pairs
 from rspiv.errors import InvalidInputError
+from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
 from rspiv.outputs import atomic_write_text
 from rspiv.preprocess import Preprocess
 from rspiv.settings import (
@@ -392,6 +396,7 @@ class StatisticsConfig:
     vortices: bool = False
     vortex_threshold: float = 1.5
     vortex_min_diameter: float = 1.0
+    screen: float = SCREEN_SIGMAS
 
 
 @dataclasses.dataclass

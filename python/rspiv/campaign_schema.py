@@ -276,6 +276,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "vortices": _boolean,
         "vortex_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "vortex_min_diameter": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "screen": lambda c, w, v: _number(c, w, v, minimum=0),
     },
     "ensemble": {
         "enabled": _boolean,

@@ -64,6 +64,7 @@ import numpy as np
 
 from rspiv import moments
 from rspiv.errors import InvalidInputError
+from rspiv.outlier_screen import ScreenTally
 from rspiv.peak_locking import LockingHistogram
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vorticity import VorticityAccumulator
@@ -154,6 +155,8 @@ class FieldAccumulator:
         self.vorticity: Any = None
         #: optional :class:`rspiv.peak_locking.LockingHistogram` of the same fields, alike
         self.locking: Any = None
+        #: optional :class:`rspiv.outlier_screen.ScreenTally` of what a screen left out, alike
+        self.screen: Any = None
 
     # ------------------------------------------------------------------ input
     def _check(self, name: str, a) -> np.ndarray:
@@ -351,7 +354,7 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        for name in ("ensemble", "pixel", "two_point", "vorticity", "locking"):
+        for name in ("ensemble", "pixel", "two_point", "vorticity", "locking", "screen"):
             theirs = getattr(other, name)
             if theirs is not None:
                 mine = getattr(self, name)
@@ -534,6 +537,7 @@ class FieldAccumulator:
         self.__dict__.setdefault("two_point", None)
         self.__dict__.setdefault("vorticity", None)
         self.__dict__.setdefault("locking", None)
+        self.__dict__.setdefault("screen", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
             if name not in self.__dict__:
@@ -622,7 +626,7 @@ class FieldAccumulator:
             for k, val in variables.items():
                 ds[k] = val
             ds.attrs.update(tp_attrs)
-        for extra in (self.vorticity, self.locking):
+        for extra in (self.vorticity, self.locking, self.screen):
             if extra is not None:
                 variables, v_attrs = extra.to_dataset_vars()
                 ds = ds.assign(variables)
@@ -686,6 +690,8 @@ class FieldAccumulator:
             acc.vorticity = VorticityAccumulator.from_dataset_vars(ds, acc.pair_ids)
         if "locking_counts" in ds:
             acc.locking = LockingHistogram.from_dataset_vars(ds, acc.pair_ids)
+        if "screened_count" in ds:
+            acc.screen = ScreenTally.from_dataset_vars(ds, acc.pair_ids)
         return acc
 
     def __repr__(self) -> str:

@@ -31,6 +31,7 @@ from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
+from rspiv.campaign import screen as screen_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vortices as vortices_work
 from rspiv.campaign import vorticity as vorticity_work
@@ -440,6 +441,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         summary["warning"] = note
         camp.say(f"warning: {note}")
     res.pair_quality = pair_quality.write_outputs(camp, res, RunLog(out / "run_log.jsonl"))
+    camp.info.pop("screen_warnings", None)
     summary.update(pair_quality.summary_entries(camp, res))
     for run in ctx.runs:
         acc = res.accumulators[run.name]
@@ -493,6 +495,17 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         }
         if an.wall is not None:
             rs["wall"] = wall_dict(an.wall)
+        screened = screen_work.run_summary(
+            camp,
+            run,
+            acc,
+            an.profile.get("dist_px") if an.wall is not None else None,
+            NEAR_WALL_HEIGHTS * ctx.piv.final_window[1],
+        )
+        if screened is not None:  # what the screen left out (rspiv.outlier_screen)
+            rs["screen"] = screened
+            if "warning" in screened:
+                camp.info.setdefault("screen_warnings", {})[run.name] = screened["warning"]
         if an.result is not None:
             rs.update(an.result.summary())
             if an.result.warning:
@@ -552,6 +565,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         "recording",
         "recording_drift",
         "recording_warnings",
+        "screen",
     ):
         if key in camp.info:
             summary[key] = camp.info[key]
@@ -636,6 +650,9 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     sec = pair_quality.report_section(camp, res, res.pair_quality)
     if sec is not None:
         extra.append(sec)
+    text = screen_work.report_text(res)
+    if text:
+        extra.append(ReportSection("Vectors screened out of the statistics", text=text))
     if res.ensembles or res.pixel_profiles:
         sec = ensemble_work.report_section(camp, res)
         if sec is not None:

@@ -182,6 +182,7 @@ def read_field(
     rows: slice | None = None,
     sigmas: bool = False,
     fingerprint: str | None = None,
+    screen: Any = None,
 ) -> tuple[np.ndarray | None, ...]:
     """``u, v, valid`` of a field file of ``run`` (rows ``rows`` only, when given), as stored
     (float32, float32, uint8; u and v NaN where not valid).
@@ -194,6 +195,9 @@ def read_field(
     fingerprint : str, optional
         The file must carry this ``fields_fingerprint`` (a file written by another
         configuration, or by an rspiv before the attribute, is refused).
+    screen : rspiv.outlier_screen.ScreenBounds, optional
+        The run's screen (the whole grid's): its screened vectors come back not valid (u and
+        v NaN), as the statistics took them.
 
     Raises
     ------
@@ -222,6 +226,13 @@ def read_field(
                 )
             sel = slice(None) if rows is None else rows
             out = [np.asarray(d[sel]) for d in ds]
+            if screen is not None:
+                b = screen if rows is None else screen.rows(rows)
+                gone = b.outliers(out[0], out[1], out[2].astype(bool))
+                if gone.any():
+                    for k in range(2):
+                        out[k] = np.where(gone, np.nan, out[k]).astype(out[k].dtype)
+                    out[2] = np.where(gone, 0, out[2]).astype(out[2].dtype)
             if sigmas:
                 has = "sigma_u" in f and "sigma_v" in f
                 out += [np.asarray(f[k][sel]) if has else None for k in ("sigma_u", "sigma_v")]
@@ -285,10 +296,12 @@ def each_field(
     new_part: Callable[[int], Any],
     add: Callable[..., None],
     workers: int | None = None,
+    screen: Any = None,
 ) -> tuple[list[Any], list[int]]:
     """Read every field file of ``paths`` (pair id -> file) of ``run`` and hand it to
     ``add(part, i, pair_id, u, v, valid)`` (``i`` the pair's position in id order); returns the
-    parts and the pair ids whose file is missing.
+    parts and the pair ids whose file is missing. ``screen``: the run's
+    :class:`~rspiv.outlier_screen.ScreenBounds` (:func:`read_field`).
 
     ``workers`` threads (default: the cores, at most 4) each take a contiguous run of the
     pairs, in order, with a part of their own from ``new_part(w)`` (w = 0 first), so the parts
@@ -306,7 +319,7 @@ def each_field(
             if not path.exists():
                 missing.append(ids[i])
                 continue
-            add(part, i, ids[i], *read_field(path, shape, run))
+            add(part, i, ids[i], *read_field(path, shape, run, screen=screen))
         return part, missing
 
     with ThreadPoolExecutor(workers) as pool:

@@ -76,6 +76,7 @@ def decompose(
     n_modes: int,
     n_eff: float | None = None,
     block_bytes: int = BLOCK_BYTES,
+    screen: Any = None,
 ) -> None:
     """Stream the field files ``paths`` (the builder's snapshots, in order) through
     ``builder``: the inner products by blocks of rows, :meth:`~rspiv.pod.PodBuilder.solve`,
@@ -93,7 +94,7 @@ def decompose(
         v = np.empty_like(u)
         ok = np.empty(u.shape, np.uint8)
         for i, path in enumerate(paths):
-            u[i], v[i], ok[i] = read_field(path, shape, run, blk)
+            u[i], v[i], ok[i] = read_field(path, shape, run, blk, screen=screen)
         builder.add_rows(blk, u, v, ok)
         if len(blocks) == 1:
             held = (u, v, ok)
@@ -108,7 +109,7 @@ def decompose(
             builder.add_snapshot(i, fu, fv, fok)
         return
     for i, path in enumerate(paths):
-        u, v, ok = read_field(path, shape, run)
+        u, v, ok = read_field(path, shape, run, screen=screen)
         builder.add_snapshot(i, u, v, ok)
 
 
@@ -156,7 +157,8 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     n_eff = min(len(ids), n_eff_all)
     sign_x, sign_y = float(p.get("sign_x", 1.0)), float(p.get("sign_y", 1.0))
     builder = PodBuilder(acc.mean_u, acc.mean_v, domain, len(ids), sign_x, sign_y)
-    decompose(builder, [paths[i] for i in ids], run.name, st.pod_modes, n_eff)
+    screen = res.context.screens().get(run.name)
+    decompose(builder, [paths[i] for i in ids], run.name, st.pod_modes, n_eff, screen=screen)
     r = builder.result(ids)
     keep = np.flatnonzero(domain.any(axis=1))
     keep = keep[np.argsort(dist[keep])]

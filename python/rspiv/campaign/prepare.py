@@ -20,6 +20,7 @@ import numpy as np
 
 from rspiv.calibration import Calibration, calibrate
 from rspiv.campaign import pair as pair_work
+from rspiv.campaign import screen as screen_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign.analysis import analyse_run, calibration_table, find_run_wall, wall_dict
 from rspiv.campaign.ensemble import plan_bands
@@ -159,6 +160,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         ctx = _plan_two_point(camp, ctx, pairs, cal, info)
     if cfg.statistics.vorticity:
         ctx = dataclasses.replace(ctx, vorticity=cfg.statistics.vorticity_scheme, _cache={})
+    ctx = screen_work.plan(camp, ctx, pairs, info)
     camp.calibration = cal
     if cal is not None:
         cal.save(out / "calibration.json")

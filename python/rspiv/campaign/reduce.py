@@ -13,6 +13,7 @@ import time
 from typing import Any
 
 from rspiv.campaign import ensemble as ensemble_work
+from rspiv.campaign import screen as screen_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import PairContext, PairResult
@@ -25,24 +26,32 @@ __all__ = ["RunReducer", "add_fields", "logged_warnings", "new_accumulators"]
 
 def new_accumulators(ctx: PairContext) -> dict[str, FieldAccumulator]:
     """One empty FieldAccumulator per run of ``ctx``, carrying what the context plans beside
-    the statistics (the ensemble band, the two-point sums, the vorticity statistics) and the
-    displacements' histogram (:class:`rspiv.peak_locking.LockingHistogram`): the same for the
-    local loop and every Dask chunk, so that their parts merge whole."""
+    the statistics (the ensemble band, the two-point sums, the vorticity statistics, the
+    screen's tally) and the displacements' histogram
+    (:class:`rspiv.peak_locking.LockingHistogram`): the same for the local loop and every Dask
+    chunk, so that their parts merge whole."""
     gx, _ = ctx.grid()
     accs = {r.name: FieldAccumulator(gx.shape) for r in ctx.runs}
     for work in (ensemble_work, two_point_work, vorticity_work):
         accs = work.attach(ctx, accs)
     for acc in accs.values():  # the displacements' histogram (peak locking), for every run
         acc.locking = LockingHistogram()
-    return accs
+    return screen_work.attach(ctx, accs)
 
 
-def add_fields(accs: dict[str, FieldAccumulator], result: PairResult) -> float:
+def add_fields(
+    accs: dict[str, FieldAccumulator], result: PairResult, screens: dict[str, Any] | None = None
+) -> float:
     """Add a processed pair's fields to the accumulators and the two-point sums and vorticity
     statistics they carry (keyed by its pair id, so a pair is never counted twice); returns the
-    seconds it took."""
+    seconds it took. ``screens`` (run -> :class:`rspiv.outlier_screen.ScreenBounds`, the
+    context's :meth:`~rspiv.campaign.spec.PairContext.screens`) first leaves out the vectors
+    that stand apart from their ensemble (:func:`rspiv.campaign.screen.apply`)."""
     t0 = time.perf_counter()
     for name, (u, v, valid, su, sv) in result.fields.items():
+        if screens and name in screens:
+            tally = getattr(accs[name], "screen", None)
+            u, v, valid = screen_work.apply(screens[name], u, v, valid, tally, result.pair_id)
         accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
         for extra in (accs[name].two_point, accs[name].vorticity, accs[name].locking):
             if extra is not None:

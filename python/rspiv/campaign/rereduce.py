@@ -122,6 +122,7 @@ def _rebuild(
     shape = tuple(ctx.grid()[0].shape)
     fp = ctx.fields_fingerprint()
     accs = new_accumulators(ctx)
+    screens = ctx.screens()
     bands = ensemble_work.band_accumulators(accs)
     gone = stale["gone"]
     what = (
@@ -146,7 +147,7 @@ def _rebuild(
         for k, pid in enumerate(ids):
             fields, frames = ahead.result()
             ahead = reader.submit(load, ids[k + 1]) if k + 1 < len(ids) else None
-            add_fields(accs, PairResult(pid, True, fields=fields))
+            add_fields(accs, PairResult(pid, True, fields=fields), screens)
             if bands:
                 band_pair(ctx, frames, bands)
     seconds = time.perf_counter() - t0

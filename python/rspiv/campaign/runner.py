@@ -159,7 +159,7 @@ class Campaign:
         # the statistics that ride on the pairs (planned in the context), not the analysis's
         keep["statistics"] = {
             k: v for k, v in d.get("statistics", {}).items()
-            if k.startswith(("two_point", "vorticity"))
+            if k.startswith(("two_point", "vorticity", "screen"))
         }  # fmt: skip
         keep["extra"] = list(self.extra_methods)
         keep["pilot"] = self.pilot_pairs

@@ -19,6 +19,7 @@ from rspiv.correction import final_grid
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask
 from rspiv.mapping import Mapping
+from rspiv.outlier_screen import ScreenBounds
 from rspiv.preprocess import Preprocess, condition_pair
 from rspiv.settings import PivSettings
 
@@ -121,6 +122,9 @@ class PairContext:
     #: before the run (:func:`rspiv.recording_drift.flow_direction`): a pair pointing the other
     #: way is left out (:mod:`rspiv.campaign.pair_quality`); None: not looked for
     reference: tuple[float, float] | None = None
+    #: the screen of the statistics (:mod:`rspiv.outlier_screen`): ``sigmas``, the pilot
+    #: ``pairs`` and per run the bounds' file and digest (``runs``); None: no screen
+    screen: dict[str, Any] | None = None
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -165,6 +169,17 @@ class PairContext:
             self._cache["backgrounds"] = (out[0], out[1])
         return self._cache["backgrounds"]
 
+    def screens(self) -> dict[str, Any]:
+        """Run name -> its :class:`rspiv.outlier_screen.ScreenBounds` (loaded once per
+        process; empty without a screen)."""
+        if self.screen is None:
+            return {}
+        if "screens" not in self._cache:
+            self._cache["screens"] = {
+                run: ScreenBounds.load(d["path"]) for run, d in self.screen["runs"].items()
+            }
+        return self._cache["screens"]
+
     def condition(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Frames A and B conditioned by ``preprocess`` with the run's backgrounds (the frames
         themselves when nothing is switched on)."""
@@ -204,6 +219,7 @@ class PairContext:
             **({} if self.two_point is None else {"two_point": self.two_point}),
             **({} if self.vorticity is None else {"vorticity": self.vorticity}),
             **({} if self.reference is None else {"reference": list(self.reference)}),
+            **({} if self.screen is None else {"screen": self.screen}),
         }
 
     @classmethod
@@ -223,6 +239,7 @@ class PairContext:
             two_point=d.get("two_point"),
             vorticity=d.get("vorticity"),
             reference=None if d.get("reference") is None else tuple(d["reference"]),
+            screen=d.get("screen"),
         )
 
     def fingerprint(self) -> str:
@@ -232,11 +249,11 @@ class PairContext:
     def fields_fingerprint(self) -> str:
         """Hash of what decides each pair's vector fields and whether the pair is kept: the
         context without the statistics planned beside them (the ensemble bands, the two-point
-        sums, the vorticity). Carried by each field file (:mod:`rspiv.campaign.fields`) and
-        checkpoint: statistics can be re-reduced from field files of the same hash
-        (:mod:`rspiv.campaign.rereduce`)."""
+        sums, the vorticity, the screen of the statistics). Carried by each field file
+        (:mod:`rspiv.campaign.fields`) and checkpoint: statistics can be re-reduced from field
+        files of the same hash (:mod:`rspiv.campaign.rereduce`)."""
         d = self.to_dict()
-        for key in ("ensemble", "two_point", "vorticity"):
+        for key in ("ensemble", "two_point", "vorticity", "screen"):
             d.pop(key, None)
         return _hash(d)
 

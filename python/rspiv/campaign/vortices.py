@@ -118,7 +118,8 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     def new_part(w: int) -> dict:
         return {"acc": counts.empty_copy(), "cores": [], "n": 0}
 
-    parts, missing = each_field(paths, acc.shape, run.name, new_part, add)
+    screen = res.context.screens().get(run.name)
+    parts, missing = each_field(paths, acc.shape, run.name, new_part, add, screen=screen)
     for part in parts:
         counts.merge(part["acc"])
     table = _core_table([c for part in parts for c in part["cores"]], dist, p, camp, MAX_CORES)

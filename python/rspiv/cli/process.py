@@ -90,6 +90,8 @@ def _process(args: argparse.Namespace) -> int:
         print(f"warning: recording: {line}", file=sys.stderr)
     for line in pair_quality.warning_lines(res):
         print(f"warning: {line}", file=sys.stderr)
+    for line in camp.info.get("screen_warnings", {}).values():
+        print(f"warning: {line}", file=sys.stderr)
     for a in res.analyses.values():
         if a.result is not None:
             s = a.result.summary()

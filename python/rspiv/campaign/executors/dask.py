@@ -63,6 +63,7 @@ import numpy as np
 
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair as pair_work
+from rspiv.campaign import screen as screen_work
 from rspiv.campaign.fields import FieldWriter
 from rspiv.campaign.reduce import RunReducer, add_fields, new_accumulators
 from rspiv.campaign.runner import Campaign
@@ -142,6 +143,7 @@ def process_chunk(
     # the same carried sums as the client's (ensemble band, two-point, vorticity): a chunk's
     # part merges whole
     accs = new_accumulators(context)
+    screens = context.screens()
     ens = ensemble_work.band_accumulators(accs)
     first = None
     done: list[int] = []
@@ -179,12 +181,12 @@ def process_chunk(
                 failed[p.pair_id] = (p.describe(), str(exc))  # "[output] fields: cannot write ..."
                 continue
         t0 = time.perf_counter()
-        if first is None:
-            first = {
-                n: (u.copy(), v.copy(), np.asarray(ok, bool).copy())
-                for n, (u, v, ok, *_) in r.fields.items()
-            }
-        dt = time.perf_counter() - t0 + add_fields(accs, r)
+        if first is None:  # as the statistics take it: screened
+            first = {}
+            for n, (u, v, ok, *_) in r.fields.items():
+                u, v, ok = screen_work.apply(screens.get(n), u, v, np.asarray(ok, bool))
+                first[n] = (u.copy(), v.copy(), np.asarray(ok, bool).copy())
+        dt = time.perf_counter() - t0 + add_fields(accs, r, screens)
         timings["statistics"] = timings.get("statistics", 0.0) + dt
         done.append(p.pair_id)
         quality[p.pair_id] = r.quality

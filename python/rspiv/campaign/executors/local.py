@@ -53,6 +53,7 @@ class LocalExecutor:
         consistent = True  # the accumulators hold whole pairs only
         todo = list(state.todo)
         shape = tuple(state.ctx.image_shape)
+        screens = state.ctx.screens()
         reader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rspiv-read")
         writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rspiv-write")
         in_flight: list = []  # the previous pair's field write and its record, at most one
@@ -88,7 +89,7 @@ class LocalExecutor:
                     continue
                 written()  # the previous pair's fields, before this pair enters the statistics
                 consistent = False
-                red.add_timings({"statistics": add_fields(state.accs, r)})
+                red.add_timings({"statistics": add_fields(state.accs, r, screens)})
                 state.finished.add(p.pair_id)
                 consistent = True
 
