@@ -22,6 +22,7 @@ import pytest
 import tifffile
 import xarray as xr
 from rspiv.campaign import Campaign
+from rspiv.campaign_config import load_campaign_config
 from rspiv.demo import DEFAULT_SCENE, synth_campaign
 from rspiv.errors import InvalidInputError
 from rspiv.outlier_screen import (
@@ -163,6 +164,20 @@ def test_bad_input_is_refused():
     b = screen_bounds([f, f], [f, f], [ok, ok])
     with pytest.raises(InvalidInputError, match="shape"):
         b.outliers(f[:, :10], f[:, :10], ok[:, :10])
+
+
+def test_bad_files_and_settings_are_refused(tmp_path):
+    """A bounds file that is not one, and a negative ``[statistics] screen``, in one line
+    naming them."""
+    bad = tmp_path / "screen_method_II.npz"
+    bad.write_bytes(b"not an npz")
+    with pytest.raises(InvalidInputError, match="screen_method_II.npz: not a readable screen"):
+        ScreenBounds.load(bad)
+    toml = tmp_path / "c.toml"
+    toml.write_text('[images]\nglob = "raw/*.tif"\n[statistics]\nscreen = -1\n')
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.screen") as err:
+        load_campaign_config(toml)
+    assert "\n" not in str(err.value)
 
 
 def test_tally_streams_merges_and_round_trips(tmp_path):

@@ -164,7 +164,9 @@ def run_summary(
         "most_screened_pairs": got["pairs"],
     }
     added = np.maximum(got["row_added_uu"], got["row_added_vv"])
-    if added.size:
+    if dist_px is not None:  # the rows in the flow, as for the rows said
+        added = np.where(np.asarray(dist_px) >= off_wall, added, -1.0)
+    if added.size and added.max() >= 0:
         j = int(np.argmax(added))
         out["largest_added_variance_px2"] = {
             "row": j,
