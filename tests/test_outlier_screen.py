@@ -19,6 +19,7 @@ import pickle
 
 import numpy as np
 import pytest
+import rspiv
 import tifffile
 import xarray as xr
 from rspiv.campaign import Campaign
@@ -64,8 +65,8 @@ def test_planted_outliers_are_found_and_nothing_else():
     screened; rejected vectors never are."""
     rng = np.random.default_rng(2)
     gauss = lambda r, s: r.normal(0, 1.0, s)  # noqa: E731
-    b = screen_bounds(*_fields(rng, 4, gauss), pairs=[0, 3, 6, 9])
-    assert b.pairs == [0, 3, 6, 9]
+    b = rspiv.screen_bounds(*_fields(rng, 4, gauss), pairs=[0, 3, 6, 9])
+    assert isinstance(b, rspiv.ScreenBounds) and b.pairs == [0, 3, 6, 9]
     u, v, ok = (a[0] for a in _fields(rng, 1, gauss))
     u, v = u.copy(), v.copy()
     planted = np.zeros(SHAPE, bool)

@@ -24,6 +24,7 @@ from rspiv.errors import (
 from rspiv.export import read_tecplot, write_tecplot
 from rspiv.mapping import Mapping, fit_mapping
 from rspiv.montecarlo import MonteCarloResult, monte_carlo
+from rspiv.outlier_screen import ScreenBounds, screen_bounds
 from rspiv.particle_size import particle_diameter
 from rspiv.peak_locking import locking_amplitude
 from rspiv.piv import PivField, piv, piv_at, window_response
@@ -53,4 +54,4 @@ __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
 __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]
-__all__ += ["locking_amplitude"]
+__all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds"]
