@@ -165,6 +165,13 @@ def test_bad_input_is_refused():
     b = screen_bounds([f, f], [f, f], [ok, ok])
     with pytest.raises(InvalidInputError, match="shape"):
         b.outliers(f[:, :10], f[:, :10], ok[:, :10])
+    with pytest.raises(InvalidInputError, match="four 2-D arrays of one shape"):
+        ScreenBounds(f, f, f, f[:, :10], 7.0)
+    tally = ScreenTally(SHAPE)
+    with pytest.raises(InvalidInputError, match="shape"):
+        tally.add(b, f, f, ok[:, :10], 0)
+    with pytest.raises(InvalidInputError, match="merging shape"):
+        tally.merge(ScreenTally((3, 3)))
 
 
 def test_bad_files_and_settings_are_refused(tmp_path):
@@ -353,3 +360,16 @@ def test_switching_the_screen_off_sums_again_from_the_fields(campaigns):
             a, b = getattr(acc, name), getattr(ref, name)
             scale = np.nanmax(np.abs(b))
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-5 * scale, err_msg=name)
+
+
+def test_a_removed_bounds_file_is_prepared_again_to_the_same_bounds(campaigns):
+    """A bounds file deleted from the output folder: the context is prepared again (the pilot's
+    PIV deterministic, the same digests), and the run resumes from its checkpoint."""
+    clean, _ = campaigns["clean"]
+    path = clean.out_dir / "screen_method_II.npz"
+    digest = ScreenBounds.load(path).digest()
+    path.unlink()
+    toml = clean.out_dir.parent / "clean.toml"
+    res = Campaign.load(toml, progress=False).run()
+    assert path.is_file() and ScreenBounds.load(path).digest() == digest
+    assert res.n_resumed == SCENE.pairs and res.context.fingerprint() == clean.context.fingerprint()

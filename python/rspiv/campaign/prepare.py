@@ -53,7 +53,10 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     if ctx_path.is_file():
         try:
             saved = json.loads(ctx_path.read_text(encoding="utf-8"))
-            if saved.get("config_hash") == h:
+            gone = screen_work.missing(saved["context"].get("screen"))
+            if gone:  # the screen's bounds removed since: the context is prepared again
+                camp.say(f"{ctx_path}: {gone[0]} is gone; preparing the context again")
+            elif saved.get("config_hash") == h:
                 camp.info = saved.get("info", {})
                 cal_path = out / "calibration.json"
                 if cal_path.is_file():

@@ -26,6 +26,7 @@ a glare spot, a bubble's path), and :func:`report_text` the report's paragraph.
 from __future__ import annotations
 
 import dataclasses
+import pathlib
 import time
 from typing import Any
 
@@ -42,7 +43,16 @@ from rspiv.outlier_screen import (
     screen_bounds,
 )
 
-__all__ = ["MIN_PILOT", "TRIES", "apply", "attach", "plan", "report_text", "run_summary"]
+__all__ = [
+    "MIN_PILOT",
+    "TRIES",
+    "apply",
+    "attach",
+    "missing",
+    "plan",
+    "report_text",
+    "run_summary",
+]
 
 #: A screen needs at least this many usable pilot pairs (fewer: no screen, said).
 MIN_PILOT = 3
@@ -109,6 +119,13 @@ def plan(camp: Any, ctx: PairContext, pairs: list[PairSpec], info: dict) -> Pair
     )
     screen = {"sigmas": sigmas, "pairs": used, "runs": runs}
     return dataclasses.replace(ctx, screen=screen, _cache={})
+
+
+def missing(screen: dict[str, Any] | None) -> list[str]:
+    """The bounds files a context's ``screen`` names that are not there (a folder cleaned
+    by hand): such a context is prepared again, to the same bounds."""
+    runs = (screen or {}).get("runs", {})
+    return [d["path"] for d in runs.values() if not pathlib.Path(d["path"]).is_file()]
 
 
 def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
