@@ -279,6 +279,35 @@ def test_quadrant_keys(tmp_path):
             load_campaign_config(_write(tmp_path, bad))
 
 
+def test_conditional_keys(tmp_path):
+    """``[statistics] conditional``: off by default, needs ``[output] fields``; the heights 1 to
+    8 increasing numbers > 0, in delta_99 or px, the hole >= 0; anything else named in one
+    line."""
+    st = load_campaign_config(_write(tmp_path, FULL)).statistics
+    assert st.conditional is False and st.conditional_heights == (0.15, 0.4)
+    assert st.conditional_height_units == "delta" and st.conditional_hole == 1.0
+    keys = '[statistics]\nconditional = true\nconditional_heights = [40, 90]\n'
+    keys += 'conditional_height_units = "PX"\nconditional_hole = 2\n'
+    on = FULL.replace("[statistics]\n", keys)
+    with pytest.raises(InvalidInputError, match=r"\[statistics\]\.conditional: needs each pair"):
+        load_campaign_config(_write(tmp_path, on))
+    with_fields = on.replace("[output]\n", "[output]\nfields = true\n")
+    st = load_campaign_config(_write(tmp_path, with_fields)).statistics
+    assert st.conditional and st.conditional_heights == (40.0, 90.0)
+    assert st.conditional_height_units == "px" and st.conditional_hole == 2.0
+    for key, value, msg in (
+        ("conditional_heights", "[]", "1 to 8"),
+        ("conditional_heights", "[0.4, 0.1]", "increasing"),
+        ("conditional_heights", "[0]", "> 0"),
+        ("conditional_height_units", '"mm"', "'delta', 'px'"),
+        ("conditional_hole", "-1", ">= 0"),
+        ("conditional", '"yes"', "true or false|boolean"),
+    ):
+        bad = FULL.replace("[statistics]\n", f"[statistics]\n{key} = {value}\n")
+        with pytest.raises(InvalidInputError, match=rf"\[statistics\]\.{key}: .*({msg})"):
+            load_campaign_config(_write(tmp_path, bad))
+
+
 def test_vorticity_keys(tmp_path):
     """``[statistics] vorticity``: off by default, least-squares differences; the scheme one of
     the three (any case), anything else named in one line."""

@@ -442,3 +442,129 @@ def test_a_vortex_population_without_the_layer_is_refused(processed):
     with pytest.raises(InvalidInputError, match="needs the run's delta_99") as exc:
         write_outputs(camp, res, res.context.runs[0], an)
     assert "\n" not in str(exc.value)
+
+
+def test_the_conditional_averages_equal_direct_sums_over_the_fields(processed):
+    """``conditional_<run>.nc`` (``[statistics] conditional``, rspiv.campaign.conditional): per
+    reference row and event kind, the average of the written fields' fluctuations about the
+    run's own means at every row and offset of the map, the events read off the same files."""
+    import xarray as xr
+
+    _, camp, res = processed
+    st = camp.config.statistics
+    assert st.conditional and st.conditional_height_units == "px"
+    for run in ("method_II", "uncorrected"):
+        acc = res.accumulators[run]
+        prof = res.analyses[run].profile
+        c = res.conditional[run]
+        sx, sy, k = prof["sign_x"], prof["sign_y"], prof["k"]
+        dist = prof["dist_px"]
+        u, v, ok = _fields(res.out_dir, run)
+        ok &= (acc.count >= 2) & (dist > 0)[:, None] & np.isfinite(u) & np.isfinite(v)
+        du = np.where(ok, sx * (u - acc.mean_u), 0.0)
+        dv = np.where(ok, sy * (v - acc.mean_v), 0.0)
+        thr = st.conditional_hole * np.sqrt(acc.uu * acc.vv)
+        rows = np.array([np.flatnonzero(dist == y)[0] for y in c["dist_px"]])
+        assert np.all(np.diff(c["dist_px"]) > 0) and np.all(np.diff(c["dx_px"]) > 0)
+        dx_grid = float(np.median(np.diff(xr.open_dataset(
+            next((res.out_dir / "fields" / run).glob("pair_*.nc")), engine="h5netcdf")["x"])))
+        offsets = np.rint(sx * c["dx_px"] / dx_grid).astype(int)
+        nx = u.shape[2]
+        for i, ref in enumerate(c["ref_rows"]):
+            assert abs(dist[ref] - st.conditional_heights[i]) <= 0.5 * abs(dist[1] - dist[0])
+            a, b = du[:, ref], dv[:, ref]
+            big = ok[:, ref] & (np.abs(a * b) >= thr[ref])
+            for kind, ev in enumerate((big & (a < 0) & (b > 0), big & (a > 0) & (b < 0))):
+                assert c["events"][i, kind] == ev.sum() > 0
+                su = np.zeros((rows.size, offsets.size))
+                sv, n = np.zeros_like(su), np.zeros_like(su)
+                for p, col in zip(*np.nonzero(ev), strict=True):
+                    at = col + offsets
+                    inside = (at >= 0) & (at < nx)
+                    sel = np.ix_(rows, at[inside])
+                    su[:, inside] += du[p][sel]
+                    sv[:, inside] += dv[p][sel]
+                    n[:, inside] += ok[p][sel]
+                np.testing.assert_array_equal(c["count"][i, kind], n)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    np.testing.assert_allclose(c["u"][i, kind] / k, su / n, rtol=1e-9, atol=1e-12)
+                    np.testing.assert_allclose(c["v"][i, kind] / k, sv / n, rtol=1e-9, atol=1e-12)
+        with xr.open_dataset(res.out_dir / f"conditional_{run}.nc", engine="h5netcdf") as ds:
+            assert ds["u"].dims == ("ref", "kind", "y", "dx")
+            assert list(ds["kind"].values) == ["Q2", "Q4"]
+            assert ds["u"].attrs["units"] == "m s-1" and ds["dx"].attrs["units"] == "m"
+            np.testing.assert_allclose(ds["u"].values, c["u"], rtol=1e-6)
+            assert "u_plus" in ds and ds.attrs["pairs"] == 3
+    html = (res.out_dir / "report" / "report.html").read_text()
+    assert "Conditional averages" in html
+    assert (res.out_dir / "report" / "figures" / "conditional.png").is_file()
+    summary = json.loads((res.out_dir / "summary.json").read_text())
+    assert summary["runs"]["method_II"]["conditional"]["pairs"] == 3
+
+
+def test_conditional_heights_the_run_cannot_hold_are_refused(processed):
+    """A reference height inside the rows the wall shapes, or heights in delta_99 without the
+    run's boundary-layer fit: refused in one line (the run's other outputs stand)."""
+    import dataclasses as dc
+
+    from rspiv.campaign.conditional import write_outputs
+    from rspiv.errors import InvalidInputError
+
+    _, camp, res = processed
+    st = camp.config.statistics
+    keep = (st.conditional_heights, st.conditional_height_units)
+    camp.config.output.netcdf = False  # the fixture's files stay the campaign's
+    try:
+        st.conditional_heights = (5.0,)
+        with pytest.raises(InvalidInputError, match="conditional_heights: 5.0 px") as exc:
+            write_outputs(camp, res, res.context.runs[0], res.analyses["method_II"])
+        assert "\n" not in str(exc.value)
+        st.conditional_heights, st.conditional_height_units = (0.2,), "delta"
+        an = dc.replace(res.analyses["method_II"], result=None)
+        with pytest.raises(InvalidInputError, match="boundary-layer fit") as exc:
+            write_outputs(camp, res, res.context.runs[0], an)
+        assert "\n" not in str(exc.value)
+        # in delta_99 with the fit: the rows nearest to 0.2 delta_99
+        prof = write_outputs(camp, res, res.context.runs[0], res.analyses["method_II"])
+        bl = res.analyses["method_II"].result
+        assert prof["y_ref"][0] == pytest.approx(0.2 * bl.delta99, rel=0.05)
+    finally:
+        st.conditional_heights, st.conditional_height_units = keep
+        camp.config.output.netcdf = True
+
+
+def test_conditional_averages_of_a_whole_field_drift_are_said(processed, tmp_path):
+    """Fluctuations of the whole field (each pair's field moved as one, as a speed drifting over
+    the run moves it) give conditional averages that do not decay away from their events: said
+    in one line (log, file, summary), with the ratio per reference and kind."""
+    import h5py
+    from rspiv.campaign.conditional import FAR_SHARE
+
+    prof = processed[2].analyses["method_II"].profile
+    sx, sy = prof["sign_x"], prof["sign_y"]
+
+    def drift(out: pathlib.Path):
+        for p, f in enumerate(sorted((out / "fields" / "method_II").glob("pair_*.nc"))):
+            # in the flow's frame: pair 0 an ejection, pair 1 a sweep, within the screen's
+            # bounds (2 px at least)
+            c = (-1.5, 1.5, 0.0)[p]
+            with h5py.File(f, "r+") as h:
+                h["u"][...] = h["u"][...] + sx * c
+                h["v"][...] = h["v"][...] - sy * c
+
+    res, said, out = _reanalyse(processed, tmp_path, drift)
+    prof = res.conditional["method_II"]
+    # the drift carries the far part: 0.3-0.8 of the events' own here (the pairs' own
+    # fluctuations are of the drift's size), against -0.04 to -0.01 without it (the demo)
+    ratio = prof["far_ratio"]
+    assert np.all(ratio > 0.25) and (ratio > FAR_SHARE).sum() >= 2
+    assert "do not decay away from their events" in prof["warning"]
+    for i, j in zip(*np.nonzero(ratio > FAR_SHARE), strict=True):
+        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m {ratio[i, j]:.2f}" in prof["warning"]
+    for i, j in zip(*np.nonzero(ratio <= FAR_SHARE), strict=True):
+        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m" not in prof["warning"]
+    assert any("WARNING" in m and "conditional averages" in m for m in said)
+    assert "decay" not in res.conditional["uncorrected"].get("warning", "")
+    assert np.all(np.abs(res.conditional["uncorrected"]["far_ratio"]) < 0.5)
+    summary = json.loads((out / "summary.json").read_text())
+    assert "do not decay" in summary["runs"]["method_II"]["conditional"]["warning"]

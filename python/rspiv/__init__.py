@@ -11,6 +11,7 @@ from rspiv.boundary_layer import BoundaryLayerResult, analyse_profile
 from rspiv.calibration import Calibration, calibrate, calibrate_points
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
+from rspiv.conditional import ConditionalAccumulator
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
 from rspiv.ensemble import EnsembleAccumulator, EnsembleField
@@ -54,4 +55,4 @@ __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
 __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]
-__all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds"]
+__all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds", "ConditionalAccumulator"]

@@ -116,6 +116,13 @@ A complete file (every key optional except where noted; defaults shown)::
     vortex_threshold = 1.5       # |Lambda_ci| >= this times its rms at the core's height
     vortex_min_diameter = 1.0    # cores smaller than a disc this many final windows wide
                                  # are dropped (not resolved; mostly noise)
+    conditional = false          # conditional averages of u', v' about ejections (Q2) and
+                                 # sweeps (Q4) at reference heights, a second pass over the
+                                 # fields (rspiv.conditional; needs [output] fields;
+                                 # conditional_<run>.nc, a report figure)
+    conditional_heights = [0.15, 0.4]    # the events' heights (1 to 8, increasing)
+    conditional_height_units = "delta"   # "delta" (the run's delta_99) | "px" from the wall
+    conditional_hole = 1.0       # events with |u'v'| >= this times u_rms v_rms
     screen = 7.0                 # leave out of the statistics a vector farther than this
                                  # many local spreads from its pilot pairs' centre (a random
                                  # vector the median test passed: rspiv.outlier_screen; 0: off)
@@ -396,6 +403,10 @@ class StatisticsConfig:
     vortices: bool = False
     vortex_threshold: float = 1.5
     vortex_min_diameter: float = 1.0
+    conditional: bool = False
+    conditional_heights: tuple[float, ...] = (0.15, 0.4)
+    conditional_height_units: str = "delta"
+    conditional_hole: float = 1.0
     screen: float = SCREEN_SIGMAS
 
 
@@ -634,7 +645,7 @@ def parse_campaign_config(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
         )
-    for key in ("quadrant", "pod", "vortices"):
+    for key in ("quadrant", "pod", "vortices", "conditional"):
         if getattr(cfg.statistics, key) and not cfg.output.fields:
             raise ctx.err(
                 f"[statistics].{key}",

@@ -276,6 +276,12 @@ PARSERS: dict[str, dict[str, Any]] = {
         "vortices": _boolean,
         "vortex_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "vortex_min_diameter": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "conditional": _boolean,
+        "conditional_heights": lambda c, w, v: _increasing(c, w, v, positive=True, min_len=1),
+        "conditional_height_units": lambda c, w, v: _choice(
+            c, w, v, ("delta", "px"), fold=str.lower
+        ),
+        "conditional_hole": lambda c, w, v: _number(c, w, v, minimum=0),
         "screen": lambda c, w, v: _number(c, w, v, minimum=0),
     },
     "ensemble": {

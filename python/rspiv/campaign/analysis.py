@@ -27,6 +27,7 @@ import numpy as np
 from rspiv import moments
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile
+from rspiv.campaign import conditional as conditional_work
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
@@ -361,6 +362,7 @@ ANALYSIS_STEMS = (
     "pod",
     "vorticity",
     "vortices",
+    "conditional",
     "pairs",
 )
 
@@ -532,6 +534,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("pod", "POD", pod_work.write_outputs, res.pod),
             ("vorticity", "vorticity", vorticity_work.write_outputs, res.vorticity),
             ("vortices", "vortex", vortices_work.write_outputs, res.vortices),
+            ("conditional", "conditional", conditional_work.write_outputs, res.conditional),
         )
         for key, what, write, store in bands:
             try:
@@ -663,6 +666,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         (res.pod, pod_work),
         (res.vorticity, vorticity_work),
         (res.vortices, vortices_work),
+        (res.conditional, conditional_work),
     ):
         sec = work.report_section(camp, res) if store else None
         if sec is not None:

@@ -142,6 +142,8 @@ class CampaignResult:
         Run name -> its proper orthogonal decomposition (``[statistics] pod``; empty without).
     vortices : dict
         Run name -> its vortex population (``[statistics] vortices``; empty without).
+    conditional : dict
+        Run name -> its conditional averages (``[statistics] conditional``; empty without).
     vorticity : dict
         Run name -> its vorticity profile (``[statistics] vorticity``; empty without).
     """
@@ -171,6 +173,8 @@ class CampaignResult:
     pod: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vortex population (:mod:`rspiv.campaign.vortices`)
     vortices: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its conditional averages (:mod:`rspiv.campaign.conditional`)
+    conditional: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
     vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: each pair's figures per run and the pairs unlike the main run

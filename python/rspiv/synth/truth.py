@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv.conditional import ConditionalAccumulator
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import write_netcdf
 from rspiv.pod import pod
@@ -25,6 +26,7 @@ from rspiv.vorticity import VorticityAccumulator
 __all__ = [
     "MOMENT_KEYS",
     "PAPER_M",
+    "conditional_errors",
     "filtered_profile",
     "moment_errors",
     "pod_errors",
@@ -34,6 +36,7 @@ __all__ = [
     "two_point_errors",
     "vortex_errors",
     "vorticity_errors",
+    "write_conditional_truth",
     "write_pod_truth",
     "write_vortex_truth",
 ]
@@ -352,3 +355,87 @@ def vortex_errors(prof: dict | None, directory: pathlib.Path, info: dict[str, An
         "retrograde": float(dens[1] / dens_ref[1] - 1.0),
         "radius": float(rad / rad_ref - 1.0),
     }
+
+
+def write_conditional_truth(
+    path: pathlib.Path,
+    exact: list,
+    acc: FieldAccumulator,
+    d: np.ndarray,
+    dx: float,
+    heights: tuple[float, ...],
+    window_h: float,
+    hole: float,
+) -> pathlib.Path:
+    """The conditional averages about ejections and sweeps (:class:`rspiv.conditional.
+    ConditionalAccumulator`) of the pairs' exact fields ``exact`` (``(u, v)`` per pair on rows
+    ``d`` px from the wall, spacing ``dx``; ``acc`` their statistics), planned as a campaign
+    plans them (:mod:`rspiv.campaign.conditional`: reference rows nearest to ``heights`` px, the
+    rows from 2.5 final window heights ``window_h`` to twice the highest, offsets as far either
+    way), written to ``path``: ``u``, ``v`` (ref, kind, y, dx) in px per pair, ``y`` and ``dx``
+    in px (downstream positive), ``events``."""
+    import xarray as xr
+
+    from rspiv.campaign.two_point import map_rows  # deferred: the campaign's plan
+
+    band, refs = map_rows(d, heights, window_h)
+    half = min(int(np.ceil(2.0 * max(heights) / dx)), acc.shape[1] - 1)
+    sign_x = float(np.sign(np.nanmean(acc.mean_u))) or 1.0
+    with np.errstate(invalid="ignore"):
+        q = ConditionalAccumulator(acc.mean_u, acc.mean_v, np.sqrt(acc.uu), np.sqrt(acc.vv),
+                                   refs, rows=band, half_width=half, sign_x=sign_x,
+                                   hole=hole)  # fmt: skip
+    for k, (u, v) in enumerate(exact):
+        q.add(u, v, np.ones(u.shape, bool), pair_id=k, batch=k * q.batches // len(exact))
+    r = q.results()
+    dxs = sign_x * r["offsets"] * dx
+    order = np.argsort(dxs)
+    dims = ("ref", "kind", "y", "dx")
+    return write_netcdf(
+        xr.Dataset(
+            {
+                "u": (dims, r["u"][..., order]),
+                "v": (dims, r["v"][..., order]),
+                "events": (("ref", "kind"), r["events"]),
+            },
+            coords={"y": d[r["rows"]], "dx": dxs[order], "y_ref": ("ref", d[r["ref_rows"]])},
+            attrs={"pairs": len(exact), "description": "conditional averages of the exact "
+                   "field (rspiv.conditional); px per pair, y = wall distance, px"},  # fmt: skip
+        ),
+        path,
+    )
+
+
+def conditional_errors(prof: dict | None, directory: pathlib.Path) -> dict:
+    """A run's conditional averages against those of the same pairs' exact field
+    (``truth_conditional.nc``, interpolated to the run's rows and offsets): per kind (Q2, Q4),
+    the largest deviation of ``u'`` or ``v'`` anywhere on the maps (rows not ``near_wall``,
+    offsets within both maps) over the exact map's largest ``|u'|``, the largest over the
+    reference heights."""
+    import xarray as xr
+
+    keys = ("Q2", "Q4")
+    if prof is None:
+        return {k: float("nan") for k in keys}
+    with xr.open_dataset(directory / "truth_conditional.nc", engine="h5netcdf") as ds:
+        d, dxs, tu, tv = ds["y"].values, ds["dx"].values, ds["u"].values, ds["v"].values
+    x = prof["dx_px"]
+    cols = (x >= dxs[0]) & (x <= dxs[-1])
+    rows = ~np.asarray(prof["near_wall"], bool)
+    rows &= (prof["dist_px"] >= d[0]) & (prof["dist_px"] <= d[-1])
+    y = prof["dist_px"][rows]
+    out = {}
+    for j, key in enumerate(keys):
+        worst = 0.0
+        for i in range(tu.shape[0]):
+            dev, peak = 0.0, 0.0
+            for name, t in (("u", tu), ("v", tv)):
+                ref = np.array([np.interp(x[cols], dxs, t[i, j, r]) for r in range(d.size)])
+                ref = np.array([np.interp(y, d, ref[:, c]) for c in range(ref.shape[1])]).T
+                mine = prof[name][i, j][rows][:, cols] / prof["k"]
+                dev = max(dev, float(np.nanmax(np.abs(mine - ref))))
+                if name == "u":
+                    peak = float(np.nanmax(np.abs(ref)))
+            worst = max(worst, dev / peak if peak > 0 else float("inf"))
+        out[key] = worst
+    return out
