@@ -233,6 +233,7 @@ OFF = {
     "pod = true": "pod = false",
     "vortices = true": "vortices = false",
     "vorticity = true": "vorticity = false",
+    "conditional = true": "conditional = false",
 }
 
 

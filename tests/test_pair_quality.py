@@ -36,6 +36,7 @@ EXTRAS_OFF = {
     "pod = true": "pod = false",
     "vortices = true": "vortices = false",
     "vorticity = true": "vorticity = false",
+    "conditional = true": "conditional = false",
     "fields = true": "fields = false",
     # the background over the pairs would differ by the pair excluded
     'background = "min"': 'background = "none"',

@@ -28,6 +28,7 @@ OFF = {
     "quadrant = true": "quadrant = false",
     "pod = true": "pod = false",
     "vortices = true": "vortices = false",
+    "conditional = true": "conditional = false",
 }
 # float32 rounding of the stored fields: 6e-8 of each value, summed over a few pairs
 REL = 1e-5

@@ -123,6 +123,15 @@ A complete file (every key optional except where noted; defaults shown)::
     conditional_heights = [0.15, 0.4]    # the events' heights (1 to 8, increasing)
     conditional_height_units = "delta"   # "delta" (the run's delta_99) | "px" from the wall
     conditional_hole = 1.0       # events with |u'v'| >= this times u_rms v_rms
+    temporal = false             # frequency spectra, space-time correlations and convection
+                                 # velocities of a time-resolved recording at reference
+                                 # heights, a second pass over the fields (rspiv.temporal;
+                                 # needs [output] fields and [images] pairing = "sequential";
+                                 # temporal_<run>.nc, a report figure)
+    temporal_heights = [0.15, 0.4]       # the reference heights (1 to 8, increasing)
+    temporal_height_units = "delta"      # "delta" (the run's delta_99) | "px" from the wall
+    temporal_segment = 256       # pairs per Welch segment (even, 8-65536)
+    temporal_max_lag = 32        # the correlations' largest time lag, pair intervals
     screen = 7.0                 # leave out of the statistics a vector farther than this
                                  # many local spreads from its pilot pairs' centre (a random
                                  # vector the median test passed: rspiv.outlier_screen; 0: off)
@@ -407,6 +416,11 @@ class StatisticsConfig:
     conditional_heights: tuple[float, ...] = (0.15, 0.4)
     conditional_height_units: str = "delta"
     conditional_hole: float = 1.0
+    temporal: bool = False
+    temporal_heights: tuple[float, ...] = (0.15, 0.4)
+    temporal_height_units: str = "delta"
+    temporal_segment: int = 256
+    temporal_max_lag: int = 32
     screen: float = SCREEN_SIGMAS
 
 
@@ -645,12 +659,18 @@ def parse_campaign_config(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
         )
-    for key in ("quadrant", "pod", "vortices", "conditional"):
+    for key in ("quadrant", "pod", "vortices", "conditional", "temporal"):
         if getattr(cfg.statistics, key) and not cfg.output.fields:
             raise ctx.err(
                 f"[statistics].{key}",
                 "needs each pair's fields ([output] fields = true): the second pass reads them",
             )
+    if cfg.statistics.temporal and cfg.images.pairing != "sequential":
+        raise ctx.err(
+            "[statistics].temporal",
+            'needs a time-resolved recording ([images] pairing = "sequential"): the pairs of a '
+            "double-frame camera are not a time series",
+        )
     if cfg.statistics.vortices and not cfg.statistics.vorticity:
         raise ctx.err(
             "[statistics].vortices",

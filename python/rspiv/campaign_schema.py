@@ -159,6 +159,14 @@ def _holes(ctx, where, v):
     return _increasing(ctx, where, v, positive=False, min_len=1)
 
 
+def _segment(ctx, where, v):
+    """Pairs per Welch segment: an even integer from 8 to 65536."""
+    n = _number(ctx, where, v, integer=True, minimum=8, maximum=65536)
+    if n % 2:
+        raise ctx.err(where, f"expected an even number of pairs, got {v!r}")
+    return n
+
+
 def _pair_ids(ctx, where, v):
     """``[id, ...]``: pair ids (positions in the campaign's pair list, >= 0), sorted, once each."""
     if not isinstance(v, list) or any(
@@ -282,6 +290,15 @@ PARSERS: dict[str, dict[str, Any]] = {
             c, w, v, ("delta", "px"), fold=str.lower
         ),
         "conditional_hole": lambda c, w, v: _number(c, w, v, minimum=0),
+        "temporal": _boolean,
+        "temporal_heights": lambda c, w, v: _increasing(c, w, v, positive=True, min_len=1),
+        "temporal_height_units": lambda c, w, v: _choice(
+            c, w, v, ("delta", "px"), fold=str.lower
+        ),
+        "temporal_segment": _segment,
+        "temporal_max_lag": lambda c, w, v: _number(
+            c, w, v, integer=True, minimum=1, maximum=4096
+        ),
         "screen": lambda c, w, v: _number(c, w, v, minimum=0),
     },
     "ensemble": {

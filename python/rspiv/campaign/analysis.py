@@ -33,6 +33,7 @@ from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import screen as screen_work
+from rspiv.campaign import temporal as temporal_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vortices as vortices_work
 from rspiv.campaign import vorticity as vorticity_work
@@ -363,6 +364,7 @@ ANALYSIS_STEMS = (
     "vorticity",
     "vortices",
     "conditional",
+    "temporal",
     "pairs",
 )
 
@@ -535,6 +537,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("vorticity", "vorticity", vorticity_work.write_outputs, res.vorticity),
             ("vortices", "vortex", vortices_work.write_outputs, res.vortices),
             ("conditional", "conditional", conditional_work.write_outputs, res.conditional),
+            ("temporal", "temporal", temporal_work.write_outputs, res.temporal),
         )
         for key, what, write, store in bands:
             try:
@@ -667,6 +670,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         (res.vorticity, vorticity_work),
         (res.vortices, vortices_work),
         (res.conditional, conditional_work),
+        (res.temporal, temporal_work),
     ):
         sec = work.report_section(camp, res) if store else None
         if sec is not None:

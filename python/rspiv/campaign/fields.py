@@ -50,10 +50,10 @@ Reading them back as one dataset with a ``pair`` dimension (dask installed)::
                            concat_dim="pair", engine="h5netcdf")
 
 Reading them back, a second pass at the end of a run (the quadrant analysis, the POD, the
-vortex population, the conditional averages): :func:`read_field` (a whole field or a block of
-rows, the run and the grid checked), :func:`each_field` (every pair's file, contiguous runs of
-the pairs on each core) and :func:`finish_pass` (its warnings said in one line, its file
-written).
+vortex population, the conditional averages, a time-resolved run's spectra):
+:func:`read_field` (a whole field or a block of rows, the run and the grid checked),
+:func:`each_field` (every pair's file, contiguous runs of the pairs on each core) and
+:func:`finish_pass` (its warnings said in one line, its file written).
 """
 
 from __future__ import annotations

@@ -15,8 +15,9 @@ belongs in the spread.
 :func:`apply` leaves the screened vectors out of a field as the PIV's rejected ones are (the
 statistics, the two-point sums with the centre as their replacement, the vorticity, the peak
 locking's histogram, the second passes over the field files: quadrants, POD, vortices,
-conditional averages) and counts them (:class:`~rspiv.outlier_screen.ScreenTally`, carried with
-the statistics through checkpoints, shards, ``rspiv merge`` and Dask).
+conditional averages, frequency spectra) and counts them
+(:class:`~rspiv.outlier_screen.ScreenTally`, carried with the statistics through checkpoints,
+shards, ``rspiv merge`` and Dask).
 
 :func:`run_summary` gives ``summary.json``'s ``screen`` per run, says rows where more than 1 %
 of the vectors were screened (a part of the recording that often does not correlate: a scratch,

@@ -144,6 +144,9 @@ class CampaignResult:
         Run name -> its vortex population (``[statistics] vortices``; empty without).
     conditional : dict
         Run name -> its conditional averages (``[statistics] conditional``; empty without).
+    temporal : dict
+        Run name -> its frequency spectra and convection velocities (``[statistics]
+        temporal``; empty without).
     vorticity : dict
         Run name -> its vorticity profile (``[statistics] vorticity``; empty without).
     """
@@ -175,6 +178,8 @@ class CampaignResult:
     vortices: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its conditional averages (:mod:`rspiv.campaign.conditional`)
     conditional: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its frequency spectra and convection velocities (:mod:`rspiv.campaign.temporal`)
+    temporal: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
     vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: each pair's figures per run and the pairs unlike the main run

@@ -2,7 +2,7 @@
 boundary-layer campaigns. Python describes the scene; Rust renders the pixels.
 """
 
-from rspiv.synth.particles import particle_pair, particle_sequence
+from rspiv.synth.particles import convected_sequence, particle_pair, particle_sequence
 from rspiv.synth.target import (
     PAPER_OPTICS,
     CalibrationTarget,
@@ -22,5 +22,5 @@ __all__ += [
     "CalibrationTarget",
     "calibration_target",
 ]
-__all__ += ["particle_pair", "particle_sequence"]
+__all__ += ["convected_sequence", "particle_pair", "particle_sequence"]
 __all__ += ["TBLFlow", "TBLTruth", "tbl_pair", "tbl_scene"]

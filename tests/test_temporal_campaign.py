@@ -1,0 +1,132 @@
+"""A time-resolved campaign's frequency spectra and convection velocities (``[statistics]
+temporal``, rspiv.campaign.temporal) through the PIV: a frozen pattern convected at a known
+speed (rspiv.synth.convected_sequence) gives that speed as its convection velocity, and the
+spectra equal scipy's Welch estimate of the written fields' time series."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+from rspiv.campaign import Campaign
+from rspiv.campaign_config import CampaignConfig, load_campaign_config
+from rspiv.errors import InvalidInputError
+from rspiv.synth import convected_sequence
+
+SPEED = 3.0  # px per frame interval
+SEGMENT = 32
+
+
+def _config(d) -> CampaignConfig:
+    cfg = CampaignConfig(name="convected pattern")
+    cfg.images.glob = str(d / "raw" / "frame_*.tif")
+    cfg.images.pairing = "sequential"
+    cfg.correction.method = "none"
+    cfg.piv.passes = [(32, 32), (32, 32)]
+    cfg.wall.enabled = False  # no wall: heights in px from the frame's lower edge
+    cfg.statistics.min_count = 2
+    cfg.statistics.temporal = True
+    cfg.statistics.temporal_heights = (80.0, 160.0)
+    cfg.statistics.temporal_height_units = "px"
+    cfg.statistics.temporal_segment = SEGMENT
+    cfg.statistics.temporal_max_lag = 8
+    cfg.output.fields = True
+    cfg.output.dir = d / "out"
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory):
+    d = tmp_path_factory.mktemp("convected")
+    (d / "raw").mkdir()
+    for k, f in enumerate(convected_sequence((256, 384), SPEED, 0.25, 129, seed=3)):
+        tifffile.imwrite(d / "raw" / f"frame_{k:04d}.tif", f)
+    toml = _config(d).save(d / "campaign.toml")
+    camp = Campaign.load(toml, progress=False)
+    return camp, camp.run()
+
+
+def test_the_convection_velocity_is_the_patterns_speed(processed):
+    import xarray as xr
+
+    _, res = processed
+    prof = res.temporal["uncorrected"]
+    assert prof["pairs"] == 128 and "warning" not in prof
+    # px per pair interval: the pattern moves SPEED px per frame, pairs are a frame apart
+    np.testing.assert_allclose(prof["U"], SPEED, rtol=0.005)
+    np.testing.assert_allclose(prof["U_c"], SPEED, rtol=0.02)
+    assert np.all(prof["peak"][:, 1:] > 0.7)
+    # the pattern's modes pass at SPEED / wavelength: 0.019, 0.031 and 0.047 cycles per frame;
+    # the spectrum's largest bin above 0 is the one of 0.031
+    f = prof["f"]
+    assert np.all(f[1 + np.argmax(prof["phi_uu"][:, 1:], axis=1)] == pytest.approx(1 / SEGMENT))
+    with xr.open_dataset(res.out_dir / "temporal_uncorrected.nc", engine="h5netcdf") as ds:
+        assert ds["R_uu"].dims == ("ref", "lag", "dx")
+        assert ds["phi_uu"].dims == ("ref", "f")
+        np.testing.assert_allclose(ds["U_c"].values, prof["U_c"])
+    summary = json.loads((res.out_dir / "summary.json").read_text())
+    assert summary["runs"]["uncorrected"]["temporal"]["pairs"] == 128
+    # the report's figure (the report itself needs SI units: a calibration and [flow] dt)
+    from rspiv.plots.temporal import plot_temporal
+
+    png = plot_temporal(res.out_dir / "temporal.png", prof)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_spectra_are_welchs_of_the_written_fields(processed):
+    import xarray as xr
+    from scipy.signal import welch
+
+    _, res = processed
+    prof = res.temporal["uncorrected"]
+    acc = res.accumulators["uncorrected"]
+    p = res.analyses["uncorrected"].profile
+    files = sorted((res.out_dir / "fields" / "uncorrected").glob("pair_*.nc"))
+    u, ok = [], []
+    for f in files:
+        with xr.open_dataset(f, engine="h5netcdf") as ds:
+            u.append(ds["u"].values[prof["ref_rows"]].astype(np.float64))
+            ok.append(ds["valid"].values[prof["ref_rows"]].astype(bool))
+    u, ok = np.array(u), np.array(ok)  # (time, ref, column)
+    usable = (acc.count >= 2)[prof["ref_rows"]]
+    du = p["sign_x"] * (u - acc.mean_u[prof["ref_rows"]])
+    for i in range(len(prof["ref_rows"])):
+        # 7 segments of 32 in 128 pairs at half overlap; a column's segment enters with 90 %
+        # of its samples valid, the others at the mean of the valid ones (no power)
+        spectra = []
+        for start in range(0, 128 - SEGMENT + 1, SEGMENT // 2):
+            seg, good = du[start : start + SEGMENT, i], ok[start : start + SEGMENT, i]
+            enter = usable[i] & (good.mean(axis=0) >= 0.9)
+            mean = np.where(good, seg, 0.0).sum(axis=0) / np.maximum(good.sum(axis=0), 1)
+            seg = np.where(good, seg, mean)[:, enter]
+            f, pxx = welch(seg, fs=1.0, window="hann", nperseg=SEGMENT, detrend="constant",
+                           axis=0)  # fmt: skip
+            spectra.append(pxx)
+        pxx = np.concatenate(spectra, axis=1)
+        assert pxx.shape[1] == prof["segments"][i] >= 7 * 18
+        np.testing.assert_allclose(prof["f"], f)
+        np.testing.assert_allclose(prof["phi_uu"][i], pxx.mean(axis=1), rtol=1e-9, atol=1e-12)
+
+
+def test_temporal_keys_are_checked(tmp_path):
+    """``[statistics] temporal``: needs the fields and a time-resolved recording; the segment
+    even and at least 8; anything else named in one line."""
+    base = _config(tmp_path)
+    base.output.dir = tmp_path / "out"
+    text = base.save(tmp_path / "c.toml").read_text()
+    cfg = load_campaign_config(tmp_path / "c.toml")
+    assert cfg.statistics.temporal and cfg.statistics.temporal_segment == SEGMENT
+    for old, new, match in (
+        ('pairing = "sequential"', 'pairing = "pairs"', "time-resolved recording"),
+        ("fields = true", "fields = false", "needs each pair's fields"),
+        ("temporal_segment = 32", "temporal_segment = 33", "even"),
+        ("temporal_segment = 32", "temporal_segment = 4", ">= 8"),
+        ("temporal_max_lag = 8", "temporal_max_lag = 0", ">= 1"),
+    ):
+        assert old in text
+        (tmp_path / "bad.toml").write_text(text.replace(old, new))
+        with pytest.raises(InvalidInputError, match=match) as exc:
+            load_campaign_config(tmp_path / "bad.toml")
+        assert "\n" not in str(exc.value)
