@@ -39,13 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass, grid_x
+from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
 from rspiv.campaign.quadrant import _t95
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import map_rows
 from rspiv.conditional import KINDS, ConditionalAccumulator
 from rspiv.errors import InvalidInputError
-from rspiv.report import ReportSection
 
 __all__ = ["FAR", "FAR_SHARE", "report_section", "write_outputs"]
 
@@ -201,8 +200,11 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         said.append(f"no events outside the hole H = {st.conditional_hole:g}: {', '.join(empty)}")
     # a local structure decays away from its event; fluctuations of the whole field do not
     far = np.abs(prof["dx_px"]) >= FAR * np.abs(prof["dx_px"]).max()
+    far_u = u[:, :, ~prof["near_wall"]][..., far]
+    fin = np.isfinite(far_u)
     with np.errstate(invalid="ignore", divide="ignore"):
-        ratio = np.nanmean(u[:, :, ~prof["near_wall"]][..., far], axis=(2, 3)) / prof["event_u"]
+        far_mean = np.where(fin, far_u, 0.0).sum(axis=(2, 3)) / fin.sum(axis=(2, 3))
+        ratio = far_mean / prof["event_u"]  # NaN for a kind without events
     prof["far_ratio"] = ratio
     coherent = [
         f"{KINDS[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'} {ratio[i, j]:.2f}"
@@ -284,14 +286,6 @@ def report_section(camp: Any, res: Any) -> Any:
     prof = res.conditional.get(main.name)
     if prof is None:
         return None
-    figures = []
-    try:
-        from rspiv.plots.conditional import plot_conditional  # deferred: matplotlib
-
-        path = plot_conditional(camp.out_dir / "report" / "figures" / "conditional.png", prof)
-        figures.append((path, f"{main.label}: conditional averages about ejections and sweeps"))
-    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
-        camp.say(f"conditional figure failed: {exc}")
     ev = prof["events"]
     text = (
         f"Conditional averages of u' and v' about ejections (Q2) and sweeps (Q4) at "
@@ -300,6 +294,8 @@ def report_section(camp: Any, res: Any) -> Any:
         "the region each event sits in, its streamwise extent and inclination. Each vector's "
         "fluctuation about its own mean; colour u', arrows (u', v') where resolved at 95 %."
     )
-    if "warning" in prof:
-        text += f"\n\nWarning: {prof['warning']}."
-    return ReportSection("Conditional averages", text=text, figures=figures)
+    return pass_section(
+        camp, prof, "Conditional averages", text,
+        "rspiv.plots.conditional:plot_conditional", "conditional",
+        f"{main.label}: conditional averages about ejections and sweeps",
+    )

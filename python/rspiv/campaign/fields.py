@@ -351,3 +351,32 @@ def finish_pass(
             ds.attrs["warning"] = prof["warning"]
         res.files[f"{stem}_{run.name}"] = write_netcdf(ds, camp.out_dir / f"{stem}_{run.name}.nc")
     return prof
+
+
+def pass_section(
+    camp: Any,
+    prof: dict[str, Any],
+    title: str,
+    text: str,
+    plot: str,
+    name: str,
+    caption: str,
+) -> Any:
+    """The report's section of a second pass over ``prof``: ``text``, the pass's warning after
+    it, and the figure ``plot`` (``"module:function"``, imported only to draw: matplotlib)
+    draws into ``OUT/report/figures/<name>.png`` with ``caption``. A figure that fails is said
+    in the log and left out: a figure must not stop a campaign."""
+    import importlib
+
+    from rspiv.report import ReportSection  # deferred: only a report needs it
+
+    figures = []
+    try:
+        module, function = plot.split(":")
+        draw = getattr(importlib.import_module(module), function)
+        figures.append((draw(camp.out_dir / "report" / "figures" / f"{name}.png", prof), caption))
+    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
+        camp.say(f"{name} figure failed: {exc}")
+    if "warning" in prof:
+        text += f"\n\nWarning: {prof['warning']}."
+    return ReportSection(title, text=text, figures=figures)

@@ -48,11 +48,10 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import finish_pass, grid_x, read_field
+from rspiv.campaign.fields import finish_pass, grid_x, pass_section, read_field
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.pod import PodBuilder
-from rspiv.report import ReportSection
 
 __all__ = ["BLOCK_BYTES", "decompose", "report_section", "select_snapshots", "write_outputs"]
 
@@ -270,14 +269,6 @@ def report_section(camp: Any, res: Any) -> Any:
     prof = res.pod.get(main.name)
     if prof is None:
         return None
-    figures = []
-    try:
-        from rspiv.plots.pod import plot_pod  # deferred: matplotlib
-
-        path = plot_pod(camp.out_dir / "report" / "figures" / "pod.png", prof)
-        figures.append((path, f"{main.label}: POD energy spectrum and leading modes"))
-    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
-        camp.say(f"POD figure failed: {exc}")
     n = prof["energy"].size
     text = (
         f"Snapshot POD of {prof['pairs']} pairs over {prof['vectors']} vectors (the fluctuations "
@@ -288,6 +279,7 @@ def report_section(camp: Any, res: Any) -> Any:
         "neighbour (open symbols) mix with it and are read together. The measurement noise "
         "adds to every eigenvalue."
     )
-    if "warning" in prof:
-        text += f"\n\nWarning: {prof['warning']}."
-    return ReportSection("Proper orthogonal decomposition", text=text, figures=figures)
+    return pass_section(
+        camp, prof, "Proper orthogonal decomposition", text, "rspiv.plots.pod:plot_pod", "pod",
+        f"{main.label}: POD energy spectrum and leading modes",
+    )

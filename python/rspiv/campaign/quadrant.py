@@ -41,11 +41,10 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass
+from rspiv.campaign.fields import each_field, finish_pass, pass_section
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.quadrant import QUADRANTS, QuadrantAccumulator, gaussian_quadrant
-from rspiv.report import ReportSection
 
 __all__ = ["accumulate", "report_section", "write_outputs"]
 
@@ -251,14 +250,6 @@ def report_section(camp: Any, res: Any) -> Any:
     prof = res.quadrant.get(main.name)
     if prof is None or "y_plus" not in prof:
         return None
-    figures = []
-    try:
-        from rspiv.plots.quadrant import plot_quadrant  # deferred: matplotlib
-
-        path = plot_quadrant(camp.out_dir / "report" / "figures" / "quadrant.png", prof)
-        figures.append((path, f"{main.label}: quadrant analysis and joint PDFs"))
-    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
-        camp.say(f"quadrant figure failed: {exc}")
     text = (
         f"Quadrant analysis of u'v' over {prof['pairs']} pairs (each vector's fluctuation about "
         "its own mean; u' downstream, v' away from the wall): Q2 ejections and Q4 sweeps carry "
@@ -267,6 +258,7 @@ def report_section(camp: Any, res: Any) -> Any:
         "quadrants' edges, pulling the fractions at small hole sizes towards that Gaussian's. "
         "Rows within 2.5 window heights of the wall are left out (near_wall)."
     )
-    if "warning" in prof:
-        text += f"\n\nWarning: {prof['warning']}."
-    return ReportSection("Quadrant analysis", text=text, figures=figures)
+    return pass_section(
+        camp, prof, "Quadrant analysis", text, "rspiv.plots.quadrant:plot_quadrant", "quadrant",
+        f"{main.label}: quadrant analysis and joint PDFs",
+    )

@@ -35,11 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass, grid_x
+from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import map_rows
 from rspiv.errors import InvalidInputError
-from rspiv.report import ReportSection
 from rspiv.temporal import TemporalAccumulator
 
 __all__ = ["report_section", "write_outputs"]
@@ -101,8 +100,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     per_interval = images.pair_step / images.frame_gap  # px per pair -> px per pair interval
     usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]
     sign_x = float(p.get("sign_x", 1.0))
-    with np.errstate(invalid="ignore"):
-        u_ref = np.array([np.nanmean(np.where(usable[r], acc.mean_u[r], np.nan)) for r in refs])
+    ok_ref = usable[refs] & np.isfinite(acc.mean_u[refs])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u_ref = np.where(ok_ref, acc.mean_u[refs], 0.0).sum(1) / ok_ref.sum(1)  # NaN: none
     u_ref = sign_x * u_ref * per_interval  # px per pair interval, downstream
     reach = st.temporal_max_lag * float(np.nanmax(np.abs(u_ref), initial=0.0)) / dx_px
     half = min(int(np.ceil(1.25 * reach)) + 8, acc.shape[1] - 1)
@@ -265,14 +265,6 @@ def report_section(camp: Any, res: Any) -> Any:
     prof = res.temporal.get(main.name)
     if prof is None:
         return None
-    figures = []
-    try:
-        from rspiv.plots.temporal import plot_temporal  # deferred: matplotlib
-
-        path = plot_temporal(camp.out_dir / "report" / "figures" / "temporal.png", prof)
-        figures.append((path, f"{main.label}: frequency spectra and space-time correlation"))
-    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
-        camp.say(f"temporal figure failed: {exc}")
     unit = "m/s" if prof["si"] and prof["per_s"] else "px per pair interval"
     conv = ", ".join(
         f"{uc:.3g} {unit} ({ratio:.2f} U)"
@@ -284,6 +276,8 @@ def report_section(camp: Any, res: Any) -> Any:
         f"Convection velocities: {conv}. The measurement noise is a floor under the spectra "
         "at high frequencies and lowers the correlation at every lag but zero."
     )
-    if "warning" in prof:
-        text += f"\n\nWarning: {prof['warning']}."
-    return ReportSection("Frequency spectra and convection", text=text, figures=figures)
+    return pass_section(
+        camp, prof, "Frequency spectra and convection", text,
+        "rspiv.plots.temporal:plot_temporal", "temporal",
+        f"{main.label}: frequency spectra and space-time correlation",
+    )

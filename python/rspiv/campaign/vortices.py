@@ -36,11 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass, grid_x
+from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
 from rspiv.campaign.spec import RunSpec
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError
-from rspiv.report import ReportSection
 from rspiv.vortices import CORE_FIELDS, VortexAccumulator, find_vortices, min_core_vectors
 from rspiv.vorticity import VorticityAccumulator
 
@@ -245,14 +244,6 @@ def report_section(camp: Any, res: Any) -> Any:
     prof = res.vortices.get(main.name)
     if prof is None or "y_plus" not in prof:
         return None
-    figures = []
-    try:
-        from rspiv.plots.vortices import plot_vortices  # deferred: matplotlib
-
-        path = plot_vortices(camp.out_dir / "report" / "figures" / "vortices.png", prof)
-        figures.append((path, f"{main.label}: vortex population"))
-    except Exception as exc:  # noqa: BLE001 - a figure must not stop a campaign
-        camp.say(f"vortex figure failed: {exc}")
     total = prof["count"].sum(axis=0)
     text = (
         f"Vortex cores over {prof['pairs']} pairs (connected vectors whose signed swirling "
@@ -262,6 +253,7 @@ def report_section(camp: Any, res: Any) -> Any:
         f"prograde (turning with the mean shear) and {total[1]} retrograde. Densities are per "
         "delta_99^2 and pair; the measurement noise makes cores too and raises the threshold."
     )
-    if "warning" in prof:
-        text += f"\n\nWarning: {prof['warning']}."
-    return ReportSection("Vortex population", text=text, figures=figures)
+    return pass_section(
+        camp, prof, "Vortex population", text, "rspiv.plots.vortices:plot_vortices", "vortices",
+        f"{main.label}: vortex population",
+    )
