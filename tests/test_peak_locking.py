@@ -170,7 +170,8 @@ def campaigns(tmp_path_factory):
         )
         toml = synth_campaign(d / name, scene=scene)
         text = toml.read_text()
-        for key in ("quadrant", "pod", "vortices", "two_point", "vorticity", "fields"):
+        off = ("quadrant", "pod", "vortices", "conditional", "two_point", "vorticity", "fields")
+        for key in off:
             text = text.replace(f"{key} = true", f"{key} = false")
         toml.write_text(text)
         said: list[str] = []

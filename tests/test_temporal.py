@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from rspiv.errors import InvalidInputError
-from rspiv.temporal import TemporalAccumulator, peak_offset
+from rspiv.temporal import TemporalAccumulator, follow_ridge, peak_offset
 
 NY, NX = 6, 256
 
@@ -141,3 +141,20 @@ def test_peak_offset_and_bad_input():
     acc = TemporalAccumulator(z, z, [1])
     with pytest.raises(InvalidInputError, match="shape"):
         acc.add(z[:2], z, _ones(), pair_id=0)
+
+
+def test_the_ridge_is_followed_past_a_higher_far_lobe():
+    """A pattern of few scales correlates again a wavelength away: at lag 3 a far lobe stands
+    above the ridge (0.9 against 0.8); the ridge, moving 4 columns per lag, is followed, and
+    lost where it falls under 0.2."""
+    d = np.arange(61, dtype=np.float64)
+    r = np.zeros((6, d.size))
+    for lag, top in enumerate((1.0, 0.95, 0.9, 0.8, 0.5, 0.1)):
+        r[lag] = top * np.exp(-0.5 * ((d - 30 - 4 * lag) / 3.0) ** 2)
+    r[3] += 0.9 * np.exp(-0.5 * ((d - 5) / 3.0) ** 2)
+    assert np.argmax(r[3]) == 5  # the largest value is on the lobe
+    pos, val = follow_ridge(r, 30)
+    np.testing.assert_allclose(pos[:5], 30 + 4 * np.arange(5), atol=0.05)
+    np.testing.assert_allclose(val[:5], (1.0, 0.95, 0.9, 0.8, 0.5), atol=1e-6)
+    assert np.isnan(pos[5]) and np.isnan(val[5])
+    assert peak_offset(r[3], near=40.0) == pytest.approx(42.0, abs=0.05)

@@ -130,3 +130,60 @@ def test_temporal_keys_are_checked(tmp_path):
         with pytest.raises(InvalidInputError, match=match) as exc:
             load_campaign_config(tmp_path / "bad.toml")
         assert "\n" not in str(exc.value)
+
+
+def test_pairs_across_two_frames_two_frames_apart(processed, tmp_path):
+    """``frame_gap = 2`` doubles each pair's displacement and ``pair_step = 2`` the time between
+    pairs: the velocities per pair interval follow both (the same frames, 64 pairs of 6 px,
+    two frames apart: the pattern moves 6 px per pair interval)."""
+    camp, _ = processed
+    cfg = _config(tmp_path)
+    cfg.images.glob = camp.config.images.glob
+    cfg.images.frame_gap = cfg.images.pair_step = 2
+    cfg.statistics.temporal_segment = 16
+    res = Campaign.load(cfg.save(tmp_path / "c.toml"), progress=False).run()
+    prof = res.temporal["uncorrected"]
+    assert prof["pairs"] == 64 and prof["segments"].min() > 0
+    np.testing.assert_allclose(prof["U"], 2 * SPEED, rtol=0.005)
+    np.testing.assert_allclose(prof["U_c"], 2 * SPEED, rtol=0.02)
+
+
+def test_si_units_follow_the_pair_interval(processed):
+    """With a calibration and ``[flow] dt`` (the time across ``frame_gap`` frames) the pass
+    gives Hz, (m/s)^2/Hz, s, m and m/s: the same numbers as in px and pair intervals, scaled."""
+    import dataclasses as dc
+
+    from rspiv.campaign.temporal import write_outputs
+
+    camp, res = processed
+    run = res.context.runs[0]
+    an = res.analyses[run.name]
+    px = write_outputs(camp, res, run, an)
+    m_per_px, dt = 2e-5, 1e-3  # 50 px/mm; 1 ms across a frame
+    profile = {**an.profile, "si": True, "m_per_px": m_per_px, "k": m_per_px / dt}
+    camp.config.flow.dt, camp.config.output.netcdf = dt, False  # the fixture's files stay
+    try:
+        si = write_outputs(camp, res, run, dc.replace(an, profile=profile))
+    finally:
+        camp.config.flow.dt, camp.config.output.netcdf = 0.0, True
+    np.testing.assert_allclose(si["f"], px["f"] / dt)  # Hz: a pair interval is a frame
+    np.testing.assert_allclose(si["lag"], px["lag"] * dt)
+    np.testing.assert_allclose(si["U_c"], px["U_c"] * m_per_px / dt)
+    np.testing.assert_allclose(si["U"], px["U"] * m_per_px / dt)
+    np.testing.assert_allclose(si["dx"], px["dx"] * m_per_px)
+    # the variance in (m/s)^2 whichever the units: sum phi df
+    var_px = px["phi_uu"].sum(1) * (px["f"][1] - px["f"][0]) * (m_per_px / dt) ** 2
+    var_si = si["phi_uu"].sum(1) * (si["f"][1] - si["f"][0])
+    np.testing.assert_allclose(var_si, var_px, rtol=1e-12)
+
+
+def test_a_convected_sequence_refuses_bad_input():
+    for kwargs, match in (
+        ({"frames": 1}, "frames"),
+        ({"frames": 2.5}, "frames"),
+        ({"speed": float("nan")}, "finite"),
+        ({"wavelengths": ()}, "wavelength"),
+    ):
+        args = {"shape": (32, 32), "speed": 1.0, "amplitude": 0.1, "frames": 3, **kwargs}
+        with pytest.raises(InvalidInputError, match=match):
+            convected_sequence(**args)

@@ -38,9 +38,12 @@ events are correlations of the events' indicator with the rows: 10-17 ms per fie
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.grid_arrays import as_grid
 
 __all__ = ["KINDS", "ConditionalAccumulator"]
 
@@ -51,12 +54,7 @@ KINDS: tuple[str, ...] = ("Q2", "Q4")
 MAX_MAP = 161
 
 
-def _grid(name: str, a, shape: tuple[int, int] | None = None) -> np.ndarray:
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim != 2 or (shape is not None and arr.shape != shape):
-        want = "a 2-D array" if shape is None else f"shape {shape}"
-        raise InvalidInputError(f"conditional: {name} must be {want}, got shape {arr.shape}")
-    return arr
+_grid = functools.partial(as_grid, "conditional")  # a 2-D array of the grid, checked
 
 
 def _step(n: int) -> int:

@@ -35,9 +35,12 @@ values of a jointly Gaussian (u', v') with correlation coefficient rho.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.grid_arrays import as_grid
 
 __all__ = ["QUADRANTS", "QuadrantAccumulator", "gaussian_quadrant"]
 
@@ -45,12 +48,7 @@ __all__ = ["QUADRANTS", "QuadrantAccumulator", "gaussian_quadrant"]
 QUADRANTS = ("outward interaction", "ejection", "inward interaction", "sweep")
 
 
-def _grid(name: str, a, shape: tuple[int, int] | None = None) -> np.ndarray:
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim != 2 or (shape is not None and arr.shape != shape):
-        want = "a 2-D array" if shape is None else f"shape {shape}"
-        raise InvalidInputError(f"quadrant: {name} must be {want}, got shape {arr.shape}")
-    return arr
+_grid = functools.partial(as_grid, "quadrant")  # a 2-D array of the grid, checked
 
 
 class QuadrantAccumulator:

@@ -13,9 +13,11 @@ keeps, at reference rows, the sums that give:
   ``R_vv``) for time lags ``tau`` of 0 to ``max_lag`` pair intervals and offsets ``dx`` along the
   row, summed in Fourier space along the row (each field's row transformed once; no
   wrap-around);
-- the convection velocity ``U_c(tau)``: the offset of the correlation's peak at each lag over
-  the lag (a parabola through the peak and its neighbours), where the peak stands at 0.2 or more
-  and inside the offsets.
+- the convection velocity ``U_c(tau)``: the offset of the correlation's ridge at each lag over
+  the lag. The ridge is followed from ``dx = 0`` at lag 0, lag by lag, to the local maximum
+  nearest to where its last step points (a parabola through it and its neighbours), while it
+  stands at 0.2 or more inside the offsets (:func:`follow_ridge`): a pattern of a few scales
+  correlates again a wavelength away, and the largest value at a lag can lie on such a lobe.
 
 Conventions and units
 ---------------------
@@ -40,36 +42,63 @@ by ``var / (var + noise)``; the window's width averages the small scales away.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.grid_arrays import as_grid
 
-__all__ = ["TemporalAccumulator", "peak_offset"]
+__all__ = ["TemporalAccumulator", "follow_ridge", "peak_offset"]
 
 #: A lag's correlation peak below this is not a convection velocity (the structures are gone).
 MIN_PEAK = 0.2
 
 
-def _grid(name: str, a, shape: tuple[int, int] | None = None) -> np.ndarray:
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim != 2 or (shape is not None and arr.shape != shape):
-        want = "a 2-D array" if shape is None else f"shape {shape}"
-        raise InvalidInputError(f"temporal: {name} must be {want}, got shape {arr.shape}")
-    return arr
+_grid = functools.partial(as_grid, "temporal")  # a 2-D array of the grid, checked
 
 
-def peak_offset(r: np.ndarray) -> float:
-    """The sub-sample position (index) of the largest value of ``r`` (a parabola through it and
-    its neighbours); NaN when it lies at an end or ``r`` holds no finite value."""
+def peak_offset(r: np.ndarray, near: float | None = None) -> float:
+    """The sub-sample position (index) of a peak of ``r``: the largest value, or with ``near``
+    the local maximum nearest to that index (a parabola through it and its neighbours); NaN
+    when it lies at an end or ``r`` holds no finite value there."""
     r = np.asarray(r, np.float64)
     if not np.isfinite(r).any():
         return float("nan")
-    i = int(np.nanargmax(r))
+    if near is None:
+        i = int(np.nanargmax(r))
+    else:
+        inner = r[1:-1]
+        with np.errstate(invalid="ignore"):
+            top = np.flatnonzero((inner >= r[:-2]) & (inner >= r[2:]) & np.isfinite(inner)) + 1
+        if top.size == 0:
+            return float("nan")
+        i = int(top[np.argmin(np.abs(top - near))])
     if i == 0 or i == r.size - 1 or not np.all(np.isfinite(r[i - 1 : i + 2])):
         return float("nan")
     a, b, c = r[i - 1], r[i], r[i + 1]
     den = a - 2 * b + c
     return float(i + (0.5 * (a - c) / den if den < 0 else 0.0))
+
+
+def follow_ridge(r: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ridge of a space-time correlation ``r`` (lag, offset), followed from the index
+    ``start`` at lag 0: at each lag the local maximum nearest to where the ridge's last step
+    points (so a far lobe of a quasi-periodic pattern is not taken for it), while it stands at
+    :data:`MIN_PEAK` or more. Returns the sub-sample indices and the values (NaN from the
+    first lag it is lost on)."""
+    pos = np.full(r.shape[0], np.nan)
+    val = np.full(r.shape[0], np.nan)
+    at, step = float(start), 0.0
+    for lag in range(r.shape[0]):
+        x = peak_offset(r[lag], near=at + step)
+        j = int(round(x)) if np.isfinite(x) else -1
+        if j < 0 or not r[lag, j] >= MIN_PEAK:
+            break
+        if lag:
+            step = x - at
+        at, pos[lag], val[lag] = x, x, r[lag, j]
+    return pos, val
 
 
 class TemporalAccumulator:
@@ -254,9 +283,9 @@ class TemporalAccumulator:
             ``segments`` (ref): the column-segments averaged; ``lag`` (pair intervals),
             ``offsets`` (grid columns); ``R_uu``, ``R_vv`` (ref, lag, offset) and ``pairs``
             (ref, lag, offset): the products summed; ``var_u``, ``var_v`` (ref): the
-            variances at lag 0; ``peak`` (ref, lag): the largest ``R_uu`` at each lag;
-            ``shift`` (ref, lag): its offset (columns, sub-sample; NaN where under
-            :data:`MIN_PEAK` or at the offsets' ends); ``ref_rows``.
+            variances at lag 0; ``peak`` (ref, lag): ``R_uu`` on the ridge at each lag;
+            ``shift`` (ref, lag): the ridge's offset (columns, sub-sample; NaN from the lag
+            where it falls under :data:`MIN_PEAK` or reaches the offsets' ends); ``ref_rows``.
         """
         m = self.segment
         scale = np.full(m // 2 + 1, 2.0)
@@ -286,12 +315,9 @@ class TemporalAccumulator:
             var_u, var_v = cuu[:, 0, hw], cvv[:, 0, hw]
             r_uu = cuu / var_u[:, None, None]
             r_vv = cvv / var_v[:, None, None]
-        peak = np.nanmax(np.where(np.isfinite(r_uu), r_uu, -np.inf), axis=-1)
-        shift = np.full(peak.shape, np.nan)
-        for i in range(peak.shape[0]):
-            for lag in range(peak.shape[1]):
-                if peak[i, lag] >= MIN_PEAK:
-                    shift[i, lag] = peak_offset(r_uu[i, lag]) - hw
+        ridges = [follow_ridge(r_uu[i], hw) for i in range(r_uu.shape[0])]
+        shift = np.array([pos for pos, _ in ridges]) - hw
+        peak = np.array([val for _, val in ridges])
         out.update(
             lag=np.arange(self.max_lag + 1),
             offsets=cols,
@@ -300,7 +326,7 @@ class TemporalAccumulator:
             pairs=pairs,
             var_u=var_u,
             var_v=var_v,
-            peak=np.where(np.isfinite(peak), peak, np.nan),
+            peak=peak,
             shift=shift,
             ref_rows=self.ref_rows.copy(),
         )

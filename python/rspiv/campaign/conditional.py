@@ -42,7 +42,7 @@ import numpy as np
 from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
 from rspiv.campaign.quadrant import _t95
 from rspiv.campaign.spec import RunSpec
-from rspiv.campaign.two_point import map_rows
+from rspiv.campaign.two_point import map_rows, reference_heights_px
 from rspiv.conditional import KINDS, ConditionalAccumulator
 from rspiv.errors import InvalidInputError
 
@@ -52,20 +52,6 @@ __all__ = ["FAR", "FAR_SHARE", "report_section", "write_outputs"]
 FAR = 0.75
 #: Said when the far part's mean u' exceeds this share of the events' own (no decay).
 FAR_SHARE = 0.5
-
-
-def _heights_px(camp: Any, an: Any) -> list[float]:
-    """The reference heights in px from the wall."""
-    st = camp.config.statistics
-    if st.conditional_height_units == "px":
-        return [float(h) for h in st.conditional_heights]
-    p, bl = an.profile, an.result
-    if bl is None or not p.get("si") or not np.isfinite(bl.delta99):
-        raise InvalidInputError(
-            "conditional_heights in delta_99 need the run's boundary-layer fit (a calibration "
-            "and [flow] dt); give them in px (conditional_height_units = \"px\")"
-        )
-    return [float(h) * bl.delta99 / p["m_per_px"] for h in st.conditional_heights]
 
 
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
@@ -83,7 +69,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     t0 = time.perf_counter()
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    heights = _heights_px(camp, an)
+    heights = reference_heights_px(
+        an, st.conditional_heights, st.conditional_height_units, "conditional_heights"
+    )
     try:
         band, refs = map_rows(dist, heights, res.context.piv.final_window[1])
     except InvalidInputError as exc:

@@ -37,25 +37,11 @@ import numpy as np
 
 from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
 from rspiv.campaign.spec import RunSpec
-from rspiv.campaign.two_point import map_rows
+from rspiv.campaign.two_point import map_rows, reference_heights_px
 from rspiv.errors import InvalidInputError
 from rspiv.temporal import TemporalAccumulator
 
 __all__ = ["report_section", "write_outputs"]
-
-
-def _heights_px(camp: Any, an: Any) -> list[float]:
-    """The reference heights in px from the wall."""
-    st = camp.config.statistics
-    if st.temporal_height_units == "px":
-        return [float(h) for h in st.temporal_heights]
-    p, bl = an.profile, an.result
-    if bl is None or not p.get("si") or not np.isfinite(bl.delta99):
-        raise InvalidInputError(
-            "temporal_heights in delta_99 need the run's boundary-layer fit (a calibration and "
-            '[flow] dt); give them in px (temporal_height_units = "px")'
-        )
-    return [float(h) * bl.delta99 / p["m_per_px"] for h in st.temporal_heights]
 
 
 def _runs(ids: list[int]) -> list[int]:
@@ -80,7 +66,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     t0 = time.perf_counter()
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    heights = _heights_px(camp, an)
+    heights = reference_heights_px(
+        an, st.temporal_heights, st.temporal_height_units, "temporal_heights"
+    )
     try:
         _, rows = map_rows(dist, heights, res.context.piv.final_window[1])
     except InvalidInputError as exc:

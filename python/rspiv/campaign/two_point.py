@@ -127,6 +127,27 @@ def map_rows(dist, heights_px, window_height: float) -> tuple[tuple[int, int], t
     return (int(band.min()), int(band.max()) + 1), tuple(refs)
 
 
+def reference_heights_px(an: Any, heights, units: str, key: str) -> list[float]:
+    """Reference heights in px from the wall of the run analysed in ``an``: ``heights`` as
+    given with ``units = "px"``, else fractions of the run's own delta_99 (``"delta"``), which
+    needs its boundary-layer fit. ``key``: the campaign file's key, for the refusal.
+
+    Raises
+    ------
+    InvalidInputError
+        Heights in delta_99 without the run's boundary-layer fit.
+    """
+    if units == "px":
+        return [float(h) for h in heights]
+    p, bl = an.profile, an.result
+    if bl is None or not p.get("si") or not np.isfinite(bl.delta99):
+        raise InvalidInputError(
+            f"{key} in delta_99 need the run's boundary-layer fit (a calibration and [flow] "
+            f'dt); give them in px ({key.replace("heights", "height_units")} = "px")'
+        )
+    return [float(h) * bl.delta99 / p["m_per_px"] for h in heights]
+
+
 def _inside_frames(ctx: PairContext, run: RunSpec, axis: int) -> np.ndarray:
     """Per grid point: do the run's final windows, widened by half a window on each side for
     the displacement (up to a window width), lie inside the recorded frames along ``axis``
