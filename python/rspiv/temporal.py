@@ -210,17 +210,22 @@ class TemporalAccumulator:
     def add(self, u, v, valid, *, pair_id: int) -> None:
         """Add the next field in time (``pair_id``: its place in the sequence; a gap restarts
         the segment and the lags)."""
-        u = _grid("u", u, self.shape)
-        v = _grid("v", v, self.shape)
+        r = self.ref_rows
+        # only the reference rows are read (a 47 MP field is not copied whole)
+        u, v = (np.asarray(a) for a in (u, v))
+        if u.shape != self.shape or v.shape != self.shape:
+            raise InvalidInputError(
+                f"temporal: u and v must be of shape {self.shape}, got {u.shape}, {v.shape}"
+            )
+        u, v = u[r].astype(np.float64), v[r].astype(np.float64)
         pid = int(pair_id)
         if self._last is not None and pid != self._last + 1:
             self._reset()
         self._last = pid
-        r = self.ref_rows
         ok = np.asarray(valid, bool).reshape(self.shape)[r] & self.usable[r]
-        ok &= np.isfinite(u[r]) & np.isfinite(v[r])
-        uf = np.where(ok, self.sign_x * (u[r] - self.mean_u[r]), 0.0)
-        vf = np.where(ok, self.sign_y * (v[r] - self.mean_v[r]), 0.0)
+        ok &= np.isfinite(u) & np.isfinite(v)
+        uf = np.where(ok, self.sign_x * (u - self.mean_u[r]), 0.0)
+        vf = np.where(ok, self.sign_y * (v - self.mean_v[r]), 0.0)
         # the space-time sums against every earlier field within max_lag
         n = self._nfft
         now = (np.fft.rfft(uf, n, axis=1), np.fft.rfft(vf, n, axis=1),
