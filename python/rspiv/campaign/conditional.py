@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
+from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_field_files
 from rspiv.campaign.quadrant import _t95
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import map_rows, reference_heights_px
@@ -76,15 +76,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         band, refs = map_rows(dist, heights, res.context.piv.final_window[1])
     except InvalidInputError as exc:
         raise InvalidInputError(f"[statistics] conditional_heights: {exc}") from None
-    writer = camp.field_writer()
-    ids = sorted(acc.pair_ids)
-    paths = {pid: writer.path(run.name, pid) for pid in ids}
-    first = next((paths[i] for i in ids if paths[i].exists()), None)
-    if first is None:
-        raise InvalidInputError(
-            f"none of the {len(paths)} pairs has a field file in {paths[ids[0]].parent}"
-        )
-    x = grid_x(first)
+    ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
     dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
     half_width = min(int(np.ceil(2.0 * max(heights) / dx_px)), acc.shape[1] - 1)
     usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]

@@ -290,6 +290,27 @@ def grid_x(path: pathlib.Path) -> np.ndarray:
         raise InvalidInputError(f"{path}: not a readable field file ({exc})") from None
 
 
+def run_field_files(
+    camp: Any, run: str, pair_ids
+) -> tuple[list[int], dict[int, pathlib.Path], np.ndarray]:
+    """The field files of ``run``'s pairs ``pair_ids``: the ids in order, pair id -> file, and
+    the grid's ``x`` (px) from the first file there.
+
+    Raises
+    ------
+    InvalidInputError
+        None of the pairs has a field file (named: the folder).
+    """
+    writer = camp.field_writer()
+    ids = sorted(pair_ids)
+    paths = {pid: writer.path(run, pid) for pid in ids}
+    first = next((paths[i] for i in ids if paths[i].exists()), None)
+    if first is None:
+        where = paths[ids[0]].parent if ids else writer.path(run, 0).parent
+        raise InvalidInputError(f"none of the {len(paths)} pairs has a field file in {where}")
+    return ids, paths, grid_x(first)
+
+
 def each_field(
     paths: dict[int, pathlib.Path],
     shape: tuple[int, int],

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
+from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_field_files
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import map_rows, reference_heights_px
 from rspiv.errors import InvalidInputError
@@ -74,15 +74,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     except InvalidInputError as exc:
         raise InvalidInputError(f"[statistics] temporal_heights: {exc}") from None
     refs = np.asarray(rows, np.int64)
-    writer = camp.field_writer()
-    ids = sorted(acc.pair_ids)
-    paths = {pid: writer.path(run.name, pid) for pid in ids}
-    first = next((paths[i] for i in ids if paths[i].exists()), None)
-    if first is None:
-        raise InvalidInputError(
-            f"none of the {len(paths)} pairs has a field file in {paths[ids[0]].parent}"
-        )
-    x = grid_x(first)
+    ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
     dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
     images = cfg.images
     per_interval = images.pair_step / images.frame_gap  # px per pair -> px per pair interval

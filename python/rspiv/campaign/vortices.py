@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import each_field, finish_pass, grid_x, pass_section
+from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_field_files
 from rspiv.campaign.spec import RunSpec
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError
@@ -90,15 +90,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         omega = np.where(usable, va.mean("omega"), 0.0).sum(1) / usable.sum(1) * orient
     thr = np.where(rows_in & (rms > 0), st.vortex_threshold * rms, np.inf)
     prograde = -1.0 if np.nanmedian(omega[rows_in]) <= 0 else 1.0
-    writer = camp.field_writer()
-    ids = sorted(acc.pair_ids)
-    paths = {pid: writer.path(run.name, pid) for pid in ids}
-    first = next((paths[i] for i in ids if paths[i].exists()), None)
-    if first is None:
-        raise InvalidInputError(
-            f"none of the {len(paths)} pairs has a field file in {paths[ids[0]].parent}"
-        )
-    x = grid_x(first)
+    ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
     min_vectors = min_core_vectors(
         st.vortex_min_diameter * max(res.context.piv.final_window), va.dx, va.dy
     )
