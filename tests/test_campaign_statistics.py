@@ -568,3 +568,20 @@ def test_conditional_averages_of_a_whole_field_drift_are_said(processed, tmp_pat
     assert np.all(np.abs(res.conditional["uncorrected"]["far_ratio"]) < 0.5)
     summary = json.loads((out / "summary.json").read_text())
     assert "do not decay" in summary["runs"]["method_II"]["conditional"]["warning"]
+
+
+def test_a_run_without_field_files_is_refused_in_one_line(processed, tmp_path):
+    """Every field file of a run gone: its second passes that need the grid (vortices,
+    conditional averages) are refused in one line naming the folder; the other run's stand."""
+
+    def drop(out: pathlib.Path):
+        for f in (out / "fields" / "method_II").glob("pair_*.nc"):
+            f.unlink()
+
+    res, said, out = _reanalyse(processed, tmp_path, drop)
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("conditional", "vortices"):
+        err = summary["runs"]["method_II"][f"{key}_error"]
+        assert err.startswith("none of the 3 pairs has a field file in ") and "\n" not in err
+        assert err.endswith(str(out / "fields" / "method_II"))
+        assert "method_II" not in getattr(res, key) and "uncorrected" in getattr(res, key)
