@@ -43,7 +43,7 @@ import functools
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.grid_arrays import as_grid
+from rspiv.grid_arrays import as_grid, entering
 
 __all__ = ["KINDS", "ConditionalAccumulator"]
 
@@ -133,16 +133,7 @@ class ConditionalAccumulator:
             raise InvalidInputError(f"conditional: signs must be +1 or -1, got {sign_x}, {sign_y}")
         if not (np.isfinite(hole) and hole >= 0):
             raise InvalidInputError(f"conditional: the hole must be a number >= 0, got {hole}")
-        ok = (
-            np.isfinite(self.mean_u)
-            & np.isfinite(self.mean_v)
-            & (self.rms_u > 0)
-            & (self.rms_v > 0)
-            & np.isfinite(self.rms_u * self.rms_v)
-        )
-        if usable is not None:
-            ok &= np.asarray(usable, bool).reshape(self.shape)
-        self.usable = ok
+        self.usable = entering(self.mean_u, self.mean_v, self.rms_u, self.rms_v, usable)
         self.sign_x, self.sign_y = float(sign_x), float(sign_y)
         self.hole = float(hole)
         self.ref_rows = refs

@@ -11,7 +11,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["as_grid"]
+__all__ = ["as_grid", "entering"]
 
 
 def as_grid(who: str, name: str, a, shape: tuple[int, int] | None = None) -> np.ndarray:
@@ -27,3 +27,19 @@ def as_grid(who: str, name: str, a, shape: tuple[int, int] | None = None) -> np.
         want = "a 2-D array" if shape is None else f"shape {shape}"
         raise InvalidInputError(f"{who}: {name} must be {want}, got shape {arr.shape}")
     return arr
+
+
+def entering(mean_u, mean_v, rms_u, rms_v, usable=None) -> np.ndarray:
+    """The vectors that may enter a pass about each vector's mean and spread: mean finite,
+    spreads positive and finite, and ``usable`` (a bool array of the grid's shape) where
+    given."""
+    ok = (
+        np.isfinite(mean_u)
+        & np.isfinite(mean_v)
+        & (rms_u > 0)
+        & (rms_v > 0)
+        & np.isfinite(rms_u * rms_v)
+    )
+    if usable is not None:
+        ok &= np.asarray(usable, bool).reshape(np.shape(mean_u))
+    return ok

@@ -40,7 +40,7 @@ import functools
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.grid_arrays import as_grid
+from rspiv.grid_arrays import as_grid, entering
 
 __all__ = ["QUADRANTS", "QuadrantAccumulator", "gaussian_quadrant"]
 
@@ -114,16 +114,7 @@ class QuadrantAccumulator:
             raise InvalidInputError(f"quadrant: signs must be +1 or -1, got {sign_x}, {sign_y}")
         if int(bins) < 4 or not (extent > 0):
             raise InvalidInputError(f"quadrant: bins >= 4 and extent > 0, got {bins}, {extent}")
-        ok = (
-            np.isfinite(self.mean_u)
-            & np.isfinite(self.mean_v)
-            & (self.rms_u > 0)
-            & (self.rms_v > 0)
-            & np.isfinite(self.rms_u * self.rms_v)
-        )
-        if usable is not None:
-            ok &= np.asarray(usable, bool).reshape(self.shape)
-        self.usable = ok
+        self.usable = entering(self.mean_u, self.mean_v, self.rms_u, self.rms_v, usable)
         self.sign_x, self.sign_y = float(sign_x), float(sign_y)
         self.holes = holes
         # level edges: 0 first (every event), then the holes above 0

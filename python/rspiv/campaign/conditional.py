@@ -42,7 +42,7 @@ import numpy as np
 from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_field_files
 from rspiv.campaign.quadrant import _t95
 from rspiv.campaign.spec import RunSpec
-from rspiv.campaign.two_point import map_rows, reference_heights_px
+from rspiv.campaign.two_point import reference_rows
 from rspiv.conditional import KINDS, ConditionalAccumulator
 from rspiv.errors import InvalidInputError
 
@@ -69,13 +69,10 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     t0 = time.perf_counter()
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    heights = reference_heights_px(
-        an, st.conditional_heights, st.conditional_height_units, "conditional_heights"
+    band, refs, heights = reference_rows(
+        an, st.conditional_heights, st.conditional_height_units, "conditional_heights",
+        res.context.piv.final_window[1],
     )
-    try:
-        band, refs = map_rows(dist, heights, res.context.piv.final_window[1])
-    except InvalidInputError as exc:
-        raise InvalidInputError(f"[statistics] conditional_heights: {exc}") from None
     ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
     dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
     half_width = min(int(np.ceil(2.0 * max(heights) / dx_px)), acc.shape[1] - 1)

@@ -37,7 +37,7 @@ import numpy as np
 
 from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_field_files
 from rspiv.campaign.spec import RunSpec
-from rspiv.campaign.two_point import map_rows, reference_heights_px
+from rspiv.campaign.two_point import reference_rows
 from rspiv.errors import InvalidInputError
 from rspiv.temporal import TemporalAccumulator
 
@@ -66,14 +66,10 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     t0 = time.perf_counter()
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    heights = reference_heights_px(
-        an, st.temporal_heights, st.temporal_height_units, "temporal_heights"
+    _, refs, _ = reference_rows(
+        an, st.temporal_heights, st.temporal_height_units, "temporal_heights",
+        res.context.piv.final_window[1],
     )
-    try:
-        _, rows = map_rows(dist, heights, res.context.piv.final_window[1])
-    except InvalidInputError as exc:
-        raise InvalidInputError(f"[statistics] temporal_heights: {exc}") from None
-    refs = np.asarray(rows, np.int64)
     ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
     dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
     images = cfg.images

@@ -148,6 +148,27 @@ def reference_heights_px(an: Any, heights, units: str, key: str) -> list[float]:
     return [float(h) * bl.delta99 / p["m_per_px"] for h in heights]
 
 
+def reference_rows(
+    an: Any, heights, units: str, key: str, window_height: float
+) -> tuple[tuple[int, int], np.ndarray, list[float]]:
+    """The band and the reference rows (:func:`map_rows`) of the heights ``heights`` in
+    ``units`` of the run analysed in ``an``, and the heights in px
+    (:func:`reference_heights_px`).
+
+    Raises
+    ------
+    InvalidInputError
+        ``[statistics] <key>: ...``: heights in delta_99 without the run's boundary-layer fit,
+        or a height the rows cannot hold.
+    """
+    px = reference_heights_px(an, heights, units, key)
+    try:
+        band, refs = map_rows(np.asarray(an.profile["dist_px"], np.float64), px, window_height)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"[statistics] {key}: {exc}") from None
+    return band, np.asarray(refs, np.int64), px
+
+
 def _inside_frames(ctx: PairContext, run: RunSpec, axis: int) -> np.ndarray:
     """Per grid point: do the run's final windows, widened by half a window on each side for
     the displacement (up to a window width), lie inside the recorded frames along ``axis``
