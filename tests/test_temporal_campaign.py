@@ -183,6 +183,9 @@ def test_a_convected_sequence_refuses_bad_input():
         ({"frames": 2.5}, "frames"),
         ({"speed": float("nan")}, "finite"),
         ({"wavelengths": ()}, "wavelength"),
+        ({"noise": -0.1}, "noise >= 0"),
+        ({"density": 0.0}, "density and diameter must be > 0"),
+        ({"shape": (0, 32)}, "must be positive"),
     ):
         args = {"shape": (32, 32), "speed": 1.0, "amplitude": 0.1, "frames": 3, **kwargs}
         with pytest.raises(InvalidInputError, match=match):

@@ -128,16 +128,29 @@ def particle_sequence(
     return _render(shape, displacement, offsets, density, diameter, noise, seed, bits)
 
 
-def _render(shape, displacement, offsets, density, diameter, noise, seed, bits) -> list:
-    """Frames of particles drawn around midpoints ``p`` and placed at ``p + o d(p)`` for each
-    offset ``o`` of ``offsets`` (:func:`particle_pair`: -1/2 and 1/2)."""
+def _checked(shape, density, diameter, noise, bits) -> tuple[int, int]:
+    """``(h, w)`` of a scene whose particles' parameters are checked (one line each)."""
     h, w = (int(s) for s in shape)
     if h < 1 or w < 1:
         raise InvalidInputError(f"shape {shape} must be positive")
     if not (density > 0 and diameter > 0 and noise >= 0 and 1 <= bits <= 16):
         raise InvalidInputError("density and diameter must be > 0, noise >= 0, 1 <= bits <= 16")
-    rng = np.random.default_rng(seed)
+    return h, w
+
+
+def _brightness(rng, n: int, diameter: float, noise: float, bits: int) -> tuple:
+    """Each particle's peak (uniform in [0.6, 1.0] x 80 % of full scale), the noise's standard
+    deviation, the diameter as the renderer takes it and the full scale."""
     full = float(2**bits - 1)
+    peak = 0.8 * full * rng.uniform(0.6, 1.0, n)
+    return peak, noise * 0.8 * full * 0.8, np.array([float(diameter)]), int(full)
+
+
+def _render(shape, displacement, offsets, density, diameter, noise, seed, bits) -> list:
+    """Frames of particles drawn around midpoints ``p`` and placed at ``p + o d(p)`` for each
+    offset ``o`` of ``offsets`` (:func:`particle_pair`: -1/2 and 1/2)."""
+    h, w = _checked(shape, density, diameter, noise, bits)
+    rng = np.random.default_rng(seed)
     margin = 2.0 * diameter + 4.0
     while True:
         area = (w + 2 * margin) * (h + 2 * margin)
@@ -153,15 +166,13 @@ def _render(shape, displacement, offsets, density, diameter, noise, seed, bits) 
         if reach + 2.0 * diameter + 2.0 <= margin:
             break
         margin = reach + 2.0 * diameter + 4.0
-    peak = 0.8 * full * rng.uniform(0.6, 1.0, n)
-    sigma = noise * 0.8 * full * 0.8
-    diam = np.array([float(diameter)])
+    peak, sigma, diam, full = _brightness(rng, n, diameter, noise, bits)
     seeds = rng.integers(0, 2**63 - 1, len(offsets))
     frames = []
     for sign, s in zip(offsets, seeds, strict=True):
         frames.append(
             _rspiv.render_particles(
-                h, w, xm + sign * u, ym + sign * v, peak, diam, sigma, int(full), int(s)
+                h, w, xm + sign * u, ym + sign * v, peak, diam, sigma, full, int(s)
             )
         )
     return frames
@@ -211,7 +222,7 @@ def convected_sequence(
         raise InvalidInputError(f"frames must be an integer >= 2, got {frames!r}")
     if not (np.isfinite(speed) and np.isfinite(amplitude) and len(wavelengths) > 0):
         raise InvalidInputError("speed and amplitude must be finite, with one wavelength or more")
-    h, w = (int(s) for s in shape)
+    h, w = _checked(shape, density, diameter, noise, bits)
     rng = np.random.default_rng(seed)
     k = 2 * np.pi / np.asarray(wavelengths, np.float64)
     mw = k / 1.5
@@ -233,10 +244,7 @@ def convected_sequence(
     n = rng.poisson(density * (x1 - x0) * (h + 2 * margin))
     x = rng.uniform(x0, x1, n)
     y = rng.uniform(-margin, h - 1 + margin, n)
-    full = float(2**bits - 1)
-    peak = 0.8 * full * rng.uniform(0.6, 1.0, n)
-    sigma = noise * 0.8 * full * 0.8
-    diam = np.array([float(diameter)])
+    peak, sigma, diam, full = _brightness(rng, n, diameter, noise, bits)
     seeds = rng.integers(0, 2**63 - 1, int(frames))
     out = []
     dt = 1.0 / int(substeps)
@@ -244,7 +252,7 @@ def convected_sequence(
     for f in range(int(frames)):
         inside = (x > -edge) & (x < w - 1 + edge) & (y > -edge) & (y < h - 1 + edge)
         out.append(_rspiv.render_particles(h, w, x[inside], y[inside], peak[inside], diam,
-                                           sigma, int(full), int(seeds[f])))  # fmt: skip
+                                           sigma, full, int(seeds[f])))  # fmt: skip
         for s in range(int(substeps)):
             t = f + s * dt
             u1, v1 = velocity(x, y, t)
