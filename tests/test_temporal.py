@@ -158,3 +158,6 @@ def test_the_ridge_is_followed_past_a_higher_far_lobe():
     np.testing.assert_allclose(val[:5], (1.0, 0.95, 0.9, 0.8, 0.5), atol=1e-6)
     assert np.isnan(pos[5]) and np.isnan(val[5])
     assert peak_offset(r[3], near=40.0) == pytest.approx(42.0, abs=0.05)
+    for bad, start in ((r[0], 30), (r, 61), (r, -1)):
+        with pytest.raises(InvalidInputError, match="ridge needs a"):
+            follow_ridge(bad, start)

@@ -86,7 +86,19 @@ def follow_ridge(r: np.ndarray, start: int) -> tuple[np.ndarray, np.ndarray]:
     ``start`` at lag 0: at each lag the local maximum nearest to where the ridge's last step
     points (so a far lobe of a quasi-periodic pattern is not taken for it), while it stands at
     :data:`MIN_PEAK` or more. Returns the sub-sample indices and the values (NaN from the
-    first lag it is lost on)."""
+    first lag it is lost on).
+
+    Raises
+    ------
+    InvalidInputError
+        ``r`` not 2-D, or ``start`` outside its offsets.
+    """
+    r = np.asarray(r, np.float64)
+    if r.ndim != 2 or not 0 <= int(start) < r.shape[1]:
+        raise InvalidInputError(
+            f"temporal: the ridge needs a (lag, offset) array and a start inside its "
+            f"{r.shape[-1] if r.ndim else 0} offsets, got shape {r.shape} and {start}"
+        )
     pos = np.full(r.shape[0], np.nan)
     val = np.full(r.shape[0], np.nan)
     at, step = float(start), 0.0
