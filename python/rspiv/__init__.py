@@ -35,6 +35,7 @@ from rspiv.recording import RecordingCheck, check_recording
 from rspiv.reference import load_dns
 from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
+from rspiv.spod import SpodResult, spod
 from rspiv.stats import FieldAccumulator
 from rspiv.temporal import TemporalAccumulator
 from rspiv.two_point import TwoPointAccumulator
@@ -57,4 +58,4 @@ __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
 __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]
 __all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds", "ConditionalAccumulator"]
-__all__ += ["TemporalAccumulator"]
+__all__ += ["TemporalAccumulator", "SpodResult", "spod"]

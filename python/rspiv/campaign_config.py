@@ -132,6 +132,13 @@ A complete file (every key optional except where noted; defaults shown)::
     temporal_height_units = "delta"      # "delta" (the run's delta_99) | "px" from the wall
     temporal_segment = 256       # pairs per Welch segment (even, 8-65536)
     temporal_max_lag = 32        # the correlations' largest time lag, pair intervals
+    spod = false                 # spectral POD of a time-resolved recording, a second pass
+                                 # over the fields (rspiv.spod; needs [output] fields and
+                                 # pairing = "sequential"; spod_<run>.nc, a report figure)
+    spod_segment = 256           # pairs per block (even, 8-65536), blocks overlap by half
+    spod_modes = 3               # leading modes kept at each chosen frequency (1-50)
+    spod_frequencies = 6         # frequencies whose modes are kept: largest f lambda_1 (1-64)
+    spod_height = 0.0            # domain up to this many delta_99 from the wall (0: all)
     screen = 7.0                 # leave out of the statistics a vector farther than this
                                  # many local spreads from its pilot pairs' centre (a random
                                  # vector the median test passed: rspiv.outlier_screen; 0: off)
@@ -421,6 +428,11 @@ class StatisticsConfig:
     temporal_height_units: str = "delta"
     temporal_segment: int = 256
     temporal_max_lag: int = 32
+    spod: bool = False
+    spod_segment: int = 256
+    spod_modes: int = 3
+    spod_frequencies: int = 6
+    spod_height: float = 0.0
     screen: float = SCREEN_SIGMAS
 
 
@@ -659,18 +671,19 @@ def parse_campaign_config(
             "[statistics].noise_correction",
             "needs the per-vector uncertainty ([piv] uncertainty = true)",
         )
-    for key in ("quadrant", "pod", "vortices", "conditional", "temporal"):
+    for key in ("quadrant", "pod", "vortices", "conditional", "temporal", "spod"):
         if getattr(cfg.statistics, key) and not cfg.output.fields:
             raise ctx.err(
                 f"[statistics].{key}",
                 "needs each pair's fields ([output] fields = true): the second pass reads them",
             )
-    if cfg.statistics.temporal and cfg.images.pairing != "sequential":
-        raise ctx.err(
-            "[statistics].temporal",
-            'needs a time-resolved recording ([images] pairing = "sequential"): the pairs of a '
-            "double-frame camera are not a time series",
-        )
+    for key in ("temporal", "spod"):
+        if getattr(cfg.statistics, key) and cfg.images.pairing != "sequential":
+            raise ctx.err(
+                f"[statistics].{key}",
+                'needs a time-resolved recording ([images] pairing = "sequential"): the pairs '
+                "of a double-frame camera are not a time series",
+            )
     if cfg.statistics.vortices and not cfg.statistics.vorticity:
         raise ctx.err(
             "[statistics].vortices",

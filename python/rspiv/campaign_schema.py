@@ -299,6 +299,13 @@ PARSERS: dict[str, dict[str, Any]] = {
         "temporal_max_lag": lambda c, w, v: _number(
             c, w, v, integer=True, minimum=1, maximum=4096
         ),
+        "spod": _boolean,
+        "spod_segment": _segment,
+        "spod_modes": lambda c, w, v: _number(c, w, v, integer=True, minimum=1, maximum=50),
+        "spod_frequencies": lambda c, w, v: _number(
+            c, w, v, integer=True, minimum=1, maximum=64
+        ),
+        "spod_height": lambda c, w, v: _number(c, w, v, minimum=0),
         "screen": lambda c, w, v: _number(c, w, v, minimum=0),
     },
     "ensemble": {

@@ -46,7 +46,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["PodBuilder", "PodResult", "pod"]
+__all__ = ["PodBuilder", "PodResult", "domain_fluctuations", "pod"]
 
 
 @dataclasses.dataclass
@@ -131,6 +131,39 @@ class PodResult:
         )
 
 
+def domain_fluctuations(
+    domain: np.ndarray, mean_u: np.ndarray, mean_v: np.ndarray, rows: slice, u, v, valid
+) -> tuple[np.ndarray, int, int]:
+    """``(m, 2 d)`` fluctuations of ``m`` snapshots at the ``d`` vectors of ``domain`` in
+    ``rows`` (``u'`` of every vector, then ``v'``; a rejected or non-finite vector is 0, its
+    mean), the samples so filled and the samples counted. ``u``, ``v``, ``valid``: ``(m,
+    rows, nx)``; ``domain``, ``mean_u``, ``mean_v``: the whole grid's."""
+    u, v = np.asarray(u), np.asarray(v)
+    dom = domain[rows]
+    if u.shape[1:] != dom.shape or v.shape != u.shape:
+        raise InvalidInputError(
+            f"a block of rows {rows.start}:{rows.stop} must be (snapshots, {dom.shape[0]}, "
+            f"{dom.shape[1]}), got {u.shape} and {v.shape}"
+        )
+    m = u.shape[0]
+    idx: np.ndarray | slice = np.flatnonzero(dom)
+    d = idx.size
+    if d and idx[-1] - idx[0] == d - 1:  # one run of vectors (whole rows): no gather
+        idx = slice(int(idx[0]), int(idx[-1]) + 1)
+    x = np.empty((m, 2 * d))
+    xu, xv = x[:, :d], x[:, d:]
+    xu[...] = u.reshape(m, -1)[:, idx]
+    xv[...] = v.reshape(m, -1)[:, idx]
+    xu -= mean_u[rows].ravel()[idx]
+    xv -= mean_v[rows].ravel()[idx]
+    bad = ~(np.isfinite(xu) & np.isfinite(xv))
+    if valid is not None:
+        bad |= ~np.asarray(valid, bool).reshape(m, -1)[:, idx]
+    np.copyto(xu, 0.0, where=bad)
+    np.copyto(xv, 0.0, where=bad)
+    return x, int(np.count_nonzero(bad)), bad.size
+
+
 class PodBuilder:
     """A snapshot POD built from blocks of rows, then the modes from whole snapshots.
 
@@ -179,32 +212,7 @@ class PodBuilder:
         self._added: np.ndarray | None = None
 
     def _fluct(self, rows: slice, u, v, valid) -> tuple[np.ndarray, int, int]:
-        """``(m, 2 d)`` fluctuations of ``m`` snapshots at the ``d`` domain vectors of ``rows``
-        (gaps 0), the gaps and the samples counted."""
-        u, v = np.asarray(u), np.asarray(v)
-        dom = self.domain[rows]
-        if u.shape[1:] != dom.shape or v.shape != u.shape:
-            raise InvalidInputError(
-                f"a block of rows {rows.start}:{rows.stop} must be (snapshots, {dom.shape[0]}, "
-                f"{dom.shape[1]}), got {u.shape} and {v.shape}"
-            )
-        m = u.shape[0]
-        idx: np.ndarray | slice = np.flatnonzero(dom)
-        d = idx.size
-        if d and idx[-1] - idx[0] == d - 1:  # one run of vectors (whole rows): no gather
-            idx = slice(int(idx[0]), int(idx[-1]) + 1)
-        x = np.empty((m, 2 * d))
-        xu, xv = x[:, :d], x[:, d:]
-        xu[...] = u.reshape(m, -1)[:, idx]
-        xv[...] = v.reshape(m, -1)[:, idx]
-        xu -= self.mean_u[rows].ravel()[idx]
-        xv -= self.mean_v[rows].ravel()[idx]
-        bad = ~(np.isfinite(xu) & np.isfinite(xv))
-        if valid is not None:
-            bad |= ~np.asarray(valid, bool).reshape(m, -1)[:, idx]
-        np.copyto(xu, 0.0, where=bad)
-        np.copyto(xv, 0.0, where=bad)
-        return x, int(np.count_nonzero(bad)), bad.size
+        return domain_fluctuations(self.domain, self.mean_u, self.mean_v, rows, u, v, valid)
 
     def add_rows(self, rows: slice, u, v, valid=None) -> None:
         """Add every snapshot's rows ``rows`` (``u``, ``v``, ``valid``: ``(n, rows, nx)``,

@@ -49,13 +49,47 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 from rspiv.grid_arrays import as_grid
 
-__all__ = ["TemporalAccumulator", "follow_ridge", "peak_offset"]
+__all__ = [
+    "TemporalAccumulator",
+    "consecutive_runs",
+    "follow_ridge",
+    "hann_taper",
+    "one_sided_density",
+    "peak_offset",
+]
 
 #: A lag's correlation peak below this is not a convection velocity (the structures are gone).
 MIN_PEAK = 0.2
 
 
 _grid = functools.partial(as_grid, "temporal")  # a 2-D array of the grid, checked
+
+
+def hann_taper(m: int) -> np.ndarray:
+    """The periodic Hann window of ``m`` samples (scipy.signal.welch's): a line on a bin fills
+    3 bins."""
+    return 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(m) / m)
+
+
+def one_sided_density(m: int) -> np.ndarray:
+    """The factor per bin of ``rfft`` of a Hann-tapered segment of ``m`` samples (``m`` even)
+    that makes ``|X|^2`` a one-sided spectral density per cycle per sample: 2 (1 at 0 and the
+    Nyquist bin) over the taper's sum of squares, so ``sum phi(f_j) / m`` is the variance the
+    taper passes."""
+    scale = np.full(m // 2 + 1, 2.0)
+    scale[0] = 1.0
+    scale[-1] = 1.0  # m even: the Nyquist bin is its own
+    return scale / np.sum(hann_taper(m) ** 2)
+
+
+def consecutive_runs(ids) -> list[int]:
+    """The lengths of the runs of consecutive integers in sorted ``ids`` (a gap in a time
+    series' pair ids ends a run)."""
+    ids = np.asarray(ids, np.int64)
+    if ids.size == 0:
+        return []
+    cut = np.flatnonzero(np.diff(ids) != 1) + 1
+    return [len(r) for r in np.split(ids, cut)]
 
 
 def peak_offset(r: np.ndarray, near: float | None = None) -> float:
@@ -188,8 +222,7 @@ class TemporalAccumulator:
         self.min_valid = float(min_valid)
         self._nfft = nx + hw
         nr, nf, nk = refs.size, self.segment // 2 + 1, self._nfft // 2 + 1
-        # the periodic Hann window (scipy.signal.welch's): a line on a bin fills 3 bins
-        self._taper = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(self.segment) / self.segment)
+        self._taper = hann_taper(self.segment)
         # Welch sums per reference: |U|^2, |V|^2, Re(U conj V) and the column-segments
         self.p_uu = np.zeros((nr, nf))
         self.p_vv = np.zeros((nr, nf))
@@ -305,10 +338,7 @@ class TemporalAccumulator:
             where it falls under :data:`MIN_PEAK` or reaches the offsets' ends); ``ref_rows``.
         """
         m = self.segment
-        scale = np.full(m // 2 + 1, 2.0)
-        scale[0] = 1.0
-        scale[-1] = 1.0  # m even: the Nyquist bin is its own
-        norm = scale / np.sum(self._taper**2)
+        norm = one_sided_density(m)
         seg = np.maximum(self.segments, 1)[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             out: dict[str, np.ndarray] = {

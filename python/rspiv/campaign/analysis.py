@@ -33,6 +33,7 @@ from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import screen as screen_work
+from rspiv.campaign import spod as spod_work
 from rspiv.campaign import temporal as temporal_work
 from rspiv.campaign import two_point as two_point_work
 from rspiv.campaign import vortices as vortices_work
@@ -365,6 +366,7 @@ ANALYSIS_STEMS = (
     "vortices",
     "conditional",
     "temporal",
+    "spod",
     "pairs",
 )
 
@@ -538,6 +540,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             ("vortices", "vortex", vortices_work.write_outputs, res.vortices),
             ("conditional", "conditional", conditional_work.write_outputs, res.conditional),
             ("temporal", "temporal", temporal_work.write_outputs, res.temporal),
+            ("spod", "SPOD", spod_work.write_outputs, res.spod),
         )
         for key, what, write, store in bands:
             try:
@@ -671,6 +674,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         (res.vortices, vortices_work),
         (res.conditional, conditional_work),
         (res.temporal, temporal_work),
+        (res.spod, spod_work),
     ):
         sec = work.report_section(camp, res) if store else None
         if sec is not None:

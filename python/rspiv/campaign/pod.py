@@ -53,7 +53,14 @@ from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.pod import PodBuilder
 
-__all__ = ["BLOCK_BYTES", "decompose", "report_section", "select_snapshots", "write_outputs"]
+__all__ = [
+    "BLOCK_BYTES",
+    "decompose",
+    "flow_domain",
+    "report_section",
+    "select_snapshots",
+    "write_outputs",
+]
 
 #: Memory of one block of rows while the inner products are summed (float64 u and v).
 BLOCK_BYTES = 256 << 20
@@ -112,11 +119,40 @@ def decompose(
         builder.add_snapshot(i, u, v, ok)
 
 
+def flow_domain(camp: Any, res: Any, an: Any, acc: Any, height: float, key: str) -> np.ndarray:
+    """The vectors a decomposition of the run's fields takes (module docstring, Domain): on
+    the flow side, outside the rows the wall shapes, with at least ``[statistics] min_count``
+    valid samples, up to ``height`` delta_99 from the wall when it is positive (``key`` names
+    the setting in the refusal).
+
+    Raises
+    ------
+    InvalidInputError
+        ``height`` set without the run's boundary-layer fit; no vector left.
+    """
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    p = an.profile
+    dist = np.asarray(p["dist_px"], np.float64)
+    near = dist < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1]
+    rows_in = (dist > 0) & ~near
+    res_bl = an.result
+    if height > 0:
+        if res_bl is None or not p.get("si") or not np.isfinite(res_bl.delta99):
+            raise InvalidInputError(
+                f"{key} = {height:g} delta_99 needs the run's boundary-layer fit "
+                "(a calibration and [flow] dt), which it has not"
+            )
+        rows_in &= dist * p["m_per_px"] <= height * res_bl.delta99
+    domain = (acc.count >= max(camp.config.statistics.min_count, 2)) & rows_in[:, None]
+    if not domain.any():
+        raise InvalidInputError(f"no vector off the wall has enough valid samples ({key})")
+    return domain
+
+
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
     """The POD of ``run`` (module docstring), written as ``OUT/pod_<run>.nc`` (with ``[output]
     netcdf``); None when ``[statistics] pod`` is off."""
-    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
-
     st = camp.config.statistics
     if not st.pod:
         return None
@@ -126,21 +162,10 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     t0 = time.perf_counter()
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    near = dist < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1]
-    rows_in = (dist > 0) & ~near
     si = bool(p.get("si"))
     m = p["m_per_px"] if si else 1.0
     res_bl = an.result
-    if st.pod_height > 0:
-        if res_bl is None or not si or not np.isfinite(res_bl.delta99):
-            raise InvalidInputError(
-                f"pod_height = {st.pod_height:g} delta_99 needs the run's boundary-layer fit "
-                "(a calibration and [flow] dt), which it has not"
-            )
-        rows_in &= dist * m <= st.pod_height * res_bl.delta99
-    domain = (acc.count >= max(st.min_count, 2)) & rows_in[:, None]
-    if not domain.any():
-        raise InvalidInputError("no vector off the wall has enough valid samples for the POD")
+    domain = flow_domain(camp, res, an, acc, st.pod_height, "pod_height")
     writer = camp.field_writer()
     chosen = select_snapshots(acc.pair_ids, st.pod_snapshots)
     paths = {pid: writer.path(run.name, pid) for pid in chosen}

@@ -147,6 +147,8 @@ class CampaignResult:
     temporal : dict
         Run name -> its frequency spectra and convection velocities (``[statistics]
         temporal``; empty without).
+    spod : dict
+        Run name -> its spectral POD (``[statistics] spod``; empty without).
     vorticity : dict
         Run name -> its vorticity profile (``[statistics] vorticity``; empty without).
     """
@@ -180,6 +182,8 @@ class CampaignResult:
     conditional: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its frequency spectra and convection velocities (:mod:`rspiv.campaign.temporal`)
     temporal: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    #: run name -> its spectral POD (:mod:`rspiv.campaign.spod`)
+    spod: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: run name -> its vorticity profile (:mod:`rspiv.campaign.vorticity`)
     vorticity: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
     #: each pair's figures per run and the pairs unlike the main run

@@ -39,17 +39,9 @@ from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_fie
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import reference_rows
 from rspiv.errors import InvalidInputError
-from rspiv.temporal import TemporalAccumulator
+from rspiv.temporal import TemporalAccumulator, consecutive_runs
 
 __all__ = ["report_section", "write_outputs"]
-
-
-def _runs(ids: list[int]) -> list[int]:
-    """The lengths of the runs of consecutive ids in sorted ``ids``."""
-    if not ids:
-        return []
-    cut = np.flatnonzero(np.diff(ids) != 1) + 1
-    return [len(r) for r in np.split(np.asarray(ids), cut)]
 
 
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
@@ -162,7 +154,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"{len(missing)} of {len(paths)} pairs have no field file (first: pair "
             f"{missing[0]}): the series break there"
         )
-    lengths = _runs(sorted(set(ids) - set(missing)))
+    lengths = consecutive_runs(sorted(set(ids) - set(missing)))
     if len(lengths) > 1:
         said.append(
             f"the pairs form {len(lengths)} unbroken series (the longest {max(lengths)} pairs): "
