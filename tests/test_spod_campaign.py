@@ -66,6 +66,8 @@ def test_the_waves_are_the_leading_modes_at_their_speed(processed):
         assert prof["leading_fraction"][b] > 0.95
         assert prof["phase_speed"][i] == pytest.approx(SPEED, rel=0.003)
         assert prof["energy_low"][b] > prof["second_high"][b]
+    # the pattern's harmonics stand above the floor up to the Nyquist frequency, if not there
+    assert not prof["f_noise"] < 0.5
     with xr.open_dataset(res.out_dir / "spod_uncorrected.nc", engine="h5netcdf") as ds:
         assert ds["energy"].dims == ("f", "mode") and ds.attrs["blocks"] == 9
         assert ds["phi_u_re"].dims == ("mode_f", "kept", "y", "x")
@@ -169,6 +171,8 @@ def test_a_recording_without_structures_is_said(tmp_path):
     prof = res.spod["uncorrected"]
     assert prof["blocks"] == 9
     assert "nothing coherent stands out" in prof["warning"]
+    # the PIV's noise is the whole of it: within twice its floor at every frequency
+    assert prof["f_noise"] == 0.0 and "the decomposition is of the noise" in prof["warning"]
     assert prof["leading_fraction"][1:].max() < 0.5
 
 

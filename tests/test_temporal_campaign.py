@@ -110,6 +110,25 @@ def test_the_spectra_are_welchs_of_the_written_fields(processed):
         np.testing.assert_allclose(prof["phi_uu"][i], pxx.mean(axis=1), rtol=1e-9, atol=1e-12)
 
 
+def test_the_noise_floor_is_each_vectors_uncertainty(processed):
+    """The floor is 2 <sigma^2> of the reference rows' vectors (white, one-sided); above the
+    pattern's three lines (0.019-0.047 cycles per pair interval) the spectra are the PIV's
+    noise, and they lie on it."""
+    _, res = processed
+    prof = res.temporal["uncorrected"]
+    acc = res.accumulators["uncorrected"]
+    refs = prof["ref_rows"]
+    usable = (acc.count >= 2)[refs]
+    for c, noise in (("u", acc.noise_uu()), ("v", acc.noise_vv())):
+        s2 = np.array([noise[r][usable[i]].mean() for i, r in enumerate(refs)])
+        np.testing.assert_allclose(prof[f"noise_{c}{c}"], 2 * s2, rtol=1e-12)
+        plateau = prof[f"phi_{c}{c}"][:, prof["f"] >= 0.15].mean(axis=1)
+        ratio = plateau / prof[f"noise_{c}{c}"]
+        assert np.all((ratio > 0.75) & (ratio < 1.25)), ratio  # 0.91-0.98 measured
+        assert np.all((prof[f"f_noise_{c}"] > 0.047) & (prof[f"f_noise_{c}"] <= 0.2))
+    assert "noise" not in prof.get("warning", "")
+
+
 def test_temporal_keys_are_checked(tmp_path):
     """``[statistics] temporal``: needs the fields and a time-resolved recording; the segment
     even and at least 8; anything else named in one line."""

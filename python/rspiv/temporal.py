@@ -54,6 +54,7 @@ __all__ = [
     "consecutive_runs",
     "follow_ridge",
     "hann_taper",
+    "noise_reached",
     "one_sided_density",
     "peak_offset",
 ]
@@ -80,6 +81,22 @@ def one_sided_density(m: int) -> np.ndarray:
     scale[0] = 1.0
     scale[-1] = 1.0  # m even: the Nyquist bin is its own
     return scale / np.sum(hann_taper(m) ** 2)
+
+
+def noise_reached(phi, floor, factor: float = 2.0) -> np.ndarray:
+    """The index of the lowest frequency from which a spectrum ``phi`` (``(..., nf)``) stays
+    under ``factor`` times its noise floor ``floor`` (``(...)``, a white floor's density) at
+    every higher frequency: -1 where it never does (resolved to the Nyquist frequency), 0 where
+    it does at every frequency (noise throughout; the mean's bin 0 aside, 1). NaN floors give
+    -1."""
+    phi = np.asarray(phi, np.float64)
+    floor = np.broadcast_to(np.asarray(floor, np.float64)[..., None], phi.shape)
+    with np.errstate(invalid="ignore"):
+        under = phi < factor * floor
+    # under from index j to the end: the reversed cumulative product
+    tail = np.cumprod(under[..., ::-1], axis=-1)[..., ::-1].astype(bool)
+    first = np.argmax(tail, axis=-1)
+    return np.where(tail.any(axis=-1), first, -1)
 
 
 def consecutive_runs(ids) -> list[int]:

@@ -29,13 +29,17 @@ frequencies (those where ``f lambda_1`` is largest): ``phi_u_re``, ``phi_u_im``,
 ``phi_v_im`` (dims ``mode_f, mode, y, x``; unit norm over the domain, NaN outside; u downstream,
 v away from the wall, rows by distance from the wall), and each kept frequency's ``phase_speed``:
 the leading mode's phase speed downstream, ``2 pi f`` over the fall of its phase per unit
-length (the mean phase step between neighbours along x, weighted by their amplitudes). A report
+length (the mean phase step between neighbours along x, weighted by their amplitudes);
+``noise_total``: the PIV's noise floor of ``total``, ``2 <sigma^2>`` summed over the domain's
+values (each vector's uncertainty, taken as white; see :mod:`rspiv.campaign.temporal` for why it
+is not quite), and ``f_noise``, the frequency from which ``total`` stays under twice it. A report
 figure.
 
 Said in one line (log, file, report): missing field files and gaps (the series they leave);
 more than 5 % of the domain's samples filled; fewer than 8 blocks (the interval spans more than
-a factor of 3); and no frequency where the leading eigenvalue's interval clears the second's
-(nothing coherent stands out of these blocks' sampling error).
+a factor of 3); the energy within twice the noise floor at every frequency; and no frequency
+where the leading eigenvalue's interval clears the second's (nothing coherent stands out of
+these blocks' sampling error).
 """
 
 from __future__ import annotations
@@ -51,12 +55,13 @@ from rspiv.campaign.pod import flow_domain
 from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.spod import SpodBuilder, SpodResult
+from rspiv.temporal import noise_reached
 
 __all__ = ["BLOCK_BYTES", "MEMORY_BYTES", "phase_speed", "report_section", "write_outputs"]
 
 #: The series is held in memory (float64) up to this size, beyond it on disk (float32).
 MEMORY_BYTES = 1 << 30
-#: Memory of one slice of the domain's values while the transforms are summed (about 48 bytes
+#: Memory of one slice of the domain's values while the transforms are summed (about 64 bytes
 #: per value and pair: the values, the tapered blocks and their transforms).
 BLOCK_BYTES = 256 << 20
 
@@ -114,7 +119,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             {pid: paths[pid] for pid in present}, acc.shape, run.name, lambda w: None, add,
             screen=res.context.screens().get(run.name),
         )  # fmt: skip
-        per = max(1, BLOCK_BYTES // (48 * n_t))
+        per = max(1, BLOCK_BYTES // (64 * n_t))
         slices = [slice(c, min(c + per, n_val)) for c in range(0, n_val, per)]
         for sl in slices:
             builder.add_columns(sl, series[:, sl])
@@ -164,6 +169,13 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "pairs": n_t,
         "missing": missing,
     }
+    # the PIV's noise, white: 2 <sigma^2> per value (one-sided), summed over the domain
+    with np.errstate(invalid="ignore"):
+        s2 = float(np.nansum(acc.noise_uu()[domain] + acc.noise_vv()[domain]))
+    has_noise = bool(np.isfinite(acc.noise_uu()[domain]).any())
+    prof["noise_total"] = 2.0 * s2 * e_scale if has_noise else float("nan")
+    reach = int(noise_reached(prof["total"], prof["noise_total"]))
+    prof["f_noise"] = float(prof["f"][reach]) if reach >= 0 else float("nan")
     bl = an.result
     if bl is not None and si:
         prof["y_plus"] = prof["y"] / (bl.nu / bl.u_tau)
@@ -193,6 +205,11 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         said.append(
             f"only {r.blocks} blocks of {r.segment} pairs: an eigenvalue's 95 % interval spans "
             f"a factor of {spread:.1f}"
+        )
+    if 0 <= reach <= 1:
+        said.append(
+            "the fluctuation energy lies within twice the PIV's noise floor (each vector's "
+            "uncertainty, white) at every frequency: the decomposition is of the noise"
         )
     clears = prof["energy_low"][1:] > prof["second_high"][1:]
     if not clears.any():
@@ -228,6 +245,10 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
                     "eigenvalue, summed over the domain's vectors (one-sided)"})  # fmt: skip
     ds["total"] = ("f", prof["total"], {"units": psd, "long_name": "every eigenvalue summed"})
     ds["leading_fraction"] = ("f", prof["leading_fraction"], {"units": "1"})
+    ds["noise_total"] = ((), prof["noise_total"], {"units": psd, "long_name": "the PIV's white "
+                         "noise floor of total: 2 <sigma^2> summed over the domain"})  # fmt: skip
+    ds["f_noise"] = ((), prof["f_noise"], {"units": "Hz" if per_s else "1", "long_name":
+                     "from here up total stays under twice the noise floor"})  # fmt: skip
     for key, what in (("energy_low", "lower"), ("energy_high", "upper")):
         name = f"{what} end of the leading eigenvalue's 95 % interval"
         ds[key] = ("f", prof[key], {"units": psd, "long_name": name})
@@ -277,8 +298,18 @@ def report_section(camp: Any, res: Any) -> Any:
         f"{100 * np.nanmax(prof['leading_fraction'][1:]):.0f} % of its frequency's energy at "
         f"most; its modes are kept at {', '.join(f'{f:.3g}' for f in prof['mode_f'])} {unit}. "
         "The band is the leading eigenvalue's 95 % interval; the measurement noise adds to "
-        "every eigenvalue."
+        "every eigenvalue"
     )
+    if np.isfinite(prof["noise_total"]):
+        where = (
+            "at no frequency" if np.isnan(prof["f_noise"]) else f"from {prof['f_noise']:.3g} {unit}"
+        )
+        text += (
+            f" (the dotted line, from each vector's uncertainty, taken as white: the energy "
+            f"summed over the modes reaches twice it {where})."
+        )
+    else:
+        text += "."
     return pass_section(
         camp, prof, "Spectral proper orthogonal decomposition", text,
         "rspiv.plots.spod:plot_spod", "spod", f"{main.label}: SPOD spectrum and leading mode",

@@ -21,11 +21,18 @@ and px^2 per pair interval), the premultiplied ``f phi_uu / u_tau^2`` with a bou
 ``segments``; ``R_uu``, ``R_vv`` against ``lag`` (s) and ``dx`` (downstream positive), ``peak``
 and ``shift`` per lag, and the convection velocity ``U_c`` (the shifts over the lags, a line
 through the origin fitted to the lags whose peak stands at 0.2 or more) beside the row's mean
-``U`` and their ratio. A report figure.
+``U`` and their ratio. The PIV's noise floor per reference, ``noise_uu``, ``noise_vv``: ``2
+<sigma^2>`` (the run's mean per-vector uncertainty over the row, taken as white, in the spectra's
+units; NaN without ``[piv] uncertainty``), and ``f_noise_u``, ``f_noise_v``: the frequency from
+which the spectrum stays under twice it (NaN: never). Sequential pairs share a frame, so their
+errors are partly anti-correlated: the real floor is lower at low frequencies and higher near the
+Nyquist frequency (0.14 to 1.5 times the white one on uniform motion, whose fluctuations are all
+noise). A report figure.
 
 Said in one line (log, file attribute, report): a pair whose field file is missing, and gaps in
 the pairs (a gap restarts the segments and the lags); fewer consecutive pairs than a segment (no
-spectrum); a reference whose correlation has no peak to follow (no convection velocity).
+spectrum); a reference whose correlation has no peak to follow (no convection velocity); a
+spectrum within twice its noise floor at every frequency (it measures the noise).
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_fie
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import reference_rows
 from rspiv.errors import InvalidInputError
-from rspiv.temporal import TemporalAccumulator, consecutive_runs
+from rspiv.temporal import TemporalAccumulator, consecutive_runs, noise_reached
 
 __all__ = ["report_section", "write_outputs"]
 
@@ -136,12 +143,23 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     }
     with np.errstate(invalid="ignore", divide="ignore"):
         prof["U_c_ratio"] = prof["U_c"] / prof["U"]
+    # the PIV's noise: white, 2 <sigma^2> per cycle per pair interval (one-sided)
+    for c, noise in (("u", acc.noise_uu()), ("v", acc.noise_vv())):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s2 = np.where(ok_ref, noise[refs], 0.0).sum(1) / np.sum(
+                ok_ref & np.isfinite(noise[refs]), axis=1
+            )
+        floor = 2.0 * s2 * vel2 * interval
+        reach = noise_reached(prof[f"phi_{c}{c}"], floor)
+        prof[f"noise_{c}{c}"] = floor
+        prof[f"f_noise_{c}"] = np.where(reach >= 0, prof["f"][np.maximum(reach, 0)], np.nan)
     bl = an.result
     if bl is not None and si and dt > 0:
         lv = bl.nu / bl.u_tau
         prof["y_ref_plus"] = prof["y_ref"] / lv
         prof["f_phi_uu_plus"] = prof["f"] * prof["phi_uu"] / bl.u_tau**2
         prof["f_phi_vv_plus"] = prof["f"] * prof["phi_vv"] / bl.u_tau**2
+        prof["noise_uu_plus"] = prof["noise_uu"] / bl.u_tau**2  # times f: wall units
         prof["delta_99"] = float(bl.delta99)
     prof["seconds"] = time.perf_counter() - t0
     camp.say(
@@ -172,6 +190,18 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"space-time correlation has no peak of {0.2:g} or more inside the offsets at two "
             "lags or more (the structures decorrelate within a pair interval, or noise)"
         )
+    drowned = [
+        f"{c} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'}"
+        for c in ("u", "v")
+        for i in range(len(refs))
+        if prof[f"f_noise_{c}"][i] <= prof["f"][1] and r["segments"][i] > 0
+    ]
+    if drowned:
+        said.append(
+            f"the spectra of {', '.join(drowned)} lie within twice the PIV's noise floor (each "
+            "vector's uncertainty, white) at every frequency: they measure the noise, not the "
+            "flow"
+        )
     return finish_pass(camp, res, run, prof, said, "temporal", "temporal", _dataset)
 
 
@@ -199,6 +229,11 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
         ds[f"phi_{q}"] = (("ref", "f"), prof[f"phi_{q}"], {"units": psd,
                           "long_name": "one-sided frequency spectrum (Welch, Hann)"})  # fmt: skip
     ds["segments"] = ("ref", prof["segments"], {"long_name": "column-segments averaged"})
+    for q in ("u", "v"):
+        ds[f"noise_{q}{q}"] = ("ref", prof[f"noise_{q}{q}"], {"units": psd, "long_name":
+                               "the PIV's white noise floor, 2 <sigma^2> (one-sided)"})  # fmt: skip
+        ds[f"f_noise_{q}"] = ("ref", prof[f"f_noise_{q}"], {"units": freq, "long_name":
+                              "from here up the spectrum stays under twice the floor"})  # fmt: skip
     for q in ("uu", "vv"):
         ds[f"R_{q}"] = (("ref", "lag", "dx"), prof[f"R_{q}"].astype(np.float32),
                         {"units": "1", "long_name": "space-time correlation coefficient"})
@@ -244,6 +279,18 @@ def report_section(camp: Any, res: Any) -> Any:
         f"Convection velocities: {conv}. The measurement noise is a floor under the spectra "
         "at high frequencies and lowers the correlation at every lag but zero."
     )
+    freq = "Hz" if prof["per_s"] else "cycles per pair interval"
+    reach = [
+        f"{'beyond the Nyquist frequency' if np.isnan(f) else f'{f:.3g} {freq}'} at "
+        f"{y:.3g} {'m' if prof['si'] else 'px'}"
+        for f, y in zip(prof["f_noise_u"], prof["y_ref"], strict=True)
+    ]
+    if np.isfinite(prof["noise_uu"]).any():
+        text += (
+            " The PIV's noise floor (dotted; 2 <sigma_u^2> from each vector's uncertainty, "
+            "taken as white: the estimate is good to about 30 %) is reached by the u spectra "
+            f"from {', '.join(reach)}: above it they hold mostly noise."
+        )
     return pass_section(
         camp, prof, "Frequency spectra and convection", text,
         "rspiv.plots.temporal:plot_temporal", "temporal",

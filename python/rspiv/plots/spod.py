@@ -36,6 +36,9 @@ def plot_spod(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Path:
                     color="C0", alpha=0.25, lw=0, label="mode 1, 95 % interval")  # fmt: skip
     for j in range(min(3, lam.shape[1])):
         ax.plot(fs, fs * lam[1:, j], color=f"C{j}", label=f"mode {j + 1}")
+    ax.plot(fs, fs * prof["total"][1:], color="k", lw=0.8, label="all modes")
+    if np.isfinite(prof.get("noise_total", np.nan)):
+        ax.plot(fs, fs * prof["noise_total"], "k:", lw=1.0, label="noise floor, all modes")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("f (Hz)" if prof["per_s"] else "f (cycles per pair interval)")

@@ -40,11 +40,14 @@ def plot_temporal(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Path
         for q, ls in (("uu", "-"), ("vv", "--")):
             spec = prof[f"f_phi_{q}_plus"][i] if plus else f * prof[f"phi_{q}"][i]
             ax.plot(f[1:], spec[1:], ls=ls, color=f"C{i}", label=f"{q}, {label}")
+        floor = prof["noise_uu_plus" if plus else "noise_uu"][i]
+        if np.isfinite(floor):  # the PIV's white noise floor of u, premultiplied
+            ax.plot(f[1:], f[1:] * floor, ls=":", color=f"C{i}", lw=1.0)
     ax.set_xscale("log")
     ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("f (Hz)" if prof["per_s"] else "f (cycles per pair interval)")
     ax.set_ylabel(r"$f \phi / u_\tau^2$" if plus else r"$f \phi$")
-    ax.set_title("premultiplied frequency spectra (dashed: v)")
+    ax.set_title("premultiplied frequency spectra (dashed: v; dotted: u's noise floor)")
     ax.legend(fontsize=7)
     dx, lag = np.asarray(prof["dx"]), np.asarray(prof["lag"])
     r = np.asarray(prof["R_uu"][0], np.float64)
