@@ -491,7 +491,8 @@ def test_the_conditional_averages_equal_direct_sums_over_the_fields(processed):
                     np.testing.assert_allclose(c["v"][i, kind] / k, sv / n, rtol=1e-9, atol=1e-12)
         with xr.open_dataset(res.out_dir / f"conditional_{run}.nc", engine="h5netcdf") as ds:
             assert ds["u"].dims == ("ref", "kind", "y", "dx")
-            assert list(ds["kind"].values) == ["Q2", "Q4"]
+            # with the vortex pass on, the averages about its cores follow the quadrant kinds
+            assert list(ds["kind"].values) == ["Q2", "Q4", "prograde", "retrograde"]
             assert ds["u"].attrs["units"] == "m s-1" and ds["dx"].attrs["units"] == "m"
             np.testing.assert_allclose(ds["u"].values, c["u"], rtol=1e-6)
             assert "u_plus" in ds and ds.attrs["pairs"] == 3
@@ -500,6 +501,91 @@ def test_the_conditional_averages_equal_direct_sums_over_the_fields(processed):
     assert (res.out_dir / "report" / "figures" / "conditional.png").is_file()
     summary = json.loads((res.out_dir / "summary.json").read_text())
     assert summary["runs"]["method_II"]["conditional"]["pairs"] == 3
+
+
+def test_averages_about_vortex_cores_are_direct_sums_about_the_listed_cores(processed):
+    """With ``vortices`` on, ``conditional`` also averages about the vortex pass's cores whose
+    centroid lies nearest a reference row (each at the vector nearest its centroid): the direct
+    sums of the written fields about the cores ``vortices_<run>.nc`` lists; and the average
+    turns, at its centre, as its cores do (prograde: with the mean shear, clockwise here)."""
+    import xarray as xr
+    from rspiv.campaign.conditional import write_outputs
+
+    _, camp, res = processed
+    st = camp.config.statistics
+    run = "method_II"
+    acc = res.accumulators[run]
+    prof = res.analyses[run].profile
+    vort = res.vortices[run]
+    t = vort["cores"]
+    m = prof["m_per_px"]
+    dist = prof["dist_px"]
+    field = next((res.out_dir / "fields" / run).glob("pair_*.nc"))
+    with xr.open_dataset(field, engine="h5netcdf") as ds:
+        xg = ds["x"].values.astype(np.float64)
+    rows = np.argmin(np.abs(dist[None, :] * m - t["y"][:, None]), axis=1)
+    cols = np.rint(np.interp(t["x"] / m, xg, np.arange(xg.size))).astype(int)
+    # the two rows holding the most cores that the conditional plan accepts, as references
+    plan_ok = dist >= 2.5 * res.context.piv.final_window[1] + 1
+    counts = np.bincount(rows, minlength=dist.size) * plan_ok
+    refs = np.sort(np.argsort(counts)[-2:])
+    assert counts[refs].min() >= 2
+    keep = (st.conditional_heights, st.conditional_height_units)
+    camp.config.output.netcdf = False  # the fixture's files stay the campaign's
+    try:
+        st.conditional_heights, st.conditional_height_units = tuple(dist[refs]), "px"
+        c = write_outputs(camp, res, res.context.runs[0], res.analyses[run])
+    finally:
+        st.conditional_heights, st.conditional_height_units = keep
+        camp.config.output.netcdf = True
+    assert c["kinds"] == ["Q2", "Q4", "prograde", "retrograde"]
+    np.testing.assert_array_equal(c["ref_rows"], refs)
+    sx, sy, k = prof["sign_x"], prof["sign_y"], prof["k"]
+    u, v, ok = _fields(res.out_dir, run)
+    ok &= (acc.count >= 2) & (dist > 0)[:, None] & np.isfinite(u) & np.isfinite(v)
+    du = np.where(ok, sx * (u - acc.mean_u), 0.0)
+    dv = np.where(ok, sy * (v - acc.mean_v), 0.0)
+    map_rows = np.array([np.flatnonzero(dist == y)[0] for y in c["dist_px"]])
+    offsets = np.rint(sx * c["dx_px"] / float(np.median(np.diff(xg)))).astype(int)
+    nx = u.shape[2]
+    pro = t["sign"] == vort["prograde_sign"]
+    pairs = sorted(acc.pair_ids)
+    for i, ref in enumerate(refs):
+        for kind, mine in ((2, pro), (3, ~pro)):
+            at = set()  # two cores on one vector are one event
+            for j in np.flatnonzero(mine & (rows == ref)):
+                p = pairs.index(int(t["pair"][j]))
+                if ok[p, ref, cols[j]]:
+                    at.add((p, int(cols[j])))
+            assert c["events"][i, kind] == len(at)
+            if not at:
+                continue
+            su = np.zeros((map_rows.size, offsets.size))
+            sv, n = np.zeros_like(su), np.zeros_like(su)
+            for p, col in at:
+                where = col + offsets
+                inside = (where >= 0) & (where < nx)
+                sel = np.ix_(map_rows, where[inside])
+                su[:, inside] += du[p][sel]
+                sv[:, inside] += dv[p][sel]
+                n[:, inside] += ok[p][sel]
+            np.testing.assert_array_equal(c["count"][i, kind], n)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                np.testing.assert_allclose(c["u"][i, kind] / k, su / n, rtol=1e-9, atol=1e-12)
+                np.testing.assert_allclose(c["v"][i, kind] / k, sv / n, rtol=1e-9, atol=1e-12)
+    assert c["events"][:, 2:].sum() >= 4
+    # the average's vorticity at its centre (flow frame: x downstream, y from the wall)
+    ys, xs = c["dist_px"], c["dx_px"]
+    for i, ref in enumerate(refs):
+        r0 = int(np.argmin(np.abs(ys - dist[ref])))  # the map's rows may step over it
+        c0 = int(np.flatnonzero(xs == 0)[0])
+        for kind, sign in ((2, vort["prograde_sign"]), (3, -vort["prograde_sign"])):
+            if c["events"][i, kind] == 0:
+                continue
+            uu, vv = c["u"][i, kind], c["v"][i, kind]
+            dvdx = (vv[r0, c0 + 1] - vv[r0, c0 - 1]) / (xs[c0 + 1] - xs[c0 - 1])
+            dudy = (uu[r0 + 1, c0] - uu[r0 - 1, c0]) / (ys[r0 + 1] - ys[r0 - 1])
+            assert np.sign(dvdx - dudy) == sign
 
 
 def test_conditional_heights_the_run_cannot_hold_are_refused(processed):
@@ -556,7 +642,7 @@ def test_conditional_averages_of_a_whole_field_drift_are_said(processed, tmp_pat
     prof = res.conditional["method_II"]
     # the drift carries the far part: 0.3-0.8 of the events' own here (the pairs' own
     # fluctuations are of the drift's size), against -0.04 to -0.01 without it (the demo)
-    ratio = prof["far_ratio"]
+    ratio = prof["far_ratio"][:, :2]  # the quadrant kinds (no vortex core centred there)
     assert np.all(ratio > 0.25) and (ratio > FAR_SHARE).sum() >= 2
     assert "do not decay away from their events" in prof["warning"]
     for i, j in zip(*np.nonzero(ratio > FAR_SHARE), strict=True):
@@ -565,7 +651,7 @@ def test_conditional_averages_of_a_whole_field_drift_are_said(processed, tmp_pat
         assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m" not in prof["warning"]
     assert any("WARNING" in m and "conditional averages" in m for m in said)
     assert "decay" not in res.conditional["uncorrected"].get("warning", "")
-    assert np.all(np.abs(res.conditional["uncorrected"]["far_ratio"]) < 0.5)
+    assert np.all(np.abs(res.conditional["uncorrected"]["far_ratio"][:, :2]) < 0.5)
     summary = json.loads((out / "summary.json").read_text())
     assert "do not decay" in summary["runs"]["method_II"]["conditional"]["warning"]
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rspiv.conditional import ConditionalAccumulator
+from rspiv.conditional import KINDS, VORTEX_KINDS, ConditionalAccumulator
 from rspiv.errors import InvalidInputError
 
 
@@ -160,6 +160,65 @@ def test_gaussian_fields_give_the_linear_stochastic_estimate():
                 se = np.sqrt(np.mean(r[f"{q}_se"][i, k] ** 2))
                 assert 0.7 < err / se < 1.4, (i, k, q, err, se)
                 assert np.abs(want).max() > 8 * se  # a structure well above the noise
+
+
+def test_events_named_by_the_caller_are_averaged_about():
+    """Vortex kinds: the caller's events (each a vector of a reference row) give the direct
+    sums of the fluctuations about them; an event on a vector that does not enter is not one;
+    the quadrant kinds beside them are unchanged."""
+    rng = np.random.default_rng(5)
+    ny, nx = 24, 60
+    mean = rng.normal(0, 0.2, (ny, nx))
+    rms = np.ones((ny, nx))
+    refs = [7, 15]
+    fields, named = [], []
+    for _ in range(6):
+        u = mean + rng.normal(size=(ny, nx))
+        v = mean + rng.normal(size=(ny, nx))
+        valid = rng.random((ny, nx)) > 0.1
+        ev = {k: rng.random((len(refs), nx)) < 0.1 for k in VORTEX_KINDS}
+        fields.append((u, v, valid))
+        named.append(ev)
+    kinds = ("prograde", "Q2", "retrograde", "Q4")
+    acc = ConditionalAccumulator(mean, mean, rms, rms, refs, rows=(2, 22), half_width=9,
+                                 kinds=kinds)  # fmt: skip
+    plain = ConditionalAccumulator(mean, mean, rms, rms, refs, rows=(2, 22), half_width=9)
+    for p, ((u, v, valid), ev) in enumerate(zip(fields, named, strict=True)):
+        acc.add(u, v, valid, pair_id=p, events=ev)
+        plain.add(u, v, valid, pair_id=p)
+    r, q = acc.results(), plain.results()
+    assert list(r["kinds"]) == list(kinds)
+    for k, kind in enumerate(kinds):
+        if kind in KINDS:  # the quadrant kinds as without the others
+            j = KINDS.index(kind)
+            np.testing.assert_array_equal(r["u"][:, k], q["u"][:, j])
+            continue
+        for i, ref in enumerate(refs):
+            su = np.zeros((20, 19))
+            n = np.zeros_like(su)
+            events = 0
+            for (u, _, valid), ev in zip(fields, named, strict=True):
+                uf = np.where(valid, u - mean, 0.0)
+                for c in np.flatnonzero(ev[kind][i] & valid[ref]):
+                    events += 1
+                    for j, d in enumerate(range(-9, 10)):
+                        if 0 <= c + d < nx:
+                            su[:, j] += uf[2:22, c + d]
+                            n[:, j] += valid[2:22, c + d]
+            assert r["events"][i, k] == events > 0
+            np.testing.assert_array_equal(r["count"][i, k], n)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                np.testing.assert_allclose(r["u"][i, k], su / n, rtol=1e-12, atol=1e-12)
+    with pytest.raises(InvalidInputError, match="prograde events of this field are missing"):
+        acc.add(*fields[0])
+    with pytest.raises(InvalidInputError, match="must be boolean"):
+        acc.add(*fields[0], events={"prograde": np.zeros((2, nx)), "retrograde": ev["retrograde"]})
+    with pytest.raises(InvalidInputError, match="kinds must be distinct"):
+        ConditionalAccumulator(mean, mean, rms, rms, refs, kinds=("Q2", "Q2"))
+    with pytest.raises(InvalidInputError, match="kinds must be distinct"):
+        ConditionalAccumulator(mean, mean, rms, rms, refs, kinds=("Q3",))
+    with pytest.raises(InvalidInputError, match="other plans"):
+        acc.merge(plain)
 
 
 def test_bad_input_is_refused():

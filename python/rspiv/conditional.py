@@ -1,4 +1,5 @@
-"""Conditional averages of the velocity fluctuations about ejections and sweeps.
+"""Conditional averages of the velocity fluctuations about ejections and sweeps, and about
+events named by the caller (vortex cores).
 
 What an ejection (a Q2 event: ``u' < 0``, ``v' > 0``) or a sweep (Q4: ``u' > 0``, ``v' < 0``)
 at a reference height looks like around it, on average: the low- or high-speed region it sits
@@ -26,6 +27,10 @@ units (px per pair); offsets ``d`` in grid columns (``sign_x d`` columns downstr
 ``col_step``-th offset from ``-half_width`` to ``half_width``, so that a 47 MP grid's map
 stays at about 160 x 160 points (the structures are the boundary layer's, many vectors wide).
 
+Other events: the kinds :data:`VORTEX_KINDS` (``prograde``, ``retrograde``) are events the
+caller names field by field (``add(..., events=...)``: a vortex pass's cores, each at the grid
+vector nearest its centroid on a reference row); the averages about them are the same sums.
+
 Standard errors: from ``batches`` batch means of contiguous pairs (the caller names each
 field's batch), which keeps the correlation of an event's neighbours and of consecutive pairs
 inside a batch.
@@ -45,10 +50,12 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 from rspiv.grid_arrays import as_grid, entering
 
-__all__ = ["KINDS", "ConditionalAccumulator"]
+__all__ = ["KINDS", "VORTEX_KINDS", "ConditionalAccumulator"]
 
-#: The events, in the order of the results' ``kind`` axis: Q2 ejections, Q4 sweeps.
+#: The quadrant events: Q2 ejections, Q4 sweeps (the default kinds, in this order).
 KINDS: tuple[str, ...] = ("Q2", "Q4")
+#: Events the caller names per field: vortex cores turning with the mean shear, and against it.
+VORTEX_KINDS: tuple[str, ...] = ("prograde", "retrograde")
 
 #: The most rows and offsets of a map along each axis (``row_step``, ``col_step`` chosen so).
 MAX_MAP = 161
@@ -88,12 +95,16 @@ class ConditionalAccumulator:
         The hole size H >= 0: an event's ``|u'v'|`` is at least ``H u_rms v_rms``.
     batches : int
         Batches of fields for the standard errors.
+    kinds : sequence of str
+        The events, in the order of the results' ``kind`` axis: any of :data:`KINDS` and
+        :data:`VORTEX_KINDS`, each once (default ``KINDS``); the latter are given to
+        :meth:`add`.
 
     Raises
     ------
     InvalidInputError
         Arrays of different shapes, a reference row or the map's rows outside the grid, a
-        negative hole or half width, or a sign other than +-1.
+        negative hole or half width, a sign other than +-1, or an unknown or repeated kind.
     """
 
     def __init__(
@@ -111,6 +122,7 @@ class ConditionalAccumulator:
         sign_y: float = 1.0,
         hole: float = 1.0,
         batches: int = 8,
+        kinds=KINDS,
     ):
         self.mean_u = _grid("mean_u", mean_u)
         self.shape: tuple[int, int] = self.mean_u.shape  # type: ignore[assignment]
@@ -133,6 +145,16 @@ class ConditionalAccumulator:
             raise InvalidInputError(f"conditional: signs must be +1 or -1, got {sign_x}, {sign_y}")
         if not (np.isfinite(hole) and hole >= 0):
             raise InvalidInputError(f"conditional: the hole must be a number >= 0, got {hole}")
+        self.kinds = tuple(str(k) for k in kinds)
+        if (
+            not self.kinds
+            or len(set(self.kinds)) != len(self.kinds)
+            or not set(self.kinds) <= set(KINDS + VORTEX_KINDS)
+        ):
+            raise InvalidInputError(
+                f"conditional: kinds must be distinct ones of {KINDS + VORTEX_KINDS}, got "
+                f"{list(self.kinds)}"
+            )
         self.usable = entering(self.mean_u, self.mean_v, self.rms_u, self.rms_v, usable)
         self.sign_x, self.sign_y = float(sign_x), float(sign_y)
         self.hole = float(hole)
@@ -149,7 +171,7 @@ class ConditionalAccumulator:
         self._nfft = next_fast_len(nx + hw, real=True)
         # the events' hole at the reference rows: |u'v'| at least this
         self._thr = (self.hole * self.rms_u * self.rms_v)[refs]
-        shape = (self.batches, refs.size, len(KINDS), self.map_rows.size, self.offsets.size)
+        shape = (self.batches, refs.size, len(self.kinds), self.map_rows.size, self.offsets.size)
         self.sum_u = np.zeros(shape)
         self.sum_v = np.zeros(shape)
         self.n = np.zeros(shape, np.int64)
@@ -180,13 +202,43 @@ class ConditionalAccumulator:
         vf = np.where(ok, self.sign_y * (v - self.mean_v), 0.0)
         return uf, vf, ok
 
-    def add(self, u, v, valid, *, pair_id: int | None = None, batch: int = 0) -> None:
+    def _events(self, i: int, ur, vr, okr, given: dict) -> list[np.ndarray]:
+        """The events of reference ``i`` (its row's ``u'``, ``v'``, mask) per kind."""
+        big = okr & (np.abs(ur * vr) >= self._thr[i])
+        out = []
+        for kind in self.kinds:
+            if kind == "Q2":
+                out.append(big & (ur < 0) & (vr > 0))
+            elif kind == "Q4":
+                out.append(big & (ur > 0) & (vr < 0))
+            else:  # named by the caller: valid vectors only
+                out.append(given[kind][i] & okr)
+        return out
+
+    def add(self, u, v, valid, *, pair_id: int | None = None, batch: int = 0,
+            events=None) -> None:  # fmt: skip
         """Add one field (``valid``: the vectors that are measurements; module docstring).
         ``pair_id`` is remembered (a pair is not added twice by a caller that checks it);
-        ``batch`` in ``[0, batches)``."""
+        ``batch`` in ``[0, batches)``; ``events``: for each kind of :data:`VORTEX_KINDS` among
+        the accumulator's, a boolean array ``(references, nx)``, True at the vectors of each
+        reference row that are events (a vector that does not enter is not one)."""
         b = int(batch)
         if not 0 <= b < self.batches:
             raise InvalidInputError(f"conditional: batch {batch} outside 0..{self.batches - 1}")
+        given = {}
+        for kind in self.kinds:
+            if kind in KINDS:
+                continue
+            arr = None if events is None else events.get(kind)
+            if arr is None:
+                raise InvalidInputError(f"conditional: the {kind} events of this field are missing")
+            arr = np.asarray(arr)
+            if arr.dtype != bool or arr.shape != (self.ref_rows.size, self.shape[1]):
+                raise InvalidInputError(
+                    f"conditional: {kind} events must be boolean ({self.ref_rows.size}, "
+                    f"{self.shape[1]}), got {arr.dtype} {arr.shape}"
+                )
+            given[kind] = arr
         uf, vf, ok = self.fluctuations(u, v, valid)
         n = self._nfft
         rows = self.map_rows
@@ -196,8 +248,7 @@ class ConditionalAccumulator:
         cols = self.offsets % n
         for i, r in enumerate(self.ref_rows):
             ur, vr, okr = uf[r], vf[r], ok[r]
-            big = okr & (np.abs(ur * vr) >= self._thr[i])
-            for k, ev in enumerate((big & (ur < 0) & (vr > 0), big & (ur > 0) & (vr < 0))):
+            for k, ev in enumerate(self._events(i, ur, vr, okr, given)):
                 m = int(np.count_nonzero(ev))
                 if m == 0:
                     continue
@@ -224,6 +275,7 @@ class ConditionalAccumulator:
             or not np.array_equal(other.map_rows, self.map_rows)
             or not np.array_equal(other.offsets, self.offsets)
             or other.hole != self.hole
+            or other.kinds != self.kinds
         ):
             raise InvalidInputError("conditional: cannot merge accumulators of other plans")
         for k in ("sum_u", "sum_v", "n", "events", "event_u", "event_v"):
@@ -266,6 +318,6 @@ class ConditionalAccumulator:
         out["rows"] = self.map_rows.copy()
         out["offsets"] = self.offsets.copy()
         out["ref_rows"] = self.ref_rows.copy()
-        out["kinds"] = np.array(KINDS)
+        out["kinds"] = np.array(self.kinds)
         return out
 

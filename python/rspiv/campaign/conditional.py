@@ -15,6 +15,14 @@ the wall to twice the highest reference, and streamwise offsets as far either wa
 field's width); the events are those with ``|u'v'| >= conditional_hole u_rms v_rms`` (1.0) of
 vectors whose statistics rest on ``[statistics] min_count`` samples or more.
 
+About vortex cores: with ``[statistics] vortices`` on as well, the averages are also taken about
+the vortex pass's cores (:mod:`rspiv.campaign.vortices`, which runs first) whose centroid lies
+nearest a reference row, each at the vector nearest its centroid: ``kind`` ``prograde`` (turning
+with the mean shear) and ``retrograde`` beside Q2 and Q4 (two cores on one vector are one
+event). Around a prograde core of the outer layer an inclined shear layer with an ejection below
+and behind it and a sweep above and ahead is the hairpin-head signature (Christensen & Adrian
+2001, J. Fluid Mech. 431).
+
 Output ``conditional_<run>.nc``: ``u``, ``v`` (``ref``, ``kind`` = Q2, Q4, ``y``, ``dx``) in
 m/s with a calibration and ``[flow] dt`` (px per pair without), ``u_plus``, ``v_plus`` in wall
 units, their standard errors ``u_se``, ``v_se`` (8 batch means of contiguous pairs),
@@ -43,7 +51,7 @@ from rspiv.campaign.fields import each_field, finish_pass, pass_section, run_fie
 from rspiv.campaign.quadrant import _t95
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.two_point import reference_rows
-from rspiv.conditional import KINDS, ConditionalAccumulator
+from rspiv.conditional import KINDS, VORTEX_KINDS, ConditionalAccumulator
 from rspiv.errors import InvalidInputError
 
 __all__ = ["FAR", "FAR_SHARE", "report_section", "write_outputs"]
@@ -78,6 +86,8 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     half_width = min(int(np.ceil(2.0 * max(heights) / dx_px)), acc.shape[1] - 1)
     usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]
     sign_x = float(p.get("sign_x", 1.0))
+    vort = res.vortices.get(run.name) if st.vortices else None
+    kinds = KINDS + VORTEX_KINDS if vort is not None else KINDS
     with np.errstate(invalid="ignore"):
         q = ConditionalAccumulator(
             acc.mean_u,
@@ -91,11 +101,21 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             sign_x=sign_x,
             sign_y=float(p.get("sign_y", 1.0)),
             hole=st.conditional_hole,
+            kinds=kinds,
         )
     n_pairs = len(ids)
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
 
     def add(part: ConditionalAccumulator, i: int, pid: int, u, v, valid) -> None:
-        part.add(u, v, valid, pair_id=pid, batch=i * q.batches // n_pairs)
+        events = None
+        if vort is not None:  # the pair's cores centred on a reference row
+            rows, cols, pro = vort["core_events"].get(pid, none)
+            events = {k: np.zeros((len(refs), acc.shape[1]), bool) for k in VORTEX_KINDS}
+            for j, ref in enumerate(refs):
+                at = rows == ref
+                events["prograde"][j, cols[at & pro]] = True
+                events["retrograde"][j, cols[at & ~pro]] = True
+        part.add(u, v, valid, pair_id=pid, batch=i * q.batches // n_pairs, events=events)
 
     parts, missing = each_field(
         paths, acc.shape, run.name, lambda w: q if w == 0 else q.empty_copy(), add,
@@ -128,7 +148,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "k": k,  # the velocity unit's factor from px per pair (1 without SI units)
         "y_ref": dist[r["ref_rows"]] * m,
         "ref_rows": r["ref_rows"],
-        "kinds": list(KINDS),
+        "kinds": list(kinds),
         "u": u,
         "v": v,
         "u_se": u_se,
@@ -156,10 +176,15 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         prof["delta_99"] = float(bl.delta99)
     prof["seconds"] = time.perf_counter() - t0
     ev = r["events"]
+    cores = (
+        f", {int(ev[:, 2].sum())} prograde and {int(ev[:, 3].sum())} retrograde vortex cores"
+        if vort is not None
+        else ""
+    )
     camp.say(
         f"{run.label}: conditional averages about {int(ev[:, 0].sum())} ejections and "
-        f"{int(ev[:, 1].sum())} sweeps at {len(refs)} heights in {q.n_fields} pairs' fields "
-        f"({prof['seconds']:.1f} s)"
+        f"{int(ev[:, 1].sum())} sweeps{cores} at {len(refs)} heights in {q.n_fields} pairs' "
+        f"fields ({prof['seconds']:.1f} s)"
     )
     said = []
     if missing:
@@ -168,23 +193,33 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"{missing[0]}): the conditional averages hold {q.n_fields} pairs"
         )
     empty = [
-        f"{KINDS[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'}"
+        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'}"
         for i in range(ev.shape[0])
         for j in range(ev.shape[1])
         if ev[i, j] == 0
     ]
     if empty:
-        said.append(f"no events outside the hole H = {st.conditional_hole:g}: {', '.join(empty)}")
+        said.append(
+            f"no events (outside the hole H = {st.conditional_hole:g}, or vortex cores centred "
+            f"there): {', '.join(empty)}"
+        )
+    if st.vortices and vort is None:
+        said.append("no averages about vortex cores: the run's vortex pass gave no cores")
     # a local structure decays away from its event; fluctuations of the whole field do not
     far = np.abs(prof["dx_px"]) >= FAR * np.abs(prof["dx_px"]).max()
     far_u = u[:, :, ~prof["near_wall"]][..., far]
     fin = np.isfinite(far_u)
     with np.errstate(invalid="ignore", divide="ignore"):
         far_mean = np.where(fin, far_u, 0.0).sum(axis=(2, 3)) / fin.sum(axis=(2, 3))
-        ratio = far_mean / prof["event_u"]  # NaN for a kind without events
+        # over the events' own u' (quadrant kinds), or the map's largest |u'| (about a
+        # vortex core the event's own u' is about zero)
+        peak = np.nanmax(np.abs(np.where(np.isfinite(u), u, 0.0)[:, :, ~prof["near_wall"]]),
+                         axis=(2, 3))  # fmt: skip
+        own = np.where([k in KINDS for k in kinds], prof["event_u"], peak)
+        ratio = np.where(ev > 0, far_mean / own, np.nan)  # NaN for a kind without events
     prof["far_ratio"] = ratio
     coherent = [
-        f"{KINDS[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'} {ratio[i, j]:.2f}"
+        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'} {ratio[i, j]:.2f}"
         for i in range(ratio.shape[0])
         for j in range(ratio.shape[1])
         if ratio[i, j] > FAR_SHARE
@@ -216,7 +251,8 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
         coords={
             "ref": ("ref", np.arange(len(prof["y_ref"]))),
             "kind": ("kind", prof["kinds"], {"long_name": "Q2 ejection (u' < 0, v' > 0); "
-                                             "Q4 sweep (u' > 0, v' < 0)"}),  # fmt: skip
+                     "Q4 sweep (u' > 0, v' < 0); prograde, retrograde: a vortex core centred "
+                     "there (rotating with the mean shear, against it)"}),  # fmt: skip
             "y": ("y", prof["y"], {"units": length, "long_name": "distance from the wall"}),
             "dx": ("dx", prof["dx"], {"units": length, "long_name": "streamwise offset from "
                    "the event, downstream positive"}),  # fmt: skip
@@ -271,6 +307,12 @@ def report_section(camp: Any, res: Any) -> Any:
         "the region each event sits in, its streamwise extent and inclination. Each vector's "
         "fluctuation about its own mean; colour u', arrows (u', v') where resolved at 95 %."
     )
+    if ev.shape[1] > 2:
+        text += (
+            f" Also about {int(ev[:, 2].sum())} prograde and {int(ev[:, 3].sum())} retrograde "
+            "vortex cores centred at those heights (the vortex pass's cores, each at the vector "
+            "nearest its centroid)."
+        )
     return pass_section(
         camp, prof, "Conditional averages", text,
         "rspiv.plots.conditional:plot_conditional", "conditional",

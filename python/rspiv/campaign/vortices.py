@@ -101,13 +101,17 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         w, s = VorticityAccumulator.fields(u, v, valid, va.dx, va.dy, va.scheme)
         cores = find_vortices(s * orient, w * orient, thr[:, None], va.dx, va.dy, x=x,
                               y=row_index, min_vectors=min_vectors)  # fmt: skip
-        part["acc"].add(cores, np.rint(cores["y"]).astype(np.int64))
+        rows = np.rint(cores["y"]).astype(np.int64)
+        part["acc"].add(cores, rows)
+        # each core at the vector nearest its centroid, for averages about it (conditional)
+        cols = np.rint(np.interp(cores["x"], x, np.arange(x.size))).astype(np.int64)
+        part["events"][pid] = (rows, cols, cores["sign"] == prograde)
         if part["n"] < MAX_CORES:
             part["cores"].append((pid, cores))
             part["n"] += cores["x"].size
 
     def new_part(w: int) -> dict:
-        return {"acc": counts.empty_copy(), "cores": [], "n": 0}
+        return {"acc": counts.empty_copy(), "cores": [], "n": 0, "events": {}}
 
     screen = res.context.screens().get(run.name)
     parts, missing = each_field(paths, acc.shape, run.name, new_part, add, screen=screen)
@@ -137,6 +141,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             "min_vectors": min_vectors,
             "prograde_sign": prograde,
             "cores": table,
+            # pair id -> (row, column, prograde) of every core: not written; the conditional
+            # averages about the cores (rspiv.campaign.conditional) read it
+            "core_events": {k: e for part in parts for k, e in part["events"].items()},
             "si": si,
             "per_s": dt > 0,
             "pairs": int(counts.n_fields),
