@@ -53,16 +53,23 @@ def _events(out):
     return [json.loads(x) for x in p.read_text().splitlines() if x.strip()]
 
 
-def _kill_at_random_moment(proc, out, n_before: int, pairs: int, delay: float) -> None:
-    """SIGKILL ``proc`` once this attempt has logged ``pairs`` finished pairs, ``delay`` seconds
-    later (the log is polled every 5 ms; a half-written last line is ignored)."""
+def _kill_at_random_moment(
+    proc, out, n_before: int, pairs: int, delay: float, held: set | None = None
+) -> None:
+    """SIGKILL ``proc`` once this attempt has logged ``pairs`` finished pairs (and, with
+    ``held``, once its checkpoint holds more pairs than ``held``), ``delay`` seconds later (the
+    log is polled every 5 ms; a half-written last line is ignored)."""
     deadline = time.monotonic() + 120.0
     while proc.poll() is None and time.monotonic() < deadline:
         try:
             done = sum(1 for e in _events(out)[n_before:] if e["event"] == "pair")
         except json.JSONDecodeError:
             done = -1
-        if done >= pairs:
+        try:
+            saved = held is None or len(_finished(out)) > len(held)
+        except (EOFError, pickle.UnpicklingError):  # being replaced: look again
+            saved = False
+        if done >= pairs and saved:
             time.sleep(delay)
             break
         time.sleep(0.005)
@@ -88,7 +95,10 @@ def test_sigkill_at_random_moments_then_resume(case, tmp_path):
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         if k < 4:  # SIGKILL after 0 or 1 finished pairs plus a random delay of up to 50 ms
             pairs, delay = int(rng.integers(0, 2)), float(rng.uniform(0.0, 0.05))
-            _kill_at_random_moment(proc, out, n_before, pairs, delay)
+            # the last kill waits for a checkpoint holding a pair, so that the last run has
+            # something to resume however long a checkpoint takes to reach the disk (after
+            # tests that wrote much, fsync can take longer than the random delays)
+            _kill_at_random_moment(proc, out, n_before, pairs, delay, held if k == 3 else None)
         rc = proc.wait(timeout=120)
         attempts.append((held, n_before, rc == -signal.SIGKILL))
         if k == 4:
