@@ -47,6 +47,22 @@ def _fields(out: pathlib.Path, run: str) -> tuple[np.ndarray, np.ndarray, np.nda
     return np.array(u), np.array(v), np.array(ok)
 
 
+def _sums_about(events, du, dv, ok, rows, offsets):
+    """The sums of ``du``, ``dv`` and the count of ``ok`` (pair, row, column) at ``rows`` and
+    ``offsets`` from each event ``(pair, column)``, inside the field."""
+    nx = du.shape[2]
+    su = np.zeros((len(rows), len(offsets)))
+    sv, n = np.zeros_like(su), np.zeros_like(su)
+    for p, col in events:
+        at = col + offsets
+        inside = (at >= 0) & (at < nx)
+        sel = np.ix_(rows, at[inside])
+        su[:, inside] += du[p][sel]
+        sv[:, inside] += dv[p][sel]
+        n[:, inside] += ok[p][sel]
+    return su, sv, n
+
+
 def test_the_file_equals_direct_sums_over_the_fields(processed):
     import xarray as xr
 
@@ -469,22 +485,14 @@ def test_the_conditional_averages_equal_direct_sums_over_the_fields(processed):
         dx_grid = float(np.median(np.diff(xr.open_dataset(
             next((res.out_dir / "fields" / run).glob("pair_*.nc")), engine="h5netcdf")["x"])))
         offsets = np.rint(sx * c["dx_px"] / dx_grid).astype(int)
-        nx = u.shape[2]
         for i, ref in enumerate(c["ref_rows"]):
             assert abs(dist[ref] - st.conditional_heights[i]) <= 0.5 * abs(dist[1] - dist[0])
             a, b = du[:, ref], dv[:, ref]
             big = ok[:, ref] & (np.abs(a * b) >= thr[ref])
             for kind, ev in enumerate((big & (a < 0) & (b > 0), big & (a > 0) & (b < 0))):
                 assert c["events"][i, kind] == ev.sum() > 0
-                su = np.zeros((rows.size, offsets.size))
-                sv, n = np.zeros_like(su), np.zeros_like(su)
-                for p, col in zip(*np.nonzero(ev), strict=True):
-                    at = col + offsets
-                    inside = (at >= 0) & (at < nx)
-                    sel = np.ix_(rows, at[inside])
-                    su[:, inside] += du[p][sel]
-                    sv[:, inside] += dv[p][sel]
-                    n[:, inside] += ok[p][sel]
+                su, sv, n = _sums_about(zip(*np.nonzero(ev), strict=True), du, dv, ok, rows,
+                                        offsets)  # fmt: skip
                 np.testing.assert_array_equal(c["count"][i, kind], n)
                 with np.errstate(invalid="ignore", divide="ignore"):
                     np.testing.assert_allclose(c["u"][i, kind] / k, su / n, rtol=1e-9, atol=1e-12)
@@ -547,7 +555,6 @@ def test_averages_about_vortex_cores_are_direct_sums_about_the_listed_cores(proc
     dv = np.where(ok, sy * (v - acc.mean_v), 0.0)
     map_rows = np.array([np.flatnonzero(dist == y)[0] for y in c["dist_px"]])
     offsets = np.rint(sx * c["dx_px"] / float(np.median(np.diff(xg)))).astype(int)
-    nx = u.shape[2]
     pro = t["sign"] == vort["prograde_sign"]
     pairs = sorted(acc.pair_ids)
     for i, ref in enumerate(refs):
@@ -560,15 +567,7 @@ def test_averages_about_vortex_cores_are_direct_sums_about_the_listed_cores(proc
             assert c["events"][i, kind] == len(at)
             if not at:
                 continue
-            su = np.zeros((map_rows.size, offsets.size))
-            sv, n = np.zeros_like(su), np.zeros_like(su)
-            for p, col in at:
-                where = col + offsets
-                inside = (where >= 0) & (where < nx)
-                sel = np.ix_(map_rows, where[inside])
-                su[:, inside] += du[p][sel]
-                sv[:, inside] += dv[p][sel]
-                n[:, inside] += ok[p][sel]
+            su, sv, n = _sums_about(at, du, dv, ok, map_rows, offsets)
             np.testing.assert_array_equal(c["count"][i, kind], n)
             with np.errstate(invalid="ignore", divide="ignore"):
                 np.testing.assert_allclose(c["u"][i, kind] / k, su / n, rtol=1e-9, atol=1e-12)

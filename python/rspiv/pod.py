@@ -46,7 +46,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["PodBuilder", "PodResult", "domain_fluctuations", "pod"]
+__all__ = ["PodBuilder", "PodResult", "domain_fluctuations", "fields_in_memory", "pod"]
 
 
 @dataclasses.dataclass
@@ -129,6 +129,31 @@ class PodResult:
             np.tensordot(c, self.modes_u[:k], axes=1),
             np.tensordot(c, self.modes_v[:k], axes=1),
         )
+
+
+def fields_in_memory(who: str, u, v, valid, mean_u, mean_v) -> tuple[np.ndarray, ...]:
+    """Fields held in memory, checked: ``u``, ``v`` (float64, ``(n, ny, nx)``), the mask of
+    their valid samples (finite, and ``valid`` where given), and the means about which the
+    fluctuations are taken (the valid samples' where ``mean_u`` or ``mean_v`` is None).
+    ``who`` names the caller in the refusals."""
+    u = np.asarray(u, np.float64)
+    v = np.asarray(v, np.float64)
+    if u.ndim != 3 or v.shape != u.shape:
+        raise InvalidInputError(
+            f"{who}: u and v must be (n, ny, nx) of one shape, got {u.shape}, {v.shape}"
+        )
+    ok = np.isfinite(u) & np.isfinite(v)
+    if valid is not None:
+        valid = np.asarray(valid, bool)
+        if valid.shape != u.shape:
+            raise InvalidInputError(f"{who}: valid must be {u.shape}, got {valid.shape}")
+        ok &= valid
+    if mean_u is None or mean_v is None:
+        cnt = ok.sum(0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_u = np.where(ok, u, 0.0).sum(0) / cnt
+            mean_v = np.where(ok, v, 0.0).sum(0) / cnt
+    return u, v, ok, mean_u, mean_v
 
 
 def domain_fluctuations(
@@ -360,25 +385,9 @@ def pod(
         Shapes that do not agree, fewer than 2 snapshots, an empty domain, or snapshots
         without fluctuation.
     """
-    u = np.asarray(u, np.float64)
-    v = np.asarray(v, np.float64)
-    if u.ndim != 3 or v.shape != u.shape:
-        raise InvalidInputError(
-            f"u and v must be (n, ny, nx) of one shape, got {u.shape}, {v.shape}"
-        )
+    u, v, ok, mean_u, mean_v = fields_in_memory("pod", u, v, valid, mean_u, mean_v)
     if u.shape[0] < 2:
         raise InvalidInputError(f"a POD needs at least 2 snapshots, got {u.shape[0]}")
-    ok = np.isfinite(u) & np.isfinite(v)
-    if valid is not None:
-        valid = np.asarray(valid, bool)
-        if valid.shape != u.shape:
-            raise InvalidInputError(f"valid must be {u.shape}, got {valid.shape}")
-        ok &= valid
-    if mean_u is None or mean_v is None:
-        cnt = ok.sum(0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_u = np.where(ok, u, 0.0).sum(0) / cnt
-            mean_v = np.where(ok, v, 0.0).sum(0) / cnt
     if domain is None:
         domain = ok.sum(0) >= 2
     b = PodBuilder(mean_u, mean_v, domain, u.shape[0])

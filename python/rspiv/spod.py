@@ -57,7 +57,7 @@ import threading
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.pod import domain_fluctuations
+from rspiv.pod import domain_fluctuations, fields_in_memory
 from rspiv.temporal import consecutive_runs, hann_taper, one_sided_density
 
 __all__ = ["SpodBuilder", "SpodResult", "spod"]
@@ -404,23 +404,7 @@ def spod(
     InvalidInputError
         Shapes that do not agree, fewer than two blocks, an empty domain, bad indices.
     """
-    u = np.asarray(u, np.float64)
-    v = np.asarray(v, np.float64)
-    if u.ndim != 3 or v.shape != u.shape:
-        raise InvalidInputError(
-            f"spod: u and v must be (n, ny, nx) of one shape, got {u.shape}, {v.shape}"
-        )
-    ok = np.isfinite(u) & np.isfinite(v)
-    if valid is not None:
-        valid = np.asarray(valid, bool)
-        if valid.shape != u.shape:
-            raise InvalidInputError(f"spod: valid must be {u.shape}, got {valid.shape}")
-        ok &= valid
-    if mean_u is None or mean_v is None:
-        cnt = ok.sum(0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_u = np.where(ok, u, 0.0).sum(0) / cnt
-            mean_v = np.where(ok, v, 0.0).sum(0) / cnt
+    u, v, ok, mean_u, mean_v = fields_in_memory("spod", u, v, valid, mean_u, mean_v)
     if domain is None:
         domain = ok.sum(0) >= max(u.shape[0] / 2, 1)
     ids = np.arange(u.shape[0]) if pair_ids is None else np.asarray(pair_ids)
