@@ -204,7 +204,10 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"there): {', '.join(empty)}"
         )
     if st.vortices and vort is None:
-        said.append("no averages about vortex cores: the run's vortex pass gave no cores")
+        said.append(
+            "no averages about vortex cores: the run's vortex pass did not run to its end "
+            "(its error is in summary.json)"
+        )
     # a local structure decays away from its event; fluctuations of the whole field do not
     far = np.abs(prof["dx_px"]) >= FAR * np.abs(prof["dx_px"]).max()
     far_u = u[:, :, ~prof["near_wall"]][..., far]

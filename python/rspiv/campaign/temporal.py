@@ -145,10 +145,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         prof["U_c_ratio"] = prof["U_c"] / prof["U"]
     # the PIV's noise: white, 2 <sigma^2> per cycle per pair interval (one-sided)
     for c, noise in (("u", acc.noise_uu()), ("v", acc.noise_vv())):
+        has = ok_ref & np.isfinite(noise[refs])
         with np.errstate(invalid="ignore", divide="ignore"):
-            s2 = np.where(ok_ref, noise[refs], 0.0).sum(1) / np.sum(
-                ok_ref & np.isfinite(noise[refs]), axis=1
-            )
+            s2 = np.where(has, noise[refs], 0.0).sum(1) / has.sum(1)  # NaN: no uncertainties
         floor = 2.0 * s2 * vel2 * interval
         reach = noise_reached(prof[f"phi_{c}{c}"], floor)
         prof[f"noise_{c}{c}"] = floor
