@@ -161,3 +161,27 @@ def test_the_ridge_is_followed_past_a_higher_far_lobe():
     for bad, start in ((r[0], 30), (r, 61), (r, -1)):
         with pytest.raises(InvalidInputError, match="ridge needs a"):
             follow_ridge(bad, start)
+
+
+def test_the_shared_helpers_refuse_bad_input_in_one_line():
+    """The Welch taper and density, the noise floor's reach and the series' runs (shared by the
+    temporal pass and the SPOD): exact on good input, one line on bad."""
+    from rspiv.temporal import consecutive_runs, hann_taper, noise_reached, one_sided_density
+    from scipy.signal import get_window
+
+    np.testing.assert_allclose(hann_taper(16), get_window("hann", 16), atol=1e-15)
+    d = one_sided_density(16)
+    assert d.shape == (9,) and d[0] == d[-1] == pytest.approx(d[1] / 2)
+    phi = np.array([[10, 5, 1, 3, 1], [10, 5, 1, 1, 1], [1, 1, 1, 1, 1], [9, 9, 9, 9, 9.0]])
+    np.testing.assert_array_equal(noise_reached(phi, np.ones(4)), [4, 2, 0, -1])
+    assert consecutive_runs([3, 4, 5, 9, 10, 12]) == [3, 2, 1] and consecutive_runs([]) == []
+    for call, match in (
+        (lambda: hann_taper(7), "even integer >= 2"),
+        (lambda: one_sided_density(0), "even integer >= 2"),
+        (lambda: noise_reached(phi, np.ones(3)), "floor of shape"),
+        (lambda: consecutive_runs([1, 3, 2]), "must increase"),
+        (lambda: consecutive_runs([1.5, 2.5]), "1-D integers"),
+    ):
+        with pytest.raises(InvalidInputError, match=match) as exc:
+            call()
+        assert "\n" not in str(exc.value)

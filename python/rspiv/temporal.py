@@ -66,9 +66,16 @@ MIN_PEAK = 0.2
 _grid = functools.partial(as_grid, "temporal")  # a 2-D array of the grid, checked
 
 
+def _even_segment(m) -> int:
+    if isinstance(m, bool) or int(m) != m or m < 2 or m % 2:
+        raise InvalidInputError(f"temporal: a segment must be an even integer >= 2, got {m!r}")
+    return int(m)
+
+
 def hann_taper(m: int) -> np.ndarray:
-    """The periodic Hann window of ``m`` samples (scipy.signal.welch's): a line on a bin fills
-    3 bins."""
+    """The periodic Hann window of ``m`` samples (scipy.signal.welch's; ``m`` even, >= 2): a
+    line on a bin fills 3 bins."""
+    m = _even_segment(m)
     return 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(m) / m)
 
 
@@ -77,6 +84,7 @@ def one_sided_density(m: int) -> np.ndarray:
     that makes ``|X|^2`` a one-sided spectral density per cycle per sample: 2 (1 at 0 and the
     Nyquist bin) over the taper's sum of squares, so ``sum phi(f_j) / m`` is the variance the
     taper passes."""
+    m = _even_segment(m)
     scale = np.full(m // 2 + 1, 2.0)
     scale[0] = 1.0
     scale[-1] = 1.0  # m even: the Nyquist bin is its own
@@ -90,7 +98,13 @@ def noise_reached(phi, floor, factor: float = 2.0) -> np.ndarray:
     it does at every frequency (noise throughout; the mean's bin 0 aside, 1). NaN floors give
     -1."""
     phi = np.asarray(phi, np.float64)
-    floor = np.broadcast_to(np.asarray(floor, np.float64)[..., None], phi.shape)
+    floor = np.asarray(floor, np.float64)
+    if phi.ndim < 1 or phi.shape[-1] < 1 or floor.shape != phi.shape[:-1]:
+        raise InvalidInputError(
+            f"temporal: a floor of shape {phi.shape[:-1]} per spectrum of {phi.shape} needed, "
+            f"got {floor.shape}"
+        )
+    floor = np.broadcast_to(floor[..., None], phi.shape)
     with np.errstate(invalid="ignore"):
         under = phi < factor * floor
     # under from index j to the end: the reversed cumulative product
@@ -102,7 +116,12 @@ def noise_reached(phi, floor, factor: float = 2.0) -> np.ndarray:
 def consecutive_runs(ids) -> list[int]:
     """The lengths of the runs of consecutive integers in sorted ``ids`` (a gap in a time
     series' pair ids ends a run)."""
-    ids = np.asarray(ids, np.int64)
+    ids = np.asarray(ids)
+    if ids.size and (ids.ndim != 1 or not np.issubdtype(ids.dtype, np.integer)):
+        raise InvalidInputError(f"temporal: ids must be 1-D integers, got {ids.dtype} {ids.shape}")
+    if ids.size > 1 and np.any(np.diff(ids) <= 0):
+        raise InvalidInputError("temporal: ids must increase")
+    ids = ids.astype(np.int64)
     if ids.size == 0:
         return []
     cut = np.flatnonzero(np.diff(ids) != 1) + 1
