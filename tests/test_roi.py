@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import rspiv
 import tifffile
+from campaign_cases import lean_file
 from lens_cases import frames_through, p3_mapping, strong_lens
 from rspiv.campaign import Campaign
 from rspiv.cli import main
@@ -199,6 +200,7 @@ SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=3, monte_carlo_samp
 def synth(tmp_path_factory):
     d = tmp_path_factory.mktemp("synth_roi")
     synth_campaign(d, scene=SCENE)
+    lean_file(d / "campaign.toml")  # the profile, the wall and the report
     return d
 
 
