@@ -426,6 +426,63 @@ def test_the_vortex_population_equals_the_cores_of_the_fields(processed):
     assert (res.out_dir / "report" / "figures" / "vortices.png").is_file()
 
 
+
+def test_the_lamb_oseen_fits_are_those_of_the_written_fields(processed):
+    """Every listed core carries the Lamb-Oseen fit of the written field's fluctuations about
+    the run's means (rspiv.vortices.fit_oseen on the cores the file lists, in the flow's
+    frame): the same share explained, the same cores kept, the same radius and circulation in
+    SI units; the per-row counts and means are those of the table's kept fits, and the report
+    says what was kept. (The synthetic layer's swirling regions are not resolved Lamb-Oseen
+    vortices: its fits are refused, so the kept values are checked in tests/test_vortices.py.)
+    """
+    import xarray as xr
+    from rspiv.vortices import fit_oseen
+
+    _, camp, res = processed
+    run = "method_II"
+    acc = res.accumulators[run]
+    prof = res.analyses[run].profile
+    orient = prof["sign_x"] * -prof["sign_y"]
+    m, per_s = prof["m_per_px"], 1.0 / camp.config.flow.dt
+    va = acc.vorticity
+    u, v, ok = _fields(res.out_dir, run)
+    dist = prof["dist_px"]
+    usable = (acc.count >= max(camp.config.statistics.min_count, 2)) & (dist > 0)[:, None]
+    usable &= va.swirl_count > 1
+    mu, mv = np.where(usable, acc.mean_u, np.nan), np.where(usable, acc.mean_v, np.nan)
+    with xr.open_dataset(res.out_dir / f"vortices_{run}.nc", engine="h5netcdf") as ds:
+        t = {k: ds[k].values for k in ds.data_vars if k.startswith("core_")}
+        count, oseen_count = ds["count"].values, ds["oseen_count"].values
+        kept_radius = ds["oseen_radius"].values
+    with xr.open_dataset(next((res.out_dir / "fields" / run).glob("pair_*.nc")),
+                         engine="h5netcdf") as ds:  # fmt: skip
+        x = ds["x"].values.astype(np.float64)
+    order = np.argsort(dist)  # the cores' rows back from their distances
+    rows = np.interp(t["core_y"] / m, dist[order], np.arange(dist.size, dtype=float)[order])
+    fit = np.full(t["core_x"].size, np.nan)
+    okf = np.zeros(t["core_x"].size, bool)
+    for k in range(len(u)):
+        at = t["core_pair"] == sorted(acc.pair_ids)[k]
+        cores = {"x": t["core_x"][at] / m, "y": rows[at], "sign": t["core_sign"][at],
+                 "radius": t["core_radius"][at] / m}  # fmt: skip
+        f = fit_oseen(u[k] - mu, v[k] - mv, cores, va.dx, va.dy, valid=ok[k], x=x,
+                      y=np.arange(acc.shape[0], dtype=float), orient=orient)  # fmt: skip
+        fit[at], okf[at] = f["fit"], f["ok"]
+        kept = f["ok"]
+        np.testing.assert_allclose(t["core_oseen_radius"][at][kept], f["radius"][kept] * m)
+        np.testing.assert_allclose(t["core_oseen_circulation"][at][kept],
+                                   f["circulation"][kept] * m * m * per_s)  # fmt: skip
+    assert t["core_x"].size > 20
+    np.testing.assert_allclose(t["core_oseen_fit"], fit, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(t["core_oseen_ok"].astype(bool), okf)
+    assert np.isnan(t["core_oseen_radius"][~okf]).all()
+    assert oseen_count.sum() == okf.sum() and np.all(oseen_count <= count)
+    assert np.isnan(kept_radius[oseen_count == 0]).all()
+    md = (res.out_dir / "report" / "report.md").read_text()
+    assert "Lamb-Oseen" in md
+    if okf.sum() == 0:
+        assert "No core's Lamb-Oseen fit was kept" in md
+
 def test_pod_gaps_are_said(processed, tmp_path):
     """Rejected vectors in a tenth of the domain's samples (the field files' ``valid`` cleared
     in every other row of one pair): the POD says how many were filled with the mean."""

@@ -39,7 +39,7 @@ from rspiv.spod import SpodResult, spod
 from rspiv.stats import FieldAccumulator
 from rspiv.temporal import TemporalAccumulator
 from rspiv.two_point import TwoPointAccumulator
-from rspiv.vortices import find_vortices
+from rspiv.vortices import find_vortices, fit_oseen
 from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
 
@@ -56,6 +56,7 @@ __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]
 __all__ += ["EnsembleAccumulator", "EnsembleField", "TwoPointAccumulator"]
 __all__ += ["QuadrantAccumulator", "gaussian_quadrant", "PodResult", "pod", "find_vortices"]
+__all__ += ["fit_oseen"]
 __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]
 __all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds", "ConditionalAccumulator"]
 __all__ += ["TemporalAccumulator", "SpodResult", "spod"]

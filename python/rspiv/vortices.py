@@ -29,11 +29,21 @@ its final window) and the rms threshold keep most of them out, not all.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["CORE_FIELDS", "VortexAccumulator", "find_vortices", "min_core_vectors"]
+__all__ = [
+    "CORE_FIELDS",
+    "OSEEN_FIELDS",
+    "VortexAccumulator",
+    "find_vortices",
+    "fit_oseen",
+    "min_core_vectors",
+    "oseen_velocity",
+]
 
 #: The per-core arrays :func:`find_vortices` returns.
 CORE_FIELDS = ("x", "y", "sign", "vectors", "radius", "circulation", "peak")
@@ -138,6 +148,257 @@ def find_vortices(
     }
 
 
+
+#: The per-core arrays :func:`fit_oseen` returns.
+OSEEN_FIELDS = ("x", "y", "radius", "circulation", "u", "v", "fit", "ok")
+
+#: A fit is kept (``ok``) when it explains at least this share of the patch's velocity
+#: variance about its own convection (the exact vortex plus the PIV's noise: 0.97-0.999).
+OSEEN_MIN_FIT = 0.7
+
+
+def oseen_velocity(x, y, xc, yc, circulation, radius, uc=0.0, vc=0.0):
+    """The Lamb-Oseen vortex's velocity at ``(x, y)`` in a right-handed frame (y up).
+
+    ``u_theta(r) = Gamma / (2 pi r) (1 - exp(-r^2 / r_c^2))`` about ``(xc, yc)``, counter-
+    clockwise for ``circulation`` (Gamma) > 0, plus the uniform ``(uc, vc)``: its vorticity is
+    ``Gamma / (pi r_c^2) exp(-r^2 / r_c^2)`` (a Gaussian of standard deviation ``r_c / sqrt(2)``
+    per axis) and its azimuthal velocity peaks at ``r = 1.121 r_c``. Arguments broadcast.
+    """
+    ddx = np.asarray(x, np.float64) - xc
+    ddy = np.asarray(y, np.float64) - yc
+    rc2 = np.asarray(radius, np.float64) ** 2
+    s = (ddx * ddx + ddy * ddy) / rc2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(s > 1e-10, -np.expm1(-s) / s, 1.0 - 0.5 * s)  # (1 - e^-s) / s
+    g = np.asarray(circulation, np.float64) * f / (2.0 * np.pi * rc2)
+    return uc - g * ddy, vc + g * ddx
+
+
+def fit_oseen(
+    u,
+    v,
+    cores: dict[str, np.ndarray],
+    dx: float,
+    dy: float,
+    *,
+    valid=None,
+    x=None,
+    y=None,
+    reach: float = 2.5,
+    orient: float = 1.0,
+    iterations: int = 60,
+) -> dict[str, np.ndarray]:
+    """A Lamb-Oseen vortex fitted to the vectors about each core of :func:`find_vortices`.
+
+    The thresholded core's radius and circulation depend on the threshold (a Lamb-Oseen vortex
+    at a quarter of its peak swirl keeps about 60 % of its circulation); the fit gives the
+    vortex's own core radius ``r_c``, its whole circulation, its centre and its convection
+    (Carlier & Stanislas 2005, J. Fluid Mech. 535). The model is :func:`oseen_velocity` with
+    six parameters per core, fitted by Levenberg-Marquardt to the valid vectors within ``reach``
+    times the core's radius of its centroid (at least two grid steps), all cores at once.
+
+    Frame: ``u``, ``v`` in rspiv's pixel frame (v positive downward, rows down, px per pair);
+    the fit is made in the image's y-up frame (:mod:`rspiv.derivatives`), and ``orient``
+    (+1 or -1) turns its circulation into the frame of the ``omega`` the cores were found in
+    (a campaign's flow frame), as for the vorticity.
+
+    Parameters
+    ----------
+    u, v : array_like, (ny, nx)
+        The field (or its fluctuations: a mean shear across the patch is not in the model).
+    cores : dict
+        :func:`find_vortices`' result for this grid (``x``, ``y``, ``sign``, ``radius``).
+    dx, dy : float
+        Grid spacing, px.
+    valid : array_like of bool, optional
+        The vectors that enter (default: the finite ones).
+    x, y : array_like, optional
+        The coordinates given to :func:`find_vortices` (default ``dx * j``, ``dy * i``).
+    reach : float
+        The patch's radius in core radii.
+    orient : float
+        +1 or -1, as above.
+    iterations : int
+        Levenberg-Marquardt iterations at most.
+
+    Returns
+    -------
+    dict
+        Per core (:data:`OSEEN_FIELDS`): ``x``, ``y`` the fitted centre (the coordinates of
+        ``x``, ``y``), ``radius`` the core radius ``r_c`` (px), ``circulation`` (px^2 per
+        pair, in ``orient``'s frame), ``u``, ``v`` the convection (px per pair, pixel frame),
+        ``fit`` the share of the patch's velocity variance about the convection it explains,
+        and ``ok``: a fit of the core's sense of rotation, centred within two core radii of the
+        centroid, with ``r_c`` between a third of a grid step and the patch's radius and ``fit
+        >= OSEEN_MIN_FIT``. Values of a core that is not ``ok`` are NaN.
+
+    Raises
+    ------
+    InvalidInputError
+        Fields of other shapes, a spacing or reach not > 0, or ``orient`` not +-1.
+    """
+    uu = np.asarray(u, np.float64)
+    vv = np.asarray(v, np.float64)
+    if uu.ndim != 2 or vv.shape != uu.shape:
+        raise InvalidInputError(f"oseen: u {uu.shape} and v {vv.shape} must be 2-D alike")
+    if not (dx > 0 and dy > 0 and reach > 0):
+        raise InvalidInputError(f"oseen: dx, dy and reach must be > 0, got {dx}, {dy}, {reach}")
+    if orient not in (1.0, -1.0):
+        raise InvalidInputError(f"oseen: orient must be +1 or -1, got {orient}")
+    ny, nx = uu.shape
+    ok_vec = np.isfinite(uu) & np.isfinite(vv)
+    if valid is not None:
+        ok_vec &= np.broadcast_to(np.asarray(valid, bool), uu.shape)
+    xs = dx * np.arange(nx) if x is None else np.asarray(x, np.float64)
+    ys = dy * np.arange(ny) if y is None else np.asarray(y, np.float64)
+    if xs.shape != (nx,) or ys.shape != (ny,):
+        raise InvalidInputError("oseen: x and y must give the columns' and rows' coordinates")
+    n = int(np.asarray(cores["x"]).size)
+    out = {k: np.full(n, np.nan) for k in OSEEN_FIELDS}
+    out["ok"] = np.zeros(n, bool)
+    if n == 0:
+        return out
+    # centroids in grid steps; each core's patch radius in px
+    cj = np.interp(cores["x"], xs, np.arange(nx))
+    ci = np.interp(cores["y"], ys, np.arange(ny))
+    rad = np.asarray(cores["radius"], np.float64)
+    sign = np.asarray(cores["sign"], np.float64)
+    big = np.maximum(reach * rad, 2.0 * max(dx, dy))
+    half = np.maximum(np.ceil(big / dx), np.ceil(big / dy)).astype(np.int64)
+    # cores of similar patches together (a patch is padded to its group's largest)
+    groups = np.floor(np.log(half) / np.log(1.25)).astype(np.int64)
+    for g in np.unique(groups):
+        at = np.flatnonzero(groups == g)
+        fitted = _fit_oseen_group(uu, vv, ok_vec, cj[at], ci[at], rad[at], big[at], sign[at],
+                                  dx, dy, orient, int(iterations))  # fmt: skip
+        for k, val in fitted.items():
+            out[k][at] = val
+    out["x"] = np.interp(out["x"], np.arange(nx), xs)  # NaN stays NaN
+    out["y"] = np.interp(out["y"], np.arange(ny), ys)
+    return out
+
+
+def _oseen_jacobian(px, py, t):
+    """:func:`oseen_velocity` of the parameters ``t`` (cores x (xc, yc, Gamma, log r_c, uc,
+    vc)) at the points ``px``, ``py`` (cores x points), and its derivatives (cores x points x
+    6) for the fit."""
+    ddx, ddy = px - t[:, :1], py - t[:, 1:2]
+    gam, rc2 = t[:, 2:3], np.exp(2.0 * t[:, 3:4])
+    q = ddx * ddx + ddy * ddy
+    s = q / rc2
+    small = s < 1e-4
+    e = np.exp(-s)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(small, 1.0 - 0.5 * s, -np.expm1(-s) / s)  # (1 - e^-s) / s
+        df = np.where(small, -0.5 + s / 3.0, (e * (s + 1.0) - 1.0) / (s * s))  # its d/ds
+    phi = f / (2.0 * np.pi * rc2)  # u_theta / (Gamma r)
+    phq = df / (2.0 * np.pi * rc2 * rc2)  # d phi / d q
+    phl = -e / (np.pi * rc2)  # d phi / d log r_c
+    mu = t[:, 4:5] - gam * phi * ddy
+    mv = t[:, 5:6] + gam * phi * ddx
+    one, zero = np.ones_like(q), np.zeros_like(q)
+    ju = np.stack([2.0 * gam * ddx * ddy * phq, gam * (2.0 * ddy * ddy * phq + phi), -phi * ddy,
+                   -gam * ddy * phl, one, zero], axis=-1)  # fmt: skip
+    jv = np.stack([-gam * (2.0 * ddx * ddx * phq + phi), -2.0 * gam * ddx * ddy * phq,
+                   phi * ddx, gam * ddx * phl, zero, one], axis=-1)  # fmt: skip
+    return mu, mv, ju, jv
+
+
+def _fit_oseen_group(uu, vv, ok_vec, cj, ci, rad, big, sign, dx, dy, orient, iterations):
+    """:func:`fit_oseen` for cores of similar patches (centroids ``cj``, ``ci`` in grid
+    steps): Levenberg-Marquardt on all of them at once, each core stopping on its own."""
+    ny, nx = uu.shape
+    n = cj.size
+    hj = int(np.ceil(big.max() / dx))
+    hi = int(np.ceil(big.max() / dy))
+    jj = np.rint(cj).astype(np.int64)[:, None, None] + np.arange(-hj, hj + 1)[None, None, :]
+    ii = np.rint(ci).astype(np.int64)[:, None, None] + np.arange(-hi, hi + 1)[None, :, None]
+    jj, ii = np.broadcast_arrays(jj, ii)
+    inside = (jj >= 0) & (jj < nx) & (ii >= 0) & (ii < ny)
+    jc, ic = np.clip(jj, 0, nx - 1), np.clip(ii, 0, ny - 1)
+    # px in the image's y-up frame (X = dx j, Y = -dy i; v_up = -v)
+    px, py = (dx * jc).reshape(n, -1), (-dy * ic).reshape(n, -1)
+    x0, y0 = dx * cj, -dy * ci
+    near = (px - x0[:, None]) ** 2 + (py - y0[:, None]) ** 2 <= big[:, None] ** 2
+    w = (inside.reshape(n, -1) & near & ok_vec[ic, jc].reshape(n, -1)).astype(np.float64)
+    pu = np.where(w > 0, uu[ic, jc].reshape(n, -1), 0.0)
+    pv = np.where(w > 0, -vv[ic, jc].reshape(n, -1), 0.0)
+    cnt = w.sum(1)
+    # first guesses: the centroid, the core's radius, the patch's median convection and its
+    # largest r u_theta (the circulation the patch holds)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a patch without a vector: NaN
+        uc0 = np.nan_to_num(np.nanmedian(np.where(w > 0, pu, np.nan), axis=1))
+        vc0 = np.nan_to_num(np.nanmedian(np.where(w > 0, pv, np.nan), axis=1))
+    ru = (px - x0[:, None]) * (pv - vc0[:, None]) - (py - y0[:, None]) * (pu - uc0[:, None])
+    g0 = 2.0 * np.pi * np.max(np.abs(ru) * w, axis=1) * sign * orient
+    lo, hi_ = np.log(min(dx, dy) / 100.0), np.log(100.0 * float(big.max()))
+    theta = np.stack([x0, y0, g0, np.log(np.maximum(rad, 0.5 * min(dx, dy))), uc0, vc0], 1)
+
+    def misfit(t, at):
+        with np.errstate(all="ignore"):
+            t = t.copy()
+            t[:, 3] = np.clip(t[:, 3], lo, hi_)
+            mu, mv, ju, jv = _oseen_jacobian(px[at], py[at], t)
+            r = np.concatenate([(mu - pu[at]) * w[at], (mv - pv[at]) * w[at]], axis=1)
+            jac = np.concatenate([ju * w[at][..., None], jv * w[at][..., None]], axis=1)
+        return r, jac
+
+    lam = np.full(n, 1e-3)
+    r, jac = misfit(theta, slice(None))
+    cost = np.sum(r * r, 1)
+    active = np.flatnonzero(cnt >= 7)  # the cores still iterating
+    for _ in range(iterations):
+        if active.size == 0:
+            break
+        ja, ra = jac[active], r[active]
+        a = np.einsum("npk,npl->nkl", ja, ja)
+        g = np.einsum("npk,np->nk", ja, ra)
+        diag = np.einsum("nkk->nk", a)
+        damp = a + (lam[active, None] * diag + 1e-30)[:, :, None] * np.eye(6)
+        with np.errstate(all="ignore"):
+            step = -(np.linalg.pinv(damp) @ g[:, :, None])[:, :, 0]
+        trial = theta[active] + step
+        r_new, j_new = misfit(trial, active)
+        c_new = np.sum(r_new * r_new, 1)
+        better = np.isfinite(c_new) & (c_new < cost[active])
+        settled = better & (cost[active] - c_new <= 1e-10 * cost[active])
+        take = active[better]
+        theta[take], r[take], jac[take], cost[take] = (
+            trial[better], r_new[better], j_new[better], c_new[better]
+        )
+        lam[active] = np.where(better, lam[active] / 3.0, lam[active] * 4.0)
+        active = active[~settled & (lam[active] < 1e10)]
+    xc, yc, gam, lrc, uc, vc = theta.T
+    rc = np.exp(np.clip(lrc, lo, hi_))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        su = np.sum(w * ((pu - uc[:, None]) ** 2 + (pv - vc[:, None]) ** 2), 1)
+        fit = 1.0 - cost / su
+    moved = np.hypot(xc - x0, yc - y0)
+    ok = (
+        np.isfinite(cost)
+        & np.isfinite(fit)
+        & (cnt >= 7)
+        & (np.sign(gam) * orient == sign)
+        & (moved <= 2.0 * np.maximum(rad, max(dx, dy)))
+        & (rc >= min(dx, dy) / 3.0)
+        & (rc <= big)
+        & (fit >= OSEEN_MIN_FIT)
+    )
+    keep = np.where(ok, 1.0, np.nan)
+    return {
+        "ok": ok,
+        "x": xc / dx * keep,  # grid steps (the caller maps them to its coordinates)
+        "y": -yc / dy * keep,
+        "radius": rc * keep,
+        "circulation": gam * orient * keep,
+        "u": uc * keep,
+        "v": -vc * keep,
+        "fit": fit,
+    }
+
+
 class VortexAccumulator:
     """Cores of many fields counted by their centroid's row (module docstring).
 
@@ -154,39 +415,50 @@ class VortexAccumulator:
     count, radius_sum, circulation_sum : ndarray, (2, rows)
         Per row (index 0 prograde, 1 retrograde): the cores, and the sums of their radii and
         circulations.
+    oseen_count, oseen_radius_sum, oseen_circulation_sum, oseen_u_sum : ndarray, (2, rows)
+        The same over the cores whose Lamb-Oseen fit is ``ok`` (:func:`fit_oseen`), and the
+        sum of their convection velocities.
     n_fields : int
     """
+
+    #: The per-row sums of :meth:`add` (the Lamb-Oseen ones over the fits that are ``ok``).
+    SUMS = ("count", "radius_sum", "circulation_sum", "oseen_count", "oseen_radius_sum",
+            "oseen_circulation_sum", "oseen_u_sum")  # fmt: skip
 
     def __init__(self, rows: int, prograde: float):
         if prograde not in (1.0, -1.0):
             raise InvalidInputError(f"vortices: prograde must be +1 or -1, got {prograde}")
         self.rows = int(rows)
         self.prograde = float(prograde)
-        self.count = np.zeros((2, self.rows), np.int64)
-        self.radius_sum = np.zeros((2, self.rows))
-        self.circulation_sum = np.zeros((2, self.rows))
+        for name in self.SUMS:
+            setattr(self, name, np.zeros((2, self.rows), np.int64 if "count" in name else float))
         self.n_fields = 0
 
-    def add(self, cores: dict[str, np.ndarray], row: np.ndarray) -> None:
+    def add(self, cores: dict[str, np.ndarray], row: np.ndarray, oseen=None) -> None:
         """Add one field's ``cores`` (:func:`find_vortices`), ``row`` the grid row of each
-        centroid (an int per core; outside ``0 .. rows-1`` not counted)."""
+        centroid (an int per core; outside ``0 .. rows-1`` not counted), and their Lamb-Oseen
+        fits (:func:`fit_oseen`; ``u`` the convection to sum, in the caller's units), if
+        given."""
         row = np.asarray(row, np.int64)
         inside = (row >= 0) & (row < self.rows)
         kind = np.where(cores["sign"] == self.prograde, 0, 1)
-        for name, values in (("count", None), ("radius_sum", cores["radius"]),
-                             ("circulation_sum", cores["circulation"])):  # fmt: skip
-            target = getattr(self, name)
-            np.add.at(target, (kind[inside], row[inside]),
-                      1 if values is None else values[inside])  # fmt: skip
+        sums = [("count", None), ("radius_sum", cores["radius"]),
+                ("circulation_sum", cores["circulation"])]  # fmt: skip
+        if oseen is not None:
+            sums += [("oseen_count", None), ("oseen_radius_sum", oseen["radius"]),
+                     ("oseen_circulation_sum", oseen["circulation"]),
+                     ("oseen_u_sum", oseen["u"])]  # fmt: skip
+        for name, values in sums:
+            at = inside & (oseen["ok"] if name.startswith("oseen") else True)
+            np.add.at(getattr(self, name), (kind[at], row[at]), 1 if values is None else values[at])
         self.n_fields += 1
 
     def merge(self, other: VortexAccumulator) -> VortexAccumulator:
         """Add ``other``'s counts (the same rows and orientation); returns self."""
         if (self.rows, self.prograde) != (other.rows, other.prograde):
             raise InvalidInputError("vortices: cannot merge counts of other grids")
-        self.count += other.count
-        self.radius_sum += other.radius_sum
-        self.circulation_sum += other.circulation_sum
+        for name in self.SUMS:
+            setattr(self, name, getattr(self, name) + getattr(other, name))
         self.n_fields += other.n_fields
         return self
 
