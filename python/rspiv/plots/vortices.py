@@ -1,6 +1,7 @@
 """The figure of a run's vortex population (:mod:`rspiv.campaign.vortices`): the prograde and
 retrograde cores per delta_99^2 and pair against y / delta_99, and their mean radius in wall
-units against y+, in ``BANDS`` bands of rows (a row holds a few cores).
+units against y+ (and, dashed, the mean Lamb-Oseen core radius of the fits kept, if any), in
+``BANDS`` bands of rows (a row holds a few cores).
 
 Uses matplotlib's object API with the Agg canvas; writes the PNG atomically.
 """
@@ -46,7 +47,14 @@ def plot_vortices(path: str | os.PathLike, prof: dict[str, Any]) -> pathlib.Path
             dens = n / area * prof["delta_99"] ** 2
             rad = rad / n / lv
         ax.plot(mid / prof["delta_99"], dens, marker, ms=3, label=name)
-        bx.plot(mid / lv, rad, marker, ms=3, label=name)
+        line = bx.plot(mid / lv, rad, marker, ms=3, label=name)[0]
+        fitted = np.asarray(prof.get("oseen_count", np.zeros_like(count))[:, k], np.float64)
+        if fitted.sum() > 0:  # the Lamb-Oseen core radius of the fits kept, dashed
+            nf = np.bincount(band, fitted, BANDS)
+            rc = np.bincount(band, np.nan_to_num(prof["oseen_radius"][:, k]) * fitted, BANDS)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rc = rc / nf / lv
+            bx.plot(mid / lv, rc, "--", color=line.get_color(), label=f"{name}: Lamb-Oseen r_c")
     ax.set_xlabel(r"$y / \delta_{99}$")
     ax.set_ylabel(r"cores per $\delta_{99}^2$ and pair")
     ax.set_title(f"vortex population, {prof['pairs']} pairs")
