@@ -111,6 +111,9 @@ class DemoScene:
     lighting : rspiv.synth.lighting.Lighting, optional
         Background, gradient, glare line at the wall and drift added to every frame (a real
         recording's lighting); None: particles on the camera noise only.
+    vortices, vortex_radius_px, vortex_swirl_px
+        Prograde Lamb-Oseen vortices planted in every pair (:func:`rspiv.synth.tbl.tbl_pair`):
+        their number (none by default), core radius and peak azimuthal displacement (px).
     """
 
     scale: float = 0.4
@@ -126,6 +129,9 @@ class DemoScene:
     monte_carlo_samples: int = 20000
     passes: tuple[tuple[int, int], ...] = ((64, 64), (32, 32), (32, 8))
     lighting: Lighting | None = None
+    vortices: int = 0
+    vortex_radius_px: float = 12.0
+    vortex_swirl_px: float = 1.5
 
     def flow(self):
 
@@ -258,6 +264,9 @@ def synth_campaign(
             correlation_px=scene.correlation_px,
             magnification=PAPER_M / scene.scale,
             lens=lens,
+            vortices=scene.vortices,
+            vortex_radius_px=scene.vortex_radius_px,
+            vortex_swirl_px=scene.vortex_swirl_px,
         )
         if scene.lighting is not None:
             rows = wall_rows(truth)

@@ -57,6 +57,7 @@ from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 from rspiv.reference import load_dns
 from rspiv.synth.target import PAPER_OPTICS, LensDistortion, paper_lens
+from rspiv.vortices import oseen_velocity
 
 __all__ = ["TBLFlow", "TBLTruth", "tbl_pair", "tbl_scene", "load_profile"]
 
@@ -194,6 +195,10 @@ class TBLTruth:
         Flow particles (midpoints) and mirror images rendered (frame A).
     extent : (x0, x1, y0, y1)
         Object region (px) holding particles and the fluctuation field.
+    vortices : ndarray, (n, 4)
+        Lamb-Oseen vortices planted on the fluctuations (``x``, ``y`` object px, circulation
+        px^2 per pair in the image's y-up frame, core radius px; :func:`rspiv.vortices.
+        oseen_velocity`), prograde (turning with the mean shear); none by default.
     """
 
     flow: TBLFlow
@@ -210,6 +215,7 @@ class TBLTruth:
     n_particles: int = 0
     n_mirrors: int = 0
     extent: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    vortices: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4)))
     _g: np.ndarray | None = dataclasses.field(default=None, repr=False)
     _grid: tuple[float, float, float] = (0.0, 0.0, 1.0)  # x0, y0, spacing of the noise grid
 
@@ -293,6 +299,10 @@ class TBLTruth:
         t, n = self._frame()
         u = k * (us * t[0] + vs * n[0])
         v = k * (us * t[1] + vs * n[1])
+        if fluctuations:
+            for xc, yc, gamma, rc in self.vortices:  # pixel frame: y and v down
+                du, dv = oseen_velocity(x, -y, xc, -yc, gamma, rc)
+                u, v = u + du, v - dv
         return np.where(inside, u, 0.0), np.where(inside, v, 0.0)
 
 
@@ -329,16 +339,20 @@ def tbl_scene(
     correlation_px: float | None = None,
     magnification: float = PAPER_OPTICS.magnification,
     reflection: float = 0.5,
+    vortices: int = 0,
+    vortex_radius_px: float = 12.0,
+    vortex_swirl_px: float = 1.5,
 ) -> TBLTruth:
     """The scene of :func:`tbl_pair` without particles: flow, wall, fluctuation field, camera.
 
-    Parameters are those of :func:`tbl_pair`. The fluctuation field is the first draw of
-    ``np.random.default_rng(seed)``, so :func:`tbl_pair` with the same seed renders this very
-    scene.
+    Parameters are those of :func:`tbl_pair`. The fluctuation field (and the planted vortices)
+    are the first draws of ``np.random.default_rng(seed)``, so :func:`tbl_pair` with the same
+    seed renders this very scene.
     """
     rng = np.random.default_rng(seed)
     return _scene(rng, scale, flow, u_inf_px, wall_angle_deg, wall_y0_px, flow_side, lens,
-                  mapping, turbulence, correlation_px, magnification, reflection)  # fmt: skip
+                  mapping, turbulence, correlation_px, magnification, reflection,
+                  (vortices, vortex_radius_px, vortex_swirl_px))  # fmt: skip
 
 
 def _scene(
@@ -355,6 +369,7 @@ def _scene(
     correlation_px: float | None,
     magnification: float,
     reflection: float,
+    planted: tuple[int, float, float] = (0, 12.0, 1.5),
 ) -> TBLTruth:
     if not (np.isfinite(scale) and 0.02 <= scale <= 1.0):
         raise InvalidInputError(f"scale must lie in [0.02, 1], got {scale!r}")
@@ -402,7 +417,32 @@ def _scene(
     )
     if turbulence:
         truth._g, truth._grid = _noise_fields(rng, extent, corr)
+    truth.vortices = _planted_vortices(rng, truth, *planted)
     return truth
+
+
+def _planted_vortices(rng: np.random.Generator, truth: TBLTruth, n: int, radius: float,
+                      swirl: float) -> np.ndarray:  # fmt: skip
+    """``n`` prograde Lamb-Oseen vortices of core radius ``radius`` px and peak azimuthal
+    displacement ``swirl`` px, centred at random between 0.15 and 0.6 delta_99 from the wall
+    and 10-90 % along it (rows of ``TBLTruth.vortices``)."""
+    if n == 0:
+        return np.zeros((0, 4))
+    if not (n > 0 and radius > 0 and swirl > 0):
+        raise InvalidInputError(
+            f"vortices: a count >= 0, a radius and a swirl > 0, got {n}, {radius}, {swirl}"
+        )
+    w = truth.shape[1]
+    delta = truth.flow.delta99_mm * truth.magnification
+    x = rng.uniform(0.1 * w, 0.9 * w, n)
+    d = rng.uniform(0.15 * delta, 0.6 * delta, n)
+    _, normal = truth._frame()
+    y = truth.wall_y(x) + d * normal[1]
+    x = x + d * normal[0]
+    # u_theta peaks at 1.12091 r_c with 0.71533 Gamma / (2 pi 1.12091 r_c); prograde turns
+    # with the mean shear: clockwise on the screen for a flow above the wall
+    gamma = -truth._sign * swirl * 2.0 * np.pi * 1.12091 * radius / 0.71533
+    return np.column_stack([x, y, np.full(n, gamma), np.full(n, float(radius))])
 
 
 def tbl_pair(
@@ -424,6 +464,9 @@ def tbl_pair(
     correlation_px: float | None = None,
     bits: int = 12,
     magnification: float = PAPER_OPTICS.magnification,
+    vortices: int = 0,
+    vortex_radius_px: float = 12.0,
+    vortex_swirl_px: float = 1.5,
 ) -> tuple[np.ndarray, np.ndarray, TBLTruth]:
     """Render a boundary-layer image pair with the wall reflection through a known camera.
 
@@ -468,6 +511,10 @@ def tbl_pair(
         Sensor bit depth.
     magnification : float
         M of the full-size sensor (px/mm).
+    vortices, vortex_radius_px, vortex_swirl_px
+        Lamb-Oseen vortices planted on the fluctuations (0 by default): their number, core
+        radius (px) and peak azimuthal displacement (px), prograde, 0.15-0.6 delta_99 from the
+        wall (``TBLTruth.vortices``): the exact answer for :func:`rspiv.vortices.fit_oseen`.
 
     Returns
     -------
@@ -480,7 +527,8 @@ def tbl_pair(
         raise InvalidInputError(f"diameter must be <= 12 px, got {diameter!r}")
     rng = np.random.default_rng(seed)
     truth = _scene(rng, scale, flow, u_inf_px, wall_angle_deg, wall_y0_px, flow_side, lens,
-                   mapping, turbulence, correlation_px, magnification, reflection)  # fmt: skip
+                   mapping, turbulence, correlation_px, magnification, reflection,
+                   (vortices, vortex_radius_px, vortex_swirl_px))  # fmt: skip
     h, w = truth.shape
     to_image = truth.to_image
     extent = truth.extent
