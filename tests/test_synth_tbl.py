@@ -158,3 +158,40 @@ def test_invalid_arguments():
         tbl_pair(scale=0.1, density=-1)
     with pytest.raises(InvalidInputError):
         TBLFlow(re_tau=10)
+
+
+def test_planted_vortices_are_lamb_oseen_and_prograde():
+    """``vortices=n``: n Lamb-Oseen vortices on the fluctuations, 0.15-0.6 delta_99 from the
+    wall, turning with the mean shear (clockwise on the screen above the wall, the other way
+    below), each adding exactly its closed form to the displacement; none by default, which
+    leaves the scene as it was (the same draws)."""
+    from rspiv.vortices import oseen_velocity
+
+    plain = tbl_scene(scale=0.1, seed=7)
+    assert plain.vortices.shape == (0, 4)
+    for side, sense in (("above", -1.0), ("below", 1.0)):
+        sc = tbl_scene(scale=0.1, seed=7, flow_side=side, vortices=4, vortex_radius_px=10.0,
+                       vortex_swirl_px=2.0)  # fmt: skip
+        assert sc.vortices.shape == (4, 4) and np.all(sc.vortices[:, 3] == 10.0)
+        assert np.all(np.sign(sc.vortices[:, 2]) == sense)
+        delta = sc.flow.delta99_mm * sc.magnification
+        d = sc.wall_distance(sc.vortices[:, 0], sc.vortices[:, 1])
+        assert np.all((d >= 0.15 * delta) & (d <= 0.6 * delta))
+        # peak azimuthal displacement 2 px at 1.121 r_c
+        u, v = oseen_velocity(1.12091 * 10.0, 0.0, 0.0, 0.0, sc.vortices[0, 2], 10.0)
+        assert abs(v) == pytest.approx(2.0, rel=1e-4) and abs(u) < 1e-12
+        # the displacement is the plain scene's plus the vortices' (pixel frame: v down)
+        ref = tbl_scene(scale=0.1, seed=7, flow_side=side)
+        x = sc.vortices[:, 0][:, None] + np.linspace(-30, 30, 7)[None, :]
+        y = sc.vortices[:, 1][:, None] + np.linspace(-20, 20, 7)[None, :]
+        du, dv = np.subtract(sc.displacement(x, y), ref.displacement(x, y))
+        eu, ev = np.zeros_like(x), np.zeros_like(x)
+        for xc, yc, g, rc in sc.vortices:
+            a, b = oseen_velocity(x, -y, xc, -yc, g, rc)
+            eu, ev = eu + a, ev - b
+        np.testing.assert_allclose(du, eu, atol=1e-12)
+        np.testing.assert_allclose(dv, ev, atol=1e-12)
+    with pytest.raises(InvalidInputError, match="vortices"):
+        tbl_scene(scale=0.1, vortices=-1)
+    with pytest.raises(InvalidInputError, match="vortices"):
+        tbl_pair(scale=0.1, vortices=2, vortex_radius_px=0.0)
