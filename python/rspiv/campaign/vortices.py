@@ -123,9 +123,8 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     counts = VortexAccumulator(acc.shape[0], prograde)
     row_index = np.arange(acc.shape[0], dtype=np.float64)
 
-    sign_x = float(p.get("sign_x", 1.0))
-    with np.errstate(invalid="ignore"):
-        mean_u, mean_v = np.where(usable, acc.mean_u, np.nan), np.where(usable, acc.mean_v, np.nan)
+    sign_x, sign_y = float(p.get("sign_x", 1.0)), float(p.get("sign_y", 1.0))
+    mean_u, mean_v = np.where(usable, acc.mean_u, np.nan), np.where(usable, acc.mean_v, np.nan)
 
     def add(part: dict, i: int, pid: int, u, v, valid) -> None:
         w, s = VorticityAccumulator.fields(u, v, valid, va.dx, va.dy, va.scheme)
@@ -140,7 +139,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         at_j = np.clip(np.rint(np.interp(np.nan_to_num(fits["x"]), x, np.arange(x.size)))
                        .astype(np.int64), 0, acc.shape[1] - 1)  # fmt: skip
         fits["u"] = sign_x * (fits["u"] + mean_u[at_i, at_j])  # downstream, px per pair
-        fits["v"] = float(p.get("sign_y", 1.0)) * (fits["v"] + mean_v[at_i, at_j])
+        fits["v"] = sign_y * (fits["v"] + mean_v[at_i, at_j])
         fits["ok"] &= np.isfinite(fits["u"])
         part["acc"].add(cores, rows, fits)
         cores = {**cores, **{f"oseen_{k}": val for k, val in fits.items()}}
