@@ -15,7 +15,7 @@ import re
 EXTRAS = ("two_point", "quadrant", "pod", "vorticity", "vortices", "conditional")
 
 
-def _switch(text: str, key: str, on: bool) -> str:
+def switch(text: str, key: str, on: bool) -> str:
     """Set the boolean ``key = ...`` lines (at the start of a line) to ``on``."""
     value = "true" if on else "false"
     new, n = re.subn(rf"^{key} = (true|false)$", f"{key} = {value}", text, flags=re.MULTILINE)
@@ -39,10 +39,10 @@ def lean(
     unknown = set(keep) - set(EXTRAS)
     assert not unknown, f"not a statistic of the demo's campaign: {sorted(unknown)}"
     for key in EXTRAS:
-        text = _switch(text, key, key in keep)
-    text = _switch(text, "fields", fields)
-    text = _switch(text, "report", report)
-    return _switch(text, "compare_uncorrected", uncorrected)
+        text = switch(text, key, key in keep)
+    text = switch(text, "fields", fields)
+    text = switch(text, "report", report)
+    return switch(text, "compare_uncorrected", uncorrected)
 
 
 def lean_file(toml: pathlib.Path, **kwargs) -> pathlib.Path:

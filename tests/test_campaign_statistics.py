@@ -15,6 +15,7 @@ import shutil
 
 import numpy as np
 import pytest
+from campaign_cases import switch
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import load_campaign_config
 from rspiv.demo import DEFAULT_SCENE, synth_campaign
@@ -26,6 +27,8 @@ SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=3, monte_carlo_samp
 def processed(tmp_path_factory):
     d = tmp_path_factory.mktemp("quadrant")
     synth_campaign(d, scene=SCENE)  # quadrant and fields on, as the demo has them
+    toml = d / "campaign.toml"
+    toml.write_text(switch(toml.read_text(), "vortex_fits", True))  # and the vortices' fits
     cfg = load_campaign_config(d / "campaign.toml")
     assert cfg.statistics.quadrant and cfg.output.fields and cfg.statistics.vorticity
     assert cfg.statistics.pod

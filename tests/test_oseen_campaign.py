@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from campaign_cases import lean_file
+from campaign_cases import lean_file, switch
 from rspiv.campaign import Campaign
 from rspiv.demo import DEFAULT_SCENE, PAPER_M, synth_campaign
 from rspiv.synth.tbl import tbl_scene
@@ -29,6 +29,7 @@ def processed(tmp_path_factory):
     d = tmp_path_factory.mktemp("planted")
     toml = synth_campaign(d, scene=SCENE)
     lean_file(toml, keep=("vorticity", "vortices"), fields=True, uncorrected=False)
+    toml.write_text(switch(toml.read_text(), "vortex_fits", True))
     camp = Campaign.load(toml, progress=False)
     res = camp.run()
     planted = []

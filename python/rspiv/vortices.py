@@ -274,7 +274,7 @@ def fit_oseen(
     big = np.maximum(reach * rad, 2.0 * max(dx, dy))
     half = np.maximum(np.ceil(big / dx), np.ceil(big / dy)).astype(np.int64)
     # cores of similar patches together (a patch is padded to its group's largest)
-    groups = np.floor(np.log(half) / np.log(1.25)).astype(np.int64)
+    groups = np.floor(np.log(half) / np.log(1.6)).astype(np.int64)
     for g in np.unique(groups):
         at = np.flatnonzero(groups == g)
         fitted = _fit_oseen_group(uu, vv, ok_vec, cj[at], ci[at], rad[at], big[at], sign[at],
@@ -339,40 +339,57 @@ def _fit_oseen_group(uu, vv, ok_vec, cj, ci, rad, big, sign, dx, dy, orient, ite
     lo, hi_ = np.log(min(dx, dy) / 100.0), np.log(100.0 * float(big.max()))
     theta = np.stack([x0, y0, g0, np.log(np.maximum(rad, 0.5 * min(dx, dy))), uc0, vc0], 1)
 
-    def misfit(t, at):
+    def misfit(t, at, normal: bool = True):
+        """The weighted misfit of the cores ``at`` and, with ``normal``, its normal equations
+        ``J^T J`` and ``J^T r``."""
         with np.errstate(all="ignore"):
             t = t.copy()
             t[:, 3] = np.clip(t[:, 3], lo, hi_)
             mu, mv, ju, jv = _oseen_jacobian(px[at], py[at], t)
-            r = np.concatenate([(mu - pu[at]) * w[at], (mv - pv[at]) * w[at]], axis=1)
-            jac = np.concatenate([ju * w[at][..., None], jv * w[at][..., None]], axis=1)
-        return r, jac
+            ww = w[at]
+            r = np.concatenate([(mu - pu[at]) * ww, (mv - pv[at]) * ww], axis=1)
+            if not normal:
+                return r, None, None
+            jac = np.concatenate([ju * ww[..., None], jv * ww[..., None]], axis=1)
+            jt = jac.transpose(0, 2, 1)
+            return r, jt @ jac, (jt @ r[..., None])[..., 0]
 
+    scale = np.array([dx, dy, 1.0, 1.0, 1.0, 1.0])
+    reach_px = np.maximum(rad, max(dx, dy))  # how far a kept fit's centre may move: twice it
     lam = np.full(n, 1e-3)
-    r, jac = misfit(theta, slice(None))
+    r, a, g = misfit(theta, slice(None))
     cost = np.sum(r * r, 1)
     active = np.flatnonzero(cnt >= 7)  # the cores still iterating
+    eye = np.eye(6)
     for _ in range(iterations):
         if active.size == 0:
             break
-        ja, ra = jac[active], r[active]
-        a = np.einsum("npk,npl->nkl", ja, ja)
-        g = np.einsum("npk,np->nk", ja, ra)
-        diag = np.einsum("nkk->nk", a)
-        damp = a + (lam[active, None] * diag + 1e-30)[:, :, None] * np.eye(6)
+        aa = a[active]
+        diag = np.diagonal(aa, axis1=1, axis2=2)
+        # damped normal equations, positive definite (a parameter without effect is held)
+        tiny = 1e-12 * np.maximum(diag.max(1), 1e-300)
+        damp = aa + (lam[active, None] * diag + tiny[:, None])[:, :, None] * eye
         with np.errstate(all="ignore"):
-            step = -(np.linalg.pinv(damp) @ g[:, :, None])[:, :, 0]
+            step = -np.linalg.solve(damp, g[active][..., None])[..., 0]
         trial = theta[active] + step
-        r_new, j_new = misfit(trial, active)
+        r_new, _, _ = misfit(trial, active, normal=False)
         c_new = np.sum(r_new * r_new, 1)
         better = np.isfinite(c_new) & (c_new < cost[active])
-        settled = better & (cost[active] - c_new <= 1e-10 * cost[active])
+        small = np.max(np.abs(step) / np.maximum(np.abs(theta[active]), scale), axis=1) < 1e-9
+        settled = (better & (cost[active] - c_new <= 1e-7 * cost[active])) | (~better & small)
         take = active[better]
-        theta[take], r[take], jac[take], cost[take] = (
-            trial[better], r_new[better], j_new[better], c_new[better]
-        )
+        if take.size:
+            theta[take] = trial[better]
+            r[take], a[take], g[take] = misfit(theta[take], take)
+            cost[take] = c_new[better]
         lam[active] = np.where(better, lam[active] / 3.0, lam[active] * 4.0)
-        active = active[~settled & (lam[active] < 1e10)]
+        # a fit drifting to a core wider than twice its patch, or centred twice as far as a
+        # fit may be, will not be kept: it stops (a patch in solid-body rotation crawls there)
+        t = theta[active]
+        lost = (t[:, 3] > np.log(2.0 * big[active])) | (
+            np.hypot(t[:, 0] - x0[active], t[:, 1] - y0[active]) > 4.0 * reach_px[active]
+        )
+        active = active[~settled & ~lost & (lam[active] < 1e10)]
     xc, yc, gam, lrc, uc, vc = theta.T
     rc = np.exp(np.clip(lrc, lo, hi_))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -384,7 +401,7 @@ def _fit_oseen_group(uu, vv, ok_vec, cj, ci, rad, big, sign, dx, dy, orient, ite
         & np.isfinite(fit)
         & (cnt >= 7)
         & (np.sign(gam) * orient == sign)
-        & (moved <= 2.0 * np.maximum(rad, max(dx, dy)))
+        & (moved <= 2.0 * reach_px)
         & (rc >= min(dx, dy) / 3.0)
         & (rc <= big)
         & (fit >= OSEEN_MIN_FIT)

@@ -23,24 +23,28 @@ delta_99^2), ``radius`` and ``circulation`` (means of the cores; m and m^2/s, wi
 wall units), ``threshold`` (1/s); and every core (dim ``core``, at most ``MAX_CORES``): ``pair``,
 ``x``, ``y``, ``sign``, ``radius``, ``circulation``, ``peak``. A report figure.
 
-Lamb-Oseen fits: a Lamb-Oseen vortex is fitted to the fluctuations about each core (each
-vector's own mean over the pairs: the mean shear is not in the model; :func:`rspiv.vortices.
-fit_oseen`, a patch of 2.5 core radii). Every core lists its fit (``core_oseen_x``, ``_y``,
-``_radius`` the core radius r_c, ``_circulation`` the whole circulation, ``_u`` and ``_v`` the
-convection velocity in the flow's frame: the fit's plus the mean at its centre, ``_fit`` the
-share of the patch's velocity it explains, ``_ok``), and per row and kind ``oseen_count``,
-``oseen_share`` and the means of the fits kept: ``oseen_radius``, ``oseen_circulation``,
-``oseen_u`` (with ``_plus`` in wall units). The final window widens a core: a Gaussian core of
-radius r_c reads sqrt(r_c^2 + W^2 / 6) through a W px top-hat window (`tests/test_vortices.py`).
-A fit is kept only where the patch shows a vortex decaying within it: the demo's synthetic
-turbulence (random Fourier modes) has none (its swirling regions rotate as solid bodies across
-their patches and fit r_c beyond them), and the report says so; on OpenPIV's ``test10`` vortex
-pairs the fit is kept at r_c 17-26 px. The mean over N pairs holds 1/N of every pair's vortex,
-so the fluctuations hold (1 - 1/N) of its circulation: 17 % low over 6 pairs, under 1 % over a
-campaign of hundreds. Vortices planted on the demo's layer (``DemoScene.vortices``; 30 of r_c
-24 px over 6 pairs): 15 kept on them and 1 elsewhere, their median r_c 2.8 % under the planted
-core widened by the 32 x 8 px window, their median circulation 1.8 % over (1 - 1/N) of the
-planted one (`tests/test_oseen_campaign.py`).
+Lamb-Oseen fits (``[statistics] vortex_fits = true``; off by default: 1-3 ms a core, about
+0.5 s a pair's field on the demo's layer at scale 0.4, where the rest of the pass takes 15 ms):
+a Lamb-Oseen vortex is fitted to the fluctuations about each core (each vector's own mean over
+the pairs: the mean shear is not in the model; :func:`rspiv.vortices.fit_oseen`, a patch of
+2.5 core radii). Every core lists its fit (``core_oseen_x``, ``_y``, ``_radius`` the core
+radius r_c, ``_circulation`` the whole circulation, ``_u`` and ``_v`` the convection velocity in
+the flow's frame: the fit's plus the mean at its centre, ``_fit`` the share of the patch's
+velocity it explains, ``_ok``), and per row and kind ``oseen_count``, ``oseen_share`` and the
+means of the fits kept: ``oseen_radius``, ``oseen_circulation``, ``oseen_u`` (with ``_plus`` in
+wall units). The final window widens a core: a Gaussian core of radius r_c reads sqrt(r_c^2 +
+W^2 / 6) through a W px top-hat window (`tests/test_vortices.py`).
+
+A fit is kept only where the patch shows a vortex decaying within it. The demo's synthetic
+turbulence (random Fourier modes) has few: most of its swirling regions rotate as solid bodies
+across their patches and fit r_c beyond them (none kept at scale 0.15 over 3 pairs, 69-79 of
+about 3070 cores per run at the demo's scale 0.4 over 24 pairs); a run without one says so. On
+OpenPIV's ``test10`` vortex pairs the fit is kept at r_c 17-26 px. The mean over N pairs holds
+1/N of every pair's vortex, so the fluctuations hold (1 - 1/N) of its circulation: 17 % low
+over 6 pairs, under 1 % over a campaign of hundreds. Vortices planted on the demo's layer
+(``DemoScene.vortices``; 30 of r_c 24 px over 6 pairs): 15 kept on them and 1 elsewhere, their
+median r_c 2.8 % under the planted core widened by the 32 x 8 px window, their median
+circulation 1.8 % over (1 - 1/N) of the planted one (`tests/test_oseen_campaign.py`).
 
 Noise also makes cores, mostly small ones: cores smaller than a disc ``vortex_min_diameter``
 (1.0) final windows wide are dropped (:func:`rspiv.vortices.min_core_vectors`; not resolved by
@@ -131,6 +135,19 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         cores = find_vortices(s * orient, w * orient, thr[:, None], va.dx, va.dy, x=x,
                               y=row_index, min_vectors=min_vectors)  # fmt: skip
         rows = np.rint(cores["y"]).astype(np.int64)
+        if st.vortex_fits:
+            cores = fitted(cores, rows, u, v, valid, part["acc"])
+        else:
+            part["acc"].add(cores, rows)
+        # each core at the vector nearest its centroid, for averages about it (conditional)
+        cols = np.rint(np.interp(cores["x"], x, np.arange(x.size))).astype(np.int64)
+        part["events"][pid] = (rows, cols, cores["sign"] == prograde)
+        if part["n"] < MAX_CORES:
+            part["cores"].append((pid, cores))
+            part["n"] += cores["x"].size
+
+    def fitted(cores: dict, rows, u, v, valid, counts_part: VortexAccumulator) -> dict:
+        """The cores with their Lamb-Oseen fits (``oseen_*``), counted."""
         # a Lamb-Oseen vortex fitted to the fluctuations about each core (the mean shear is
         # not in its model); its convection is the fit's plus the mean at its centre
         fits = fit_oseen(u - mean_u, v - mean_v, cores, va.dx, va.dy, valid=valid, x=x,
@@ -141,14 +158,8 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         fits["u"] = sign_x * (fits["u"] + mean_u[at_i, at_j])  # downstream, px per pair
         fits["v"] = sign_y * (fits["v"] + mean_v[at_i, at_j])
         fits["ok"] &= np.isfinite(fits["u"])
-        part["acc"].add(cores, rows, fits)
-        cores = {**cores, **{f"oseen_{k}": val for k, val in fits.items()}}
-        # each core at the vector nearest its centroid, for averages about it (conditional)
-        cols = np.rint(np.interp(cores["x"], x, np.arange(x.size))).astype(np.int64)
-        part["events"][pid] = (rows, cols, cores["sign"] == prograde)
-        if part["n"] < MAX_CORES:
-            part["cores"].append((pid, cores))
-            part["n"] += cores["x"].size
+        counts_part.add(cores, rows, fits)
+        return {**cores, **{f"oseen_{k}": val for k, val in fits.items()}}
 
     def new_part(w: int) -> dict:
         return {"acc": counts.empty_copy(), "cores": [], "n": 0, "events": {}}
@@ -207,12 +218,14 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         prof["oseen_u_plus"] = prof["oseen_u"] / r.u_tau
         prof["density_delta2"] = prof["density"] * r.delta99**2
         prof["delta_99"] = float(r.delta99)
+    if not st.vortex_fits:  # no Lamb-Oseen fit was made
+        prof = {k: val for k, val in prof.items() if not k.startswith("oseen_")}
     prof["seconds"] = time.perf_counter() - t0
     total = int(counts.count.sum())
+    kept = f"{int(counts.oseen_count.sum())} Lamb-Oseen fits kept; " if st.vortex_fits else ""
     camp.say(
         f"{run.label}: {total} vortex cores in {counts.n_fields} pairs' fields "
-        f"({int(counts.count[0].sum())} prograde; {int(counts.oseen_count.sum())} Lamb-Oseen "
-        f"fits kept; {prof['seconds']:.1f} s)"
+        f"({int(counts.count[0].sum())} prograde; {kept}{prof['seconds']:.1f} s)"
     )
     said = []
     if missing:
@@ -232,7 +245,8 @@ def _core_table(found: list, dist: np.ndarray, p: dict, camp: Any, limit: int) -
     m = p["m_per_px"] if p.get("si") else 1.0
     dt = camp.config.flow.dt
     per_s = 1.0 / dt if dt > 0 else 1.0
-    names = CORE_FIELDS + tuple(f"oseen_{k}" for k in OSEEN_FIELDS)
+    fits = camp.config.statistics.vortex_fits
+    names = CORE_FIELDS + (tuple(f"oseen_{k}" for k in OSEEN_FIELDS) if fits else ())
     cols = {k: [c[k] for _, c in found] for k in names}
     out = {k: np.concatenate(v)[:limit] if v else np.zeros(0) for k, v in cols.items()}
     pair = [np.full(c["x"].size, pid) for pid, c in found]
@@ -242,6 +256,8 @@ def _core_table(found: list, dist: np.ndarray, p: dict, camp: Any, limit: int) -
     out["radius"] = out["radius"] * m
     out["circulation"] = out["circulation"] * m * m * per_s
     out["peak"] = out["peak"] * per_s
+    if not fits:
+        return out
     out["oseen_ok"] = out["oseen_ok"].astype(bool)
     out["oseen_y"] = np.interp(out["oseen_y"], np.arange(dist.size), dist) * m  # NaN stays
     out["oseen_x"] = out["oseen_x"] * m
@@ -275,25 +291,16 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
                          "long_name": "mean circulation inside the threshold"})  # fmt: skip
     ds["threshold"] = ("y", prof["threshold"], {"units": rate,
                        "long_name": "|Lambda_ci| of a core's vectors at least"})  # fmt: skip
-    vel = ("m s-1" if prof["per_s"] else "m") if prof["si"] else "pix"
-    ds["oseen_count"] = (dims, prof["oseen_count"], {"long_name": "cores whose Lamb-Oseen "
-                         "fit is kept (rspiv.vortices.fit_oseen)"})  # fmt: skip
-    ds["oseen_share"] = (dims, prof["oseen_share"], {"units": "1"})
-    ds["oseen_radius"] = (dims, prof["oseen_radius"], {"units": length, "long_name":
-                          "mean Lamb-Oseen core radius r_c of the fits kept"})  # fmt: skip
-    ds["oseen_circulation"] = (dims, prof["oseen_circulation"], {"units": circ, "long_name":
-                               "mean Lamb-Oseen circulation of the fits kept"})  # fmt: skip
-    ds["oseen_u"] = (dims, prof["oseen_u"], {"units": vel, "long_name":
-                     "mean convection velocity downstream of the fits kept"})  # fmt: skip
     for k in ("pair", "x", "y", "sign", "radius", "circulation", "peak"):
         ds[f"core_{k}"] = ("core", t[k])
-    for k in OSEEN_FIELDS:
-        ds[f"core_oseen_{k}"] = ("core", t[f"oseen_{k}"])
+    if "oseen_count" in prof:
+        _oseen_variables(ds, prof, dims, length, circ)
     if "y_plus" in prof:
         ds["y_plus"] = ("y", prof["y_plus"], {"units": "1"})
         for k in ("radius_plus", "circulation_plus", "density_delta2", "oseen_radius_plus",
                   "oseen_circulation_plus", "oseen_u_plus"):  # fmt: skip
-            ds[k] = (dims, prof[k], {"units": "1"})
+            if k in prof:
+                ds[k] = (dims, prof[k], {"units": "1"})
         ds.attrs["delta_99"] = prof["delta_99"]
     ds.attrs.update(
         {
@@ -310,6 +317,23 @@ def _dataset(prof: dict, run: RunSpec) -> Any:
     return ds
 
 
+def _oseen_variables(ds: Any, prof: dict, dims: tuple, length: str, circ: str) -> None:
+    """The Lamb-Oseen fits' variables of ``vortices_<run>.nc`` (``[statistics] vortex_fits``)."""
+    t = prof["cores"]
+    vel = ("m s-1" if prof["per_s"] else "m") if prof["si"] else "pix"
+    ds["oseen_count"] = (dims, prof["oseen_count"], {"long_name": "cores whose Lamb-Oseen "
+                         "fit is kept (rspiv.vortices.fit_oseen)"})  # fmt: skip
+    ds["oseen_share"] = (dims, prof["oseen_share"], {"units": "1"})
+    ds["oseen_radius"] = (dims, prof["oseen_radius"], {"units": length, "long_name":
+                          "mean Lamb-Oseen core radius r_c of the fits kept"})  # fmt: skip
+    ds["oseen_circulation"] = (dims, prof["oseen_circulation"], {"units": circ, "long_name":
+                               "mean Lamb-Oseen circulation of the fits kept"})  # fmt: skip
+    ds["oseen_u"] = (dims, prof["oseen_u"], {"units": vel, "long_name":
+                     "mean convection velocity downstream of the fits kept"})  # fmt: skip
+    for k in OSEEN_FIELDS:
+        ds[f"core_oseen_{k}"] = ("core", t[f"oseen_{k}"])
+
+
 def report_section(camp: Any, res: Any) -> Any:
     """The report's section on the main run's vortex population, or None."""
     main = res.context.runs[0]
@@ -324,7 +348,7 @@ def report_section(camp: Any, res: Any) -> Any:
         f"{camp.config.statistics.vortex_min_diameter:g} final window): {total[0]} "
         f"prograde (turning with the mean shear) and {total[1]} retrograde. Densities are per "
         "delta_99^2 and pair; the measurement noise makes cores too and raises the threshold."
-        + _oseen_sentence(prof)
+        + (_oseen_sentence(prof) if "oseen_count" in prof else "")
     )
     return pass_section(
         camp, prof, "Vortex population", text, "rspiv.plots.vortices:plot_vortices", "vortices",
