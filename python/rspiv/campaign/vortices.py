@@ -136,7 +136,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
                               y=row_index, min_vectors=min_vectors)  # fmt: skip
         rows = np.rint(cores["y"]).astype(np.int64)
         if st.vortex_fits:
-            cores = fitted(cores, rows, u, v, valid, part["acc"])
+            cores = with_fits(cores, rows, u, v, valid, part["acc"])
         else:
             part["acc"].add(cores, rows)
         # each core at the vector nearest its centroid, for averages about it (conditional)
@@ -146,7 +146,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             part["cores"].append((pid, cores))
             part["n"] += cores["x"].size
 
-    def fitted(cores: dict, rows, u, v, valid, counts_part: VortexAccumulator) -> dict:
+    def with_fits(cores: dict, rows, u, v, valid, counts_part: VortexAccumulator) -> dict:
         """The cores with their Lamb-Oseen fits (``oseen_*``), counted."""
         # a Lamb-Oseen vortex fitted to the fluctuations about each core (the mean shear is
         # not in its model); its convection is the fit's plus the mean at its centre
