@@ -270,6 +270,9 @@ def test_oseen_fit_refuses_bad_input():
         ((np.zeros((4, 5)), np.zeros((4, 5)), cores, 0.0, 1.0), {}, "must be > 0"),
         ((np.zeros((4, 5)), np.zeros((4, 5)), cores, 1.0, 1.0), {"orient": 2.0}, "orient"),
         ((np.zeros((4, 5)), np.zeros((4, 5)), cores, 1.0, 1.0), {"x": np.zeros(3)}, "columns"),
+        ((np.zeros((4, 5)), np.zeros((4, 5)), {"x": np.zeros(2)}, 1.0, 1.0), {}, "dict of"),
+        ((np.zeros((4, 5)), np.zeros((4, 5)), {**cores, "sign": np.ones(2)}, 1.0, 1.0), {},
+         "differ in length"),
     ):
         with pytest.raises(InvalidInputError, match=what) as e:
             fit_oseen(*args, **kw)

@@ -243,7 +243,8 @@ def fit_oseen(
     Raises
     ------
     InvalidInputError
-        Fields of other shapes, a spacing or reach not > 0, or ``orient`` not +-1.
+        Fields of other shapes, a spacing or reach not > 0, ``orient`` not +-1, or cores
+        without their ``x``, ``y``, ``sign`` and ``radius`` of one length.
     """
     uu = np.asarray(u, np.float64)
     vv = np.asarray(v, np.float64)
@@ -261,7 +262,16 @@ def fit_oseen(
     ys = dy * np.arange(ny) if y is None else np.asarray(y, np.float64)
     if xs.shape != (nx,) or ys.shape != (ny,):
         raise InvalidInputError("oseen: x and y must give the columns' and rows' coordinates")
-    n = int(np.asarray(cores["x"]).size)
+    need = ("x", "y", "sign", "radius")
+    try:
+        cols = [np.asarray(cores[k], np.float64).ravel() for k in need]
+    except (KeyError, TypeError, ValueError):
+        raise InvalidInputError(
+            f"oseen: cores must be find_vortices' dict of numbers ({', '.join(need)})"
+        ) from None
+    n = cols[0].size
+    if any(c.size != n for c in cols):
+        raise InvalidInputError(f"oseen: the cores' {', '.join(need)} differ in length")
     out = {k: np.full(n, np.nan) for k in OSEEN_FIELDS}
     out["ok"] = np.zeros(n, bool)
     if n == 0:
