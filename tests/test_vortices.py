@@ -165,6 +165,9 @@ def test_oseen_velocity_is_the_closed_form():
                 - oseen_velocity(x0, y0 - h, 0, 0, gamma, rc)[0]) / (2 * h)  # fmt: skip
         exact = gamma / (np.pi * rc**2) * np.exp(-(x0**2 + y0**2) / rc**2)
         assert dvdx - dudy == pytest.approx(exact, rel=1e-6)
+    for bad in (0.0, -2.0, np.nan, [3.0, 0.0]):
+        with pytest.raises(InvalidInputError, match="core radius must be > 0"):
+            oseen_velocity(r, 0.0, 0.0, 0.0, gamma, bad)
 
 
 def test_a_lamb_oseen_vortex_is_fitted_exactly():

@@ -163,11 +163,15 @@ def oseen_velocity(x, y, xc, yc, circulation, radius, uc=0.0, vc=0.0):
     ``u_theta(r) = Gamma / (2 pi r) (1 - exp(-r^2 / r_c^2))`` about ``(xc, yc)``, counter-
     clockwise for ``circulation`` (Gamma) > 0, plus the uniform ``(uc, vc)``: its vorticity is
     ``Gamma / (pi r_c^2) exp(-r^2 / r_c^2)`` (a Gaussian of standard deviation ``r_c / sqrt(2)``
-    per axis) and its azimuthal velocity peaks at ``r = 1.121 r_c``. Arguments broadcast.
+    per axis) and its azimuthal velocity peaks at ``r = 1.121 r_c``. Arguments broadcast; a
+    core radius that is not a number > 0 is refused (:class:`~rspiv.errors.InvalidInputError`).
     """
+    rc = np.asarray(radius, np.float64)
+    if not np.all(rc > 0):
+        raise InvalidInputError(f"oseen: the core radius must be > 0, got {radius!r}")
     ddx = np.asarray(x, np.float64) - xc
     ddy = np.asarray(y, np.float64) - yc
-    rc2 = np.asarray(radius, np.float64) ** 2
+    rc2 = rc**2
     g = np.asarray(circulation, np.float64) * _decay((ddx * ddx + ddy * ddy) / rc2)[0]
     g = g / (2.0 * np.pi * rc2)
     return uc - g * ddy, vc + g * ddx
