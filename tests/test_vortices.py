@@ -276,6 +276,8 @@ def test_oseen_fit_refuses_bad_input():
         ((np.zeros((4, 5)), np.zeros((4, 5)), {"x": np.zeros(2)}, 1.0, 1.0), {}, "dict of"),
         ((np.zeros((4, 5)), np.zeros((4, 5)), {**cores, "sign": np.ones(2)}, 1.0, 1.0), {},
          "differ in length"),
+        ((np.zeros((4, 5)), np.zeros((4, 5)), cores, 1.0, 1.0), {"valid": np.ones((5, 4))},
+         "field's shape"),
     ):
         with pytest.raises(InvalidInputError, match=what) as e:
             fit_oseen(*args, **kw)

@@ -247,8 +247,8 @@ def fit_oseen(
     Raises
     ------
     InvalidInputError
-        Fields of other shapes, a spacing or reach not > 0, ``orient`` not +-1, or cores
-        without their ``x``, ``y``, ``sign`` and ``radius`` of one length.
+        Fields or ``valid`` of other shapes, a spacing or reach not > 0, ``orient`` not +-1, or
+        cores without their ``x``, ``y``, ``sign`` and ``radius`` of one length.
     """
     uu = np.asarray(u, np.float64)
     vv = np.asarray(v, np.float64)
@@ -261,7 +261,12 @@ def fit_oseen(
     ny, nx = uu.shape
     ok_vec = np.isfinite(uu) & np.isfinite(vv)
     if valid is not None:
-        ok_vec &= np.broadcast_to(np.asarray(valid, bool), uu.shape)
+        valid = np.asarray(valid, bool)
+        if valid.shape != uu.shape:
+            raise InvalidInputError(
+                f"oseen: valid {valid.shape} must have the field's shape {uu.shape}"
+            )
+        ok_vec &= valid
     xs = dx * np.arange(nx) if x is None else np.asarray(x, np.float64)
     ys = dy * np.arange(ny) if y is None else np.asarray(y, np.float64)
     if xs.shape != (nx,) or ys.shape != (ny,):
