@@ -353,7 +353,7 @@ def test_vortex_keys(tmp_path):
     statistics (its threshold is their swirl's rms); threshold and min_diameter > 0."""
     st = load_campaign_config(_write(tmp_path, FULL)).statistics
     assert (st.vortices, st.vortex_threshold, st.vortex_min_diameter) == (False, 1.5, 1.0)
-    assert st.vortex_fits is False  # the Lamb-Oseen fits: on request (their cost)
+    assert st.vortex_fits is True  # with the vortices, their Lamb-Oseen fits (~0.2 ms a core)
     on = FULL.replace("[statistics]\n", "[statistics]\nvortices = true\nvortex_threshold = 2\n")
     on = on.replace("[output]\n", "[output]\nfields = true\n")
     with pytest.raises(InvalidInputError, match=r"\[statistics\]\.vortices: needs the vorticity"):

@@ -278,6 +278,7 @@ def test_oseen_fit_refuses_bad_input():
          "differ in length"),
         ((np.zeros((4, 5)), np.zeros((4, 5)), cores, 1.0, 1.0), {"valid": np.ones((5, 4))},
          "field's shape"),
+        ((np.zeros((4, 5)), np.zeros((4, 5)), cores, 1.0, 1.0), {"iterations": 0}, "iterations"),
     ):
         with pytest.raises(InvalidInputError, match=what) as e:
             fit_oseen(*args, **kw)

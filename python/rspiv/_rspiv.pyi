@@ -319,6 +319,33 @@ def seeding(
     and ``searched`` (pixels), as ``(rows, cols)`` arrays, with the frame's ``signal`` and the
     ``block`` (``piv_core::seeding``)."""
 
+OSEEN_MIN_FIT: float
+
+OSEEN_MIN_VECTORS: int
+
+def oseen_fit(
+    u: npt.NDArray[np.float64],
+    v: npt.NDArray[np.float64],
+    valid: npt.NDArray[np.bool_],
+    col: npt.NDArray[np.float64],
+    row: npt.NDArray[np.float64],
+    radius: npt.NDArray[np.float64],
+    sign: npt.NDArray[np.float64],
+    dx: float,
+    dy: float,
+    reach: float,
+    orient: float,
+    max_evals: int,
+) -> dict[str, npt.NDArray[np.generic]]:
+    """A Lamb-Oseen vortex fitted to the ``valid`` vectors of ``u``, ``v`` (pixel frame, grid
+    of ``dx`` x ``dy`` px) within ``reach`` core radii of each core (centroid ``col``, ``row``
+    in grid steps, ``radius`` px, ``sign`` +-1 in the frame ``orient`` turns the y-up frame
+    into), cores in parallel (``piv_core::vortex_fit``): per-core ``col``, ``row`` (grid
+    steps), ``radius`` (px), ``circulation`` (px^2 per pair), ``u``, ``v`` (px per pair, pixel
+    frame), NaN unless ``ok``; ``fit`` (the share of the patch's variance explained) and
+    ``ok``. ValueError (InvalidInputError) for arrays of other shapes or lengths, a spacing or
+    reach not > 0, ``orient`` not +-1 or ``max_evals`` of 0."""
+
 def particle_diameter(
     frame_a: npt.NDArray[np.generic],
     frame_b: npt.NDArray[np.generic],

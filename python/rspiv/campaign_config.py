@@ -116,8 +116,8 @@ A complete file (every key optional except where noted; defaults shown)::
     vortex_threshold = 1.5       # |Lambda_ci| >= this times its rms at the core's height
     vortex_min_diameter = 1.0    # cores smaller than a disc this many final windows wide
                                  # are dropped (not resolved; mostly noise)
-    vortex_fits = false          # a Lamb-Oseen vortex fitted to each core: core radius,
-                                 # circulation, convection (rspiv.fit_oseen; 1-3 ms a core)
+    vortex_fits = true           # a Lamb-Oseen vortex fitted to each core: core radius,
+                                 # circulation, convection (rspiv.fit_oseen; ~0.2 ms a core)
     conditional = false          # conditional averages of u', v' about ejections (Q2) and
                                  # sweeps (Q4) at reference heights, a second pass over the
                                  # fields (rspiv.conditional; needs [output] fields;
@@ -421,7 +421,7 @@ class StatisticsConfig:
     vortices: bool = False
     vortex_threshold: float = 1.5
     vortex_min_diameter: float = 1.0
-    vortex_fits: bool = False
+    vortex_fits: bool = True
     conditional: bool = False
     conditional_heights: tuple[float, ...] = (0.15, 0.4)
     conditional_height_units: str = "delta"

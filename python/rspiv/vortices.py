@@ -29,10 +29,9 @@ its final window) and the rms threshold keep most of them out, not all.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
+from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
 
 __all__ = [
@@ -154,7 +153,8 @@ OSEEN_FIELDS = ("x", "y", "radius", "circulation", "u", "v", "fit", "ok")
 #: A fit is kept (``ok``) when it explains at least this share of the patch's velocity
 #: variance about its own convection (a vortex through the PIV: 0.997; OpenPIV's ``test10``
 #: vortex: 0.87-0.92; vortices planted on turbulence: 0.7-0.9; cores of noise: median 0.2).
-OSEEN_MIN_FIT = 0.7
+#: Defined by the kernel (``piv_core::vortex_fit``).
+OSEEN_MIN_FIT = _rspiv.OSEEN_MIN_FIT
 
 
 def oseen_velocity(x, y, xc, yc, circulation, radius, uc=0.0, vc=0.0):
@@ -198,7 +198,7 @@ def fit_oseen(
     y=None,
     reach: float = 2.5,
     orient: float = 1.0,
-    iterations: int = 60,
+    iterations: int = 100,
 ) -> dict[str, np.ndarray]:
     """A Lamb-Oseen vortex fitted to the vectors about each core of :func:`find_vortices`.
 
@@ -206,8 +206,10 @@ def fit_oseen(
     at a quarter of its peak swirl keeps about 60 % of its circulation); the fit gives the
     vortex's own core radius ``r_c``, its whole circulation, its centre and its convection
     (Carlier & Stanislas 2005, J. Fluid Mech. 535). The model is :func:`oseen_velocity` with
-    six parameters per core, fitted by Levenberg-Marquardt to the valid vectors within ``reach``
-    times the core's radius of its centroid (at least two grid steps), all cores at once.
+    six parameters per core, fitted by Levenberg-Marquardt (``dewarp_core::lm``) to the valid
+    vectors within ``reach`` times the core's radius of its centroid (at least two grid steps),
+    cores in parallel in Rust (``piv_core::vortex_fit``). A fit drifting to a core wider than
+    twice its patch, or centred twice as far as a kept fit may be, is abandoned early.
 
     Frame: ``u``, ``v`` in rspiv's pixel frame (v positive downward, rows down, px per pair);
     the fit is made in the image's y-up frame (:mod:`rspiv.derivatives`), and ``orient``
@@ -231,7 +233,7 @@ def fit_oseen(
     orient : float
         +1 or -1, as above.
     iterations : int
-        Levenberg-Marquardt iterations at most.
+        Levenberg-Marquardt steps tried (model evaluations) per core at most (>= 1).
 
     Returns
     -------
@@ -239,16 +241,19 @@ def fit_oseen(
         Per core (:data:`OSEEN_FIELDS`): ``x``, ``y`` the fitted centre (the coordinates of
         ``x``, ``y``), ``radius`` the core radius ``r_c`` (px), ``circulation`` (px^2 per
         pair, in ``orient``'s frame), ``u``, ``v`` the convection (px per pair, pixel frame),
-        ``fit`` the share of the patch's velocity variance about the convection it explains,
-        and ``ok``: a fit of the core's sense of rotation, centred within two core radii of the
-        centroid, with ``r_c`` between a third of a grid step and the patch's radius and ``fit
-        >= OSEEN_MIN_FIT``. Values of a core that is not ``ok`` are NaN.
+        ``fit`` the share of the patch's velocity variance about the convection it explains
+        (NaN for a core not fitted: fewer than 7 valid vectors in its patch, or a patch that
+        does not determine a vortex), and ``ok``: a fit of the core's sense of rotation,
+        centred within two core radii of the centroid, with ``r_c`` between a third of a grid
+        step and the patch's radius and ``fit >= OSEEN_MIN_FIT``. Values of a core that is not
+        ``ok`` are NaN.
 
     Raises
     ------
     InvalidInputError
-        Fields or ``valid`` of other shapes, a spacing or reach not > 0, ``orient`` not +-1, or
-        cores without their ``x``, ``y``, ``sign`` and ``radius`` of one length.
+        Fields or ``valid`` of other shapes, a spacing or reach not > 0, ``orient`` not +-1,
+        ``iterations`` under 1, or cores without their ``x``, ``y``, ``sign`` and ``radius`` of
+        one length.
     """
     uu = np.asarray(u, np.float64)
     vv = np.asarray(v, np.float64)
@@ -258,6 +263,8 @@ def fit_oseen(
         raise InvalidInputError(f"oseen: dx, dy and reach must be > 0, got {dx}, {dy}, {reach}")
     if orient not in (1.0, -1.0):
         raise InvalidInputError(f"oseen: orient must be +1 or -1, got {orient}")
+    if int(iterations) < 1:
+        raise InvalidInputError(f"oseen: iterations must be >= 1, got {iterations}")
     ny, nx = uu.shape
     ok_vec = np.isfinite(uu) & np.isfinite(vv)
     if valid is not None:
@@ -285,157 +292,17 @@ def fit_oseen(
     out["ok"] = np.zeros(n, bool)
     if n == 0:
         return out
-    # centroids in grid steps; each core's patch radius in px
-    cj = np.interp(cores["x"], xs, np.arange(nx))
-    ci = np.interp(cores["y"], ys, np.arange(ny))
-    rad = np.asarray(cores["radius"], np.float64)
-    sign = np.asarray(cores["sign"], np.float64)
-    big = np.maximum(reach * rad, 2.0 * max(dx, dy))
-    half = np.maximum(np.ceil(big / dx), np.ceil(big / dy)).astype(np.int64)
-    # cores of similar patches together (a patch is padded to its group's largest)
-    groups = np.floor(np.log(half) / np.log(1.6)).astype(np.int64)
-    for g in np.unique(groups):
-        at = np.flatnonzero(groups == g)
-        fitted = _fit_oseen_group(uu, vv, ok_vec, cj[at], ci[at], rad[at], big[at], sign[at],
-                                  dx, dy, orient, int(iterations))  # fmt: skip
-        for k, val in fitted.items():
-            out[k][at] = val
+    # centroids in grid steps; the fit itself is the kernel's (piv_core::vortex_fit)
+    fits = _rspiv.oseen_fit(
+        uu, vv, ok_vec,
+        np.interp(cols[0], xs, np.arange(nx)), np.interp(cols[1], ys, np.arange(ny)),
+        cols[3], cols[2], float(dx), float(dy), float(reach), float(orient), int(iterations),
+    )  # fmt: skip
+    for k in OSEEN_FIELDS:
+        out[k] = fits[{"x": "col", "y": "row"}.get(k, k)]
     out["x"] = np.interp(out["x"], np.arange(nx), xs)  # NaN stays NaN
     out["y"] = np.interp(out["y"], np.arange(ny), ys)
     return out
-
-
-def _oseen_jacobian(px, py, t):
-    """:func:`oseen_velocity` of the parameters ``t`` (cores x (xc, yc, Gamma, log r_c, uc,
-    vc)) at the points ``px``, ``py`` (cores x points), and its derivatives (cores x points x
-    6) for the fit."""
-    ddx, ddy = px - t[:, :1], py - t[:, 1:2]
-    gam, rc2 = t[:, 2:3], np.exp(2.0 * t[:, 3:4])
-    q = ddx * ddx + ddy * ddy
-    s = q / rc2
-    f, df = _decay(s)
-    phi = f / (2.0 * np.pi * rc2)  # u_theta / (Gamma r)
-    phq = df / (2.0 * np.pi * rc2 * rc2)  # d phi / d q
-    phl = -np.exp(-s) / (np.pi * rc2)  # d phi / d log r_c
-    mu = t[:, 4:5] - gam * phi * ddy
-    mv = t[:, 5:6] + gam * phi * ddx
-    one, zero = np.ones_like(q), np.zeros_like(q)
-    ju = np.stack([2.0 * gam * ddx * ddy * phq, gam * (2.0 * ddy * ddy * phq + phi), -phi * ddy,
-                   -gam * ddy * phl, one, zero], axis=-1)  # fmt: skip
-    jv = np.stack([-gam * (2.0 * ddx * ddx * phq + phi), -2.0 * gam * ddx * ddy * phq,
-                   phi * ddx, gam * ddx * phl, zero, one], axis=-1)  # fmt: skip
-    return mu, mv, ju, jv
-
-
-def _fit_oseen_group(uu, vv, ok_vec, cj, ci, rad, big, sign, dx, dy, orient, iterations):
-    """:func:`fit_oseen` for cores of similar patches (centroids ``cj``, ``ci`` in grid
-    steps): Levenberg-Marquardt on all of them at once, each core stopping on its own."""
-    ny, nx = uu.shape
-    n = cj.size
-    hj = int(np.ceil(big.max() / dx))
-    hi = int(np.ceil(big.max() / dy))
-    jj = np.rint(cj).astype(np.int64)[:, None, None] + np.arange(-hj, hj + 1)[None, None, :]
-    ii = np.rint(ci).astype(np.int64)[:, None, None] + np.arange(-hi, hi + 1)[None, :, None]
-    jj, ii = np.broadcast_arrays(jj, ii)
-    inside = (jj >= 0) & (jj < nx) & (ii >= 0) & (ii < ny)
-    jc, ic = np.clip(jj, 0, nx - 1), np.clip(ii, 0, ny - 1)
-    # px in the image's y-up frame (X = dx j, Y = -dy i; v_up = -v)
-    px, py = (dx * jc).reshape(n, -1), (-dy * ic).reshape(n, -1)
-    x0, y0 = dx * cj, -dy * ci
-    near = (px - x0[:, None]) ** 2 + (py - y0[:, None]) ** 2 <= big[:, None] ** 2
-    w = (inside.reshape(n, -1) & near & ok_vec[ic, jc].reshape(n, -1)).astype(np.float64)
-    pu = np.where(w > 0, uu[ic, jc].reshape(n, -1), 0.0)
-    pv = np.where(w > 0, -vv[ic, jc].reshape(n, -1), 0.0)
-    cnt = w.sum(1)
-    # first guesses: the centroid, the core's radius, the patch's median convection and its
-    # largest r u_theta (the circulation the patch holds)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a patch without a vector: NaN
-        uc0 = np.nan_to_num(np.nanmedian(np.where(w > 0, pu, np.nan), axis=1))
-        vc0 = np.nan_to_num(np.nanmedian(np.where(w > 0, pv, np.nan), axis=1))
-    ru = (px - x0[:, None]) * (pv - vc0[:, None]) - (py - y0[:, None]) * (pu - uc0[:, None])
-    g0 = 2.0 * np.pi * np.max(np.abs(ru) * w, axis=1) * sign * orient
-    lo, hi_ = np.log(min(dx, dy) / 100.0), np.log(100.0 * float(big.max()))
-    theta = np.stack([x0, y0, g0, np.log(np.maximum(rad, 0.5 * min(dx, dy))), uc0, vc0], 1)
-
-    def misfit(t, at, normal: bool = True):
-        """The weighted misfit of the cores ``at`` and, with ``normal``, its normal equations
-        ``J^T J`` and ``J^T r``."""
-        with np.errstate(all="ignore"):
-            t = t.copy()
-            t[:, 3] = np.clip(t[:, 3], lo, hi_)
-            mu, mv, ju, jv = _oseen_jacobian(px[at], py[at], t)
-            ww = w[at]
-            r = np.concatenate([(mu - pu[at]) * ww, (mv - pv[at]) * ww], axis=1)
-            if not normal:
-                return r, None, None
-            jac = np.concatenate([ju * ww[..., None], jv * ww[..., None]], axis=1)
-            jt = jac.transpose(0, 2, 1)
-            return r, jt @ jac, (jt @ r[..., None])[..., 0]
-
-    scale = np.array([dx, dy, 1.0, 1.0, 1.0, 1.0])
-    reach_px = np.maximum(rad, max(dx, dy))  # how far a kept fit's centre may move: twice it
-    lam = np.full(n, 1e-3)
-    r, a, g = misfit(theta, slice(None))
-    cost = np.sum(r * r, 1)
-    active = np.flatnonzero(cnt >= 7)  # the cores still iterating
-    eye = np.eye(6)
-    for _ in range(iterations):
-        if active.size == 0:
-            break
-        aa = a[active]
-        diag = np.diagonal(aa, axis1=1, axis2=2)
-        # damped normal equations, positive definite (a parameter without effect is held)
-        tiny = 1e-12 * np.maximum(diag.max(1), 1e-300)
-        damp = aa + (lam[active, None] * diag + tiny[:, None])[:, :, None] * eye
-        with np.errstate(all="ignore"):
-            step = -np.linalg.solve(damp, g[active][..., None])[..., 0]
-        trial = theta[active] + step
-        r_new, _, _ = misfit(trial, active, normal=False)
-        c_new = np.sum(r_new * r_new, 1)
-        better = np.isfinite(c_new) & (c_new < cost[active])
-        small = np.max(np.abs(step) / np.maximum(np.abs(theta[active]), scale), axis=1) < 1e-9
-        settled = (better & (cost[active] - c_new <= 1e-7 * cost[active])) | (~better & small)
-        take = active[better]
-        if take.size:
-            theta[take] = trial[better]
-            r[take], a[take], g[take] = misfit(theta[take], take)
-            cost[take] = c_new[better]
-        lam[active] = np.where(better, lam[active] / 3.0, lam[active] * 4.0)
-        # a fit drifting to a core wider than twice its patch, or centred twice as far as a
-        # fit may be, will not be kept: it stops (a patch in solid-body rotation crawls there)
-        t = theta[active]
-        lost = (t[:, 3] > np.log(2.0 * big[active])) | (
-            np.hypot(t[:, 0] - x0[active], t[:, 1] - y0[active]) > 4.0 * reach_px[active]
-        )
-        active = active[~settled & ~lost & (lam[active] < 1e10)]
-    xc, yc, gam, lrc, uc, vc = theta.T
-    rc = np.exp(np.clip(lrc, lo, hi_))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        su = np.sum(w * ((pu - uc[:, None]) ** 2 + (pv - vc[:, None]) ** 2), 1)
-        fit = 1.0 - cost / su
-    moved = np.hypot(xc - x0, yc - y0)
-    ok = (
-        np.isfinite(cost)
-        & np.isfinite(fit)
-        & (cnt >= 7)
-        & (np.sign(gam) * orient == sign)
-        & (moved <= 2.0 * reach_px)
-        & (rc >= min(dx, dy) / 3.0)
-        & (rc <= big)
-        & (fit >= OSEEN_MIN_FIT)
-    )
-    keep = np.where(ok, 1.0, np.nan)
-    return {
-        "ok": ok,
-        "x": xc / dx * keep,  # grid steps (the caller maps them to its coordinates)
-        "y": -yc / dy * keep,
-        "radius": rc * keep,
-        "circulation": gam * orient * keep,
-        "u": uc * keep,
-        "v": -vc * keep,
-        "fit": fit,
-    }
 
 
 class VortexAccumulator:

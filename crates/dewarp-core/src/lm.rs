@@ -67,6 +67,13 @@ pub trait LeastSquaresProblem {
             }
         }
     }
+
+    /// True when the accepted parameters `p` can no longer lead to an answer the caller keeps
+    /// (a fit drifting out of its data): the solver stops there with
+    /// [`Termination::Abandoned`] instead of spending its evaluations. Default: never.
+    fn abandon(&self, _p: &[f64]) -> bool {
+        false
+    }
 }
 
 /// Tolerances and limits. `Default` is MINPACK's.
@@ -130,12 +137,14 @@ pub enum Termination {
     SmallGtol,
     /// The residuals are exactly zero.
     ZeroResidual,
+    /// [`LeastSquaresProblem::abandon`] said the fit cannot be kept (not converged).
+    Abandoned,
 }
 
 impl Termination {
-    /// True for every reason except `MaxEvals`.
+    /// True for every reason except `MaxEvals` and `Abandoned`.
     pub fn converged(self) -> bool {
-        self != Termination::MaxEvals
+        !matches!(self, Termination::MaxEvals | Termination::Abandoned)
     }
 
     /// A short lower-case name ("ftol", "xtol", ...).
@@ -150,6 +159,7 @@ impl Termination {
             Termination::SmallXtol => "small_xtol",
             Termination::SmallGtol => "small_gtol",
             Termination::ZeroResidual => "zero_residual",
+            Termination::Abandoned => "abandoned",
         }
     }
 }
@@ -532,6 +542,9 @@ impl LmSolver {
                     return Ok(summary(cost, n_evals, n_jac, Termination::ZeroResidual));
                 }
                 if accepted {
+                    if problem.abandon(p) {
+                        return Ok(summary(cost, n_evals, n_jac, Termination::Abandoned));
+                    }
                     break;
                 }
             }

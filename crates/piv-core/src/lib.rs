@@ -21,7 +21,8 @@
 //!   peak-locking check;
 //! - [`seeding`]: each block's background and noise, and the particle images standing out of
 //!   them (the seeding density);
-//! - [`synth::render_particles`]: synthetic particle images.
+//! - [`synth::render_particles`]: synthetic particle images;
+//! - [`vortex_fit`]: Lamb-Oseen vortices fitted to the vectors about vortex cores.
 
 pub mod condition;
 pub mod correlate;
@@ -37,6 +38,7 @@ pub mod particle_size;
 pub mod seeding;
 pub mod synth;
 pub mod validate;
+pub mod vortex_fit;
 pub mod weighting;
 
 pub use condition::{condition, conditioned, conditioned_into, Conditioning};

@@ -15,6 +15,7 @@ mod moments;
 mod piv;
 mod remap;
 mod seeding;
+mod vortices;
 
 #[pymodule]
 fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -28,5 +29,6 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     ensemble::register(m)?;
     moments::register(m)?;
     seeding::register(m)?;
+    vortices::register(m)?;
     Ok(())
 }

@@ -23,8 +23,9 @@ delta_99^2), ``radius`` and ``circulation`` (means of the cores; m and m^2/s, wi
 wall units), ``threshold`` (1/s); and every core (dim ``core``, at most ``MAX_CORES``): ``pair``,
 ``x``, ``y``, ``sign``, ``radius``, ``circulation``, ``peak``. A report figure.
 
-Lamb-Oseen fits (``[statistics] vortex_fits = true``; off by default: 1-3 ms a core, about
-0.5 s a pair's field on the demo's layer at scale 0.4, where the rest of the pass takes 15 ms):
+Lamb-Oseen fits (``[statistics] vortex_fits``, on by default: about 0.2 ms a core in
+``piv_core::vortex_fit``, 40 ms a pair's field on the demo's layer at scale 0.4, where the rest
+of the pass takes 15 ms):
 a Lamb-Oseen vortex is fitted to the fluctuations about each core (each vector's own mean over
 the pairs: the mean shear is not in the model; :func:`rspiv.vortices.fit_oseen`, a patch of
 2.5 core radii). Every core lists its fit (``core_oseen_x``, ``_y``, ``_radius`` the core
