@@ -505,9 +505,9 @@ def test_the_next_pair_is_read_while_the_current_one_is_processed(synth, tmp_pat
     started: dict[str, threading.Event] = {}
     real_read, real_piv = campaign_mod.read_frame, campaign_mod.run_grid
 
-    def read_frame(path, index):
+    def read_frame(path, index, turn=0):
         started.setdefault(str(path), threading.Event()).set()
-        return real_read(path, index)
+        return real_read(path, index, turn)
 
     files = sorted(str(p) for p in (synth / "raw").glob("*.tif"))
     seen = []

@@ -140,7 +140,7 @@ def test_sequential_campaign_measures_the_frame_gap(recording, tmp_path, gap, mo
     loop; summary.json says how the pairs were formed."""
     reads = []
     read = pair_work.read_frame
-    monkeypatch.setattr(pair_work, "read_frame", lambda p, i: reads.append(p) or read(p, i))
+    monkeypatch.setattr(pair_work, "read_frame", lambda p, i, t=0: reads.append(p) or read(p, i, t))
     out = tmp_path / "out"
     cfg = _config(recording, out, pairing="sequential", frame_gap=gap)
     camp, res = _run(cfg, out)

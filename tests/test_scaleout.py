@@ -490,6 +490,6 @@ def test_sequential_pairing_under_dask(client, tmp_path, monkeypatch):
 
     reads = []
     read = pair_work.read_frame
-    monkeypatch.setattr(pair_work, "read_frame", lambda f, i: reads.append(f) or read(f, i))
+    monkeypatch.setattr(pair_work, "read_frame", lambda f, i, t=0: reads.append(f) or read(f, i, t))
     chunk = scaleout.process_chunk(res.context, Campaign(cfg, progress=False).pairs()[:3])
     assert len(chunk.done) == 3 and len(reads) == 4

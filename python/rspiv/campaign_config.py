@@ -30,6 +30,8 @@ A complete file (every key optional except where noted; defaults shown)::
     frame_gap = 1                # sequential: frame B is frame_gap frames after frame A
                                  # ([flow] dt is then the time across those frame_gap frames)
     pair_step = 1                # sequential: frames between the first frames of two pairs
+    rotate = 0                   # 0 | 90 | 180 | 270: degrees counter-clockwise every frame,
+                                 # the target and the mask are turned as read (flow along +x)
     check_pairs = 5              # pairs spread over the run whose seeding, background,
                                  # brightness and displacement are checked before the PIV
                                  # (0: off; under 2: reversed pairs are not looked for)
@@ -224,6 +226,9 @@ class ImagesConfig:
     pairing: str = "pairs"
     frame_gap: int = 1
     pair_step: int = 1
+    #: degrees counter-clockwise (0, 90, 180, 270) every frame, the target and the mask
+    #: image are turned as they are read (:func:`rspiv.io.turn_frame`)
+    rotate: int = 0
     #: pairs spread over the run checked for drift before the PIV
     #: (:func:`rspiv.recording_drift.check_drift`; 0: off)
     check_pairs: int = 5
@@ -542,6 +547,7 @@ class CampaignConfig:
         imd["pairing"] = im.pairing
         imd["frame_gap"] = im.frame_gap
         imd["pair_step"] = im.pair_step
+        imd["rotate"] = im.rotate
         imd["check_pairs"] = im.check_pairs
         imd["exclude_pairs"] = list(im.exclude_pairs)
         out["images"] = imd

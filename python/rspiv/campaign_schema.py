@@ -76,6 +76,13 @@ def _boolean(ctx, where, v):
     return v
 
 
+def _quarter_turn(ctx, where, v):
+    """Degrees counter-clockwise, a multiple of 90 from 0 to 270 (``[images] rotate``)."""
+    if isinstance(v, bool) or not isinstance(v, int) or v not in (0, 90, 180, 270):
+        raise ctx.err(where, f"expected 0, 90, 180 or 270 (degrees counter-clockwise), got {v!r}")
+    return v
+
+
 def _choice(ctx, where, v, options, fold=None):
     """``v`` if it is one of ``options``; with ``fold`` (e.g. ``str.upper``) any case is
     accepted and folded to the options' spelling."""
@@ -211,6 +218,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "pairing": lambda c, w, v: _choice(c, w, v, ("pairs", "sequential"), fold=str.lower),
         "frame_gap": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
         "pair_step": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
+        "rotate": lambda c, w, v: _quarter_turn(c, w, v),
         "check_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
         "exclude_pairs": _pair_ids,
     },

@@ -310,7 +310,20 @@ def read_pair(path_a, path_b=None) -> tuple[np.ndarray, np.ndarray]:
     return read_image(path_a), read_image(path_b)
 
 
-def read_mask(source: str | os.PathLike | Any, shape: tuple[int, int]) -> np.ndarray:
+def turn_frame(a: np.ndarray, turn: int) -> np.ndarray:
+    """``a`` turned by ``turn`` quarter turns counter-clockwise as seen on screen (rows down):
+    ``np.rot90(a, turn)``, C-contiguous (a copy unless ``turn`` is a multiple of 4). A
+    campaign's ``[images] rotate`` (degrees) turns every frame, the target and the mask image
+    by ``rotate // 90`` as they are read, so that the flow runs along +x and the wall lies along
+    a row. Pixel ``(x, y)`` of a frame ``h`` px tall and ``w`` wide lands at ``(y, w - 1 - x)``
+    for one turn."""
+    turn %= 4
+    return a if turn == 0 else np.ascontiguousarray(np.rot90(a, turn))
+
+
+def read_mask(
+    source: str | os.PathLike | Any, shape: tuple[int, int], turn: int = 0
+) -> np.ndarray:
     """A PIV mask (bool, True = excluded) of the frames' ``shape = (h, w)``.
 
     ``source`` is an image (non-zero = excluded; any format :func:`read_image` reads), a bool
@@ -321,17 +334,23 @@ def read_mask(source: str | os.PathLike | Any, shape: tuple[int, int]) -> np.nda
     A pixel is excluded when its centre lies inside a polygon (``invert = true``: outside every
     polygon, i.e. the polygons outline the region to keep). InvalidInputError naming the file for
     a wrong shape, malformed JSON or a polygon of fewer than 3 finite vertices.
+
+    ``turn``: the mask is of the frames as recorded (an image of their size, polygons in their
+    px) and is turned as they are (:func:`turn_frame`); ``shape`` is that of the turned frames.
     """
+    if turn % 2:
+        shape = (shape[1], shape[0])
     h, w = (int(shape[0]), int(shape[1]))
     if isinstance(source, (str, os.PathLike)) and pathlib.Path(source).suffix.lower() == ".json":
-        return _polygon_mask(pathlib.Path(source), h, w)
+        return turn_frame(_polygon_mask(pathlib.Path(source), h, w), turn)
     name = str(source) if isinstance(source, (str, os.PathLike)) else "mask"
     img = read_image(source)
     if img.shape != (h, w):
         raise InvalidInputError(
             f"{name}: mask is {img.shape[1]} x {img.shape[0]} px, the images are {w} x {h} px"
+            + (" as recorded" if turn % 4 else "")
         )
-    return np.asarray(img) > 0
+    return turn_frame(np.asarray(img) > 0, turn)
 
 
 def _polygon_mask(p: pathlib.Path, h: int, w: int) -> np.ndarray:

@@ -24,7 +24,7 @@ from rspiv.campaign.ensemble_pixel import saturation_level
 from rspiv.campaign.spec import STAGES, PairContext, PairResult, PairSpec
 from rspiv.correction import dewarp_pair, method_two
 from rspiv.errors import InvalidInputError, RspivError
-from rspiv.io import read_image
+from rspiv.io import read_image, turn_frame
 from rspiv.multipass import run_grid
 from rspiv.preprocess import condition_pair
 from rspiv.recording_drift import pair_brightness
@@ -39,10 +39,11 @@ __all__ = [
 ]
 
 
-def read_frame(path: str, index: int | None) -> np.ndarray:
+def read_frame(path: str, index: int | None, turn: int = 0) -> np.ndarray:
     """One 2D frame: a file, or frame ``index`` of a multi-frame TIFF (:func:`rspiv.io.read_image`;
-    InvalidInputError naming the file when it is missing, unreadable or not 2D)."""
-    return read_image(path, 0 if index is None else int(index))
+    InvalidInputError naming the file when it is missing, unreadable or not 2D), turned by
+    ``turn`` quarter turns (:func:`rspiv.io.turn_frame`)."""
+    return turn_frame(read_image(path, 0 if index is None else int(index)), turn)
 
 
 class FrameCache:
@@ -60,7 +61,7 @@ class FrameCache:
     def __init__(self, frames: int, max_bytes: int = 512 << 20) -> None:
         self.frames = max(int(frames), 1)
         self.max_bytes = int(max_bytes)
-        self._held: collections.OrderedDict[tuple[str, int], np.ndarray] = (
+        self._held: collections.OrderedDict[tuple[str, int, int], np.ndarray] = (
             collections.OrderedDict()
         )
         self.hits = 0
@@ -80,15 +81,15 @@ class FrameCache:
                 last[key] = k
         return cls(min(gap + 1, limit)) if gap else None
 
-    def read(self, path: str, index: int | None) -> np.ndarray:
+    def read(self, path: str, index: int | None, turn: int = 0) -> np.ndarray:
         """Frame ``index`` of ``path`` (:func:`read_frame`), from the cache when held."""
-        key = _frame_key(path, index)
+        key = (*_frame_key(path, index), turn)
         f = self._held.get(key)
         if f is not None:
             self._held.move_to_end(key)
             self.hits += 1
             return f
-        f = read_frame(path, index)
+        f = read_frame(path, index, turn)
         self.reads += 1
         f.flags.writeable = False
         self._held[key] = f
@@ -117,8 +118,8 @@ def read_checked_pair(
         or of another size than ``shape`` (e.g. a page of a stack written at another size).
     """
     read = read_frame if cache is None else cache.read
-    a = read(pair.a, pair.frame_a)
-    b = read(pair.b, pair.frame_b)
+    a = read(pair.a, pair.frame_a, pair.turn)
+    b = read(pair.b, pair.frame_b, pair.turn)
     for name, f in (("frame A", a), ("frame B", b)):
         if f.shape != tuple(shape):
             raise InvalidInputError(

@@ -27,7 +27,7 @@ from rspiv.campaign.ensemble import plan_bands
 from rspiv.campaign.spec import PairContext, PairSpec
 from rspiv.campaign.state import check_writable, json_default
 from rspiv.errors import InvalidInputError, RspivError
-from rspiv.io import read_image, read_mask
+from rspiv.io import read_image, read_mask, turn_frame
 from rspiv.montecarlo import monte_carlo
 from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
@@ -76,10 +76,19 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     # (the target's, else the first readable frame's), the mask against it, the background
     # pass over every pair, the check of a sequential pairing; then the calibration and its
     # figures.
-    image = None if cfg.calibration.target is None else read_image(cfg.calibration.target)
+    turn = cfg.images.rotate // 90  # [images] rotate: the target turned as the frames are
+    image = None
+    if cfg.calibration.target is not None:
+        image = turn_frame(read_image(cfg.calibration.target), turn)
     image_shape = _first_shape(pairs) if image is None else tuple(image.shape)
+    if turn:
+        camp.say(
+            f"[images] rotate = {cfg.images.rotate}: every frame, the target and the mask are "
+            f"turned {cfg.images.rotate} deg counter-clockwise as read; the campaign's frames "
+            f"are {image_shape[1]} x {image_shape[0]} px"
+        )
     if cfg.piv.mask is not None:
-        read_mask(cfg.piv.mask, image_shape)
+        read_mask(cfg.piv.mask, image_shape, turn)
     pre = cfg.preprocess.settings()
     background = _backgrounds(camp, pairs, pre, image_shape) if pre.background != "none" else None
     if cfg.images.pairing == "sequential":
@@ -123,6 +132,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
         mask_path=None if cfg.piv.mask is None else str(cfg.piv.mask),
         preprocess=pre,
         background_paths=background_paths,
+        turn=turn,
     )
     main = runs[0]
     if cal is not None and main.method != "none" and cfg.wall.enabled and cfg.wall.rotate:
@@ -572,7 +582,7 @@ def _first_shape(pairs: list[PairSpec]) -> tuple[int, int]:
     first_reason = ""
     for p in pairs:
         try:
-            a = pair_work.read_frame(p.a, p.frame_a)
+            a = pair_work.read_frame(p.a, p.frame_a, p.turn)
         except (RspivError, ValueError, OSError) as exc:
             first_reason = first_reason or str(exc)
             continue

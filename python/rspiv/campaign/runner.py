@@ -94,6 +94,7 @@ class Campaign:
         """The campaign's pair list: ids are positions in the full list, the pairs of
         ``[images] exclude_pairs`` left out."""
         im = self.config.images
+        t = im.rotate // 90  # quarter turns of every frame as read
         if im.multiframe is not None:
             p = pathlib.Path(im.multiframe)
             if not p.is_file():
@@ -104,12 +105,16 @@ class Campaign:
             except Exception as exc:  # noqa: BLE001
                 raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
             idx = im.frame_pairs(n, f"[images].multiframe {p}", odd_ok=True)
-            return self._kept([PairSpec(k, str(p), str(p), i, j) for k, (i, j) in enumerate(idx)])
+            return self._kept(
+                [PairSpec(k, str(p), str(p), i, j, t) for k, (i, j) in enumerate(idx)]
+            )
         if im.double_frame is not None:
             files = im.double_frame_files()
-            return self._kept([PairSpec(k, str(f), str(f), 0, 1) for k, f in enumerate(files)])
+            return self._kept([PairSpec(k, str(f), str(f), 0, 1, t) for k, f in enumerate(files)])
         files = im.pair_files()
-        return self._kept([PairSpec(k, str(a), str(b)) for k, (a, b) in enumerate(files)])
+        return self._kept(
+            [PairSpec(k, str(a), str(b), None, None, t) for k, (a, b) in enumerate(files)]
+        )
 
     def _kept(self, pairs: list[PairSpec]) -> list[PairSpec]:
         """``pairs`` without those of ``[images] exclude_pairs`` (ids stay positions in the full

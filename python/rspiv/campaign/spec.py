@@ -52,7 +52,8 @@ class PairSpec:
     """One image pair: its id (index in the campaign's full pair list) and its frames.
 
     ``frame_a``/``frame_b`` are frame indices inside a multi-frame TIFF (``a == b`` is that
-    file), None for single-frame files.
+    file), None for single-frame files. ``turn``: quarter turns counter-clockwise applied to
+    both frames as they are read (``[images] rotate``, :func:`rspiv.io.turn_frame`).
     """
 
     pair_id: int
@@ -60,6 +61,7 @@ class PairSpec:
     b: str
     frame_a: int | None = None
     frame_b: int | None = None
+    turn: int = 0
 
     def describe(self) -> str:
         if self.frame_a is not None:
@@ -125,6 +127,9 @@ class PairContext:
     #: the screen of the statistics (:mod:`rspiv.outlier_screen`): ``sigmas``, the pilot
     #: ``pairs`` and per run the bounds' file and digest (``runs``); None: no screen
     screen: dict[str, Any] | None = None
+    #: quarter turns counter-clockwise of every frame, the target and the mask as read
+    #: (``[images] rotate``); ``image_shape`` is that of the turned frames
+    turn: int = 0
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     def __getstate__(self):
@@ -152,7 +157,7 @@ class PairContext:
         if self.mask_path is None:
             return None
         if "mask" not in self._cache:
-            self._cache["mask"] = read_mask(self.mask_path, tuple(self.image_shape))
+            self._cache["mask"] = read_mask(self.mask_path, tuple(self.image_shape), self.turn)
         return self._cache["mask"]
 
     def backgrounds(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -220,6 +225,7 @@ class PairContext:
             **({} if self.vorticity is None else {"vorticity": self.vorticity}),
             **({} if self.reference is None else {"reference": list(self.reference)}),
             **({} if self.screen is None else {"screen": self.screen}),
+            **({"turn": self.turn} if self.turn else {}),
         }
 
     @classmethod
@@ -240,6 +246,7 @@ class PairContext:
             vorticity=d.get("vorticity"),
             reference=None if d.get("reference") is None else tuple(d["reference"]),
             screen=d.get("screen"),
+            turn=int(d.get("turn", 0)),
         )
 
     def fingerprint(self) -> str:

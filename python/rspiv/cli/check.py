@@ -37,8 +37,10 @@ def _campaign(args) -> dict:
     pairs = camp.pairs()
     if not pairs:
         raise InvalidInputError(f"{args.frame_a}: the campaign lists no image pair")
-    shape = read_frame(pairs[0].a, pairs[0].frame_a).shape
-    mask = roi_mask(read_mask(cfg.piv.mask, shape) if cfg.piv.mask else None, cfg.piv.roi, shape)
+    shape = read_frame(pairs[0].a, pairs[0].frame_a, pairs[0].turn).shape
+    turn = pairs[0].turn
+    mask = read_mask(cfg.piv.mask, shape, turn) if cfg.piv.mask else None
+    mask = roi_mask(mask, cfg.piv.roi, shape)
     passes = [tuple(p) for p in cfg.piv.passes]
     a, b = read_checked_pair(pairs[0], shape)
     try:
