@@ -1,6 +1,7 @@
-"""Frames recorded with the camera on its side (``[images] rotate``): every frame, the target
-and the mask image are turned as they are read, so that a campaign of turned files equals the
-campaign of the files as the flow runs along +x, bit for bit."""
+"""Frames recorded with the camera on its side or through a mirror (``[images] rotate`` and
+``mirror``): every frame, the target and the mask image are oriented as they are read, so that
+a campaign of turned and mirrored files equals the campaign of the upright files (the flow along
++x), bit for bit."""
 
 from __future__ import annotations
 
@@ -26,9 +27,13 @@ SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=3, monte_carlo_samp
 def test_a_turn_is_numpys_rot90_and_contiguous():
     a = np.arange(12, dtype=np.uint16).reshape(3, 4)
     assert turn_frame(a, 0) is a
-    for k in (1, 2, 3, 5, -1):
+    for k in range(1, 8):
         t = turn_frame(a, k)
-        assert t.flags.c_contiguous and np.array_equal(t, np.rot90(a, k))
+        want = np.rot90(a[:, ::-1] if k >= 4 else a, k % 4)
+        assert t.flags.c_contiguous and np.array_equal(t, want)
+    for bad in (-1, 8):
+        with pytest.raises(InvalidInputError, match="0-7"):
+            turn_frame(a, bad)
     # one counter-clockwise turn: pixel (x, y) of a frame w px wide lands at (y, w - 1 - x)
     t = turn_frame(a, 1)
     for y in range(3):
@@ -58,9 +63,11 @@ def test_the_key_is_a_quarter_turn(tmp_path):
     (tmp_path / "raw").mkdir()
     toml = tmp_path / "c.toml"
     toml.write_text(base)
-    assert load_campaign_config(toml).images.rotate == 0
-    toml.write_text(base.replace("[correction]", "rotate = 270\n[correction]"))
-    assert load_campaign_config(toml).images.rotate == 270
+    im = load_campaign_config(toml).images
+    assert (im.rotate, im.mirror, im.orientation()) == (0, False, 0)
+    toml.write_text(base.replace("[correction]", "rotate = 270\nmirror = true\n[correction]"))
+    im = load_campaign_config(toml).images
+    assert (im.rotate, im.mirror, im.orientation()) == (270, True, 7)
     for bad in ("45", "true", "'90'", "360"):
         toml.write_text(base.replace("[correction]", f"rotate = {bad}\n[correction]"))
         with pytest.raises(InvalidInputError, match="rotate") as e:
@@ -71,9 +78,9 @@ def test_the_key_is_a_quarter_turn(tmp_path):
 @pytest.fixture(scope="module")
 def campaigns(tmp_path_factory):
     """The demo's layer (scale 0.15, 3 pairs) as recorded, and the same files turned a quarter
-    turn clockwise (a camera on its side: the flow runs down the frames, the wall along a
-    column) with ``rotate = 90``; both with a mask image of a corner, each in its own files'
-    orientation."""
+    turn clockwise and mirrored left-right (a camera on its side looking through a mirror: the
+    flow runs up the frames, the wall along a column) with ``rotate = 90`` and ``mirror =
+    true``; both with a mask image of a corner, each in its own files' orientation."""
     d = tmp_path_factory.mktemp("upright")
     toml = synth_campaign(d, scene=SCENE)
     lean_file(toml, uncorrected=False, report=False)
@@ -87,11 +94,12 @@ def campaigns(tmp_path_factory):
     t = tmp_path_factory.mktemp("turned")
     (t / "raw").mkdir()
     for f in [d / "target.tif", d / "mask.tif", *sorted((d / "raw").glob("*.tif"))]:
-        tifffile.imwrite(t / f.relative_to(d), np.rot90(tifffile.imread(f), -1))
+        tifffile.imwrite(t / f.relative_to(d), np.rot90(tifffile.imread(f), -1)[:, ::-1])
     shutil.copy(toml, t / "campaign.toml")
     text = (t / "campaign.toml").read_text()
-    assert text.count("\nrotate = 0\n") == 1
-    (t / "campaign.toml").write_text(text.replace("\nrotate = 0\n", "\nrotate = 90\n"))
+    assert text.count("\nrotate = 0\n") == 1 and text.count("\nmirror = false\n") == 1
+    text = text.replace("\nrotate = 0\n", "\nrotate = 90\n")
+    (t / "campaign.toml").write_text(text.replace("\nmirror = false\n", "\nmirror = true\n"))
     out = {}
     for name, folder in (("upright", d), ("turned", t)):
         camp = Campaign.load(folder / "campaign.toml", progress=False)

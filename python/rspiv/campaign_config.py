@@ -32,6 +32,8 @@ A complete file (every key optional except where noted; defaults shown)::
     pair_step = 1                # sequential: frames between the first frames of two pairs
     rotate = 0                   # 0 | 90 | 180 | 270: degrees counter-clockwise every frame,
                                  # the target and the mask are turned as read (flow along +x)
+    mirror = false               # mirror them left-right before the turn (a camera looking
+                                 # through a mirror)
     check_pairs = 5              # pairs spread over the run whose seeding, background,
                                  # brightness and displacement are checked before the PIV
                                  # (0: off; under 2: reversed pairs are not looked for)
@@ -229,6 +231,8 @@ class ImagesConfig:
     #: degrees counter-clockwise (0, 90, 180, 270) every frame, the target and the mask
     #: image are turned as they are read (:func:`rspiv.io.turn_frame`)
     rotate: int = 0
+    #: mirror them left-right before the turn
+    mirror: bool = False
     #: pairs spread over the run checked for drift before the PIV
     #: (:func:`rspiv.recording_drift.check_drift`; 0: off)
     check_pairs: int = 5
@@ -266,6 +270,11 @@ class ImagesConfig:
                 )
             out = [(k, k + 1) for k in range(0, n, 2)]
         return out[: self.max_pairs] if self.max_pairs else out
+
+    def orientation(self) -> int:
+        """The frames' orientation code of :func:`rspiv.io.turn_frame`: ``rotate`` in quarter
+        turns, plus 4 when ``mirror``."""
+        return self.rotate // 90 + (4 if self.mirror else 0)
 
     def pairing_info(self) -> dict[str, Any] | None:
         """``summary.json``'s ``pairing`` entry: the keys and :meth:`describe_pairing` for
@@ -548,6 +557,7 @@ class CampaignConfig:
         imd["frame_gap"] = im.frame_gap
         imd["pair_step"] = im.pair_step
         imd["rotate"] = im.rotate
+        imd["mirror"] = im.mirror
         imd["check_pairs"] = im.check_pairs
         imd["exclude_pairs"] = list(im.exclude_pairs)
         out["images"] = imd

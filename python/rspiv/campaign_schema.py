@@ -219,6 +219,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "frame_gap": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
         "pair_step": lambda c, w, v: _number(c, w, v, integer=True, minimum=1),
         "rotate": lambda c, w, v: _quarter_turn(c, w, v),
+        "mirror": _boolean,
         "check_pairs": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
         "exclude_pairs": _pair_ids,
     },

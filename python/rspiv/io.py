@@ -311,14 +311,20 @@ def read_pair(path_a, path_b=None) -> tuple[np.ndarray, np.ndarray]:
 
 
 def turn_frame(a: np.ndarray, turn: int) -> np.ndarray:
-    """``a`` turned by ``turn`` quarter turns counter-clockwise as seen on screen (rows down):
-    ``np.rot90(a, turn)``, C-contiguous (a copy unless ``turn`` is a multiple of 4). A
-    campaign's ``[images] rotate`` (degrees) turns every frame, the target and the mask image
-    by ``rotate // 90`` as they are read, so that the flow runs along +x and the wall lies along
-    a row. Pixel ``(x, y)`` of a frame ``h`` px tall and ``w`` wide lands at ``(y, w - 1 - x)``
-    for one turn."""
-    turn %= 4
-    return a if turn == 0 else np.ascontiguousarray(np.rot90(a, turn))
+    """``a`` in the orientation ``turn`` (0-7): mirrored left-right first when ``turn >= 4``,
+    then turned by ``turn % 4`` quarter turns counter-clockwise as seen on screen (rows down,
+    ``np.rot90``); C-contiguous (a copy unless ``turn`` is 0). A campaign's ``[images] rotate``
+    (degrees) and ``mirror`` orient every frame, the target and the mask image so as they are
+    read (:meth:`rspiv.campaign_config.ImagesConfig.orientation`), so that the flow runs along +x
+    and the wall lies along a row. For one turn, pixel ``(x, y)`` of a frame ``w`` px wide lands
+    at ``(y, w - 1 - x)``; mirrored, ``(x, y)`` lands at ``(w - 1 - x, y)``."""
+    if not 0 <= turn <= 7:
+        raise InvalidInputError(f"turn_frame: the orientation must be 0-7, got {turn}")
+    if turn == 0:
+        return a
+    if turn >= 4:
+        a = a[:, ::-1]
+    return np.ascontiguousarray(np.rot90(a, turn % 4))
 
 
 def read_mask(

@@ -42,7 +42,7 @@ __all__ = [
 def read_frame(path: str, index: int | None, turn: int = 0) -> np.ndarray:
     """One 2D frame: a file, or frame ``index`` of a multi-frame TIFF (:func:`rspiv.io.read_image`;
     InvalidInputError naming the file when it is missing, unreadable or not 2D), turned by
-    ``turn`` quarter turns (:func:`rspiv.io.turn_frame`)."""
+    orientation ``turn`` (:func:`rspiv.io.turn_frame`)."""
     return turn_frame(read_image(path, 0 if index is None else int(index)), turn)
 
 

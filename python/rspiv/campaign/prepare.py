@@ -76,16 +76,18 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
     # (the target's, else the first readable frame's), the mask against it, the background
     # pass over every pair, the check of a sequential pairing; then the calibration and its
     # figures.
-    turn = cfg.images.rotate // 90  # [images] rotate: the target turned as the frames are
+    turn = cfg.images.orientation()  # [images] rotate, mirror: the target as the frames
     image = None
     if cfg.calibration.target is not None:
         image = turn_frame(read_image(cfg.calibration.target), turn)
     image_shape = _first_shape(pairs) if image is None else tuple(image.shape)
     if turn:
+        how = "mirrored left-right, then " if cfg.images.mirror else ""
         camp.say(
-            f"[images] rotate = {cfg.images.rotate}: every frame, the target and the mask are "
-            f"turned {cfg.images.rotate} deg counter-clockwise as read; the campaign's frames "
-            f"are {image_shape[1]} x {image_shape[0]} px"
+            f"[images] rotate = {cfg.images.rotate}, mirror = {str(cfg.images.mirror).lower()}: "
+            f"every frame, the target and the mask are {how}turned {cfg.images.rotate} deg "
+            f"counter-clockwise as read; the campaign's frames are {image_shape[1]} x "
+            f"{image_shape[0]} px"
         )
     if cfg.piv.mask is not None:
         read_mask(cfg.piv.mask, image_shape, turn)

@@ -94,7 +94,7 @@ class Campaign:
         """The campaign's pair list: ids are positions in the full list, the pairs of
         ``[images] exclude_pairs`` left out."""
         im = self.config.images
-        t = im.rotate // 90  # quarter turns of every frame as read
+        t = im.orientation()  # [images] rotate and mirror: every frame oriented as read
         if im.multiframe is not None:
             p = pathlib.Path(im.multiframe)
             if not p.is_file():

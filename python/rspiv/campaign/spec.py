@@ -52,8 +52,8 @@ class PairSpec:
     """One image pair: its id (index in the campaign's full pair list) and its frames.
 
     ``frame_a``/``frame_b`` are frame indices inside a multi-frame TIFF (``a == b`` is that
-    file), None for single-frame files. ``turn``: quarter turns counter-clockwise applied to
-    both frames as they are read (``[images] rotate``, :func:`rspiv.io.turn_frame`).
+    file), None for single-frame files. ``turn``: the orientation given to both frames as they
+    are read (``[images] rotate`` and ``mirror``, :func:`rspiv.io.turn_frame`).
     """
 
     pair_id: int
@@ -127,8 +127,9 @@ class PairContext:
     #: the screen of the statistics (:mod:`rspiv.outlier_screen`): ``sigmas``, the pilot
     #: ``pairs`` and per run the bounds' file and digest (``runs``); None: no screen
     screen: dict[str, Any] | None = None
-    #: quarter turns counter-clockwise of every frame, the target and the mask as read
-    #: (``[images] rotate``); ``image_shape`` is that of the turned frames
+    #: the orientation of every frame, the target and the mask as read (``[images] rotate``
+    #: and ``mirror``, :func:`rspiv.io.turn_frame`); ``image_shape`` is that of the turned
+    #: frames
     turn: int = 0
     _cache: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
