@@ -40,6 +40,7 @@ __all__ = [
     "read_image",
     "read_mask",
     "read_pair",
+    "turn_frame",
 ]
 
 _TIFF = {".tif", ".tiff"}
