@@ -27,6 +27,7 @@ from rspiv.campaign import Campaign
 from rspiv.campaign.ensemble import band_layout
 from rspiv.demo import DEFAULT_SCENE, PAPER_M, synth_campaign
 from rspiv.synth.tbl import tbl_scene
+from scaleout_cases import prepared_copy
 
 SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.1, pairs=80, monte_carlo_samples=200)
 ENSEMBLE = (
@@ -208,13 +209,15 @@ def test_local_and_merged_shards_agree(processed, synth):
 
     camp, res = processed
     parts = []
+    # the shards share the whole run's prepared context (calibration, wall, bands planned once)
+    shards = prepared_copy(res.out_dir, synth / "shards")
     for i in (1, 2):
         c = Campaign.load(
             synth / "campaign.toml",
             extra_methods=("I",),
             progress=False,
             shard=f"{i}/2",
-            out_dir=synth / "shards",
+            out_dir=shards,
         )
         parts.append(c.run().accumulators["method_II"])
     merged = FieldAccumulator.merged(parts)
