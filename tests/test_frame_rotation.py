@@ -68,9 +68,10 @@ def test_the_key_is_a_quarter_turn(tmp_path):
     toml.write_text(base.replace("[correction]", "rotate = 270\nmirror = true\n[correction]"))
     im = load_campaign_config(toml).images
     assert (im.rotate, im.mirror, im.orientation()) == (270, True, 7)
-    for bad in ("45", "true", "'90'", "360"):
-        toml.write_text(base.replace("[correction]", f"rotate = {bad}\n[correction]"))
-        with pytest.raises(InvalidInputError, match="rotate") as e:
+    for key, bad in (("rotate", "45"), ("rotate", "true"), ("rotate", "'90'"),
+                     ("rotate", "360"), ("mirror", "1"), ("mirror", "'yes'")):  # fmt: skip
+        toml.write_text(base.replace("[correction]", f"{key} = {bad}\n[correction]"))
+        with pytest.raises(InvalidInputError, match=key) as e:
             load_campaign_config(toml)
         assert "\n" not in str(e.value)
 

@@ -355,7 +355,7 @@ def read_mask(
     if img.shape != (h, w):
         raise InvalidInputError(
             f"{name}: mask is {img.shape[1]} x {img.shape[0]} px, the images are {w} x {h} px"
-            + (" as recorded" if turn % 4 else "")
+            + (" as recorded" if turn else "")
         )
     return turn_frame(np.asarray(img) > 0, turn)
 

@@ -106,14 +106,16 @@ class Campaign:
                 raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
             idx = im.frame_pairs(n, f"[images].multiframe {p}", odd_ok=True)
             return self._kept(
-                [PairSpec(k, str(p), str(p), i, j, t) for k, (i, j) in enumerate(idx)]
+                [PairSpec(k, str(p), str(p), i, j, turn=t) for k, (i, j) in enumerate(idx)]
             )
         if im.double_frame is not None:
             files = im.double_frame_files()
-            return self._kept([PairSpec(k, str(f), str(f), 0, 1, t) for k, f in enumerate(files)])
+            return self._kept(
+                [PairSpec(k, str(f), str(f), 0, 1, turn=t) for k, f in enumerate(files)]
+            )
         files = im.pair_files()
         return self._kept(
-            [PairSpec(k, str(a), str(b), None, None, t) for k, (a, b) in enumerate(files)]
+            [PairSpec(k, str(a), str(b), turn=t) for k, (a, b) in enumerate(files)]
         )
 
     def _kept(self, pairs: list[PairSpec]) -> list[PairSpec]:
