@@ -195,6 +195,35 @@ def test_a_lamb_oseen_vortex_is_fitted_exactly():
     assert not bad["ok"][0] and np.isnan(bad["radius"][0]) and bad["fit"][0] > 0.99
 
 
+def test_a_vortex_in_a_background_shear():
+    """A vortex in a uniform shear dU/dy of 5 % of its peak vorticity (the model of
+    :func:`oseen_velocity` with ``shear``): fitted with ``shear=True`` to 1e-6 in every
+    parameter and the shear (pixel frame, rows down: -dU/dy) to 1e-8; without it the fit is
+    kept, looks right (fit > 0.95) and is wrong by more than 5 % in r_c or the circulation.
+    The shear's vorticity is -dU/dy: oseen_velocity's central difference says so."""
+    x0, y0, gamma, rc, shear = 141.3, 88.6, -260.0, 9.0, 0.05
+    yy, xx = np.mgrid[0:NY, 0:NX] * H
+    uu, vu = oseen_velocity(xx, -yy, x0, -y0, gamma, rc, 3.0, 0.0, shear)  # y up
+    u, v = uu, -vu
+    h = 1e-4
+    dudy = (oseen_velocity(x0 + 40, -y0 + h, x0, -y0, gamma, rc, shear=shear)[0]
+            - oseen_velocity(x0 + 40, -y0 - h, x0, -y0, gamma, rc, shear=shear)[0]) / (2 * h)
+    far = oseen_velocity(x0 + 40, -y0 + h, x0, -y0, gamma, rc)[0]
+    near = oseen_velocity(x0 + 40, -y0 - h, x0, -y0, gamma, rc)[0]
+    assert dudy - (far - near) / (2 * h) == pytest.approx(shear, rel=1e-6)
+    cores, f = _cores_and_fits(u, v, shear=True)
+    assert cores["x"].size == 1 and f["ok"][0] and f["fit"][0] > 1 - 1e-9
+    np.testing.assert_allclose(
+        [f["x"][0], f["y"][0], f["radius"][0], f["circulation"][0], f["u"][0], f["v"][0]],
+        [x0, y0, rc, gamma, 3.0, 0.0], rtol=1e-6, atol=1e-6,
+    )  # fmt: skip
+    assert f["shear"][0] == pytest.approx(-shear, abs=1e-8)
+    plain = fit_oseen(u, v, cores, H, H)
+    assert np.isnan(plain["shear"][0]) and plain["ok"][0] and plain["fit"][0] > 0.95
+    bias = max(abs(plain["radius"][0] / rc - 1), abs(plain["circulation"][0] / gamma - 1))
+    assert bias > 0.05
+
+
 def test_several_vortices_with_noise_and_holes():
     """Four vortices of both signs and radii 6-14 px in one field with 0.05 px of noise and 5 %
     of the vectors invalid, all fitted at once: every one kept, r_c and Gamma within 1 % (the

@@ -336,15 +336,18 @@ def oseen_fit(
     reach: float,
     orient: float,
     max_evals: int,
+    shear: bool,
 ) -> dict[str, npt.NDArray[np.generic]]:
     """A Lamb-Oseen vortex fitted to the ``valid`` vectors of ``u``, ``v`` (pixel frame, grid
     of ``dx`` x ``dy`` px) within ``reach`` core radii of each core (centroid ``col``, ``row``
     in grid steps, ``radius`` px, ``sign`` +-1 in the frame ``orient`` turns the y-up frame
-    into), cores in parallel (``piv_core::vortex_fit``): per-core ``col``, ``row`` (grid
-    steps), ``radius`` (px), ``circulation`` (px^2 per pair), ``u``, ``v`` (px per pair, pixel
-    frame), NaN unless ``ok``; ``fit`` (the share of the patch's variance explained) and
-    ``ok``. ValueError (InvalidInputError) for arrays of other shapes or lengths, a spacing or
-    reach not > 0, ``orient`` not +-1 or ``max_evals`` of 0."""
+    into), with a uniform background shear if ``shear``, cores in parallel
+    (``piv_core::vortex_fit``): per-core ``col``, ``row`` (grid steps), ``radius`` (px),
+    ``circulation`` (px^2 per pair), ``u``, ``v`` (px per pair, pixel frame), ``shear``
+    (``du/dy``, rows down, 1/pair; NaN without ``shear``), NaN unless ``ok``; ``fit`` (the share
+    of the patch's variance about its background explained) and ``ok``. ValueError
+    (InvalidInputError) for arrays of other shapes or lengths, a spacing or reach not > 0,
+    ``orient`` not +-1 or ``max_evals`` of 0."""
 
 def particle_diameter(
     frame_a: npt.NDArray[np.generic],

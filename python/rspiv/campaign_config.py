@@ -122,6 +122,7 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # are dropped (not resolved; mostly noise)
     vortex_fits = true           # a Lamb-Oseen vortex fitted to each core: core radius,
                                  # circulation, convection (rspiv.fit_oseen; ~0.2 ms a core)
+    vortex_fit_shear = false     # ... in a uniform background shear (Stanislas et al. 2008)
     conditional = false          # conditional averages of u', v' about ejections (Q2) and
                                  # sweeps (Q4) at reference heights, a second pass over the
                                  # fields (rspiv.conditional; needs [output] fields;
@@ -436,6 +437,7 @@ class StatisticsConfig:
     vortex_threshold: float = 1.5
     vortex_min_diameter: float = 1.0
     vortex_fits: bool = True
+    vortex_fit_shear: bool = False
     conditional: bool = False
     conditional_heights: tuple[float, ...] = (0.15, 0.4)
     conditional_height_units: str = "delta"

@@ -294,6 +294,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "vortex_threshold": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "vortex_min_diameter": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "vortex_fits": _boolean,
+        "vortex_fit_shear": _boolean,
         "conditional": _boolean,
         "conditional_heights": lambda c, w, v: _increasing(c, w, v, positive=True, min_len=1),
         "conditional_height_units": lambda c, w, v: _choice(

@@ -58,6 +58,7 @@ fn vortex_fit(c: &mut Criterion) {
         reach: 2.5,
         orient: 1.0,
         max_evals: 100,
+        shear: false,
     };
     let kept = fit_cores(u.view(), v.view(), valid.view(), &cores, &s)
         .unwrap()
@@ -73,6 +74,20 @@ fn vortex_fit(c: &mut Criterion) {
     g.throughput(Throughput::Elements(cores.len() as u64));
     g.bench_function("64 cores, parallel", |b| {
         b.iter(|| fit_cores(u.view(), v.view(), valid.view(), black_box(&cores), &s))
+    });
+    // the seventh parameter, a background shear (Stanislas, Perret & Foucaut 2008)
+    let sheared = OseenSettings { shear: true, ..s };
+    g.throughput(Throughput::Elements(cores.len() as u64));
+    g.bench_function("64 cores, parallel, with the background shear", |b| {
+        b.iter(|| {
+            fit_cores(
+                u.view(),
+                v.view(),
+                valid.view(),
+                black_box(&cores),
+                &sheared,
+            )
+        })
     });
     g.finish();
 }

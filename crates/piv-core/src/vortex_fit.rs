@@ -8,6 +8,12 @@
 //!
 //! `u_theta(r) = Gamma / (2 pi r) (1 - exp(-r^2 / r_c^2))` about the centre, plus `(uc, vc)`.
 //!
+//! With [`OseenSettings::shear`], a seventh parameter adds a uniform background shear
+//! `S = dU/dY` (px per pair per px, y up) about the centre: `u += S (Y - yc)`, as Stanislas,
+//! Perret & Foucaut (2008, J. Fluid Mech. 602) fit the vortices of a boundary layer, where the
+//! local shear the vortex sits in would otherwise bend the fitted core. A uniform shear is not
+//! a rotation the Oseen vortex can take up: `v` holds the rotation, `u` the shear.
+//!
 //! Each core is fitted on its own (cores in parallel) by the Levenberg-Marquardt solver of
 //! `dewarp_core::lm`, to the valid vectors within `reach` core radii of its centroid (at least
 //! two grid steps). A fit drifting to a core wider than twice its patch, or to a centre four
@@ -50,12 +56,17 @@ pub struct OseenSettings {
     pub orient: f64,
     /// Model evaluations per core at most (>= 1).
     pub max_evals: usize,
+    /// Fit a uniform background shear `dU/dY` with the vortex (module docs).
+    pub shear: bool,
 }
 
 /// One core's fit. `col`, `row` in grid steps, `radius` px, `circulation` px^2 per pair in the
 /// caller's frame (`orient`), `u`, `v` the convection in the pixel frame (v down, px per pair);
 /// NaN unless `ok`. `fit` is the share of the patch's velocity variance about the convection
-/// the model explains (NaN for a core not fitted). `ok`: the fit turns with the core, its
+/// the model explains (NaN for a core not fitted); with the background shear, the variance
+/// about the convection and the fitted shear, so that a shear alone explains nothing. `shear`
+/// is the fitted background's `du/dy` in the pixel frame (rows down: `-S`), px per pair per
+/// px, NaN without [`OseenSettings::shear`]. `ok`: the fit turns with the core, its
 /// centre moved at most two core radii (at least one grid step) from the centroid, `r_c` lies
 /// between a third of a grid step and the patch's radius, and `fit >= OSEEN_MIN_FIT`.
 #[derive(Clone, Copy, Debug)]
@@ -66,6 +77,7 @@ pub struct OseenFit {
     pub circulation: f64,
     pub u: f64,
     pub v: f64,
+    pub shear: f64,
     pub fit: f64,
     pub ok: bool,
 }
@@ -78,6 +90,7 @@ impl OseenFit {
         circulation: f64::NAN,
         u: f64::NAN,
         v: f64::NAN,
+        shear: f64::NAN,
         fit: f64::NAN,
         ok: false,
     };
@@ -109,15 +122,18 @@ struct Patch {
     abandon_dist: f64,
     x0: f64,
     y0: f64,
+    /// Whether the seventh parameter (the background shear) is fitted.
+    shear: bool,
 }
 
-/// The parameters' terms shared by every point: `Gamma`, `r_c^2` and whether `log r_c` is
-/// held at a bound (its derivative is then 0).
+/// The parameters' terms shared by every point: `Gamma`, `r_c^2`, whether `log r_c` is
+/// held at a bound (its derivative is then 0) and the background shear (0 without it).
 #[derive(Clone, Copy)]
 struct Terms {
     gam: f64,
     rc2: f64,
     held: bool,
+    shear: f64,
 }
 
 impl Patch {
@@ -128,6 +144,7 @@ impl Patch {
             gam: t[2],
             rc2: (2.0 * lrc).exp(),
             held: lrc != t[3],
+            shear: if self.shear { t[6] } else { 0.0 },
         }
     }
 
@@ -137,10 +154,11 @@ impl Patch {
         let (ddx, ddy) = (self.px[k] - t[0], self.py[k] - t[1]);
         let (f, _, _) = decay((ddx * ddx + ddy * ddy) / c.rc2);
         let gphi = c.gam * f / (2.0 * PI * c.rc2); // Gamma u_theta / (Gamma r)
-        (t[4] - gphi * ddy, t[5] + gphi * ddx)
+        (t[4] + (c.shear - gphi) * ddy, t[5] + gphi * ddx)
     }
 
-    /// The model's velocity at point `k` and its derivatives in the six parameters.
+    /// The model's velocity at point `k` and its derivatives in the first six parameters
+    /// (`u`'s in the shear, the seventh, is `Y - yc`; `v`'s is 0).
     #[inline]
     fn eval(&self, t: &[f64], c: Terms, k: usize) -> (f64, f64, [f64; 6], [f64; 6]) {
         let (ddx, ddy) = (self.px[k] - t[0], self.py[k] - t[1]);
@@ -149,11 +167,11 @@ impl Patch {
         let phi = f / (2.0 * PI * rc2); // u_theta / (Gamma r)
         let phq = df / (2.0 * PI * rc2 * rc2); // d phi / d r^2
         let phl = if c.held { 0.0 } else { -e / (PI * rc2) }; // d phi / d log r_c
-        let mu = t[4] - gam * phi * ddy;
+        let mu = t[4] + (c.shear - gam * phi) * ddy;
         let mv = t[5] + gam * phi * ddx;
         let ju = [
             2.0 * gam * ddx * ddy * phq,
-            gam * (2.0 * ddy * ddy * phq + phi),
+            gam * (2.0 * ddy * ddy * phq + phi) - c.shear,
             -phi * ddy,
             -gam * ddy * phl,
             1.0,
@@ -171,9 +189,43 @@ impl Patch {
     }
 }
 
+impl Patch {
+    /// `J^T J` and `J^T r` of the first `N` parameters (6, or 7 with the shear), summed point
+    /// by point without the Jacobian (`N` a constant: the loops unroll).
+    fn sums<const N: usize>(&self, p: &[f64], r: &[f64], jtj: &mut [f64], jtr: &mut [f64]) {
+        let mut a = [[0.0f64; N]; N];
+        let mut g = [0.0f64; N];
+        let c = self.terms(p);
+        for k in 0..self.px.len() {
+            let (_, _, ju, jv) = self.eval(p, c, k);
+            let ddy = self.py[k] - p[1]; // d u / d shear
+            for (six, seventh, rk) in [(ju, ddy, r[2 * k]), (jv, 0.0, r[2 * k + 1])] {
+                let mut row = [0.0f64; N];
+                row[..6].copy_from_slice(&six);
+                if N == 7 {
+                    row[6] = seventh;
+                }
+                for i in 0..N {
+                    g[i] += row[i] * rk;
+                    for j in 0..=i {
+                        a[i][j] += row[i] * row[j];
+                    }
+                }
+            }
+        }
+        for i in 0..N {
+            jtr[i] = g[i];
+            for j in 0..=i {
+                jtj[N * i + j] = a[i][j];
+                jtj[N * j + i] = a[i][j];
+            }
+        }
+    }
+}
+
 impl LeastSquaresProblem for Patch {
     fn n_params(&self) -> usize {
-        6
+        6 + usize::from(self.shear)
     }
     fn n_residuals(&self) -> usize {
         2 * self.px.len()
@@ -188,10 +240,16 @@ impl LeastSquaresProblem for Patch {
     }
     fn jacobian(&self, p: &[f64], jac: &mut [f64]) {
         let c = self.terms(p);
+        let n = self.n_params();
         for k in 0..self.px.len() {
             let (_, _, ju, jv) = self.eval(p, c, k);
-            jac[12 * k..12 * k + 6].copy_from_slice(&ju);
-            jac[12 * k + 6..12 * k + 12].copy_from_slice(&jv);
+            let row = &mut jac[2 * n * k..2 * n * (k + 1)];
+            row[..6].copy_from_slice(&ju);
+            row[n..n + 6].copy_from_slice(&jv);
+            if self.shear {
+                row[6] = self.py[k] - p[1];
+                row[13] = 0.0;
+            }
         }
     }
     fn normal_equations(
@@ -202,26 +260,10 @@ impl LeastSquaresProblem for Patch {
         jtj: &mut [f64],
         jtr: &mut [f64],
     ) {
-        let mut a = [0.0f64; 36];
-        let mut g = [0.0f64; 6];
-        let c = self.terms(p);
-        for k in 0..self.px.len() {
-            let (_, _, ju, jv) = self.eval(p, c, k);
-            for (row, rk) in [(ju, r[2 * k]), (jv, r[2 * k + 1])] {
-                for i in 0..6 {
-                    g[i] += row[i] * rk;
-                    for j in 0..=i {
-                        a[6 * i + j] += row[i] * row[j];
-                    }
-                }
-            }
-        }
-        for i in 0..6 {
-            jtr[i] = g[i];
-            for j in 0..=i {
-                jtj[6 * i + j] = a[6 * i + j];
-                jtj[6 * j + i] = a[6 * i + j];
-            }
+        if self.shear {
+            self.sums::<7>(p, r, jtj, jtr)
+        } else {
+            self.sums::<6>(p, r, jtj, jtr)
         }
     }
     fn abandon(&self, p: &[f64]) -> bool {
@@ -376,6 +418,7 @@ fn fit_one(
     patch.abandon_dist = 4.0 * reach_px;
     patch.x0 = x0;
     patch.y0 = y0;
+    patch.shear = s.shear;
     let mut t = [
         x0,
         y0,
@@ -383,16 +426,19 @@ fn fit_one(
         core.radius.max(0.5 * dx.min(dy)).ln(),
         uc0,
         vc0,
+        0.0,
     ];
-    let cost = match solver.solve_in_place(&*patch, &mut t, cfg) {
+    let n = patch.n_params();
+    let cost = match solver.solve_in_place(&*patch, &mut t[..n], cfg) {
         Ok(summary) => summary.cost,
         Err(_) => return OseenFit::NONE, // singular: the patch does not determine a vortex
     };
-    let [xc, yc, gam, lrc, uc, vc] = t;
+    let [xc, yc, gam, lrc, uc, vc, sh] = t;
     let rc = lrc.clamp(patch.lo, patch.hi).exp();
+    // the variance about the fitted background (convection and shear), which the vortex explains
     let mut su = 0.0;
     for k in 0..cnt {
-        su += (patch.pu[k] - uc).powi(2) + (patch.pv[k] - vc).powi(2);
+        su += (patch.pu[k] - uc - sh * (patch.py[k] - yc)).powi(2) + (patch.pv[k] - vc).powi(2);
     }
     let fit = 1.0 - cost / su;
     let moved = (xc - x0).hypot(yc - y0);
@@ -417,6 +463,7 @@ fn fit_one(
         circulation: gam * s.orient,
         u: uc,
         v: -vc,
+        shear: if s.shear { -sh } else { f64::NAN },
         fit,
         ok,
     }
@@ -470,6 +517,7 @@ mod tests {
                 reach: 2.5,
                 orient: 1.0,
                 max_evals: 100,
+                shear: false,
             };
             let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
             assert!(f.ok, "{f:?}");
@@ -499,6 +547,72 @@ mod tests {
     }
 
     #[test]
+    fn a_vortex_in_a_background_shear_is_recovered() {
+        let d = 4.0;
+        let (xc, yc, g, rc, sh) = (120.0, -100.0, 260.0, 9.0, 0.05);
+        let sheared = |vx: &[(f64, f64, f64, f64)]| {
+            let (mut u, v) = field(60, 90, d, vx, (0.3, -0.2));
+            for ((i, _), uu) in u.indexed_iter_mut() {
+                *uu += sh * (-d * i as f64 - yc); // u += S (Y - yc), y up
+            }
+            (u, v)
+        };
+        let (u, v) = sheared(&[(xc, yc, g, rc)]);
+        let valid = Array2::from_elem(u.dim(), true);
+        let core = OseenCore {
+            col: xc / d + 0.6,
+            row: -yc / d - 0.4,
+            radius: 0.8 * rc,
+            sign: 1.0,
+        };
+        let s = OseenSettings {
+            dx: d,
+            dy: d,
+            reach: 2.5,
+            orient: 1.0,
+            max_evals: 100,
+            shear: true,
+        };
+        let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
+        assert!(f.ok, "{f:?}");
+        assert!(
+            (f.col * d - xc).abs() < 1e-6 && (-f.row * d - yc).abs() < 1e-6,
+            "{f:?}"
+        );
+        assert!((f.circulation / g - 1.0).abs() < 1e-6, "{f:?}");
+        assert!((f.radius / rc - 1.0).abs() < 1e-6, "{f:?}");
+        assert!(
+            (f.u - 0.3).abs() < 1e-6 && (f.v + 0.2).abs() < 1e-6,
+            "{f:?}"
+        );
+        assert!((f.shear + sh).abs() < 1e-8, "{f:?}"); // du/dy with rows down: -S
+        assert!(f.fit > 1.0 - 1e-9, "{f:?}");
+        // without the shear in the model the same vortex is fitted wrong
+        let plain = OseenSettings { shear: false, ..s };
+        let f0 = fit_cores(u.view(), v.view(), valid.view(), &[core], &plain).unwrap()[0];
+        assert!(f0.shear.is_nan(), "{f0:?}");
+        let bias = (f0.radius / rc - 1.0)
+            .abs()
+            .max((f0.circulation / g - 1.0).abs());
+        assert!(!f0.ok || bias > 0.05, "{f0:?}");
+        // an exact vortex without a shear: the shear fitted is 0
+        let (u, v) = field(60, 90, d, &[(xc, yc, g, rc)], (0.3, -0.2));
+        let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
+        assert!(
+            f.ok && f.shear.abs() < 1e-8 && (f.radius / rc - 1.0).abs() < 1e-6,
+            "{f:?}"
+        );
+        // a shear alone, with a little noise, is no vortex: the shear explains it, not the core
+        let (mut u, mut v) = sheared(&[]);
+        for ((i, j), uu) in u.indexed_iter_mut() {
+            *uu += 0.01 * ((7 * i + 3 * j) as f64).sin();
+            v[[i, j]] += 0.01 * ((5 * i + 11 * j) as f64).cos();
+        }
+        let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
+        assert!(!f.ok && f.fit < 0.1, "{f:?}");
+    }
+
+    #[test]
     fn uniform_flow_and_too_few_vectors_are_not_kept() {
         let u = Array2::from_elem((20, 20), 1.0);
         let v = Array2::from_elem((20, 20), 0.0);
@@ -515,6 +629,7 @@ mod tests {
             reach: 2.5,
             orient: 1.0,
             max_evals: 50,
+            shear: false,
         };
         let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
         assert!(!f.ok);
@@ -538,6 +653,7 @@ mod tests {
             reach: 2.5,
             orient: 1.0,
             max_evals: 10,
+            shear: false,
         };
         let other = Array2::<f64>::zeros((5, 4));
         for (vv, s) in [

@@ -9,8 +9,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// Fit every core (`col`, `row` in grid steps, `radius` px, `sign` +-1) to the field `u`, `v`
-/// (pixel frame) where `valid`; returns a dict of per-core arrays `col`, `row`, `radius`,
-/// `circulation`, `u`, `v`, `fit` (float64) and `ok` (bool) (`piv_core::vortex_fit::OseenFit`).
+/// (pixel frame) where `valid`, with a background shear if `shear`; returns a dict of per-core
+/// arrays `col`, `row`, `radius`, `circulation`, `u`, `v`, `shear`, `fit` (float64) and `ok`
+/// (bool) (`piv_core::vortex_fit::OseenFit`).
 #[pyfunction]
 #[allow(clippy::too_many_arguments)]
 fn oseen_fit<'py>(
@@ -27,6 +28,7 @@ fn oseen_fit<'py>(
     reach: f64,
     orient: f64,
     max_evals: usize,
+    shear: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (col, row) = (col.as_array(), row.as_array());
     let (radius, sign) = (radius.as_array(), sign.as_array());
@@ -50,6 +52,7 @@ fn oseen_fit<'py>(
         reach,
         orient,
         max_evals,
+        shear,
     };
     let (u, v, valid) = (u.as_array(), v.as_array(), valid.as_array());
     let fits = py
@@ -65,6 +68,7 @@ fn oseen_fit<'py>(
     d.set_item("circulation", column(|f| f.circulation).into_pyarray(py))?;
     d.set_item("u", column(|f| f.u).into_pyarray(py))?;
     d.set_item("v", column(|f| f.v).into_pyarray(py))?;
+    d.set_item("shear", column(|f| f.shear).into_pyarray(py))?;
     d.set_item("fit", column(|f| f.fit).into_pyarray(py))?;
     let ok: Vec<bool> = fits.iter().map(|f| f.ok).collect();
     d.set_item("ok", ok.into_pyarray(py))?;

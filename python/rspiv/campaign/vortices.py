@@ -27,14 +27,17 @@ Lamb-Oseen fits (``[statistics] vortex_fits``, on by default: about 0.2 ms a cor
 ``piv_core::vortex_fit``, 40 ms a pair's field on the demo's layer at scale 0.4, where the rest
 of the pass takes 15 ms):
 a Lamb-Oseen vortex is fitted to the fluctuations about each core (each vector's own mean over
-the pairs: the mean shear is not in the model; :func:`rspiv.vortices.fit_oseen`, a patch of
-2.5 core radii). Every core lists its fit (``core_oseen_x``, ``_y``, ``_radius`` the core
-radius r_c, ``_circulation`` the whole circulation, ``_u`` and ``_v`` the convection velocity in
-the flow's frame: the fit's plus the mean at its centre, ``_fit`` the share of the patch's
-velocity it explains, ``_ok``), and per row and kind ``oseen_count``, ``oseen_share`` and the
-means of the fits kept: ``oseen_radius``, ``oseen_circulation``, ``oseen_u`` (with ``_plus`` in
-wall units). The final window widens a core: a Gaussian core of radius r_c reads sqrt(r_c^2 +
-W^2 / 6) through a W px top-hat window (`tests/test_vortices.py`).
+the pairs: the mean shear is removed; :func:`rspiv.vortices.fit_oseen`, a patch of 2.5 core
+radii). With ``[statistics] vortex_fit_shear`` the vortex sits in a uniform background shear
+(Stanislas, Perret & Foucaut 2008), the local shear of the larger motions about it. Every core
+lists its fit (``core_oseen_x``, ``_y``, ``_radius`` the core radius r_c, ``_circulation`` the
+whole circulation, ``_u`` and ``_v`` the convection velocity in the flow's frame: the fit's plus
+the mean at its centre, ``_shear`` the background's dU/dy in the flow's frame (1/s, without the
+mean's; NaN without ``vortex_fit_shear``), ``_fit`` the share of the patch's velocity about the
+fitted convection (and shear) it explains, ``_ok``), and per row and kind ``oseen_count``,
+``oseen_share`` and the means of the fits kept: ``oseen_radius``, ``oseen_circulation``,
+``oseen_u`` (with ``_plus`` in wall units). The final window widens a core: a Gaussian core of
+radius r_c reads sqrt(r_c^2 + W^2 / 6) through a W px top-hat window (`tests/test_vortices.py`).
 
 A fit is kept only where the patch shows a vortex decaying within it. The demo's synthetic
 turbulence (random Fourier modes) has few: most of its swirling regions rotate as solid bodies
@@ -149,15 +152,16 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
 
     def with_fits(cores: dict, rows, u, v, valid, counts_part: VortexAccumulator) -> dict:
         """The cores with their Lamb-Oseen fits (``oseen_*``), counted."""
-        # a Lamb-Oseen vortex fitted to the fluctuations about each core (the mean shear is
-        # not in its model); its convection is the fit's plus the mean at its centre
+        # a Lamb-Oseen vortex (in a uniform shear, if asked) fitted to the fluctuations about
+        # each core (the mean shear removed); its convection is the fit's plus the mean there
         fits = fit_oseen(u - mean_u, v - mean_v, cores, va.dx, va.dy, valid=valid, x=x,
-                         y=row_index, orient=orient)  # fmt: skip
+                         y=row_index, orient=orient, shear=st.vortex_fit_shear)  # fmt: skip
         at_i = np.clip(np.rint(np.nan_to_num(fits["y"])).astype(np.int64), 0, acc.shape[0] - 1)
         at_j = np.clip(np.rint(np.interp(np.nan_to_num(fits["x"]), x, np.arange(x.size)))
                        .astype(np.int64), 0, acc.shape[1] - 1)  # fmt: skip
         fits["u"] = sign_x * (fits["u"] + mean_u[at_i, at_j])  # downstream, px per pair
         fits["v"] = sign_y * (fits["v"] + mean_v[at_i, at_j])
+        fits["shear"] = sign_x * sign_y * fits["shear"]  # dU/dy in the flow's frame, 1/pair
         fits["ok"] &= np.isfinite(fits["u"])
         counts_part.add(cores, rows, fits)
         return {**cores, **{f"oseen_{k}": val for k, val in fits.items()}}
@@ -266,6 +270,7 @@ def _core_table(found: list, dist: np.ndarray, p: dict, camp: Any, limit: int) -
     out["oseen_circulation"] = out["oseen_circulation"] * m * m * per_s
     out["oseen_u"] = out["oseen_u"] * m * per_s
     out["oseen_v"] = out["oseen_v"] * m * per_s
+    out["oseen_shear"] = out["oseen_shear"] * per_s
     return out
 
 
@@ -333,6 +338,8 @@ def _oseen_variables(ds: Any, prof: dict, dims: tuple, length: str, circ: str) -
                      "mean convection velocity downstream of the fits kept"})  # fmt: skip
     for k in OSEEN_FIELDS:
         ds[f"core_oseen_{k}"] = ("core", t[f"oseen_{k}"])
+    ds["core_oseen_shear"].attrs.update({"units": "s-1" if prof["per_s"] else "1", "long_name":
+                                         "background dU/dy of the fit, without the mean's"})
 
 
 def report_section(camp: Any, res: Any) -> Any:
@@ -349,7 +356,8 @@ def report_section(camp: Any, res: Any) -> Any:
         f"{camp.config.statistics.vortex_min_diameter:g} final window): {total[0]} "
         f"prograde (turning with the mean shear) and {total[1]} retrograde. Densities are per "
         "delta_99^2 and pair; the measurement noise makes cores too and raises the threshold."
-        + (_oseen_sentence(prof) if "oseen_count" in prof else "")
+        + (_oseen_sentence(prof, camp.config.statistics.vortex_fit_shear)
+           if "oseen_count" in prof else "")
     )
     return pass_section(
         camp, prof, "Vortex population", text, "rspiv.plots.vortices:plot_vortices", "vortices",
@@ -357,7 +365,7 @@ def report_section(camp: Any, res: Any) -> Any:
     )
 
 
-def _oseen_sentence(prof: dict) -> str:
+def _oseen_sentence(prof: dict, shear: bool) -> str:
     """The report's sentence on the Lamb-Oseen fits (wall units)."""
     n = prof["oseen_count"].sum(axis=0)
     if n.sum() == 0:
@@ -378,8 +386,9 @@ def _oseen_sentence(prof: dict) -> str:
                      f"{mean['circulation']:.0f}, convected at {mean['u']:.1f} u_tau")  # fmt: skip
     total = prof["count"].sum()
     return (
-        f" A Lamb-Oseen vortex fitted to the fluctuations about each core (rspiv.vortices."
-        f"fit_oseen) explains 70 % or more of its patch's velocity for {n.sum()} of {total} "
+        f" A Lamb-Oseen vortex{' in a uniform background shear' if shear else ''} fitted to "
+        f"the fluctuations about each core (rspiv.vortices.fit_oseen) explains 70 % or more of "
+        f"its patch's velocity for {n.sum()} of {total} "
         f"cores ({'; '.join(parts)}; means over the fits kept). The final window widens a core: "
         "r_c^2 + W^2/6 for a W px window."
     )
