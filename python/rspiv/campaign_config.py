@@ -18,7 +18,7 @@ A complete file (every key optional except where noted; defaults shown)::
     [images]                     # exactly one of glob / pairs / multiframe / double_frame
     glob = "raw/*.tif"           # sorted; consecutive files form the pairs (1-2, 3-4, ...)
     # pairs = [["a0.tif", "b0.tif"], ["a1.tif", "b1.tif"]]
-    # multiframe = "run.tif"     # frames (0, 1), (2, 3), ... of one TIFF
+    # multiframe = "run.tif"     # frames (0, 1), (2, 3), ... of one TIFF or Photron .cihx
     # double_frame = "run/*.im7" # one pair per file, frames 0 and 1: DaVis double-frame
                                  # buffers (.im7/.imx/.ims, needs rspiv[davis]) or 2-page TIFFs;
                                  # a DaVis "Run.set" means the files Run/*.im7

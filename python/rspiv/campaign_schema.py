@@ -12,6 +12,7 @@ from typing import Any
 
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError
+from rspiv.photron import PHOTRON_SUFFIXES
 from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
@@ -43,9 +44,13 @@ class Ctx:
                 return None
             raise self.err(where, "expected a path, got an empty string")
         pth = pathlib.Path(os.path.expanduser(v))
-        if tiff and pth.suffix.lower() not in (".tif", ".tiff"):
-            raise self.err(where, f"expected a multi-frame TIFF (.tif, .tiff), got {v!r}")
-        if image and pth.suffix.lower() not in IMAGE_SUFFIXES + ((".json",) if json_ok else ()):
+        suffix = pth.suffix.lower()
+        if tiff and suffix not in (".tif", ".tiff") + PHOTRON_SUFFIXES:
+            raise self.err(
+                where, f"expected a multi-frame TIFF (.tif, .tiff) or a Photron recording "
+                f"({', '.join(PHOTRON_SUFFIXES)}), got {v!r}"
+            )  # fmt: skip
+        if image and not tiff and suffix not in IMAGE_SUFFIXES + ((".json",) if json_ok else ()):
             raise self.err(
                 where, f"expected an image file ({', '.join(IMAGE_SUFFIXES)}), got {v!r}"
             )

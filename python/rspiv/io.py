@@ -2,10 +2,12 @@
 
 TIFF (single or multi-frame, via tifffile), PNG, BMP and JPEG (via Pillow) and LaVision DaVis
 buffers (``.im7``, ``.imx``, ``.ims``, through LaVision's ``lvpyio``, the optional extra
-``pip install 'rspiv[davis]'``; never bundled) are read as C-contiguous 2D arrays
-``image[y, x]``. A DaVis buffer's images are numbered in file order over its frames and their
-planes: a double-frame PIV recording holds frame A at 0 and frame B at 1 (the raw counts, bit
-depth as stored: the buffer's intensity scale is reported by :func:`davis_info`, not applied).
+``pip install 'rspiv[davis]'``; never bundled) and Photron high-speed recordings (``.cihx`` or
+``.cih`` with their ``.mraw``, one frame read at a time: :mod:`rspiv.photron`) are read as
+C-contiguous 2D arrays ``image[y, x]``. A DaVis buffer's images are numbered in file order
+over its frames and their planes: a double-frame PIV recording holds frame A at 0 and frame
+B at 1 (the raw counts, bit depth as stored: the buffer's intensity scale is reported by
+:func:`davis_info`, not applied).
 uint8, uint16, float32 and float64 keep their dtype (not rescaled); other dtypes become float64;
 colour images become grey (0.299 R + 0.587 G + 0.114 B, float32); palette (indexed-colour)
 images are read through their palette (a grey one gives its levels), grey with alpha as its grey
@@ -30,6 +32,7 @@ import tifffile
 from PIL import Image
 
 from rspiv.errors import InvalidInputError
+from rspiv.photron import PHOTRON_SUFFIXES, photron_recording, read_photron_frame
 
 __all__ = [
     "DAVIS_SUFFIXES",
@@ -93,6 +96,8 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
                     f"{name}: frame {frame} out of range ({len(images)} frames)"
                 )
             return images[frame]
+        if ext in PHOTRON_SUFFIXES:
+            return read_photron_frame(photron_recording(p), frame)
         if ext in _PIL:
             if frame != 0:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
@@ -109,7 +114,8 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
     except Exception as exc:  # corrupt, truncated or foreign file
         raise InvalidInputError(f"{name}: cannot read image: {exc}") from exc
     raise InvalidInputError(
-        f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP, JPEG, DaVis .im7/.imx/.ims)"
+        f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP, JPEG, DaVis .im7/.imx/.ims, "
+        "Photron .cihx/.cih/.mraw)"
     )
 
 
@@ -190,7 +196,8 @@ def davis_info(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def frame_count(path: str | os.PathLike) -> int:
-    """Number of frames (images) a file holds: TIFF pages, DaVis images, 1 for PNG/BMP/JPEG."""
+    """Number of frames (images) a file holds: TIFF pages, DaVis images, a Photron
+    recording's frames, 1 for PNG/BMP/JPEG."""
     p = pathlib.Path(path)
     if not p.is_file():
         raise InvalidInputError(f"{p}: no such file")
@@ -203,6 +210,8 @@ def frame_count(path: str | os.PathLike) -> int:
                 return len(tf.pages)
         except Exception as exc:  # noqa: BLE001 - corrupt or foreign file
             raise InvalidInputError(f"{p}: cannot read image: {exc}") from exc
+    if ext in PHOTRON_SUFFIXES:
+        return photron_recording(p).frames
     if ext in _PIL:
         return 1
     raise InvalidInputError(f"{p}: unsupported image type {ext!r}")
@@ -286,10 +295,11 @@ def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
     Parameters
     ----------
     source : str, path-like or array_like
-        A ``.tif``/``.tiff``, ``.png``, ``.bmp``, ``.jpg``/``.jpeg`` or DaVis file, or an
-        image array.
+        A ``.tif``/``.tiff``, ``.png``, ``.bmp``, ``.jpg``/``.jpeg``, DaVis or Photron
+        (``.cihx``, ``.cih``, ``.mraw``) file, or an image array.
     frame : int
-        Page of a multi-frame TIFF (0-based); must be 0 for other formats and arrays.
+        Page of a multi-frame TIFF, image of a DaVis buffer or frame of a Photron recording
+        (0-based); must be 0 for other formats and arrays.
 
     Returns
     -------

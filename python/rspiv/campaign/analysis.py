@@ -573,6 +573,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         "particle_size_warnings",
         "recording",
         "recording_drift",
+        "recording_file",
         "recording_warnings",
         "screen",
     ):

@@ -12,8 +12,6 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import tifffile
-
 from rspiv.campaign import checkpoint, rereduce
 from rspiv.campaign.analysis import analyse_result, write_report, write_shard
 from rspiv.campaign.executors.local import LocalExecutor
@@ -24,6 +22,8 @@ from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_sh
 from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
+from rspiv.io import frame_count
+from rspiv.photron import PHOTRON_SUFFIXES, PhotronRecording, photron_recording
 from rspiv.progress import Progress
 from rspiv.stats import FieldAccumulator
 
@@ -100,8 +100,9 @@ class Campaign:
             if not p.is_file():
                 raise InvalidInputError(f"[images].multiframe: {p}: no such file")
             try:
-                with tifffile.TiffFile(p) as tf:
-                    n = len(tf.pages)
+                n = frame_count(p)  # TIFF pages or a Photron recording's frames
+            except InvalidInputError as exc:
+                raise InvalidInputError(f"[images].multiframe: {exc}") from None
             except Exception as exc:  # noqa: BLE001
                 raise InvalidInputError(f"[images].multiframe: {p}: cannot read ({exc})") from None
             idx = im.frame_pairs(n, f"[images].multiframe {p}", odd_ok=True)
@@ -287,6 +288,8 @@ class Campaign:
                 f"{len(state.sel)} pair(s) of {im.describe_pairing()}: {dt} is the time from "
                 f"frame k to frame k + {im.frame_gap}"
             )
+        if im.multiframe is not None and im.multiframe.suffix.lower() in PHOTRON_SUFFIXES:
+            self.info["recording_file"] = recording_file(self, photron_recording(im.multiframe))
         state.fields = self.field_writer()
         if state.fields is not None:
             first = ctx.runs[0].name
@@ -464,3 +467,44 @@ class Campaign:
         """Write the campaign report of ``res`` with ``extra_sections`` appended
         (:func:`rspiv.campaign.analysis.write_report`)."""
         write_report(self, res, extra_sections)
+
+
+def recording_file(camp: Any, rec: PhotronRecording) -> dict[str, Any]:
+    """``summary.json``'s ``recording_file``: the figures of an ``[images] multiframe``
+    Photron recording (camera, frames, bit depth, frame rate), said in the run log.
+
+    With sequential pairing its frame rate fixes the time between a pair's frames: ``dt_s``
+    is ``frame_gap`` frames at that rate, and a ``[flow] dt`` more than 1 % away from it is
+    said loudly (``warning``): it scales every velocity. A double-frame recording (pairs) is
+    not checked: a camera straddling laser pulses sets dt apart from its frame rate.
+    """
+    im, dt = camp.config.images, camp.config.flow.dt
+    fps = rec.fps if rec.fps > 0 else None
+    info: dict[str, Any] = {
+        "file": str(rec.header), "camera": rec.camera, "frames": rec.frames,
+        "width": rec.width, "height": rec.height, "bits": rec.bits, "depth": rec.depth,
+        "fps": fps, "shutter_s": rec.shutter_s if rec.shutter_s > 0 else None,
+    }  # fmt: skip
+    rate = f"{rec.fps:g} fps" if fps else "no frame rate in its header"
+    camp.say(
+        f"Photron recording {rec.header.name}: {rec.camera or 'camera not named'}, "
+        f"{rec.frames} frames of {rec.width} x {rec.height} px, {rec.depth} of {rec.bits} bit, "
+        f"{rate}"
+    )
+    if im.pairing != "sequential" or fps is None:
+        return info
+    expected = im.frame_gap / fps
+    info["dt_s"] = expected
+    if dt > 0 and abs(dt / expected - 1) > 0.01:
+        info["warning"] = (
+            f"[flow] dt = {dt:g} s, but frame k + {im.frame_gap} is {expected:g} s after frame "
+            f"k at the recording's frame rate ({rec.fps:g} fps): every velocity reads "
+            f"{expected / dt:.3g}x its true value"
+        )
+        camp.say(f"WARNING: {info['warning']}")
+    elif dt <= 0:
+        camp.say(
+            f"the recording's frame rate puts frame k + {im.frame_gap} {expected:g} s after "
+            f"frame k: [flow] dt = {expected:g} gives velocities per second"
+        )
+    return info
