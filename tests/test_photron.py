@@ -34,10 +34,11 @@ def _pack12(frame: np.ndarray) -> bytes:
 
 
 def _write(d: pathlib.Path, frames: np.ndarray, bits: int, *, upper: bool = False,
-           colour: str = "Mono", fps: float = 2000.0, name: str = "rec") -> pathlib.Path:
+           colour: str = "Mono", fps: float = 2000.0, name: str = "rec",
+           depth: int | None = None) -> pathlib.Path:
     """A text ``.cih`` header and its ``.mraw`` (``frames``: counts of a 12 bit signal)."""
     n, h, w = frames.shape
-    depth = 8 if bits == 8 else 12
+    depth = depth or (8 if bits == 8 else 12)
     with open(d / f"{name}.mraw", "wb") as f:
         for fr in frames:
             if bits == 8:
@@ -58,14 +59,21 @@ def _write(d: pathlib.Path, frames: np.ndarray, bits: int, *, upper: bool = Fals
     return head
 
 
-@pytest.mark.parametrize("bits, upper", [(8, False), (12, False), (16, False), (16, True)])
-def test_frames_written_from_the_definition_read_back_exactly(tmp_path, bits, upper):
+@pytest.mark.parametrize(
+    "bits, upper, depth", [(8, False, 8), (12, False, 12), (16, False, 12), (16, True, 12),
+                           (8, True, 12)]
+)  # fmt: skip
+def test_frames_written_from_the_definition_read_back_exactly(tmp_path, bits, upper, depth):
+    """Every storage; the last, a 12 bit sensor's frames saved in 8 bit pixels (a real
+    FASTCAM SA1.1 header says so: ``Color Bit : 8``, ``EffectiveBit Depth : 12``, ``Higher``),
+    read as stored."""
     rng = np.random.default_rng(bits + upper)
     top = 256 if bits == 8 else 4096
     frames = rng.integers(0, top, size=(3, 6, 10))
-    head = _write(tmp_path, frames, bits, upper=upper)
+    head = _write(tmp_path, frames, bits, upper=upper, depth=depth)
     rec = photron_recording(head)
     assert (rec.width, rec.height, rec.frames, rec.bits) == (10, 6, 3, bits)
+    assert rec.depth == min(depth, bits)
     assert rec.fps == 2000.0 and rec.dt == pytest.approx(5e-4) and rec.start_frame == -10
     assert rec.shutter_s == pytest.approx(5e-5)
     for k in range(3):

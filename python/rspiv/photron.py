@@ -59,7 +59,8 @@ class PhotronRecording:
     bits : int
         Bits per pixel as stored: 8, 12 (packed) or 16.
     depth : int
-        Effective bit depth (the signal's bits; at most ``bits``).
+        Effective bit depth (the signal's bits; at most ``bits``: a 12 bit sensor saved in
+        8 bit pixels is 8).
     fps : float
         Frames per second (NaN if the header does not say).
     shutter_s : float
@@ -192,8 +193,9 @@ def _open(path: str, stamp: tuple) -> PhotronRecording:
         )
     w, h = _integer(fields, "Image Width", header), _integer(fields, "Image Height", header)
     n, bits = _integer(fields, "Total Frame", header), _integer(fields, "Color Bit", header)
-    depth = int(fields.get("EffectiveBit Depth", bits) or bits)
-    if bits not in (8, 12, 16) or not 0 < depth <= bits:
+    # a sensor deeper than the pixels saved (a 12 bit camera's 8 bit file): every bit is signal
+    depth = min(int(fields.get("EffectiveBit Depth", bits) or bits), bits)
+    if bits not in (8, 12, 16) or depth <= 0:
         raise InvalidInputError(
             f"{header}: {bits} bit pixels of effective depth {depth} (8, 12 or 16 bit are read)"
         )

@@ -504,7 +504,7 @@ def recording_file(camp: Any, rec: PhotronRecording) -> dict[str, Any]:
         camp.say(f"WARNING: {info['warning']}")
     elif dt <= 0:
         camp.say(
-            f"the recording's frame rate puts frame k + {im.frame_gap} {expected:g} s after "
+            f"at the recording's frame rate frame k + {im.frame_gap} comes {expected:g} s after "
             f"frame k: [flow] dt = {expected:g} gives velocities per second"
         )
     return info
