@@ -2,12 +2,12 @@
 
 TIFF (single or multi-frame, via tifffile), PNG, BMP and JPEG (via Pillow) and LaVision DaVis
 buffers (``.im7``, ``.imx``, ``.ims``, through LaVision's ``lvpyio``, the optional extra
-``pip install 'rspiv[davis]'``; never bundled) and Photron high-speed recordings (``.cihx`` or
-``.cih`` with their ``.mraw``, one frame read at a time: :mod:`rspiv.photron`) are read as
-C-contiguous 2D arrays ``image[y, x]``. A DaVis buffer's images are numbered in file order
-over its frames and their planes: a double-frame PIV recording holds frame A at 0 and frame
-B at 1 (the raw counts, bit depth as stored: the buffer's intensity scale is reported by
-:func:`davis_info`, not applied).
+``pip install 'rspiv[davis]'``; never bundled) and high-speed recordings (Photron ``.cihx`` or
+``.cih`` with their ``.mraw``, :mod:`rspiv.photron`; Phantom ``.cine``, :mod:`rspiv.phantom`;
+one frame read at a time) are read as C-contiguous 2D arrays ``image[y, x]``. A DaVis
+buffer's images are numbered in file order over its frames and their planes: a double-frame
+PIV recording holds frame A at 0 and frame B at 1 (the raw counts, bit depth as stored: the
+buffer's intensity scale is reported by :func:`davis_info`, not applied).
 uint8, uint16, float32 and float64 keep their dtype (not rescaled); other dtypes become float64;
 colour images become grey (0.299 R + 0.587 G + 0.114 B, float32); palette (indexed-colour)
 images are read through their palette (a grey one gives its levels), grey with alpha as its grey
@@ -32,11 +32,14 @@ import tifffile
 from PIL import Image
 
 from rspiv.errors import InvalidInputError
-from rspiv.photron import PHOTRON_SUFFIXES, photron_recording, read_photron_frame
+from rspiv.phantom import PHANTOM_SUFFIXES, PhantomRecording, phantom_recording, read_phantom_frame
+from rspiv.photron import PHOTRON_SUFFIXES, PhotronRecording, photron_recording, read_photron_frame
 
 __all__ = [
     "DAVIS_SUFFIXES",
     "JPEG_LOSSY",
+    "RECORDING_SUFFIXES",
+    "camera_recording",
     "davis_info",
     "frame_count",
     "jpeg_quality",
@@ -98,6 +101,8 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
             return images[frame]
         if ext in PHOTRON_SUFFIXES:
             return read_photron_frame(photron_recording(p), frame)
+        if ext in PHANTOM_SUFFIXES:
+            return read_phantom_frame(phantom_recording(p), frame)
         if ext in _PIL:
             if frame != 0:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
@@ -115,7 +120,7 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
         raise InvalidInputError(f"{name}: cannot read image: {exc}") from exc
     raise InvalidInputError(
         f"{name}: unsupported image type {ext!r} (TIFF, PNG, BMP, JPEG, DaVis .im7/.imx/.ims, "
-        "Photron .cihx/.cih/.mraw)"
+        "Photron .cihx/.cih/.mraw, Phantom .cine)"
     )
 
 
@@ -196,7 +201,7 @@ def davis_info(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def frame_count(path: str | os.PathLike) -> int:
-    """Number of frames (images) a file holds: TIFF pages, DaVis images, a Photron
+    """Number of frames (images) a file holds: TIFF pages, DaVis images, a Photron or Phantom
     recording's frames, 1 for PNG/BMP/JPEG."""
     p = pathlib.Path(path)
     if not p.is_file():
@@ -210,12 +215,29 @@ def frame_count(path: str | os.PathLike) -> int:
                 return len(tf.pages)
         except Exception as exc:  # noqa: BLE001 - corrupt or foreign file
             raise InvalidInputError(f"{p}: cannot read image: {exc}") from exc
-    if ext in PHOTRON_SUFFIXES:
-        return photron_recording(p).frames
+    rec = camera_recording(p)
+    if rec is not None:
+        return rec.frames
     if ext in _PIL:
         return 1
     raise InvalidInputError(f"{p}: unsupported image type {ext!r}")
 
+
+#: High-speed camera recordings: many frames in the camera's own file(s).
+RECORDING_SUFFIXES = PHOTRON_SUFFIXES + PHANTOM_SUFFIXES
+
+
+def camera_recording(path: str | os.PathLike) -> PhotronRecording | PhantomRecording | None:
+    """The high-speed recording a file names (Photron ``.cihx``/``.cih``/``.mraw``, Phantom
+    ``.cine``; checked, see :mod:`rspiv.photron` and :mod:`rspiv.phantom`), or None for any
+    other file. Both kinds give ``source``, ``camera``, ``width``, ``height``, ``frames``,
+    ``bits``, ``depth``, ``fps`` and ``dt``."""
+    ext = pathlib.Path(path).suffix.lower()
+    if ext in PHOTRON_SUFFIXES:
+        return photron_recording(path)
+    if ext in PHANTOM_SUFFIXES:
+        return phantom_recording(path)
+    return None
 
 #: The IJG (libjpeg) luminance quantisation table at quality 50, natural order.
 _IJG_LUMA = np.array(
@@ -295,11 +317,11 @@ def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
     Parameters
     ----------
     source : str, path-like or array_like
-        A ``.tif``/``.tiff``, ``.png``, ``.bmp``, ``.jpg``/``.jpeg``, DaVis or Photron
-        (``.cihx``, ``.cih``, ``.mraw``) file, or an image array.
+        A ``.tif``/``.tiff``, ``.png``, ``.bmp``, ``.jpg``/``.jpeg``, DaVis, Photron
+        (``.cihx``, ``.cih``, ``.mraw``) or Phantom (``.cine``) file, or an image array.
     frame : int
-        Page of a multi-frame TIFF, image of a DaVis buffer or frame of a Photron recording
-        (0-based); must be 0 for other formats and arrays.
+        Page of a multi-frame TIFF, image of a DaVis buffer or frame of a high-speed
+        recording (0-based); must be 0 for other formats and arrays.
 
     Returns
     -------

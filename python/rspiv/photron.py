@@ -34,6 +34,7 @@ import functools
 import math
 import os
 import pathlib
+import typing
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -73,6 +74,7 @@ class PhotronRecording:
         The signal's bits are the upper ones of a 16 bit pixel (shifted down as read).
     """
 
+    KIND: typing.ClassVar[str] = "Photron"
     header: pathlib.Path
     data: pathlib.Path
     width: int
@@ -85,6 +87,11 @@ class PhotronRecording:
     camera: str
     start_frame: int
     upper: bool = False
+
+    @property
+    def source(self) -> pathlib.Path:
+        """The file the recording is named by (its header)."""
+        return self.header
 
     @property
     def frame_bytes(self) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import pathlib
 import time
@@ -22,8 +23,7 @@ from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_sh
 from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
-from rspiv.io import frame_count
-from rspiv.photron import PHOTRON_SUFFIXES, PhotronRecording, photron_recording
+from rspiv.io import camera_recording, frame_count
 from rspiv.progress import Progress
 from rspiv.stats import FieldAccumulator
 
@@ -288,8 +288,9 @@ class Campaign:
                 f"{len(state.sel)} pair(s) of {im.describe_pairing()}: {dt} is the time from "
                 f"frame k to frame k + {im.frame_gap}"
             )
-        if im.multiframe is not None and im.multiframe.suffix.lower() in PHOTRON_SUFFIXES:
-            self.info["recording_file"] = recording_file(self, photron_recording(im.multiframe))
+        rec = camera_recording(im.multiframe) if im.multiframe is not None else None
+        if rec is not None:  # a high-speed camera's own file: its figures and frame rate
+            self.info["recording_file"] = recording_file(self, rec)
         state.fields = self.field_writer()
         if state.fields is not None:
             first = ctx.runs[0].name
@@ -469,9 +470,10 @@ class Campaign:
         write_report(self, res, extra_sections)
 
 
-def recording_file(camp: Any, rec: PhotronRecording) -> dict[str, Any]:
+def recording_file(camp: Any, rec: Any) -> dict[str, Any]:
     """``summary.json``'s ``recording_file``: the figures of an ``[images] multiframe``
-    Photron recording (camera, frames, bit depth, frame rate), said in the run log.
+    high-speed recording (:func:`rspiv.io.camera_recording`: camera, frames, bit depth, frame
+    rate), said in the run log.
 
     With sequential pairing its frame rate fixes the time between a pair's frames: ``dt_s``
     is ``frame_gap`` frames at that rate, and a ``[flow] dt`` more than 1 % away from it is
@@ -481,13 +483,16 @@ def recording_file(camp: Any, rec: PhotronRecording) -> dict[str, Any]:
     im, dt = camp.config.images, camp.config.flow.dt
     fps = rec.fps if rec.fps > 0 else None
     info: dict[str, Any] = {
-        "file": str(rec.header), "camera": rec.camera, "frames": rec.frames,
+        "file": str(rec.source), "camera": rec.camera, "frames": rec.frames,
         "width": rec.width, "height": rec.height, "bits": rec.bits, "depth": rec.depth,
-        "fps": fps, "shutter_s": rec.shutter_s if rec.shutter_s > 0 else None,
+        "fps": fps,
     }  # fmt: skip
-    rate = f"{rec.fps:g} fps" if fps else "no frame rate in its header"
+    shutter = getattr(rec, "shutter_s", math.nan)
+    if shutter > 0:
+        info["shutter_s"] = shutter
+    rate = f"{rec.fps:g} fps" if fps else "no frame rate in the file"
     camp.say(
-        f"Photron recording {rec.header.name}: {rec.camera or 'camera not named'}, "
+        f"{rec.KIND} recording {rec.source.name}: {rec.camera + ', ' if rec.camera else ''}"
         f"{rec.frames} frames of {rec.width} x {rec.height} px, {rec.depth} of {rec.bits} bit, "
         f"{rate}"
     )
