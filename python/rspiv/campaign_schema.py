@@ -12,8 +12,7 @@ from typing import Any
 
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError
-from rspiv.phantom import PHANTOM_SUFFIXES
-from rspiv.photron import PHOTRON_SUFFIXES
+from rspiv.io import RECORDING_SUFFIXES
 from rspiv.settings import (
     DEFORMATIONS,
     INTERPOLATIONS,
@@ -46,10 +45,10 @@ class Ctx:
             raise self.err(where, "expected a path, got an empty string")
         pth = pathlib.Path(os.path.expanduser(v))
         suffix = pth.suffix.lower()
-        if tiff and suffix not in (".tif", ".tiff") + PHOTRON_SUFFIXES + PHANTOM_SUFFIXES:
+        if tiff and suffix not in (".tif", ".tiff") + RECORDING_SUFFIXES:
             raise self.err(
                 where, f"expected a multi-frame TIFF (.tif, .tiff) or a high-speed recording "
-                f"({', '.join(PHOTRON_SUFFIXES + PHANTOM_SUFFIXES)}), got {v!r}"
+                f"({', '.join(RECORDING_SUFFIXES)}), got {v!r}"
             )  # fmt: skip
         if image and not tiff and suffix not in IMAGE_SUFFIXES + ((".json",) if json_ok else ()):
             raise self.err(

@@ -32,8 +32,8 @@ import tifffile
 from PIL import Image
 
 from rspiv.errors import InvalidInputError
-from rspiv.phantom import PHANTOM_SUFFIXES, PhantomRecording, phantom_recording, read_phantom_frame
-from rspiv.photron import PHOTRON_SUFFIXES, PhotronRecording, photron_recording, read_photron_frame
+from rspiv.phantom import PHANTOM_SUFFIXES, PhantomRecording, phantom_recording
+from rspiv.photron import PHOTRON_SUFFIXES, PhotronRecording, photron_recording
 
 __all__ = [
     "DAVIS_SUFFIXES",
@@ -99,10 +99,8 @@ def _read_file(p: pathlib.Path, frame: int) -> np.ndarray:
                     f"{name}: frame {frame} out of range ({len(images)} frames)"
                 )
             return images[frame]
-        if ext in PHOTRON_SUFFIXES:
-            return read_photron_frame(photron_recording(p), frame)
-        if ext in PHANTOM_SUFFIXES:
-            return read_phantom_frame(phantom_recording(p), frame)
+        if ext in RECORDING_SUFFIXES:
+            return camera_recording(p).read(frame)
         if ext in _PIL:
             if frame != 0:
                 raise InvalidInputError(f"{name}: {ext} files hold a single frame")
@@ -230,8 +228,8 @@ RECORDING_SUFFIXES = PHOTRON_SUFFIXES + PHANTOM_SUFFIXES
 def camera_recording(path: str | os.PathLike) -> PhotronRecording | PhantomRecording | None:
     """The high-speed recording a file names (Photron ``.cihx``/``.cih``/``.mraw``, Phantom
     ``.cine``; checked, see :mod:`rspiv.photron` and :mod:`rspiv.phantom`), or None for any
-    other file. Both kinds give ``source``, ``camera``, ``width``, ``height``, ``frames``,
-    ``bits``, ``depth``, ``fps`` and ``dt``."""
+    other file. Both kinds give ``KIND``, ``source``, ``camera``, ``width``, ``height``,
+    ``frames``, ``bits``, ``depth``, ``fps``, ``shutter_s``, ``dt`` and ``read(index)``."""
     ext = pathlib.Path(path).suffix.lower()
     if ext in PHOTRON_SUFFIXES:
         return photron_recording(path)

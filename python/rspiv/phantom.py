@@ -74,6 +74,8 @@ class PhantomRecording:
         Each frame's offset in the file (its annotation's start).
     camera : str
         Empty: the cine's model is not read here.
+    shutter_s : float
+        NaN: the exposure is not read here.
     bottom_up : bool
         Rows stored bottom-up (a positive ``biHeight``, the usual case).
     """
@@ -91,6 +93,7 @@ class PhantomRecording:
     offsets: tuple[int, ...]
     camera: str = ""
     bottom_up: bool = True
+    shutter_s: float = math.nan
 
     @property
     def source(self) -> pathlib.Path:
@@ -101,6 +104,10 @@ class PhantomRecording:
     def dt(self) -> float:
         """Time between consecutive frames, s (NaN without a frame rate)."""
         return 1.0 / self.fps if self.fps > 0 else math.nan
+
+    def read(self, index: int) -> np.ndarray:
+        """Frame ``index``: :func:`read_phantom_frame`."""
+        return read_phantom_frame(self, index)
 
 
 def _unpack(fmt: str, raw: bytes, at: int, p: pathlib.Path, what: str) -> tuple:

@@ -103,6 +103,10 @@ class PhotronRecording:
         """Time between consecutive frames, s (NaN without a frame rate)."""
         return 1.0 / self.fps if self.fps > 0 else math.nan
 
+    def read(self, index: int) -> np.ndarray:
+        """Frame ``index``: :func:`read_photron_frame`."""
+        return read_photron_frame(self, index)
+
 
 def _sibling(p: pathlib.Path, suffixes: tuple[str, ...]) -> pathlib.Path | None:
     for s in suffixes:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 import pathlib
 import time
@@ -24,6 +23,8 @@ from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writabl
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
 from rspiv.io import camera_recording, frame_count
+from rspiv.phantom import PhantomRecording
+from rspiv.photron import PhotronRecording
 from rspiv.progress import Progress
 from rspiv.stats import FieldAccumulator
 
@@ -100,7 +101,7 @@ class Campaign:
             if not p.is_file():
                 raise InvalidInputError(f"[images].multiframe: {p}: no such file")
             try:
-                n = frame_count(p)  # TIFF pages or a Photron recording's frames
+                n = frame_count(p)  # TIFF pages or a high-speed recording's frames
             except InvalidInputError as exc:
                 raise InvalidInputError(f"[images].multiframe: {exc}") from None
             except Exception as exc:  # noqa: BLE001
@@ -470,7 +471,7 @@ class Campaign:
         write_report(self, res, extra_sections)
 
 
-def recording_file(camp: Any, rec: Any) -> dict[str, Any]:
+def recording_file(camp: Any, rec: PhotronRecording | PhantomRecording) -> dict[str, Any]:
     """``summary.json``'s ``recording_file``: the figures of an ``[images] multiframe``
     high-speed recording (:func:`rspiv.io.camera_recording`: camera, frames, bit depth, frame
     rate), said in the run log.
@@ -487,9 +488,8 @@ def recording_file(camp: Any, rec: Any) -> dict[str, Any]:
         "width": rec.width, "height": rec.height, "bits": rec.bits, "depth": rec.depth,
         "fps": fps,
     }  # fmt: skip
-    shutter = getattr(rec, "shutter_s", math.nan)
-    if shutter > 0:
-        info["shutter_s"] = shutter
+    if rec.shutter_s > 0:
+        info["shutter_s"] = rec.shutter_s
     rate = f"{rec.fps:g} fps" if fps else "no frame rate in the file"
     camp.say(
         f"{rec.KIND} recording {rec.source.name}: {rec.camera + ', ' if rec.camera else ''}"
