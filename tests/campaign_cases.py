@@ -61,3 +61,22 @@ def lean_config(cfg, *, keep: tuple[str, ...] = (), fields: bool = False):
         setattr(cfg.statistics, key, key in keep)
     cfg.output.fields = fields
     return cfg
+
+
+def sequential_config(out: pathlib.Path, dt: float = 0.0, **images):
+    """A time-resolved campaign of ``images`` (:class:`rspiv.campaign_config.ImagesConfig`
+    keys) paired sequentially, without calibration, wall or report, 32 -> 16 px windows, its
+    ``[flow] dt`` and output folder given: the high-speed recordings' tests."""
+    from rspiv.campaign_config import CampaignConfig, ImagesConfig
+
+    cfg = CampaignConfig()
+    cfg.images = ImagesConfig(pairing="sequential", **images)
+    cfg.correction.method = "none"
+    cfg.correction.compare_uncorrected = False
+    cfg.calibration.monte_carlo_samples = 0
+    cfg.wall.enabled = False
+    cfg.piv.passes = [(32, 32), (16, 16)]
+    cfg.flow.dt = dt
+    cfg.output.dir = out
+    cfg.output.report = False
+    return cfg

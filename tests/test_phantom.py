@@ -16,8 +16,8 @@ import struct
 import numpy as np
 import pytest
 import tifffile
+from campaign_cases import sequential_config
 from rspiv.campaign import Campaign
-from rspiv.campaign_config import CampaignConfig, ImagesConfig
 from rspiv.errors import InvalidInputError
 from rspiv.io import camera_recording, frame_count, read_image
 from rspiv.phantom import phantom_recording, read_phantom_frame
@@ -144,19 +144,7 @@ def test_a_time_resolved_campaign_from_a_cine(tmp_path):
     cine = _write(d / "rec.cine", frames, fps=2000.0)
     for k, f in enumerate(frames):
         tifffile.imwrite(d / f"frame_{k:03d}.tif", f)
-
-    def config(out, dt, **images):
-        cfg = CampaignConfig()
-        cfg.images = ImagesConfig(pairing="sequential", **images)
-        cfg.correction.method = "none"
-        cfg.correction.compare_uncorrected = False
-        cfg.calibration.monte_carlo_samples = 0
-        cfg.wall.enabled = False
-        cfg.piv.passes = [(32, 32), (16, 16)]
-        cfg.flow.dt = dt
-        cfg.output.dir = out
-        cfg.output.report = False
-        return cfg
+    config = sequential_config
 
     said: list[str] = []
     res = Campaign(config(tmp_path / "a", 5e-4, multiframe=cine), progress=False,

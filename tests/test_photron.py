@@ -15,8 +15,8 @@ import pathlib
 import numpy as np
 import pytest
 import tifffile
+from campaign_cases import sequential_config
 from rspiv.campaign import Campaign
-from rspiv.campaign_config import CampaignConfig, ImagesConfig
 from rspiv.errors import InvalidInputError
 from rspiv.io import frame_count, read_image
 from rspiv.photron import photron_recording, read_photron_frame
@@ -143,27 +143,13 @@ def test_bad_recordings_are_refused_in_one_line(tmp_path):
     (tmp_path / "junk.mraw").write_bytes(b"")
     with pytest.raises(InvalidInputError, match=r"junk.cihx: not a Photron .cihx header"):
         photron_recording(tmp_path / "junk.cihx")
-    for e in (pytest.raises(InvalidInputError),):
-        with e as info:
-            photron_recording(tmp_path / "missing.cihx")
-        assert "\n" not in str(info.value) and "no such file" in str(info.value)
+    with pytest.raises(InvalidInputError) as info:
+        photron_recording(tmp_path / "missing.cihx")
+    assert "\n" not in str(info.value) and "no such file" in str(info.value)
 
 
 SHAPE = (128, 192)
 FRAMES = 5
-
-
-def _config(out: pathlib.Path, **images) -> CampaignConfig:
-    cfg = CampaignConfig()
-    cfg.images = ImagesConfig(pairing="sequential", **images)
-    cfg.correction.method = "none"
-    cfg.correction.compare_uncorrected = False
-    cfg.calibration.monte_carlo_samples = 0
-    cfg.wall.enabled = False
-    cfg.piv.passes = [(32, 32), (16, 16)]
-    cfg.output.dir = out
-    cfg.output.report = False
-    return cfg
 
 
 def test_a_time_resolved_campaign_from_a_photron_recording(tmp_path):
@@ -179,15 +165,14 @@ def test_a_time_resolved_campaign_from_a_photron_recording(tmp_path):
     for k, f in enumerate(frames):
         tifffile.imwrite(d / f"frame_{k:03d}.tif", f)
     said: list[str] = []
-    cfg = _config(tmp_path / "a", multiframe=head, frame_gap=2)
-    cfg.flow.dt = 2 / 4000.0
+    cfg = sequential_config(tmp_path / "a", 2 / 4000.0, multiframe=head, frame_gap=2)
     camp = Campaign(cfg, progress=False, out_dir=tmp_path / "a", log=said.append)
     res = camp.run()
     assert [(p.frame_a, p.frame_b) for p in camp.pairs()] == [(0, 2), (1, 3), (2, 4)]
     assert any("Photron recording" in s and "4000 fps" in s for s in said)
     assert not any("WARNING" in s and "frame rate" in s for s in said)
-    ref_cfg = _config(tmp_path / "b", glob=str(d / "frame_*.tif"), frame_gap=2)
-    ref_cfg.flow.dt = 2 / 4000.0
+    ref_cfg = sequential_config(tmp_path / "b", 2 / 4000.0, glob=str(d / "frame_*.tif"),
+                                frame_gap=2)  # fmt: skip
     ref = Campaign(ref_cfg, progress=False, out_dir=tmp_path / "b").run()
     np.testing.assert_array_equal(
         res.accumulators["uncorrected"].mean_u, ref.accumulators["uncorrected"].mean_u
@@ -195,8 +180,7 @@ def test_a_time_resolved_campaign_from_a_photron_recording(tmp_path):
     assert np.nanmedian(res.accumulators["uncorrected"].mean_u) == pytest.approx(3.0, abs=0.05)
     # dt of one frame where the pairs are two frames apart: said, with the factor
     said.clear()
-    cfg = _config(tmp_path / "c", multiframe=head, frame_gap=2)
-    cfg.flow.dt = 1 / 4000.0
+    cfg = sequential_config(tmp_path / "c", 1 / 4000.0, multiframe=head, frame_gap=2)
     Campaign(cfg, progress=False, out_dir=tmp_path / "c", log=said.append).run()
     warn = [s for s in said if "WARNING" in s and "frame rate" in s]
     assert len(warn) == 1 and "0.0005 s" in warn[0] and "2x" in warn[0], said

@@ -497,6 +497,23 @@ mod tests {
         (u, v)
     }
 
+    /// A fit kept, with the vortex `(xc, yc, Gamma, r_c)` (y up, px) on the convection
+    /// `(0.3, -0.2)` of `field` to 1e-6, and all of the patch's variance explained.
+    fn assert_exact(f: &OseenFit, d: f64, (xc, yc, g, rc): (f64, f64, f64, f64)) {
+        assert!(f.ok, "{f:?}");
+        assert!(
+            (f.col * d - xc).abs() < 1e-6 && (-f.row * d - yc).abs() < 1e-6,
+            "{f:?}"
+        );
+        assert!((f.circulation / g - 1.0).abs() < 1e-6, "{f:?}");
+        assert!((f.radius / rc - 1.0).abs() < 1e-6, "{f:?}");
+        assert!(
+            (f.u - 0.3).abs() < 1e-6 && (f.v + 0.2).abs() < 1e-6,
+            "{f:?}"
+        );
+        assert!(f.fit > 1.0 - 1e-9, "{f:?}");
+    }
+
     #[test]
     fn exact_vortices_are_recovered() {
         // one vortex per field (another's far field would enter the patch), both senses
@@ -520,18 +537,7 @@ mod tests {
                 shear: false,
             };
             let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
-            assert!(f.ok, "{f:?}");
-            assert!(
-                (f.col * d - xc).abs() < 1e-6 && (-f.row * d - yc).abs() < 1e-6,
-                "{f:?}"
-            );
-            assert!((f.circulation / g - 1.0).abs() < 1e-6, "{f:?}");
-            assert!((f.radius / rc - 1.0).abs() < 1e-6, "{f:?}");
-            assert!(
-                (f.u - 0.3).abs() < 1e-6 && (f.v + 0.2).abs() < 1e-6,
-                "{f:?}"
-            );
-            assert!(f.fit > 1.0 - 1e-9);
+            assert_exact(&f, d, (xc, yc, g, rc));
             // the frame turned over: the circulation changes sign; a fit against the core's
             // sense of rotation is not kept
             let turned = OseenCore {
@@ -574,20 +580,9 @@ mod tests {
             shear: true,
         };
         let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
-        assert!(f.ok, "{f:?}");
-        assert!(
-            (f.col * d - xc).abs() < 1e-6 && (-f.row * d - yc).abs() < 1e-6,
-            "{f:?}"
-        );
-        assert!((f.circulation / g - 1.0).abs() < 1e-6, "{f:?}");
-        assert!((f.radius / rc - 1.0).abs() < 1e-6, "{f:?}");
-        assert!(
-            (f.u - 0.3).abs() < 1e-6 && (f.v + 0.2).abs() < 1e-6,
-            "{f:?}"
-        );
+        assert_exact(&f, d, (xc, yc, g, rc));
         assert!((f.shear + sh).abs() < 1e-8, "{f:?}"); // du/dy with rows down: -S
-        assert!(f.fit > 1.0 - 1e-9, "{f:?}");
-        // without the shear in the model the same vortex is fitted wrong
+                                                       // without the shear in the model the same vortex is fitted wrong
         let plain = OseenSettings { shear: false, ..s };
         let f0 = fit_cores(u.view(), v.view(), valid.view(), &[core], &plain).unwrap()[0];
         assert!(f0.shear.is_nan(), "{f0:?}");
