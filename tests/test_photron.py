@@ -15,8 +15,10 @@ import pathlib
 import numpy as np
 import pytest
 import tifffile
+import xarray as xr
 from campaign_cases import sequential_config
 from rspiv.campaign import Campaign
+from rspiv.cli import main
 from rspiv.errors import InvalidInputError
 from rspiv.io import frame_count, read_image
 from rspiv.photron import photron_recording, read_photron_frame
@@ -187,3 +189,35 @@ def test_a_time_resolved_campaign_from_a_photron_recording(tmp_path):
     info = json.loads((tmp_path / "c" / "summary.json").read_text())["recording_file"]
     assert info["fps"] == 4000.0 and info["dt_s"] == pytest.approx(5e-4)
     assert info["camera"] == "test" and "frame rate" in info["warning"]
+
+
+def test_rspiv_piv_and_check_take_two_frames_of_a_recording(tmp_path, capsys):
+    """``rspiv piv rec.cihx --frames I,J`` correlates frames I and J (2 frames of 1.5 px:
+    3 px), says how far apart in time they are, and names them in the output; ``rspiv check``
+    takes the same; bad ``--frames``, and ``--frames`` with two files, exit 2 in one line."""
+    frames = np.stack(list(particle_sequence(SHAPE, lambda x, y: (1.5 + 0 * y, 0 * y), FRAMES,
+                                             seed=4)))  # fmt: skip
+    head = _write(tmp_path, frames, 16, fps=4000.0)
+    out = tmp_path / "f.nc"
+    argv = ["piv", str(head), "--frames", "1,3", "--passes", "32x32,16x16", "-o", str(out)]
+    assert main(argv) == 0
+    said = capsys.readouterr().out
+    assert "Photron recording rec.cih: 5 frames of 192 x 128 px, 4000 fps: frames 1 and 3 are " \
+           "0.0005 s apart" in said  # fmt: skip
+    with xr.open_dataset(out) as ds:
+        assert ds.attrs["frame_a"].endswith("rec.cih[1]") and ds.attrs["frame_b"].endswith("[3]")
+        u = np.where(ds["valid"].values, ds["u"].values, np.nan)
+    assert np.nanmedian(u) == pytest.approx(3.0, abs=0.02)
+    assert main(["check", str(head), "--frames", "0,2"]) == 0
+    assert "frames 0 and 2 are 0.0005 s apart" in capsys.readouterr().out
+    tifffile.imwrite(tmp_path / "a.tif", frames[0])
+    for bad, msg in (
+        ([str(head), "--frames", "2"], "is not two frame numbers I,J"),
+        ([str(head), "--frames", "2,2"], "two different frames"),
+        ([str(head), "--frames", "0,9"], "frame 9 out of range (5 frames)"),
+        ([str(tmp_path / "a.tif"), str(tmp_path / "a.tif"), "--frames", "0,1"],
+         "frames pick two frames of one multi-frame file"),
+    ):  # fmt: skip
+        assert main(["check", *bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert msg in err and "\n" not in err, err

@@ -333,11 +333,18 @@ def read_image(source: str | os.PathLike | Any, frame: int = 0) -> np.ndarray:
     return _grey(np.asarray(source), "image")
 
 
-def read_pair(path_a, path_b=None) -> tuple[np.ndarray, np.ndarray]:
-    """Read a PIV image pair: two files, or one two-frame file (``path_b`` None: a TIFF stack
-    or a double-frame DaVis buffer, frames 0 and 1)."""
+def read_pair(path_a, path_b=None, frames: tuple[int, int] | None = None):
+    """Read a PIV image pair: two files, or two frames of one multi-frame file (``path_b``
+    None: a TIFF stack, a double-frame DaVis buffer or a high-speed recording; ``frames``, 0 and
+    1 by default). ``frames`` with two files is refused (InvalidInputError)."""
     if path_b is None:
-        return read_image(path_a, 0), read_image(path_a, 1)
+        i, j = (0, 1) if frames is None else frames
+        return read_image(path_a, i), read_image(path_a, j)
+    if frames is not None:
+        raise InvalidInputError(
+            f"{path_a}, {path_b}: frames pick two frames of one multi-frame file, and two files "
+            "were given"
+        )
     return read_image(path_a), read_image(path_b)
 
 

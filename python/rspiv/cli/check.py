@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import pathlib
 
-from rspiv.cli.piv import _passes
+from rspiv.cli.piv import _frames, _passes, recording_line
 from rspiv.errors import InvalidInputError
 from rspiv.io import read_mask, read_pair
 from rspiv.outputs import atomic_write_text
@@ -68,8 +68,12 @@ def _run(args) -> int:
     if args.frame_b is None and str(args.frame_a).lower().endswith(".toml"):
         figures = _campaign(args)
     else:
-        a, b = read_pair(args.frame_a, args.frame_b)
+        frames = _frames(args.frames)
+        a, b = read_pair(args.frame_a, args.frame_b, frames)
         names = args.frame_a if args.frame_b is None else f"{args.frame_a}, {args.frame_b}"
+        said = recording_line(args.frame_a, frames) if args.frame_b is None else None
+        if said:
+            print(said)
         mask = read_mask(args.mask, a.shape) if args.mask is not None else None
         passes = _passes(args.passes) if args.passes else None
         try:
@@ -98,11 +102,14 @@ def register(sub) -> None:
     )
     p.add_argument(
         "frame_a",
-        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), a two-frame TIFF or DaVis buffer, or "
-        "a campaign file (.toml: its first pair with its passes and mask, then the drift over "
-        "its run)",
+        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), a multi-frame file (TIFF stack, DaVis "
+        "buffer, Photron or Phantom recording), or a campaign file (.toml: its first pair with "
+        "its passes and mask, then the drift over its run)",
     )
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
+    p.add_argument(
+        "--frames", default=None, help="I,J: the two frames of a multi-frame file (0,1)"
+    )
     p.add_argument("--mask", default=None, help="mask image or polygon JSON (True = excluded)")
     p.add_argument(
         "--passes", default=None, help="the passes a campaign will use, WxH,... (64x64,32x32,32x8)"

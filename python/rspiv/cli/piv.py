@@ -21,7 +21,7 @@ from rspiv.correction import correct
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import CorrelationWarning, InvalidInputError, ParticleSizeWarning
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
-from rspiv.io import DAVIS_SUFFIXES, davis_info, read_mask, read_pair
+from rspiv.io import DAVIS_SUFFIXES, camera_recording, davis_info, read_mask, read_pair
 from rspiv.outputs import write_netcdf
 from rspiv.particle_size import as_recorded, warnings_for
 from rspiv.preprocess import Preprocess, condition_pair
@@ -66,6 +66,33 @@ def _passes(text: str) -> list[tuple[int, int]]:
         except ValueError as exc:
             raise InvalidInputError(f"--passes: {item!r} is not WxH") from exc
     return out
+
+
+def _frames(text: str | None) -> tuple[int, int] | None:
+    """``--frames I,J``: two frame indices (>= 0) of one multi-frame file, or None."""
+    if text is None:
+        return None
+    try:
+        i, j = (int(v) for v in text.split(","))
+    except ValueError:
+        raise InvalidInputError(f"--frames: {text!r} is not two frame numbers I,J") from None
+    if i < 0 or j < 0 or i == j:
+        raise InvalidInputError(f"--frames: {text!r}: two different frames, counted from 0")
+    return i, j
+
+
+def recording_line(path: str | pathlib.Path, frames: tuple[int, int] | None) -> str | None:
+    """One line on a high-speed recording read as a pair (its camera, frames and frame rate,
+    and the time between the two frames), or None for any other file."""
+    rec = camera_recording(path)
+    if rec is None:
+        return None
+    i, j = frames or (0, 1)
+    apart = f": frames {i} and {j} are {abs(j - i) * rec.dt:g} s apart" if rec.fps > 0 else ""
+    return (
+        f"{rec.KIND} recording {rec.source.name}: {rec.frames} frames of {rec.width} x "
+        f"{rec.height} px, {rec.fps:g} fps{apart}"
+    )
 
 
 def settings_from_args(args: argparse.Namespace) -> PivSettings:
@@ -116,7 +143,11 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidInputError(
             f"--derived: {out.name}: the Tecplot file's columns are fixed; write NetCDF (.nc)"
         )
-    a, b = read_pair(args.frame_a, args.frame_b)
+    frames = _frames(args.frames)
+    a, b = read_pair(args.frame_a, args.frame_b, frames)
+    said = recording_line(args.frame_a, frames) if args.frame_b is None else None
+    if said:
+        print(f"rspiv piv: {said}")
     davis = None
     if pathlib.Path(args.frame_a).suffix.lower() in DAVIS_SUFFIXES:
         davis = davis_info(args.frame_a)
@@ -166,8 +197,9 @@ def run(args: argparse.Namespace) -> int:
     small = warnings_for(field.particle_diameter, pre)
     ds = field.to_xarray(derived=args.derived)
     ds.attrs.update(small)  # "peak_locking" (as to_xarray has it), "hot_pixels"
-    ds.attrs["frame_a"] = str(args.frame_a)
-    ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else str(args.frame_a) + "[1]"
+    i, j = frames or (0, 1)
+    ds.attrs["frame_a"] = str(args.frame_a) + (f"[{i}]" if frames else "")
+    ds.attrs["frame_b"] = str(args.frame_b) if args.frame_b else f"{args.frame_a}[{j}]"
     ds.attrs["piv_settings"] = settings.to_json()
     if pre.enabled:
         ds.attrs["preprocess"] = json.dumps(pre.to_dict())
@@ -211,9 +243,15 @@ def register(sub) -> None:
     )
     p.add_argument(
         "frame_a",
-        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), or a two-frame TIFF or DaVis buffer",
+        help="first frame (TIFF/PNG/BMP/JPEG/DaVis .im7), or a multi-frame file: a TIFF stack, "
+        "a DaVis buffer, a Photron (.cihx/.cih/.mraw) or Phantom (.cine) recording",
     )
     p.add_argument("frame_b", nargs="?", default=None, help="second frame")
+    p.add_argument(
+        "--frames",
+        default=None,
+        help="I,J: the two frames of a multi-frame file that form the pair (0,1)",
+    )
     p.add_argument(
         "-o",
         "--output",
