@@ -221,3 +221,42 @@ def test_rspiv_piv_and_check_take_two_frames_of_a_recording(tmp_path, capsys):
         assert main(["check", *bad]) == 2
         err = capsys.readouterr().err.strip()
         assert msg in err and "\n" not in err, err
+
+
+def test_damaged_recordings_are_read_or_refused_in_one_line(tmp_path):
+    """Bytes of the real headers overwritten at random (the cine's headers and time stamps, the
+    ``.cihx``'s XML; a ``.cih``'s line cut and ended with junk), 300 files with a fixed seed:
+    every call returns a frame or raises InvalidInputError in one line; nothing else escapes."""
+    rng = np.random.default_rng(0)
+    cine = (REAL / "pims_cine_781_2frames.cine").read_bytes()
+    cihx = (REAL / "pymraw_beam_1frame.cihx").read_bytes()
+    cih = (REAL / "pymraw_sample_60k_16bit.cih").read_text(encoding="latin-1").splitlines()
+    mraw = (REAL / "pymraw_beam_1frame.mraw").read_bytes()
+    refused = 0
+    for k in range(300):
+        if k % 3 == 2:
+            lines = list(cih)
+            i = int(rng.integers(0, len(lines)))
+            lines[i] = lines[i][: int(rng.integers(0, len(lines[i]) + 1))] + str(
+                rng.choice(["", "9", "-1", "x", "99999999"])
+            )
+            p = tmp_path / f"f{k}.cih"
+            p.write_text("\n".join(lines), encoding="latin-1")
+            with open(tmp_path / f"f{k}.mraw", "wb") as f:
+                f.truncate(12 * 896 * 368 * 2)
+        else:
+            b = bytearray(cine if k % 3 == 0 else cihx)
+            for _ in range(int(rng.integers(1, 4))):
+                b[int(rng.integers(0, 11000))] = int(rng.integers(32, 256))
+            p = tmp_path / f"f{k}{'.cine' if k % 3 == 0 else '.cihx'}"
+            cut = int(rng.integers(40, len(b))) if k % 3 == 0 and rng.random() < 0.3 else len(b)
+            p.write_bytes(bytes(b[:cut]))
+            if k % 3 == 1:
+                (tmp_path / f"f{k}.mraw").write_bytes(mraw)
+        for frame in (0, 1):
+            try:
+                read_image(p, frame)
+            except InvalidInputError as exc:
+                assert "\n" not in str(exc) and p.stem in str(exc), repr(str(exc))
+                refused += 1
+    assert 0 < refused < 600
