@@ -20,7 +20,7 @@ from campaign_cases import sequential_config
 from rspiv.campaign import Campaign
 from rspiv.cli import main
 from rspiv.errors import InvalidInputError
-from rspiv.io import frame_count, read_image
+from rspiv.io import frame_count, read_image, recording_rate
 from rspiv.photron import photron_recording, read_photron_frame
 from rspiv.synth import particle_sequence
 
@@ -90,10 +90,14 @@ def test_frames_written_from_the_definition_read_back_exactly(tmp_path, bits, up
 
 def test_a_real_cihx_recording():
     """A FASTCAM SA-Z frame (1024 x 80 px at 50,000 fps, a 12 bit signal in 16 bit pixels):
-    the header's figures, and counts within 12 bits (read big-endian they would reach 65295)."""
+    the header's figures, and counts within 12 bits (read big-endian they would reach 65295).
+    Its ``skipFrame`` of 2500 with 4 frames of 400 recorded fits no save step: the time between
+    its frames is said to be unknown, not guessed."""
     rec = photron_recording(REAL / "pymraw_beam_1frame.cihx")
     assert (rec.width, rec.height, rec.frames, rec.bits, rec.depth) == (1024, 80, 1, 16, 12)
-    assert rec.fps == 50000.0 and rec.shutter_s == pytest.approx(5e-6)
+    assert rec.record_fps == 50000.0 and rec.shutter_s == pytest.approx(5e-6)
+    assert np.isnan(rec.fps) and "skipFrame is 2500" in rec.rate_note
+    assert recording_rate(rec) == rec.rate_note
     assert rec.camera == "FASTCAM SA-Z type 2100K-M-64GB"
     img = read_image(REAL / "pymraw_beam_1frame.mraw", 0)
     assert img.shape == (80, 1024) and img.dtype == np.uint16
@@ -104,14 +108,17 @@ def test_a_real_cihx_recording():
 
 def test_a_real_text_header(tmp_path):
     """The text ``.cih`` of a FASTCAM SA-Z (12 frames of 896 x 368 px at 60,000 fps, shutter
-    1/800000 s): read with a raw file of its size; one byte short is refused in one line."""
+    1/800000 s, every 36th frame saved: 1,666.7 fps in the file): read with a raw file of its
+    size; one byte short is refused in one line."""
     head = tmp_path / "sample.cih"
     head.write_bytes((REAL / "pymraw_sample_60k_16bit.cih").read_bytes())
     with open(tmp_path / "sample.mraw", "wb") as f:
         f.truncate(12 * 896 * 368 * 2)  # sparse: no frame is read
     rec = photron_recording(head)
     assert (rec.width, rec.height, rec.frames, rec.bits, rec.depth) == (896, 368, 12, 16, 12)
-    assert rec.fps == 60000.0 and rec.shutter_s == pytest.approx(1.25e-6)
+    assert rec.record_fps == 60000.0 and rec.step == 36 and rec.shutter_s == pytest.approx(1.25e-6)
+    assert rec.fps == pytest.approx(60000.0 / 36) and rec.dt == pytest.approx(6e-4)
+    assert recording_rate(rec) == "1666.67 fps (60000 fps recorded, every 36th frame saved)"
     assert rec.start_frame == 49300 and rec.camera == "FASTCAM SA-Z type 2100K-M-64GB"
     with open(tmp_path / "sample.mraw", "r+b") as f:
         f.truncate(12 * 896 * 368 * 2 - 1)

@@ -40,6 +40,7 @@ __all__ = [
     "JPEG_LOSSY",
     "RECORDING_SUFFIXES",
     "camera_recording",
+    "recording_rate",
     "davis_info",
     "frame_count",
     "jpeg_quality",
@@ -236,6 +237,18 @@ def camera_recording(path: str | os.PathLike) -> PhotronRecording | PhantomRecor
     if ext in PHANTOM_SUFFIXES:
         return phantom_recording(path)
     return None
+
+
+def recording_rate(rec: PhotronRecording | PhantomRecording) -> str:
+    """The frame rate of a recording's frames in words: ``"10000 fps"``, with the camera's
+    own rate when only every ``step``-th frame was saved, or why it is not known."""
+    step = getattr(rec, "step", 1)
+    note = getattr(rec, "rate_note", "")
+    if rec.fps > 0:
+        if step > 1:
+            return f"{rec.fps:g} fps ({rec.record_fps:g} fps recorded, every {step}th frame saved)"
+        return f"{rec.fps:g} fps"
+    return note or "no frame rate in the file"
 
 #: The IJG (libjpeg) luminance quantisation table at quality 50, natural order.
 _IJG_LUMA = np.array(

@@ -19,8 +19,9 @@ Pixels, as the camera stores them:
 Frames are returned as ``uint8`` (8 bit) or ``uint16``, ``image[y, x]``. Only monochrome
 recordings are read: a colour camera's frames (``Color``, or ``Raw``: the Bayer mosaic before
 demosaicing) are refused, since every particle image would carry the colour filter's 2 x 2
-pattern into the correlation peak. The header's frame rate gives the time between frames
-(:attr:`PhotronRecording.dt`); a campaign checks its ``[flow] dt`` against it.
+pattern into the correlation peak. The header's frame rate and save step (frames saved every
+``step`` recorded ones) give the time between the file's frames (:attr:`PhotronRecording.dt`);
+a campaign checks its ``[flow] dt`` against it.
 
 Errors raise :class:`rspiv.InvalidInputError` in one line naming the file: a header without
 its raw file (or the other way round), a field missing from the header, a raw file whose size
@@ -63,7 +64,18 @@ class PhotronRecording:
         Effective bit depth (the signal's bits; at most ``bits``: a 12 bit sensor saved in
         8 bit pixels is 8).
     fps : float
-        Frames per second (NaN if the header does not say).
+        Frames per second of the frames in the file (NaN if the header does not say): the
+        camera's ``record_fps`` over ``step``.
+    record_fps : float
+        The camera's frame rate (``Record Rate(fps)``, ``recordRate``).
+    step : int
+        Frames saved every ``step`` recorded ones (``Save Step`` of a ``.cih``; 1: every
+        frame). A real ``.cih`` (pyMRAW's ``sample_60k_16bit.cih``) says 12 frames saved with a
+        step of 36 of 677 recorded at 60,000 fps: 1,666.7 fps in the file.
+    rate_note : str
+        Why ``fps`` is NaN though the camera's rate is known, or "": a ``.cihx`` whose
+        ``skipFrame`` is over 1 (pyMRAW's ``beam.cihx``: 2500, with 4 frames of 400 recorded,
+        which no step of 2500 gives) leaves the time between the file's frames unknown.
     shutter_s : float
         Exposure time, s (NaN if the header does not say).
     camera : str
@@ -87,6 +99,9 @@ class PhotronRecording:
     camera: str
     start_frame: int
     upper: bool = False
+    record_fps: float = math.nan
+    step: int = 1
+    rate_note: str = ""
 
     @property
     def source(self) -> pathlib.Path:
@@ -145,6 +160,7 @@ def _cihx_fields(p: pathlib.Path) -> dict[str, str]:
         "EffectiveBit Side": "imageDataInfo/effectiveBit/side",
         "Total Frame": "frameInfo/totalFrame",
         "Start Frame": "frameInfo/startFrame",
+        "Skip Frame": "frameInfo/skipFrame",
         "Record Rate(fps)": "recordInfo/recordRate",
         "Shutter Speed(ns)": "recordInfo/shutterSpeedNsec",
         "Camera Type": "deviceInfo/deviceName",
@@ -216,10 +232,21 @@ def _open(path: str, stamp: tuple) -> PhotronRecording:
         fps = float(fields.get("Record Rate(fps)", "nan"))
     except ValueError:
         fps = math.nan
+    fps = fps if fps > 0 else math.nan
+    step = fields.get("Save Step", "1").strip()
+    step = int(step) if step.isdigit() and int(step) > 0 else 1
+    skip = fields.get("Skip Frame", "1").strip()
+    note = ""
+    if skip.isdigit() and int(skip) > 1:
+        note = (
+            f"its header's skipFrame is {skip}: the time between its frames is not known from "
+            f"the camera's {fps:g} fps"
+        )
     start = fields.get("Start Frame", "0")
     rec = PhotronRecording(
         header=header, data=data, width=w, height=h, frames=n, bits=bits, depth=depth,
-        fps=fps if fps > 0 else math.nan, shutter_s=_shutter(fields),
+        fps=math.nan if note else fps / step, record_fps=fps, step=step, rate_note=note,
+        shutter_s=_shutter(fields),
         camera=fields.get("Camera Type", ""), start_frame=int(start) if start.lstrip("-").isdigit()
         else 0, upper=fields.get("EffectiveBit Side", "Lower").lower().startswith("h"),
     )  # fmt: skip

@@ -22,7 +22,7 @@ from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_sh
 from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
-from rspiv.io import camera_recording, frame_count
+from rspiv.io import camera_recording, frame_count, recording_rate
 from rspiv.phantom import PhantomRecording
 from rspiv.photron import PhotronRecording
 from rspiv.progress import Progress
@@ -490,7 +490,7 @@ def recording_file(camp: Any, rec: PhotronRecording | PhantomRecording) -> dict[
     }  # fmt: skip
     if rec.shutter_s > 0:
         info["shutter_s"] = rec.shutter_s
-    rate = f"{rec.fps:g} fps" if fps else "no frame rate in the file"
+    rate = recording_rate(rec) + ("" if fps else ": [flow] dt is not checked")
     camp.say(
         f"{rec.KIND} recording {rec.source.name}: {rec.camera + ', ' if rec.camera else ''}"
         f"{rec.frames} frames of {rec.width} x {rec.height} px, {rec.depth} of {rec.bits} bit, "

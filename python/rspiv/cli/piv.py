@@ -21,7 +21,14 @@ from rspiv.correction import correct
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import CorrelationWarning, InvalidInputError, ParticleSizeWarning
 from rspiv.export import TECPLOT_SUFFIXES, write_tecplot
-from rspiv.io import DAVIS_SUFFIXES, camera_recording, davis_info, read_mask, read_pair
+from rspiv.io import (
+    DAVIS_SUFFIXES,
+    camera_recording,
+    davis_info,
+    read_mask,
+    read_pair,
+    recording_rate,
+)
 from rspiv.outputs import write_netcdf
 from rspiv.particle_size import as_recorded, warnings_for
 from rspiv.preprocess import Preprocess, condition_pair
@@ -91,7 +98,7 @@ def recording_line(path: str | pathlib.Path, frames: tuple[int, int] | None) -> 
     apart = f": frames {i} and {j} are {abs(j - i) * rec.dt:g} s apart" if rec.fps > 0 else ""
     return (
         f"{rec.KIND} recording {rec.source.name}: {rec.frames} frames of {rec.width} x "
-        f"{rec.height} px, {rec.fps:g} fps{apart}"
+        f"{rec.height} px, {recording_rate(rec)}{apart}"
     )
 
 
