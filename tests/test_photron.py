@@ -21,7 +21,7 @@ from rspiv.campaign import Campaign
 from rspiv.cli import main
 from rspiv.errors import InvalidInputError
 from rspiv.io import frame_count, read_image, recording_rate
-from rspiv.photron import photron_recording, read_photron_frame
+from rspiv.photron import photron_header, photron_recording, read_photron_frame
 from rspiv.synth import particle_sequence
 
 REAL = pathlib.Path(__file__).parent / "data" / "real"
@@ -37,11 +37,12 @@ def _pack12(frame: np.ndarray) -> bytes:
 
 def _write(d: pathlib.Path, frames: np.ndarray, bits: int, *, upper: bool = False,
            colour: str = "Mono", fps: float = 2000.0, name: str = "rec",
-           depth: int | None = None) -> pathlib.Path:
-    """A text ``.cih`` header and its ``.mraw`` (``frames``: counts of a 12 bit signal)."""
+           depth: int | None = None, fmt: str = "MRaw") -> pathlib.Path:
+    """A text ``.cih`` header and its ``.mraw`` (``frames``: counts of a 12 bit signal; no
+    ``.mraw`` for another ``fmt``: frames exported as image files)."""
     n, h, w = frames.shape
     depth = depth or (8 if bits == 8 else 12)
-    with open(d / f"{name}.mraw", "wb") as f:
+    with open(d / f"{name}.mraw" if fmt == "MRaw" else d / "unused.bin", "wb") as f:
         for fr in frames:
             if bits == 8:
                 f.write(fr.astype(np.uint8).tobytes())
@@ -55,7 +56,7 @@ def _write(d: pathlib.Path, frames: np.ndarray, bits: int, *, upper: bool = Fals
         "#Camera Information Header\n"
         f"Record Rate(fps) : {fps:g}\nShutter Speed(s) : 1/20000\nTotal Frame : {n}\n"
         f"Start Frame : -10\nImage Width : {w}\nImage Height : {h}\nColor Type : {colour}\n"
-        f"Color Bit : {bits}\nFile Format : MRaw\nEffectiveBit Depth : {depth}\n"
+        f"Color Bit : {bits}\nFile Format : {fmt}\nEffectiveBit Depth : {depth}\n"
         f"EffectiveBit Side : {'Higher' if upper else 'Lower'}\nCamera Type : test\n"
     )
     return head
@@ -267,3 +268,42 @@ def test_damaged_recordings_are_read_or_refused_in_one_line(tmp_path):
                 assert "\n" not in str(exc) and p.stem in str(exc), repr(str(exc))
                 refused += 1
     assert 0 < refused < 600
+
+
+def test_frames_exported_beside_their_header(tmp_path):
+    """Frames exported as TIFF files with the camera's ``.cih`` beside them (PFV's export; a
+    real one: PIVsuite's Tububu recording, ``benches/RESULTS.md``): a ``glob`` campaign names
+    the camera and checks ``[flow] dt`` against the header's rate; a header of another frame
+    size, or two headers, are not used. The header alone reads no frame."""
+    frames = np.stack(list(particle_sequence(SHAPE, lambda x, y: (1.5 + 0 * y, 0 * y), FRAMES,
+                                             seed=6)))  # fmt: skip
+    d = tmp_path / "export"
+    d.mkdir()
+    for k, f in enumerate(frames):
+        tifffile.imwrite(d / f"Img{k + 1:06d}.tif", f)
+    head = _write(d, frames[:1], 16, fps=5000.0, name="Img", fmt="Tiff")
+    rec = photron_header(head)
+    assert rec.data is None and rec.fps == 5000.0 and rec.file_format == "Tiff"
+    with pytest.raises(InvalidInputError, match="frames exported as Tiff files: read those"):
+        rec.read(0)
+    with pytest.raises(InvalidInputError, match="saved as 'Tiff', not MRaw: read the exported"):
+        read_image(head)
+    said: list[str] = []
+    cfg = sequential_config(tmp_path / "a", 1 / 5000.0, glob=str(d / "Img*.tif"))
+    Campaign(cfg, progress=False, out_dir=tmp_path / "a", log=said.append).run()
+    assert any("Photron header Img.cih beside the frames (Tiff files)" in s for s in said)
+    assert not any("WARNING" in s and "frame rate" in s for s in said)
+    info = json.loads((tmp_path / "a" / "summary.json").read_text())["recording_file"]
+    assert info["exported_as"] == "Tiff" and info["dt_s"] == pytest.approx(2e-4)
+    said.clear()
+    cfg = sequential_config(tmp_path / "b", 1 / 2500.0, glob=str(d / "Img*.tif"))
+    Campaign(cfg, progress=False, out_dir=tmp_path / "b", log=said.append).run()
+    assert sum("WARNING" in s and "0.5x its true value" in s for s in said) == 1
+    # a header of another frame size is said and not used
+    _write(d, np.zeros((1, 64, 64)), 16, name="Img", fmt="Tiff")
+    said.clear()
+    cfg = sequential_config(tmp_path / "c", 1 / 5000.0, glob=str(d / "Img*.tif"))
+    Campaign(cfg, progress=False, out_dir=tmp_path / "c", log=said.append).run()
+    assert any("Img.cih beside the frames is not used: it describes frames of 64 x 64 px, "
+               "these are 192 x 128" in s for s in said)  # fmt: skip
+    assert "recording_file" not in json.loads((tmp_path / "c" / "summary.json").read_text())

@@ -42,7 +42,13 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["PHOTRON_SUFFIXES", "PhotronRecording", "photron_recording", "read_photron_frame"]
+__all__ = [
+    "PHOTRON_SUFFIXES",
+    "PhotronRecording",
+    "photron_header",
+    "photron_recording",
+    "read_photron_frame",
+]
 
 #: A Photron recording is named by its header (``.cihx``, ``.cih``) or its frames (``.mraw``).
 PHOTRON_SUFFIXES = (".cihx", ".cih", ".mraw")
@@ -55,7 +61,8 @@ class PhotronRecording:
     Attributes
     ----------
     header, data : pathlib.Path
-        The header (``.cihx`` / ``.cih``) and the raw frames (``.mraw``).
+        The header (``.cihx`` / ``.cih``) and the raw frames (``.mraw``; None for a header whose
+        frames were exported as image files, :func:`photron_header`).
     width, height, frames : int
         Frame size (px) and the number of frames in the raw file.
     bits : int
@@ -76,6 +83,8 @@ class PhotronRecording:
         Why ``fps`` is NaN though the camera's rate is known, or "": a ``.cihx`` whose
         ``skipFrame`` is over 1 (pyMRAW's ``beam.cihx``: 2500, with 4 frames of 400 recorded,
         which no step of 2500 gives) leaves the time between the file's frames unknown.
+    file_format : str
+        How the frames were saved (``MRaw``, or an image format they were exported in).
     shutter_s : float
         Exposure time, s (NaN if the header does not say).
     camera : str
@@ -88,7 +97,7 @@ class PhotronRecording:
 
     KIND: typing.ClassVar[str] = "Photron"
     header: pathlib.Path
-    data: pathlib.Path
+    data: pathlib.Path | None
     width: int
     height: int
     frames: int
@@ -102,6 +111,7 @@ class PhotronRecording:
     record_fps: float = math.nan
     step: int = 1
     rate_note: str = ""
+    file_format: str = "MRaw"
 
     @property
     def source(self) -> pathlib.Path:
@@ -186,7 +196,9 @@ def _shutter(fields: dict[str, str]) -> float:
         return math.nan
 
 
-def _integer(fields: dict[str, str], key: str, header: pathlib.Path) -> int:
+def _integer(fields: dict[str, str], key: str, header: pathlib.Path, default=None) -> int:
+    if key not in fields and default is not None:
+        return default
     try:
         return int(fields[key])
     except KeyError:
@@ -198,20 +210,9 @@ def _integer(fields: dict[str, str], key: str, header: pathlib.Path) -> int:
 
 
 @functools.lru_cache(maxsize=16)
-def _open(path: str, stamp: tuple) -> PhotronRecording:
-    p = pathlib.Path(path)
-    if p.suffix.lower() == ".mraw":
-        data, header = p, _sibling(p, (".cihx", ".cih"))
-        if header is None:
-            raise InvalidInputError(f"{p}: no Photron header beside it ({p.stem}.cihx or .cih)")
-    else:
-        header, data = p, _sibling(p, (".mraw",))
-        if data is None:
-            raise InvalidInputError(f"{p}: no raw frames beside it ({p.stem}.mraw)")
+def _parse(header: pathlib.Path, stamp: tuple) -> PhotronRecording:
+    """The recording a header describes, its frames not looked at (``data`` None)."""
     fields = _cihx_fields(header) if header.suffix.lower() == ".cihx" else _cih_fields(header)
-    fmt = fields.get("File Format", "MRaw")
-    if fmt.lower() != "mraw":
-        raise InvalidInputError(f"{header}: the recording was saved as {fmt!r}, not MRaw")
     colour = fields.get("Color Type", "Mono")
     if colour.lower() != "mono":
         raise InvalidInputError(
@@ -221,7 +222,7 @@ def _open(path: str, stamp: tuple) -> PhotronRecording:
     w, h = _integer(fields, "Image Width", header), _integer(fields, "Image Height", header)
     n, bits = _integer(fields, "Total Frame", header), _integer(fields, "Color Bit", header)
     # a sensor deeper than the pixels saved (a 12 bit camera's 8 bit file): every bit is signal
-    depth = min(int(fields.get("EffectiveBit Depth", bits) or bits), bits)
+    depth = min(_integer(fields, "EffectiveBit Depth", header, bits), bits)
     if bits not in (8, 12, 16) or depth <= 0:
         raise InvalidInputError(
             f"{header}: {bits} bit pixels of effective depth {depth} (8, 12 or 16 bit are read)"
@@ -233,30 +234,48 @@ def _open(path: str, stamp: tuple) -> PhotronRecording:
     except ValueError:
         fps = math.nan
     fps = fps if fps > 0 else math.nan
-    step = fields.get("Save Step", "1").strip()
-    step = int(step) if step.isdigit() and int(step) > 0 else 1
-    skip = fields.get("Skip Frame", "1").strip()
+    step = max(_integer(fields, "Save Step", header, 1), 1)
+    skip = _integer(fields, "Skip Frame", header, 1)
     note = ""
-    if skip.isdigit() and int(skip) > 1:
+    if skip > 1:
         note = (
             f"its header's skipFrame is {skip}: the time between its frames is not known from "
             f"the camera's {fps:g} fps"
         )
-    start = fields.get("Start Frame", "0")
-    rec = PhotronRecording(
-        header=header, data=data, width=w, height=h, frames=n, bits=bits, depth=depth,
+    return PhotronRecording(
+        header=header, data=None, width=w, height=h, frames=n, bits=bits, depth=depth,
         fps=math.nan if note else fps / step, record_fps=fps, step=step, rate_note=note,
-        shutter_s=_shutter(fields),
-        camera=fields.get("Camera Type", ""), start_frame=int(start) if start.lstrip("-").isdigit()
-        else 0, upper=fields.get("EffectiveBit Side", "Lower").lower().startswith("h"),
+        shutter_s=_shutter(fields), camera=fields.get("Camera Type", ""),
+        start_frame=_integer(fields, "Start Frame", header, 0),
+        upper=fields.get("EffectiveBit Side", "Lower").lower().startswith("h"),
+        file_format=fields.get("File Format", "MRaw"),
     )  # fmt: skip
-    size = data.stat().st_size
-    if size != n * rec.frame_bytes:
+
+
+@functools.lru_cache(maxsize=16)
+def _open(path: str, stamp: tuple) -> PhotronRecording:
+    p = pathlib.Path(path)
+    if p.suffix.lower() == ".mraw":
+        data, header = p, _sibling(p, (".cihx", ".cih"))
+        if header is None:
+            raise InvalidInputError(f"{p}: no Photron header beside it ({p.stem}.cihx or .cih)")
+    else:
+        header, data = p, _sibling(p, (".mraw",))
+    rec = _parse(header, stamp)
+    if rec.file_format.lower() != "mraw":
         raise InvalidInputError(
-            f"{data}: {size} bytes, where {header.name} says {n} frames of {w} x {h} px at {bits} "
-            f"bit ({n * rec.frame_bytes} bytes)"
+            f"{header}: the recording was saved as {rec.file_format!r}, not MRaw: read the "
+            "exported image files"
         )
-    return rec
+    if data is None:
+        raise InvalidInputError(f"{p}: no raw frames beside it ({p.stem}.mraw)")
+    size = data.stat().st_size
+    if size != rec.frames * rec.frame_bytes:
+        raise InvalidInputError(
+            f"{data}: {size} bytes, where {header.name} says {rec.frames} frames of {rec.width} x "
+            f"{rec.height} px at {rec.bits} bit ({rec.frames * rec.frame_bytes} bytes)"
+        )
+    return dataclasses.replace(rec, data=data)
 
 
 def photron_recording(path: str | os.PathLike) -> PhotronRecording:
@@ -285,6 +304,25 @@ def photron_recording(path: str | os.PathLike) -> PhotronRecording:
     return _open(str(p.resolve()), stamps)
 
 
+def photron_header(path: str | os.PathLike) -> PhotronRecording:
+    """The recording a Photron header (``.cihx``, ``.cih``) describes, whatever its frames'
+    format: for frames exported as image files (``File Format`` Bmp, Tiff, ...) beside it, its
+    camera and frame rate. ``data`` is None; its frames are not read through it.
+
+    Raises
+    ------
+    InvalidInputError
+        A missing file or field, a colour recording (module docs).
+    """
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"{p}: no such file")
+    if p.suffix.lower() not in (".cihx", ".cih"):
+        raise InvalidInputError(f"{p}: not a Photron header (.cihx, .cih)")
+    st = p.stat()
+    return _parse(p.resolve(), (st.st_mtime_ns, st.st_size))
+
+
 def read_photron_frame(rec: PhotronRecording, index: int) -> np.ndarray:
     """Frame ``index`` (0-based, in file order) of a recording: ``uint8`` or ``uint16``
     ``image[y, x]``, counts from 0 to ``2**rec.depth - 1`` (module docs). Only its bytes are
@@ -295,6 +333,10 @@ def read_photron_frame(rec: PhotronRecording, index: int) -> np.ndarray:
     InvalidInputError
         ``index`` outside ``0 .. rec.frames - 1``, or a raw file cut short since it was opened.
     """
+    if rec.data is None:
+        raise InvalidInputError(
+            f"{rec.header}: frames exported as {rec.file_format} files: read those files"
+        )
     if not 0 <= index < rec.frames:
         raise InvalidInputError(f"{rec.data}: frame {index} out of range ({rec.frames} frames)")
     nb = rec.frame_bytes

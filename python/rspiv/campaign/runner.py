@@ -24,7 +24,7 @@ from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
 from rspiv.io import camera_recording, frame_count, recording_rate
 from rspiv.phantom import PhantomRecording
-from rspiv.photron import PhotronRecording
+from rspiv.photron import PhotronRecording, photron_header
 from rspiv.progress import Progress
 from rspiv.stats import FieldAccumulator
 
@@ -290,6 +290,8 @@ class Campaign:
                 f"frame k to frame k + {im.frame_gap}"
             )
         rec = camera_recording(im.multiframe) if im.multiframe is not None else None
+        if rec is None and im.glob is not None:  # frames exported beside the camera's header
+            rec = exported_recording(self, pathlib.Path(im.glob).parent, ctx.image_shape)
         if rec is not None:  # a high-speed camera's own file: its figures and frame rate
             self.info["recording_file"] = recording_file(self, rec)
         state.fields = self.field_writer()
@@ -491,8 +493,13 @@ def recording_file(camp: Any, rec: PhotronRecording | PhantomRecording) -> dict[
     if rec.shutter_s > 0:
         info["shutter_s"] = rec.shutter_s
     rate = recording_rate(rec) + ("" if fps else ": [flow] dt is not checked")
+    what = f"{rec.KIND} recording {rec.source.name}"
+    exported = getattr(rec, "file_format", "MRaw")
+    if exported.lower() != "mraw":
+        what = f"{rec.KIND} header {rec.source.name} beside the frames ({exported} files)"
+        info["exported_as"] = exported
     camp.say(
-        f"{rec.KIND} recording {rec.source.name}: {rec.camera + ', ' if rec.camera else ''}"
+        f"{what}: {rec.camera + ', ' if rec.camera else ''}"
         f"{rec.frames} frames of {rec.width} x {rec.height} px, {rec.depth} of {rec.bits} bit, "
         f"{rate}"
     )
@@ -513,3 +520,27 @@ def recording_file(camp: Any, rec: PhotronRecording | PhantomRecording) -> dict[
             f"frame k: [flow] dt = {expected:g} gives velocities per second"
         )
     return info
+
+
+def exported_recording(
+    camp: Any, folder: pathlib.Path, shape: tuple[int, int]
+) -> PhotronRecording | None:
+    """The Photron header beside frames exported as image files (PFV writes ``name.cih`` beside
+    ``name000001.bmp``, ...): the one ``.cih``/``.cihx`` in the glob's folder, if its frames are
+    the frames' size (either way round: ``[images] rotate``), else None. A header that cannot
+    be read, or is of another size, is said and not used."""
+    heads = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".cih", ".cihx"))
+    if len(heads) != 1:
+        return None
+    try:
+        rec = photron_header(heads[0])
+    except InvalidInputError as exc:
+        camp.say(f"the Photron header beside the frames is not used: {exc}")
+        return None
+    if sorted((rec.width, rec.height)) != sorted(shape):
+        camp.say(
+            f"the Photron header {heads[0].name} beside the frames is not used: it describes "
+            f"frames of {rec.width} x {rec.height} px, these are {shape[1]} x {shape[0]}"
+        )
+        return None
+    return rec
