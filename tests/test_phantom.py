@@ -121,6 +121,8 @@ def test_bad_cines_are_refused_in_one_line(tmp_path):
         with pytest.raises(InvalidInputError, match=msg) as info:
             read_image(f, 0)
         assert "\n" not in str(info.value) and f"bad{k}.cine" in str(info.value)
+    with pytest.raises(InvalidInputError, match=r"gone.cine: no such file"):
+        phantom_recording(tmp_path / "gone.cine")
     (tmp_path / "junk.cine").write_bytes(b"\0" * 100)
     with pytest.raises(InvalidInputError, match="not a Phantom cine file"):
         frame_count(tmp_path / "junk.cine")

@@ -20,7 +20,7 @@ from campaign_cases import sequential_config
 from rspiv.campaign import Campaign
 from rspiv.cli import main
 from rspiv.errors import InvalidInputError
-from rspiv.io import frame_count, read_image, recording_rate
+from rspiv.io import camera_recording, frame_count, read_image, recording_rate
 from rspiv.photron import photron_header, photron_recording, read_photron_frame
 from rspiv.synth import particle_sequence
 
@@ -286,6 +286,11 @@ def test_frames_exported_beside_their_header(tmp_path):
     assert rec.data is None and rec.fps == 5000.0 and rec.file_format == "Tiff"
     with pytest.raises(InvalidInputError, match="frames exported as Tiff files: read those"):
         rec.read(0)
+    with pytest.raises(InvalidInputError, match=r"Img000001.tif: not a Photron header"):
+        photron_header(d / "Img000001.tif")
+    with pytest.raises(InvalidInputError, match=r"gone.cih: no such file"):
+        photron_header(d / "gone.cih")
+    assert camera_recording(d / "Img000001.tif") is None
     with pytest.raises(InvalidInputError, match="saved as 'Tiff', not MRaw: read the exported"):
         read_image(head)
     said: list[str] = []
