@@ -497,6 +497,30 @@ mod tests {
         (u, v)
     }
 
+    /// The core a threshold finds about the vortex `(xc, yc, Gamma, r_c)` (y up, px: its
+    /// centroid and radius off the vortex's own) on a grid of `d` px, and the fit's settings.
+    fn core_and_settings(
+        d: f64,
+        (xc, yc, g, rc): (f64, f64, f64, f64),
+        shear: bool,
+    ) -> (OseenCore, OseenSettings) {
+        let core = OseenCore {
+            col: xc / d + 0.6,
+            row: -yc / d - 0.4,
+            radius: 0.8 * rc,
+            sign: g.signum(),
+        };
+        let s = OseenSettings {
+            dx: d,
+            dy: d,
+            reach: 2.5,
+            orient: 1.0,
+            max_evals: 100,
+            shear,
+        };
+        (core, s)
+    }
+
     /// A fit kept, with the vortex `(xc, yc, Gamma, r_c)` (y up, px) on the convection
     /// `(0.3, -0.2)` of `field` to 1e-6, and all of the patch's variance explained.
     fn assert_exact(f: &OseenFit, d: f64, (xc, yc, g, rc): (f64, f64, f64, f64)) {
@@ -521,21 +545,7 @@ mod tests {
         for (xc, yc, g, rc) in [(100.0, -80.0, 300.0, 10.0), (160.0, -150.0, -180.0, 7.0)] {
             let (u, v) = field(60, 90, d, &[(xc, yc, g, rc)], (0.3, -0.2));
             let valid = Array2::from_elem(u.dim(), true);
-            // the centroid and radius of a thresholded core are off the vortex's own
-            let core = OseenCore {
-                col: xc / d + 0.6,
-                row: -yc / d - 0.4,
-                radius: 0.8 * rc,
-                sign: g.signum(),
-            };
-            let s = OseenSettings {
-                dx: d,
-                dy: d,
-                reach: 2.5,
-                orient: 1.0,
-                max_evals: 100,
-                shear: false,
-            };
+            let (core, s) = core_and_settings(d, (xc, yc, g, rc), false);
             let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
             assert_exact(&f, d, (xc, yc, g, rc));
             // the frame turned over: the circulation changes sign; a fit against the core's
@@ -565,24 +575,12 @@ mod tests {
         };
         let (u, v) = sheared(&[(xc, yc, g, rc)]);
         let valid = Array2::from_elem(u.dim(), true);
-        let core = OseenCore {
-            col: xc / d + 0.6,
-            row: -yc / d - 0.4,
-            radius: 0.8 * rc,
-            sign: 1.0,
-        };
-        let s = OseenSettings {
-            dx: d,
-            dy: d,
-            reach: 2.5,
-            orient: 1.0,
-            max_evals: 100,
-            shear: true,
-        };
+        let (core, s) = core_and_settings(d, (xc, yc, g, rc), true);
         let f = fit_cores(u.view(), v.view(), valid.view(), &[core], &s).unwrap()[0];
         assert_exact(&f, d, (xc, yc, g, rc));
-        assert!((f.shear + sh).abs() < 1e-8, "{f:?}"); // du/dy with rows down: -S
-                                                       // without the shear in the model the same vortex is fitted wrong
+        // du/dy with rows down: -S
+        assert!((f.shear + sh).abs() < 1e-8, "{f:?}");
+        // without the shear in the model the same vortex is fitted wrong
         let plain = OseenSettings { shear: false, ..s };
         let f0 = fit_cores(u.view(), v.view(), valid.view(), &[core], &plain).unwrap()[0];
         assert!(f0.shear.is_nan(), "{f0:?}");
