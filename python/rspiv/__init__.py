@@ -11,6 +11,7 @@ from rspiv.boundary_layer import BoundaryLayerResult, analyse_profile
 from rspiv.calibration import Calibration, calibrate, calibrate_points
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
+from rspiv.compare import FieldComparison, compare_fields
 from rspiv.conditional import ConditionalAccumulator
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
@@ -39,6 +40,7 @@ from rspiv.spod import SpodResult, spod
 from rspiv.stats import FieldAccumulator
 from rspiv.temporal import TemporalAccumulator
 from rspiv.two_point import TwoPointAccumulator
+from rspiv.vector_files import VectorFile, read_vectors
 from rspiv.vortices import find_vortices, fit_oseen
 from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
@@ -60,3 +62,4 @@ __all__ += ["fit_oseen"]
 __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording"]
 __all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds", "ConditionalAccumulator"]
 __all__ += ["TemporalAccumulator", "SpodResult", "spod"]
+__all__ += ["VectorFile", "read_vectors", "FieldComparison", "compare_fields"]

@@ -133,8 +133,35 @@ def _lvpyio(name: str) -> Any:
     return lvpyio
 
 
+#: The most values a DaVis buffer's header may announce: 2**28 (a 47 MP double frame is 2**26.5),
+#: and at most 1024 per byte of the file (DaVis' compression of images and vector fields stays
+#: far below that). A damaged header announcing more is refused before lvpyio allocates it.
+_DAVIS_MAX_VALUES = 1 << 28
+
+
+def _davis_header_check(p: pathlib.Path) -> None:
+    """Refuse a DaVis buffer whose header announces absurd sizes (little-endian int32 sizeX,
+    sizeY, sizeZ, sizeF at bytes 8-23 of IMX/IM7/VC7 headers), which lvpyio would allocate."""
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(24)
+        size = p.stat().st_size
+    except OSError as exc:
+        raise InvalidInputError(f"{p}: cannot read: {exc}") from None
+    if len(head) < 24:
+        raise InvalidInputError(f"{p}: cannot read the DaVis buffer: {len(head)} bytes only")
+    dims = [int.from_bytes(head[k : k + 4], "little", signed=True) for k in (8, 12, 16, 20)]
+    count = dims[0] * dims[1] * dims[2] * dims[3]
+    if min(dims) < 1 or count > min(_DAVIS_MAX_VALUES, 1024 * max(size, 1)):
+        raise InvalidInputError(
+            f"{p}: cannot read the DaVis buffer: its header announces "
+            f"{' x '.join(map(str, dims))} values in a file of {size} bytes (damaged or cut)"
+        )
+
+
 def _davis_buffer(p: pathlib.Path) -> Any:
     lv = _lvpyio(str(p))
+    _davis_header_check(p)
     try:
         return lv.read_buffer(str(p))
     except Exception as exc:  # truncated or foreign file: lvpyio raises various types

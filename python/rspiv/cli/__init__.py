@@ -19,6 +19,7 @@ _COMMANDS: list[str] = [
     "rspiv.cli.calibrate",
     "rspiv.cli.check",
     "rspiv.cli.piv",
+    "rspiv.cli.compare",
     "rspiv.cli.dewarp",
     "rspiv.cli.wall",
     "rspiv.cli.process",

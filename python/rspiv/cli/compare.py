@@ -1,0 +1,64 @@
+"""``rspiv compare REFERENCE FIELD``: how far two vector fields of one pair agree.
+
+The reference is the lab's result of another tool (DaVis ``.vc7``, OpenPIV ``.txt``, PIVlab
+``.mat``) and the field rspiv's (``rspiv piv A.tif B.tif -o field.nc``), or any two of them
+(:mod:`rspiv.vector_files` gives each format's conventions, :mod:`rspiv.compare` the figures).
+The report goes to stdout; a suspected convention error (y upward, positions shifted, another
+dt) or a poor coverage is said on stderr as well. ``--json`` writes the figures and the rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rspiv.compare import compare_fields
+from rspiv.outputs import atomic_write_text
+from rspiv.vector_files import read_vectors
+
+
+def run(args: argparse.Namespace) -> int:
+    ref = read_vectors(
+        args.reference, frame=args.frame, y_up=args.y_up, scale=args.scale, dt=args.dt
+    )
+    fld = read_vectors(args.field, frame=args.field_frame)
+    for f in (ref, fld):
+        print(f.describe())
+        for note in f.notes:
+            print(f"  ({note})")
+    c = compare_fields(ref, fld, threshold=args.threshold)
+    print(c.report())
+    if args.rows:
+        print("  rows: y px, vectors, mean du, mean dv, rms px")
+        for y, n, du, dv, rms in c.rows:
+            print(f"  {y:9.2f} {n:6d} {du:+9.4f} {dv:+9.4f} {rms:9.4f}")
+    if args.json:
+        atomic_write_text(args.json, c.to_json() + "\n")
+    if c.warning:
+        print(f"rspiv compare: warning: {c.warning}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "compare",
+        help="how far two vector fields of one pair agree (rspiv against DaVis, OpenPIV, PIVlab)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("reference", help="the reference field (.vc7, .txt/.vec, .mat, .nc, .dat)")
+    p.add_argument("field", help="the field to compare (e.g. rspiv piv's .nc)")
+    p.add_argument("--frame", type=int, default=0, help="the reference's frame or PIVlab pair")
+    p.add_argument("--field-frame", type=int, default=0, help="the field's frame or pair")
+    p.add_argument(
+        "--y-up", action="store_true",
+        help="the reference (OpenPIV text) has y and v upward (transform_coordinates)",
+    )  # fmt: skip
+    p.add_argument("--scale", type=float, default=1.0, help="OpenPIV reference: units per px")
+    p.add_argument("--dt", type=float, default=1.0, help="OpenPIV reference: s its u, v are per")
+    p.add_argument(
+        "--threshold", type=float, default=0.5, help="px: vectors farther apart disagree (0.5)"
+    )
+    p.add_argument("--rows", action="store_true", help="print the differences row by row")
+    p.add_argument("--json", default=None, help="write the figures as JSON")
+    p.set_defaults(func=run)

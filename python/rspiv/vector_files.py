@@ -1,0 +1,573 @@
+"""Vector fields written by other PIV tools, read into rspiv's pixel frame.
+
+A lab that takes up rspiv first asks whether it agrees with the tool it has, on its own
+recordings. :func:`read_vectors` reads that tool's vector field as a :class:`VectorFile` in
+rspiv's conventions, so that :func:`rspiv.compare.compare_fields` can answer (``rspiv compare``).
+
+The conventions everything is brought to (those of :class:`rspiv.PivField`): positions in px of
+the recording, x right and y down, the origin at the centre of the top-left pixel; displacements
+in px over the pair, u right and v down. Each reader states how it gets there:
+
+- **DaVis** vector buffers (``.vc7``, read by ``lvpyio``): the stored components are
+  displacements in px along the image's axes (DaVis' scales turn them into m/s). Vector ``(i, j)``
+  stands at ``(i + 1/2) * grid`` px from the image's top-left edge (lvpyio's placement), i.e.
+  ``x = (i + 1/2) * grid - 1/2`` in rspiv's frame. The pulse separation and the scale come from
+  the scales (``dt = |x slope| / velocity slope``). Of DaVis' choices, 0 is the highest peak and
+  1-3 the second to fourth (valid, ``peak_choice`` 1-4); 4 and 5 are vectors DaVis filled or
+  smoothed after the validation (``postprocessed``). Disabled and masked vectors are not computed.
+  DaVis' ``TS:Uncertainty Vx/Vy`` (when written) give ``sigma_u``/``sigma_v`` (px; 0 read as none),
+  ``TS:Peak ratio`` the peak ratio. A 3C buffer's ``w`` is left out (said in ``notes``).
+- **OpenPIV** text files (``openpiv.tools.save``: ``x y u v flags mask``; older files ``x y u v
+  s2n``): positions in px and displacements in px per pair, as OpenPIV writes them without a
+  scaling factor; ``scale`` (units per px) and ``dt`` (s) undo one. OpenPIV measures positions
+  from the image's top-left corner (its ``get_coordinates``: a window of w px from pixel i is at
+  ``i + w/2``), half a pixel from rspiv's origin at that pixel's centre: ``x - 1/2``. OpenPIV's
+  ``transform_coordinates`` (which its ``windef`` pipeline applies before saving) turns y and v
+  upward by reversing the rows: with ``y_up=True`` they are turned back (``y -> y_min + y_max -
+  y``, ``v -> -v``). A file does not say which it is: :func:`rspiv.compare.compare_fields` checks
+  the other reading and says when it fits far better. Flags 0 valid, 1 invalid, 2 interpolated
+  (``postprocessed``); a mask of 1 or a NaN is not computed. A fifth column that is not 0/1 is the
+  signal-to-noise ratio (``peak_ratio``).
+- **PIVlab** MAT files (the GUI's "save all frames", or ``PIVlab_commandline``): cell arrays
+  ``x``, ``y``, ``u_original``/``v_original`` (or ``u``/``v``) and ``typevector_original`` (or
+  ``typevector``) of one cell per pair; ``frame`` picks the cell. PIVlab labels a window of w
+  px from (1-based) pixel i by ``i + w/2``, half a pixel past its centre ``i + (w - 1)/2``, and
+  counts pixels from 1: ``x - 3/2`` in rspiv's frame (``piv_FFTmulti``'s ``xtable``). u and v
+  are px per pair along the image's axes. Typevector 1 valid, 0 masked, 2 interpolated by the
+  post-processing (``typevector_filtered`` of the GUI's export, ``typevector_filt`` of
+  ``PIVlab_commandline``: when present it decides validity). A calibrated export
+  (``calxy`` or ``caluv`` not 1) is refused: export it in px.
+- **rspiv**'s own NetCDF (``rspiv piv -o field.nc``) and Tecplot files (``.dat``, ``.tec``,
+  ``.plt`` with ``units = "px"``).
+
+Every reader refuses, in one line naming the file, a file it cannot read this way, positions
+that are not a regular grid, and values that are not numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+from typing import Any
+
+import numpy as np
+
+from rspiv.errors import InvalidInputError
+
+__all__ = ["VECTOR_SUFFIXES", "VectorFile", "read_vectors", "from_piv_field"]
+
+#: Suffixes :func:`read_vectors` reads, by tool.
+VECTOR_SUFFIXES = {
+    ".vc7": "DaVis",
+    ".txt": "OpenPIV",
+    ".vec": "OpenPIV",
+    ".mat": "PIVlab",
+    ".nc": "rspiv",
+    ".dat": "rspiv",
+    ".tec": "rspiv",
+    ".plt": "rspiv",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorFile:
+    """A vector field in rspiv's pixel frame (module docstring); arrays of shape ``(ny, nx)``.
+
+    Attributes
+    ----------
+    x, y : ndarray of float64
+        Vector positions, px (x right, y down, origin at the top-left pixel's centre); a regular
+        grid: ``x`` constant along columns' rows, ``y`` increasing downward.
+    u, v : ndarray of float64
+        Displacement over the pair, px (v down); NaN where not computed.
+    valid : ndarray of bool
+        Measured and accepted by the tool's validation (not filled, smoothed or masked).
+    postprocessed : ndarray of bool
+        Computed but filled or smoothed by the tool after its validation.
+    peak_ratio, sigma_u, sigma_v : ndarray of float64 or None
+        The tool's peak ratio (or signal-to-noise ratio) and standard uncertainties (px), when it
+        wrote them; NaN where it did not.
+    tool : str
+        ``"DaVis"``, ``"OpenPIV"``, ``"PIVlab"`` or ``"rspiv"``.
+    path : str
+        The file read.
+    dt : float
+        Pulse separation, s, when the file gives it (DaVis), else NaN.
+    mm_per_px : float
+        Scale of the recording, mm per px, when the file gives it (DaVis), else NaN.
+    window : tuple of int or None
+        The final interrogation window ``(w, h)``, px, when the file gives it.
+    notes : tuple of str
+        What the reader assumed or left out, one line each.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    valid: np.ndarray
+    postprocessed: np.ndarray
+    peak_ratio: np.ndarray | None
+    sigma_u: np.ndarray | None
+    sigma_v: np.ndarray | None
+    tool: str
+    path: str
+    dt: float = float("nan")
+    mm_per_px: float = float("nan")
+    window: tuple[int, int] | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def spacing(self) -> tuple[float, float]:
+        """Grid spacing ``(dx, dy)``, px (NaN along an axis of one vector)."""
+        dx = float(self.x[0, 1] - self.x[0, 0]) if self.x.shape[1] > 1 else float("nan")
+        dy = float(self.y[1, 0] - self.y[0, 0]) if self.y.shape[0] > 1 else float("nan")
+        return dx, dy
+
+    def describe(self) -> str:
+        """One line: the tool, the grid, the vectors valid and post-processed."""
+        ny, nx = self.u.shape
+        dx, dy = self.spacing
+        computed = int(np.isfinite(self.u).sum())
+        extra = ""
+        if self.window is not None:
+            extra += f", window {self.window[0]} x {self.window[1]} px"
+        if np.isfinite(self.dt):
+            extra += f", dt {self.dt * 1e6:.6g} us"
+        if np.isfinite(self.mm_per_px):
+            extra += f", {self.mm_per_px * 1e3:.6g} um/px"
+        return (
+            f"{self.tool} field {pathlib.Path(self.path).name}: {nx} x {ny} vectors every "
+            f"{dx:g} x {dy:g} px{extra}; {int(self.valid.sum())} valid, "
+            f"{int(self.postprocessed.sum())} filled or smoothed, "
+            f"{nx * ny - computed} not computed"
+        )
+
+
+def _fail(p: pathlib.Path, what: str) -> InvalidInputError:
+    return InvalidInputError(f"{p}: {what}")
+
+
+def _grid_from_columns(
+    p: pathlib.Path, xs: np.ndarray, ys: np.ndarray, cols: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Scattered rows (x, y, values...) of a regular grid -> (ny, nx) arrays, y increasing."""
+    if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(ys))):
+        raise _fail(p, "a position that is not a number")
+    ux = np.unique(xs)
+    uy = np.unique(ys)
+    if ux.size * uy.size != xs.size:
+        raise _fail(
+            p,
+            f"{xs.size} vectors at {ux.size} x positions and {uy.size} y positions: "
+            "not one vector per node of a regular grid",
+        )
+    ix = np.searchsorted(ux, xs)
+    iy = np.searchsorted(uy, ys)
+    taken = np.zeros((uy.size, ux.size), dtype=bool)
+    taken[iy, ix] = True
+    if not taken.all():
+        raise _fail(p, "two vectors at one position: not a regular grid")
+    out = []
+    for c in cols:
+        a = np.full((uy.size, ux.size), np.nan)
+        a[iy, ix] = c
+        out.append(a)
+    gx, gy = np.meshgrid(ux, uy)
+    _check_regular(p, gx, gy)
+    return gx, gy, out
+
+
+def _check_regular(p: pathlib.Path, x: np.ndarray, y: np.ndarray) -> None:
+    for arr, axis, name in ((x, 1, "x"), (y, 0, "y")):
+        if arr.shape[axis] < 2:
+            continue
+        d = np.diff(arr, axis=axis)
+        step = float(np.median(d))
+        if step <= 0 or np.max(np.abs(d - step)) > 1e-3 * step + 1e-6:
+            raise _fail(p, f"the {name} positions are not evenly spaced and increasing")
+
+
+def _davis(p: pathlib.Path, frame: int) -> VectorFile:
+    from rspiv.io import _davis_buffer  # deferred: lvpyio is imported only for DaVis files
+
+    buf = _davis_buffer(p)
+    if not 0 <= frame < len(buf):
+        raise _fail(p, f"frame {frame} out of range: the buffer holds {len(buf)}")
+    f = buf[frame]
+    if type(f).__name__ != "VectorFrame":
+        raise _fail(p, "a DaVis image, not a vector field")
+    notes = []
+    try:
+        comps = f.components
+        gx, gy = int(f.grid.x), int(f.grid.y)
+        choice = np.asarray(f.active_choice[0])
+        on = np.asarray(f.enabled[0]) != 0
+        if "MASK" in comps:
+            on &= np.asarray(comps["MASK"][0]) != 0
+        ny, nx = choice.shape
+        u = np.full((ny, nx), np.nan)
+        v = np.full((ny, nx), np.nan)
+        last = int(f.choices) - 1
+        for k in range(6):
+            sel = on & (choice == k)
+            if not sel.any():
+                continue
+            src = k if k <= last else last
+            u[sel] = np.asarray(comps[f"U{src}"][0], dtype=np.float64)[sel]
+            v[sel] = np.asarray(comps[f"V{src}"][0], dtype=np.float64)[sel]
+        if len(comps["U0"]) > 1:
+            notes.append(f"plane 0 of {len(comps['U0'])} read")
+        if "W0" in comps:
+            notes.append("a 3C field: w left out")
+        sx, sy, si = f.scales.x, f.scales.y, f.scales.i
+
+        def scalar(name: str) -> np.ndarray | None:
+            if name not in comps:
+                return None
+            a = np.asarray(comps[name][0], dtype=np.float64).copy()
+            a[~on] = np.nan
+            return a
+
+        peak = scalar("TS:Peak ratio")
+        su = scalar("TS:Uncertainty Vx")
+        sv = scalar("TS:Uncertainty Vy")
+        attrs = dict(f.attributes)
+    except (KeyError, AttributeError, IndexError, TypeError, ValueError) as exc:
+        raise _fail(p, f"a DaVis vector buffer without the expected parts ({exc})") from None
+    known = on & (choice >= 0) & (choice <= 5)
+    u[~known] = np.nan
+    v[~known] = np.nan
+    for a in (su, sv):
+        if a is not None:
+            a[a <= 0] = np.nan  # DaVis writes 0 where it has no estimate
+    xs = (np.arange(nx) + 0.5) * gx - 0.5
+    ys = (np.arange(ny) + 0.5) * gy - 0.5
+    x, y = np.meshgrid(xs, ys)
+    mm_per_px = dt = float("nan")
+    if str(sx.unit).strip().lower() == "mm" and sx.slope != 0:
+        mm_per_px = abs(float(sx.slope))
+        if str(si.unit).strip().lower() == "m/s" and si.slope > 0:
+            dt = mm_per_px * 1e-3 / float(si.slope)
+    if float(sy.slope) * float(sx.slope) > 0:
+        notes.append("scales with y and x the same sign: DaVis' y axis points down")
+    window = None
+    size = str(attrs.get("InterrogationWindowSize", "")).strip()
+    if size.isdigit():
+        window = (int(size), int(size))
+    valid = known & (choice <= 3)
+    post = known & (choice >= 4)
+    if not valid.any() and post.any():
+        notes.append("every vector filled or smoothed by DaVis: no raw vector to compare")
+    return VectorFile(
+        x=x, y=y, u=u, v=v, valid=valid, postprocessed=post, peak_ratio=peak,
+        sigma_u=su, sigma_v=sv, tool="DaVis", path=str(p), dt=dt, mm_per_px=mm_per_px,
+        window=window, notes=tuple(notes),
+    )  # fmt: skip
+
+
+def _openpiv(p: pathlib.Path, y_up: bool, scale: float, dt: float) -> VectorFile:
+    try:
+        text = p.read_text(errors="strict")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise _fail(p, f"cannot read as text: {exc}") from None
+    rows = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if not rows:
+        raise _fail(p, "no vectors")
+    try:
+        data = np.loadtxt(rows, ndmin=2)
+    except ValueError as exc:
+        raise _fail(p, f"not an OpenPIV text file of numbers: {exc}") from None
+    if data.shape[1] not in (4, 5, 6):
+        raise _fail(p, f"{data.shape[1]} columns: an OpenPIV file has x y u v [flags [mask]]")
+    if not (np.isfinite(scale) and scale > 0 and np.isfinite(dt) and dt > 0):
+        raise _fail(p, f"scale {scale} and dt {dt} must be positive")
+    notes = []
+    xs, ys = data[:, 0] / scale - 0.5, data[:, 1] / scale - 0.5  # corner -> pixel centre
+    u, v = data[:, 2] * dt / scale, data[:, 3] * dt / scale
+    flags = np.zeros(len(data))
+    mask = np.zeros(len(data))
+    snr = np.full(len(data), np.nan)
+    if data.shape[1] == 6:
+        flags, mask = data[:, 4], data[:, 5]
+    elif data.shape[1] == 5:
+        col = data[:, 4]
+        if np.all(np.isin(col, (0.0, 1.0, 2.0))):
+            flags = col
+            notes.append("fifth column read as flags (0, 1 or 2 only)")
+        else:
+            snr = col
+            notes.append("fifth column read as the signal-to-noise ratio")
+    x, y, (u, v, flags, mask, snr) = _grid_from_columns(p, xs, ys, [u, v, flags, mask, snr])
+    if y_up:
+        # OpenPIV's transform_coordinates reverses the rows and negates v
+        u, v, flags, mask, snr = (a[::-1] for a in (u, v, flags, mask, snr))
+        v = -v
+        notes.append("read with y and v upward (OpenPIV's transform_coordinates) and turned")
+    computed = (mask == 0) & np.isfinite(u) & np.isfinite(v)
+    u = np.where(computed, u, np.nan)
+    v = np.where(computed, v, np.nan)
+    valid = computed & (flags == 0)
+    post = computed & (flags == 2)
+    peak = snr if np.isfinite(snr).any() else None
+    return VectorFile(
+        x=x, y=y, u=u, v=v, valid=valid, postprocessed=post, peak_ratio=peak, sigma_u=None,
+        sigma_v=None, tool="OpenPIV", path=str(p), notes=tuple(notes),
+    )  # fmt: skip
+
+
+def _mat_variables(p: pathlib.Path) -> dict[str, Any]:
+    """MATLAB variables of a v5-v7 (scipy) or v7.3 (HDF5) file, in MATLAB's shapes; a cell is
+    an object array of arrays."""
+    head = p.read_bytes()[:8]
+    if head.startswith(b"\x89HDF"):
+        import h5py
+
+        out: dict[str, Any] = {}
+        try:
+            with h5py.File(p, "r") as h:
+                for name, ds in h.items():
+                    if not isinstance(ds, h5py.Dataset) or name.startswith("#"):
+                        continue
+                    if ds.dtype == object:  # a cell: references, stored transposed
+                        refs = np.asarray(ds).T
+                        cell = np.empty(refs.shape, dtype=object)
+                        for k in np.ndindex(refs.shape):
+                            item = h[refs[k]]
+                            empty = bool(item.attrs.get("MATLAB_empty", 0))
+                            cell[k] = np.zeros((0, 0)) if empty else np.asarray(item).T
+                        out[name] = cell
+                    else:
+                        out[name] = np.asarray(ds).T
+        except Exception as exc:  # h5py raises RuntimeError, OSError, KeyError... on damage
+            raise _fail(p, f"not a MATLAB v7.3 file h5py reads: {exc}") from None
+        return out
+    import scipy.io
+
+    try:
+        raw = scipy.io.loadmat(p, squeeze_me=False)
+    except Exception as exc:  # scipy raises MatReadError, ValueError, TypeError... on damage
+        raise _fail(p, f"not a MATLAB file scipy reads: {exc}") from None
+    return {k: v for k, v in raw.items() if not k.startswith("__")}
+
+
+def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> tuple[float, float]:
+    """The signs PIVlab gave u and v in px (``calu``/``calv`` of +-1); refuses a calibration."""
+    def scalar(key: str) -> float | None:
+        if key not in var:
+            return None
+        c = np.asarray(var[key], dtype=np.float64).ravel()
+        return float(c[0]) if c.size else None
+
+    calxy, caluv = scalar("calxy"), scalar("caluv")
+    calu, calv = scalar("calu"), scalar("calv")
+    if (calxy is not None and calxy != 1.0) or (caluv is not None and caluv != 1.0):
+        raise _fail(p, f"a calibrated PIVlab export (calxy {calxy}, caluv {caluv}): export in px")
+    signs = []
+    for key, c in (("calu", calu), ("calv", calv)):
+        if c is not None and abs(c) != 1.0:
+            raise _fail(p, f"a calibrated PIVlab export ({key} = {c:g}): export it in px")
+        signs.append(1.0 if c is None else c)
+    return signs[0], signs[1]
+
+
+def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
+    try:
+        var = _mat_variables(p)
+    except OSError as exc:
+        raise _fail(p, f"cannot read: {exc}") from None
+    su, sv = _pivlab_units(p, var)
+    session = var.get("resultslist")
+
+    def cell(*names: str) -> np.ndarray | None:
+        for name in names:
+            if name in var:
+                val = var[name]
+                items = val.ravel(order="F") if val.dtype == object else [val]
+                if not 0 <= frame < len(items):
+                    raise _fail(p, f"frame {frame} out of range: {name} holds {len(items)}")
+                a = np.asarray(items[frame], dtype=np.float64)
+                return a if a.size else None
+        if session is not None and session.dtype == object and len(names) and names[-1]:
+            row = {"x": 0, "y": 1, "u": 2, "v": 3, "typevector": 4, "u_filt": 6,
+                   "typevector_filt": 8}.get(names[-1])  # fmt: skip
+            if row is not None and row < session.shape[0]:
+                if not 0 <= frame < session.shape[1]:
+                    raise _fail(p, f"frame {frame} out of range: {session.shape[1]} results")
+                a = np.asarray(session[row, frame], dtype=np.float64)
+                return a if a.ndim == 2 and a.size else None  # [] (or its dims) when empty
+        return None
+
+    try:
+        x, y = cell("x"), cell("y")
+        u, v = cell("u_original", "u"), cell("v_original", "v")
+        tv = cell("typevector_original", "typevector")
+        tf = cell("typevector_filtered", "typevector_filt")
+        uf = cell("u_filtered", "u_filt")
+    except (TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise _fail(p, f"a PIVlab variable that is not an array of numbers ({exc})") from None
+    if x is None or y is None or u is None or v is None:
+        raise _fail(p, "not a PIVlab result: no x, y, u_original/u and v_original/v")
+    shapes = {a.shape for a in (x, y, u, v) + tuple(b for b in (tv, tf) if b is not None)}
+    if len(shapes) != 1 or x.ndim != 2:
+        raise _fail(p, f"x, y, u, v and the typevectors differ in shape: {sorted(shapes)}")
+    u, v = u * su, v * sv  # calu/calv of -1 turned the axis
+    x, y = x - 1.5, y - 1.5  # 1-based, and half a pixel past the window's centre
+    if y.shape[0] > 1 and y[1, 0] < y[0, 0]:
+        raise _fail(p, "y decreases down the rows: not PIVlab's pixel coordinates")
+    _check_regular(p, x, y)
+    tv = np.ones_like(u) if tv is None else tv
+    computed = (tv != 0) & np.isfinite(u) & np.isfinite(v)
+    notes = ["positions read as PIVlab's: 1-based, half a pixel past the window's centre"]
+    if sv < 0 or su < 0:
+        notes.append("calu/calv of -1: the axis turned back")
+    valid = computed & np.isin(tv, (1, 3))  # 3: PIVlab's valid vector from the second peak
+    post = np.zeros_like(valid)
+    if tf is not None:
+        valid &= np.isin(tf, (1, 3))
+        post = computed & (tf == 2)
+        notes.append("validity from the filtered typevector (2: interpolated by PIVlab)")
+    elif uf is not None:
+        notes.append("filtered velocities without their typevector: PIVlab's filtering not read")
+    return VectorFile(
+        x=x, y=y, u=np.where(computed, u, np.nan), v=np.where(computed, v, np.nan),
+        valid=valid, postprocessed=post, peak_ratio=None, sigma_u=None, sigma_v=None,
+        tool="PIVlab", path=str(p), notes=tuple(notes),
+    )  # fmt: skip
+
+
+def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(p) as ds:
+            ds = ds.load()
+    except (OSError, ValueError) as exc:
+        raise _fail(p, f"not a NetCDF file xarray reads: {exc}") from None
+    if "u" not in ds or "v" not in ds or "x" not in ds.coords or "y" not in ds.coords:
+        raise _fail(p, "not an rspiv vector field on a grid (u, v on coordinates x, y)")
+    for name in ("u", "v"):
+        unit = str(ds[name].attrs.get("units", "pix"))
+        if unit not in ("pix", "px"):
+            raise _fail(p, f"{name} in {unit!r}: only fields in px are read")
+    x, y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    _check_regular(p, x, y)
+    u = ds["u"].values.astype(float)
+    v = ds["v"].values.astype(float)
+    chc = ds["chc"].values if "chc" in ds else np.where(np.isfinite(u), 1, -1)
+
+    def opt(name: str) -> np.ndarray | None:
+        return ds[name].values.astype(float) if name in ds else None
+
+    return VectorFile(
+        x=x, y=y, u=np.where(chc >= 0, u, np.nan), v=np.where(chc >= 0, v, np.nan),
+        valid=chc == 1, postprocessed=chc == 0, peak_ratio=opt("peak_ratio"),
+        sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"), tool="rspiv", path=str(p),
+    )  # fmt: skip
+
+
+def _rspiv_tecplot(p: pathlib.Path) -> VectorFile:
+    from rspiv.export import read_tecplot  # deferred: export imports the field classes
+
+    cols, aux = read_tecplot(p)
+    units = aux.get("units", "")
+    if units not in ("px", "pix"):
+        raise _fail(p, f"a Tecplot file in {units or 'unstated units'}: only px is read")
+    for key in ("x", "y", "u", "v"):
+        if key not in cols:
+            raise _fail(p, f"a Tecplot file without variable {key!r}")
+    x, y = cols["x"], cols["y"]
+    _check_regular(p, x, y)
+    chc = cols.get("chc", np.ones_like(x))
+    computed = chc >= 0
+
+    def opt(name: str) -> np.ndarray | None:
+        if name not in cols:
+            return None
+        a = cols[name].astype(float).copy()
+        a[~computed] = np.nan
+        if name.startswith("sigma"):
+            a[a <= 0] = np.nan  # written as 0 where not estimated
+        return a
+
+    return VectorFile(
+        x=x, y=y, u=np.where(computed, cols["u"], np.nan),
+        v=np.where(computed, cols["v"], np.nan), valid=chc == 1, postprocessed=chc == 0,
+        peak_ratio=opt("peak_ratio"), sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"),
+        tool="rspiv", path=str(p),
+    )  # fmt: skip
+
+
+def read_vectors(
+    path: str | os.PathLike,
+    *,
+    frame: int = 0,
+    y_up: bool = False,
+    scale: float = 1.0,
+    dt: float = 1.0,
+) -> VectorFile:
+    """Read a vector field of DaVis, OpenPIV, PIVlab or rspiv into rspiv's pixel frame.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.vc7`` (DaVis), ``.txt``/``.vec`` (OpenPIV), ``.mat`` (PIVlab), ``.nc`` or
+        ``.dat``/``.tec``/``.plt`` (rspiv); the module docstring gives each one's conventions.
+    frame : int
+        The frame of a multi-frame DaVis buffer or the pair (cell) of a PIVlab file.
+    y_up : bool
+        OpenPIV only: the file's y and v point up (OpenPIV's ``transform_coordinates``).
+    scale, dt : float
+        OpenPIV only: the file's units per px and the time its u, v are per (s); positions are
+        divided by ``scale``, displacements multiplied by ``dt / scale``.
+
+    Returns
+    -------
+    VectorFile
+
+    Raises
+    ------
+    InvalidInputError
+        A missing file, a suffix of no tool above, or a file its reader cannot use (one line
+        naming the file).
+    """
+    p = pathlib.Path(path)
+    if not p.is_file():
+        raise InvalidInputError(f"{p}: no such file")
+    tool = VECTOR_SUFFIXES.get(p.suffix.lower())
+    if tool is None:
+        raise InvalidInputError(
+            f"{p}: not a vector file rspiv reads ({', '.join(sorted(VECTOR_SUFFIXES))})"
+        )
+    if tool != "OpenPIV" and (y_up or scale != 1.0 or dt != 1.0):
+        raise InvalidInputError(f"{p}: y_up, scale and dt are for OpenPIV text files only")
+    if frame < 0:
+        raise InvalidInputError(f"{p}: frame {frame} is negative")
+    if tool == "DaVis":
+        return _davis(p, frame)
+    if tool == "OpenPIV":
+        return _openpiv(p, y_up, scale, dt)
+    if tool == "PIVlab":
+        return _pivlab(p, frame)
+    if p.suffix.lower() == ".nc":
+        return _rspiv_netcdf(p)
+    return _rspiv_tecplot(p)
+
+
+def from_piv_field(field: Any, name: str = "rspiv") -> VectorFile:
+    """An rspiv :class:`~rspiv.PivField` on a grid as a :class:`VectorFile` (no copy of its
+    arrays beyond the NaN of masked vectors)."""
+    if getattr(field, "grid", None) is None:
+        raise InvalidInputError(f"{name}: a field at scattered points; compare needs a grid")
+    masked = np.asarray(field.masked)
+    return VectorFile(
+        x=np.asarray(field.x, dtype=np.float64), y=np.asarray(field.y, dtype=np.float64),
+        u=np.where(masked, np.nan, field.u), v=np.where(masked, np.nan, field.v),
+        valid=np.asarray(field.valid, dtype=bool),
+        postprocessed=np.asarray(field.replaced, dtype=bool),
+        peak_ratio=np.asarray(field.peak_ratio, dtype=np.float64),
+        sigma_u=np.asarray(field.sigma_u, dtype=np.float64),
+        sigma_v=np.asarray(field.sigma_v, dtype=np.float64), tool="rspiv", path=name,
+        window=tuple(int(w) for w in field.window),
+    )  # fmt: skip
