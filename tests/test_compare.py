@@ -175,3 +175,70 @@ def test_cli_compare(pair, tmp_path, capsys):
     assert main(["compare", str(tmp_path / "f.nc"), str(tmp_path / "none.nc")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "none.nc: no such file" in err
+
+
+def _series(n_pairs=12, seed=0):
+    """Reference fields with fluctuations whose statistics we compute directly."""
+    rng = np.random.default_rng(seed)
+    base = _field()
+    out = []
+    for _ in range(n_pairs):
+        fu = rng.normal(0, 0.3, base.u.shape)
+        fv = rng.normal(0, 0.1, base.u.shape) + 0.2 * fu  # correlated: uv > 0
+        out.append(dataclasses.replace(base, u=base.u + fu, v=base.v + fv))
+    return out
+
+
+def test_a_series_gives_each_tools_statistics_and_their_difference_by_row():
+    from rspiv.compare_series import ROW_COLUMNS, compare_series
+
+    refs = _series()
+    offset = 0.01 * np.arange(refs[0].u.shape[0])[:, None]  # a row-dependent bias in u
+    flds = [dataclasses.replace(r, u=r.u + offset, v=1.1 * r.v) for r in refs]
+    c = compare_series(refs, flds)
+    assert c.n_pairs == 12 and c.n_compared == 12 * refs[0].u.size
+    # v 1.1 times the reference's in most pairs: said once for the series
+    assert "of 12 pairs warned" in c.warning and "v is 1.1 times" in c.warning
+    col = {name: i for i, name in enumerate(ROW_COLUMNS)}
+    us = np.array([r.u for r in refs])
+    vs = np.array([r.v for r in refs])
+    for j, row in enumerate(c.rows):
+        assert row[col["y"]] == refs[0].y[j, 0] and row[col["n_pairs"]] == 12
+        assert row[col["dU"]] == pytest.approx(0.01 * j, abs=1e-12)
+        assert row[col["dU_err"]] == pytest.approx(0, abs=1e-12)
+        assert row[col["U_ref"]] == pytest.approx(us[:, j].mean(), rel=1e-12)
+        uu = us[:, j].var(axis=0).mean()
+        uv = ((us[:, j] - us[:, j].mean(0)) * (vs[:, j] - vs[:, j].mean(0))).mean(0).mean()
+        assert row[col["uu_ref"]] == pytest.approx(uu, rel=1e-9)
+        assert row[col["uu_field"]] == pytest.approx(uu, rel=1e-9)  # an offset adds nothing
+        assert row[col["vv_field"]] == pytest.approx(1.21 * row[col["vv_ref"]], rel=1e-9)
+        assert row[col["uv_ref"]] == pytest.approx(uv, rel=1e-9)
+        assert row[col["uv_field"]] == pytest.approx(1.1 * uv, rel=1e-9)
+    # the dV of a row scatters over the pairs: its error is that of the pairs' row means
+    row_means = np.array([(0.1 * r.v[3]).mean() for r in refs])
+    assert c.rows[3][col["dV_err"]] == pytest.approx(row_means.std(ddof=1) / np.sqrt(12))
+    assert c.median == pytest.approx(np.median(np.hypot(
+        np.array([offset + 0 * r.u for r in refs]), np.array([0.1 * r.v for r in refs]))),
+        abs=1e-4)  # fmt: skip
+
+
+def test_cli_compares_two_series(tmp_path, capsys):
+    refs = _series(4)
+    for k, r in enumerate(refs):
+        for folder, du in (("ref", 0.0), ("fld", 0.05)):
+            rows = np.column_stack([(r.x + 0.5).ravel(), (r.y + 0.5).ravel(),
+                                    (r.u + du).ravel(), r.v.ravel()])  # fmt: skip
+            (tmp_path / folder).mkdir(exist_ok=True)
+            np.savetxt(tmp_path / folder / f"B{k:05d}.txt", rows, fmt="%.10f")
+    out = tmp_path / "s.json"
+    assert main(["compare", str(tmp_path / "ref"), str(tmp_path / "fld" / "B*.txt"), "--rows",
+                 "--json", str(out)]) == 0  # fmt: skip
+    text = capsys.readouterr().out
+    assert "4 pairs" in text and "bias du +0.0500" in text and "rows: y px" in text
+    d = json.loads(out.read_text())
+    assert d["n_pairs"] == 4 and d["rows"][0][2] == pytest.approx(0.05, abs=1e-9)
+    (tmp_path / "fld" / "B00003.txt").unlink()
+    assert main(["compare", str(tmp_path / "ref"), str(tmp_path / "fld")]) == 2
+    assert "4 reference files and 3 fields" in capsys.readouterr().err
+    assert main(["compare", str(tmp_path / "ref"), str(tmp_path / "fld" / "B00000.txt")]) == 2
+    assert "a series against one file" in capsys.readouterr().err

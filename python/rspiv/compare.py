@@ -170,7 +170,8 @@ class FieldComparison:
         return "\n".join(lines)
 
 
-def _as_vectors(obj: Any, name: str) -> VectorFile:
+def as_vectors(obj: Any, name: str) -> VectorFile:
+    """``obj`` as a :class:`VectorFile`: itself, or an rspiv :class:`~rspiv.PivField`."""
     if isinstance(obj, VectorFile):
         return obj
     if hasattr(obj, "peak_choice") and hasattr(obj, "masked"):
@@ -243,10 +244,30 @@ def _sample(
     return out
 
 
-def _differences(ref: VectorFile, fld: VectorFile, flip: bool = False) -> tuple:
-    """Positions and (du, dv) of field - reference at the reference's valid vectors (read with
-    its rows the other way up with ``flip``), and the values compared: (ref u, ref v, field u,
-    field v, field sigma_u, sigma_v, ref sigma_u, sigma_v, field du/dx, du/dy, dv/dx, dv/dy)."""
+@dataclasses.dataclass(frozen=True)
+class _Diff:
+    """The vectors compared: reference positions, flat indices into its grid, field - reference
+    (du, dv), both fields' values and uncertainties there, and the field's gradients there."""
+
+    x: np.ndarray
+    y: np.ndarray
+    index: np.ndarray
+    du: np.ndarray
+    dv: np.ndarray
+    ru: np.ndarray
+    rv: np.ndarray
+    fu: np.ndarray
+    fv: np.ndarray
+    fsu: np.ndarray
+    fsv: np.ndarray
+    rsu: np.ndarray | None
+    rsv: np.ndarray | None
+    grads: tuple[np.ndarray, ...]
+
+
+def _differences(ref: VectorFile, fld: VectorFile, flip: bool = False) -> _Diff:
+    """Field - reference at the reference's valid vectors where the field has a value (the
+    reference's rows read the other way up with ``flip``)."""
     valid = ref.valid & np.isfinite(ref.u) & np.isfinite(ref.v)
     valid_read = valid[::-1] if flip else valid
 
@@ -262,8 +283,12 @@ def _differences(ref: VectorFile, fld: VectorFile, flip: bool = False) -> tuple:
     sampled = _sample(fld, xs, ys, [fld.u, fld.v, fld.sigma_u, fld.sigma_v, *_gradients(fld)])
     fu, fv = sampled[0], sampled[1]
     k = np.isfinite(fu) & np.isfinite(fv)
-    cut = [None if a is None else a[k] for a in (ru, rv, *sampled[:4], rsu, rsv, *sampled[4:])]
-    return xs[k], ys[k], fu[k] - ru[k], fv[k] - rv[k], tuple(cut)
+    return _Diff(
+        x=xs[k], y=ys[k], index=np.flatnonzero(valid_read)[k], du=fu[k] - ru[k],
+        dv=fv[k] - rv[k], ru=ru[k], rv=rv[k], fu=fu[k], fv=fv[k], fsu=sampled[2][k],
+        fsv=sampled[3][k], rsu=None if rsu is None else rsu[k],
+        rsv=None if rsv is None else rsv[k], grads=tuple(g[k] for g in sampled[4:]),
+    )  # fmt: skip
 
 
 def _spread(du: np.ndarray, dv: np.ndarray) -> float:
@@ -372,11 +397,21 @@ def compare_fields(
     InvalidInputError
         Not fields, a threshold that is not positive, or no vector valid in both.
     """
-    ref = _as_vectors(reference, "reference")
-    fld = _as_vectors(field, "field")
+    ref = as_vectors(reference, "reference")
+    fld = as_vectors(field, "field")
     if not (np.isfinite(threshold) and threshold > 0):
         raise InvalidInputError(f"compare: threshold {threshold} px must be positive")
-    x, y, du, dv, (ru, rv, fu, fv, fsu, fsv, rsu, rsv, *grads) = _differences(ref, fld)
+    comparison, _ = compare_with_differences(ref, fld, threshold)
+    return comparison
+
+
+def compare_with_differences(
+    ref: VectorFile, fld: VectorFile, threshold: float
+) -> tuple[FieldComparison, _Diff]:
+    """:func:`compare_fields` of two :class:`VectorFile`, and the vectors it compared (for
+    :func:`rspiv.compare_series.compare_series`, which sums them over the pairs)."""
+    d = _differences(ref, fld)
+    x, y, du, dv = d.x, d.y, d.du, d.dv
     n = du.size
     n_ref = int((ref.valid & np.isfinite(ref.u)).sum())
     n_fld = int((fld.valid & np.isfinite(fld.u)).sum())
@@ -394,8 +429,8 @@ def compare_fields(
     apart = mag > threshold
     order = np.argsort(mag)[::-1][: min(10, int(apart.sum()))]
     worst = tuple((float(x[i]), float(y[i]), float(du[i]), float(dv[i])) for i in order)
-    su, cu = _slope(fu, ru)
-    sv, cv = _slope(fv, rv)
+    su, cu = _slope(d.fu, d.ru)
+    sv, cv = _slope(d.fv, d.rv)
     rows = []
     for yy in np.unique(y):
         sel = y == yy
@@ -408,15 +443,15 @@ def compare_fields(
     median = float(np.median(mag))
     spread = _spread(du, dv)
     if spread > _NOTICE:
-        _, _, fdu, fdv, _ = _differences(ref, fld, flip=True)
-        alt = _spread(fdu, fdv)
-        if fdu.size >= (3 * n) // 4 and alt < _BETTER * spread:
+        flipped = _differences(ref, fld, flip=True)
+        alt = _spread(flipped.du, flipped.dv)
+        if flipped.du.size >= (3 * n) // 4 and alt < _BETTER * spread:
             warnings.append(
                 f"the differences scatter by {spread:.3g} px as read, {alt:.3g} px with the "
                 "reference's rows the other way up (y and v turned: --y-up): check the files' "
                 "conventions before the tools"
             )
-    offset, offset_err, explained = _position_offset(du, dv, grads, small)
+    offset, offset_err, explained = _position_offset(du, dv, d.grads, small)
     known = np.isfinite(offset)
     if (
         known.any()
@@ -461,8 +496,8 @@ def compare_fields(
         rms=rms, median=median, p95=float(np.percentile(mag, 95)),
         threshold=float(threshold), share_apart=float(apart.mean()), slope_u=su, slope_v=sv,
         corr_u=cu, corr_v=cv,
-        z_std_u=_z_std(du, fsu, rsu, small), z_std_v=_z_std(dv, fsv, rsv, small),
+        z_std_u=_z_std(du, d.fsu, d.rsu, small), z_std_v=_z_std(dv, d.fsv, d.rsv, small),
         offset_x=float(offset[0]), offset_y=float(offset[1]),
         offset_err_x=float(offset_err[0]), offset_err_y=float(offset_err[1]),
         rows=tuple(rows), worst=worst, warning="; ".join(warnings),
-    )  # fmt: skip
+    ), d  # fmt: skip

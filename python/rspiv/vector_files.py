@@ -26,8 +26,10 @@ in px over the pair, u right and v down. Each reader states how it gets there:
   upward by reversing the rows: with ``y_up=True`` they are turned back (``y -> y_min + y_max -
   y``, ``v -> -v``). A file does not say which it is: :func:`rspiv.compare.compare_fields` checks
   the other reading and says when it fits far better. Flags 0 valid, 1 invalid, 2 interpolated
-  (``postprocessed``); a mask of 1 or a NaN is not computed. A fifth column that is not 0/1 is the
-  signal-to-noise ratio (``peak_ratio``).
+  (``postprocessed``); a mask of 1 or a NaN is not computed. A fifth column (older files) is
+  read as its header names it: ``mask`` or ``flags`` (1 invalid, as OpenPIV's validation
+  wrote it), else the signal-to-noise ratio (``peak_ratio``); without a header, values of 0, 1
+  and 2 only are flags.
 - **PIVlab** MAT files (the GUI's "save all frames", or ``PIVlab_commandline``): cell arrays
   ``x``, ``y``, ``u_original``/``v_original`` (or ``u``/``v``) and ``typevector_original`` (or
   ``typevector``) of one cell per pair; ``frame`` picks the cell. PIVlab labels a window of w
@@ -37,8 +39,8 @@ in px over the pair, u right and v down. Each reader states how it gets there:
   post-processing (``typevector_filtered`` of the GUI's export, ``typevector_filt`` of
   ``PIVlab_commandline``: when present it decides validity). A calibrated export
   (``calxy`` or ``caluv`` not 1) is refused: export it in px.
-- **rspiv**'s own NetCDF (``rspiv piv -o field.nc``) and Tecplot files (``.dat``, ``.tec``,
-  ``.plt`` with ``units = "px"``).
+- **rspiv**'s own NetCDF (``rspiv piv -o field.nc``, a campaign's ``OUT/fields/<run>/pair_*.nc``)
+  and Tecplot files (``.dat``, ``.tec``, ``.plt`` with ``units = "px"``).
 
 Every reader refuses, in one line naming the file, a file it cannot read this way, positions
 that are not a regular grid, and values that are not numbers.
@@ -293,9 +295,11 @@ def _openpiv(p: pathlib.Path, y_up: bool, scale: float, dt: float) -> VectorFile
         flags, mask = data[:, 4], data[:, 5]
     elif data.shape[1] == 5:
         col = data[:, 4]
-        if np.all(np.isin(col, (0.0, 1.0, 2.0))):
+        heads = [ln.lstrip("# \t").split() for ln in text.splitlines() if ln.startswith("#")]
+        fifth = heads[-1][4].lower() if heads and len(heads[-1]) == 5 else ""
+        if fifth in ("flags", "mask") or (not fifth and np.all(np.isin(col, (0.0, 1.0, 2.0)))):
             flags = col
-            notes.append("fifth column read as flags (0, 1 or 2 only)")
+            notes.append(f"fifth column ({fifth or 'values 0, 1, 2'}) read as flags: 1 invalid")
         else:
             snr = col
             notes.append("fifth column read as the signal-to-noise ratio")
@@ -455,7 +459,12 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
     _check_regular(p, x, y)
     u = ds["u"].values.astype(float)
     v = ds["v"].values.astype(float)
-    chc = ds["chc"].values if "chc" in ds else np.where(np.isfinite(u), 1, -1)
+    if "chc" in ds:  # rspiv piv's field: 1 valid, 0 replaced, -1 not computed
+        chc = ds["chc"].values
+    elif "valid" in ds:  # a campaign's field file: rejected vectors NaN, valid 1
+        chc = np.where(ds["valid"].values.astype(bool) & np.isfinite(u), 1, -1)
+    else:
+        chc = np.where(np.isfinite(u), 1, -1)
 
     def opt(name: str) -> np.ndarray | None:
         return ds[name].values.astype(float) if name in ds else None

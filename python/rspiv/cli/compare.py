@@ -5,19 +5,63 @@ The reference is the lab's result of another tool (DaVis ``.vc7``, OpenPIV ``.tx
 (:mod:`rspiv.vector_files` gives each format's conventions, :mod:`rspiv.compare` the figures).
 The report goes to stdout; a suspected convention error (y upward, positions shifted, another
 dt) or a poor coverage is said on stderr as well. ``--json`` writes the figures and the rows.
+
+Two series of the same pairs (a glob, quoted, or a folder each: ``rspiv compare "davis/*.vc7"
+OUT/fields/uncorrected``) are compared pair by pair, in sorted order, and their statistics row
+by row (:mod:`rspiv.compare_series`: mean velocity and Reynolds stresses of both tools over the
+pairs both measured, the mean difference with its error).
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
+import pathlib
 import sys
 
 from rspiv.compare import compare_fields
+from rspiv.compare_series import compare_series
+from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text
-from rspiv.vector_files import read_vectors
+from rspiv.vector_files import VECTOR_SUFFIXES, read_vectors
+
+
+def _series(arg: str) -> list[str] | None:
+    """The files of a folder or a glob, sorted; None for one file."""
+    p = pathlib.Path(arg)
+    if p.is_dir():
+        files = sorted(str(f) for f in p.iterdir() if f.suffix.lower() in VECTOR_SUFFIXES)
+    elif any(c in arg for c in "*?["):
+        files = sorted(glob.glob(arg))
+    else:
+        return None
+    if not files:
+        raise InvalidInputError(f"{arg}: no vector file")
+    return files
+
+
+def _run_series(args: argparse.Namespace, refs: list[str], flds: list[str]) -> int:
+    if len(refs) != len(flds):
+        raise InvalidInputError(
+            f"{len(refs)} reference files and {len(flds)} fields: give the same pairs"
+        )
+    opts = {"frame": args.frame, "y_up": args.y_up, "scale": args.scale, "dt": args.dt}
+    c = compare_series(refs, flds, threshold=args.threshold, reference_options=opts)
+    print(f"{refs[0]} ... against {flds[0]} ...")
+    print(c.report(rows=args.rows))
+    if args.json:
+        atomic_write_text(args.json, c.to_json() + "\n")
+    if c.warning:
+        print(f"rspiv compare: warning: {c.warning}", file=sys.stderr)
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
+    refs, flds = _series(args.reference), _series(args.field)
+    if (refs is None) != (flds is None):
+        raise InvalidInputError("a series against one file: give two files or two series")
+    if refs is not None and flds is not None:
+        return _run_series(args, refs, flds)
     ref = read_vectors(
         args.reference, frame=args.frame, y_up=args.y_up, scale=args.scale, dt=args.dt
     )
