@@ -101,6 +101,12 @@ def test_convention_errors_are_said_not_blamed_on_a_tool():
     # another dt: the field 1.25 times the reference
     c = compare_fields(ref, dataclasses.replace(ref, u=1.25 * ref.u, v=1.25 * ref.v))
     assert "1.25 times the reference" in c.warning
+    # a noisy reference flattens the slope (errors in both variables), not another dt
+    rng = np.random.default_rng(3)
+    small = _field(fn=lambda x, y: (0.1 * np.sin(x / 30.0), 0.1 * np.cos(y / 30.0)))
+    noisy = dataclasses.replace(small, u=small.u + rng.normal(0, 0.03, small.u.shape))
+    c = compare_fields(noisy, small)
+    assert c.slope_u < 0.95 and c.corr_u < 0.99 and "times the reference" not in c.warning
     # the same fields as read: nothing said
     assert compare_fields(ref, ref).warning == ""
 
