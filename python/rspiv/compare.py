@@ -57,7 +57,7 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 from rspiv.vector_files import VectorFile, from_piv_field
 
-__all__ = ["FieldComparison", "compare_fields"]
+__all__ = ["FieldComparison", "compare_fields", "json_ready"]
 
 _SAME_POSITION = 0.01  # px
 _BETTER = 0.5  # the other way up scattering under this share of the stated reading's
@@ -66,6 +66,17 @@ _OFFSET = 0.25  # px: a fitted offset of the positions from this on is said
 #: The factor check's correlation: the slope of a noisy reference is attenuated by about
 #: 1 - r^2 (errors in both variables), under 2 % from here, well under the 10 % it looks for
 _CORRELATED = 0.99
+
+
+def json_ready(val: Any) -> Any:
+    """``val`` with NaN and inf as None and tuples as lists, for :func:`json.dumps`."""
+    if isinstance(val, float):
+        return val if np.isfinite(val) else None
+    if isinstance(val, dict):
+        return {k: json_ready(v) for k, v in val.items()}
+    if isinstance(val, (tuple, list)):
+        return [json_ready(v) for v in val]
+    return val
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,15 +129,7 @@ class FieldComparison:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (NaN as None)."""
-
-        def clean(val: Any) -> Any:
-            if isinstance(val, float):
-                return val if np.isfinite(val) else None
-            if isinstance(val, (tuple, list)):
-                return [clean(v) for v in val]
-            return val
-
-        return {k: clean(v) for k, v in dataclasses.asdict(self).items()}
+        return json_ready(dataclasses.asdict(self))
 
     def to_json(self) -> str:
         """:meth:`to_dict` as JSON text."""

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.compare import as_vectors, compare_with_differences
+from rspiv.compare import as_vectors, compare_with_differences, json_ready
 from rspiv.errors import InvalidInputError
 from rspiv.vector_files import VectorFile, read_vectors
 
@@ -76,15 +76,7 @@ class SeriesComparison:
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (NaN as None); ``row_columns`` names the rows' columns."""
-
-        def clean(val: Any) -> Any:
-            if isinstance(val, float):
-                return val if np.isfinite(val) else None
-            if isinstance(val, (tuple, list)):
-                return [clean(v) for v in val]
-            return val
-
-        out = {k: clean(v) for k, v in dataclasses.asdict(self).items()}
+        out = json_ready(dataclasses.asdict(self))
         out["row_columns"] = list(ROW_COLUMNS)
         return out
 

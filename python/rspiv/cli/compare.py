@@ -49,6 +49,11 @@ def _run_series(args: argparse.Namespace, refs: list[str], flds: list[str]) -> i
     c = compare_series(refs, flds, threshold=args.threshold, reference_options=opts)
     print(f"{refs[0]} ... against {flds[0]} ...")
     print(c.report(rows=args.rows))
+    return _written(args, c)
+
+
+def _written(args: argparse.Namespace, c) -> int:
+    """The JSON file when asked, the warning on stderr; the exit code."""
     if args.json:
         atomic_write_text(args.json, c.to_json() + "\n")
     if c.warning:
@@ -76,11 +81,7 @@ def run(args: argparse.Namespace) -> int:
         print("  rows: y px, vectors, mean du, mean dv, rms px")
         for y, n, du, dv, rms in c.rows:
             print(f"  {y:9.2f} {n:6d} {du:+9.4f} {dv:+9.4f} {rms:9.4f}")
-    if args.json:
-        atomic_write_text(args.json, c.to_json() + "\n")
-    if c.warning:
-        print(f"rspiv compare: warning: {c.warning}", file=sys.stderr)
-    return 0
+    return _written(args, c)
 
 
 def register(sub) -> None:
