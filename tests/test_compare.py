@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -247,4 +248,21 @@ def test_cli_compares_two_series(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "ref"), str(tmp_path / "fld")]) == 2
     assert "4 reference files and 3 fields" in capsys.readouterr().err
     assert main(["compare", str(tmp_path / "ref"), str(tmp_path / "fld" / "B00000.txt")]) == 2
+    assert "a series against one file" in capsys.readouterr().err
+
+
+def test_a_file_of_several_pairs_is_a_series(tmp_path, capsys):
+    from rspiv.compare_series import compare_series
+    from rspiv.vector_files import vector_frames
+
+    session = pathlib.Path(__file__).parent / "data" / "real" / "pivpy_pivlab_session.mat"
+    assert vector_frames(session) == 2
+    c = compare_series([(session, 0), (session, 1)], [(session, 0), (session, 1)])
+    assert c.n_pairs == 2 and c.median < 1e-4 and c.bias_u == 0.0
+    assert main(["compare", str(session), str(session)]) == 0
+    out = capsys.readouterr().out
+    assert f"{session}[0] ... against {session}[0] ..." in out and "2 pairs" in out
+    f = tmp_path / "one.txt"
+    f.write_text("16 16 1 2\n32 16 1 2\n")
+    assert main(["compare", str(session), str(f)]) == 2
     assert "a series against one file" in capsys.readouterr().err

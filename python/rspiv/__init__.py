@@ -12,6 +12,7 @@ from rspiv.calibration import Calibration, calibrate, calibrate_points
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.compare import FieldComparison, compare_fields
+from rspiv.compare_series import SeriesComparison, compare_series
 from rspiv.conditional import ConditionalAccumulator
 from rspiv.correction import piv_vectors
 from rspiv.dewarp import dewarp
@@ -63,3 +64,4 @@ __all__ += ["Repeatability", "repeatability", "RecordingCheck", "check_recording
 __all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds", "ConditionalAccumulator"]
 __all__ += ["TemporalAccumulator", "SpodResult", "spod"]
 __all__ += ["VectorFile", "read_vectors", "FieldComparison", "compare_fields"]
+__all__ += ["SeriesComparison", "compare_series"]

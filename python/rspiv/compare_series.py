@@ -114,6 +114,8 @@ class SeriesComparison:
 def _load(item: Any, name: str, read: dict[str, Any]) -> VectorFile:
     if isinstance(item, (str, os.PathLike)):
         return read_vectors(item, **read)
+    if isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], (str, os.PathLike)):
+        return read_vectors(item[0], **{**read, "frame": int(item[1])})
     return as_vectors(item, name)
 
 
@@ -128,9 +130,10 @@ def compare_series(
 
     Parameters
     ----------
-    references, fields : iterables of paths, VectorFile or PivField
+    references, fields : iterables of paths, (path, frame) tuples, VectorFile or PivField
         The two tools' fields of the same pairs, in the same order and of equal number; paths
-        are read one at a time (:func:`rspiv.vector_files.read_vectors`).
+        are read one at a time (:func:`rspiv.vector_files.read_vectors`), a tuple names a
+        frame of a multi-frame file (a PIVlab session's pair, a DaVis buffer's frame).
     threshold : float
         px: vectors farther apart count as disagreeing.
     reference_options : dict, optional

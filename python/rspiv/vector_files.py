@@ -57,7 +57,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["VECTOR_SUFFIXES", "VectorFile", "read_vectors", "from_piv_field"]
+__all__ = ["VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field"]
 
 #: Suffixes :func:`read_vectors` reads, by tool.
 VECTOR_SUFFIXES = {
@@ -562,6 +562,29 @@ def read_vectors(
     if p.suffix.lower() == ".nc":
         return _rspiv_netcdf(p)
     return _rspiv_tecplot(p)
+
+
+def vector_frames(path: str | os.PathLike) -> int:
+    """How many fields a vector file holds: the frames of a DaVis buffer, the pairs (cells) of a
+    PIVlab file, 1 for the others. InvalidInputError naming the file if it cannot be read."""
+    p = pathlib.Path(path)
+    tool = VECTOR_SUFFIXES.get(p.suffix.lower())
+    if not p.is_file() or tool is None:
+        read_vectors(p)  # the one-line refusal of a missing or foreign file
+    if tool == "DaVis":
+        from rspiv.io import _davis_buffer  # deferred: lvpyio is imported only for DaVis files
+
+        return len(_davis_buffer(p))
+    if tool == "PIVlab":
+        var = _mat_variables(p)
+        for name in ("x", "u_original", "u"):
+            val = var.get(name)
+            if isinstance(val, np.ndarray) and val.dtype == object:
+                return int(val.size)
+        session = var.get("resultslist")
+        if isinstance(session, np.ndarray) and session.dtype == object and session.ndim == 2:
+            return int(session.shape[1])
+    return 1
 
 
 def from_piv_field(field: Any, name: str = "rspiv") -> VectorFile:

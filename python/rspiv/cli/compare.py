@@ -6,10 +6,11 @@ The reference is the lab's result of another tool (DaVis ``.vc7``, OpenPIV ``.tx
 The report goes to stdout; a suspected convention error (y upward, positions shifted, another
 dt) or a poor coverage is said on stderr as well. ``--json`` writes the figures and the rows.
 
-Two series of the same pairs (a glob, quoted, or a folder each: ``rspiv compare "davis/*.vc7"
-OUT/fields/uncorrected``) are compared pair by pair, in sorted order, and their statistics row
-by row (:mod:`rspiv.compare_series`: mean velocity and Reynolds stresses of both tools over the
-pairs both measured, the mean difference with its error).
+Two series of the same pairs (a glob, quoted, a folder, or a file of several pairs such as a
+PIVlab session: ``rspiv compare "davis/*.vc7" OUT/fields/uncorrected``) are compared pair by
+pair, in sorted order, and their statistics row by row (:mod:`rspiv.compare_series`: mean
+velocity and Reynolds stresses of both tools over the pairs both measured, the mean difference
+with its error).
 """
 
 from __future__ import annotations
@@ -18,26 +19,34 @@ import argparse
 import glob
 import pathlib
 import sys
+from typing import Any
 
 from rspiv.compare import compare_fields
 from rspiv.compare_series import compare_series
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text
-from rspiv.vector_files import VECTOR_SUFFIXES, read_vectors
+from rspiv.vector_files import VECTOR_SUFFIXES, read_vectors, vector_frames
 
 
-def _series(arg: str) -> list[str] | None:
-    """The files of a folder or a glob, sorted; None for one file."""
+def _series(arg: str) -> list[Any] | None:
+    """The files of a folder or a glob, sorted, or the fields of one multi-frame file (a
+    PIVlab file of several pairs, a DaVis buffer of several frames) as (file, frame); None for
+    a file of one field."""
     p = pathlib.Path(arg)
     if p.is_dir():
         files = sorted(str(f) for f in p.iterdir() if f.suffix.lower() in VECTOR_SUFFIXES)
     elif any(c in arg for c in "*?["):
         files = sorted(glob.glob(arg))
     else:
-        return None
+        n = vector_frames(p)
+        return [(arg, k) for k in range(n)] if n > 1 else None
     if not files:
         raise InvalidInputError(f"{arg}: no vector file")
     return files
+
+
+def _name(item: Any) -> str:
+    return f"{item[0]}[{item[1]}]" if isinstance(item, tuple) else str(item)
 
 
 def _run_series(args: argparse.Namespace, refs: list[str], flds: list[str]) -> int:
@@ -47,7 +56,7 @@ def _run_series(args: argparse.Namespace, refs: list[str], flds: list[str]) -> i
         )
     opts = {"frame": args.frame, "y_up": args.y_up, "scale": args.scale, "dt": args.dt}
     c = compare_series(refs, flds, threshold=args.threshold, reference_options=opts)
-    print(f"{refs[0]} ... against {flds[0]} ...")
+    print(f"{_name(refs[0])} ... against {_name(flds[0])} ...")
     print(c.report(rows=args.rows))
     return _written(args, c)
 
