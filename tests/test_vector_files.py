@@ -245,6 +245,21 @@ def test_rspiv_files_read_back_exactly(tmp_path):
         np.testing.assert_allclose(r.u, f.u, atol=1e-6)
         np.testing.assert_array_equal(r.valid, f.valid)
         assert r.tool == "rspiv"
+    # rspiv piv's attributes: the final window, and a corrected field's frame
+    ds = f.to_xarray()
+    ds.attrs["piv_settings"] = rspiv.PivSettings(passes=((32, 32),)).to_json()
+    ds.attrs["method"] = "II"
+    write_netcdf(ds, tmp_path / "corrected.nc")
+    c = read_vectors(tmp_path / "corrected.nc")
+    assert c.window == (32, 32) and c.frame == "object"
+    assert read_vectors(tmp_path / "f.nc").frame == "image"
+    from rspiv.compare import compare_fields
+
+    op = tmp_path / "op.txt"
+    rows = np.column_stack([(f.x + 0.5).ravel(), (f.y + 0.5).ravel(), f.u.ravel(), f.v.ravel()])
+    np.savetxt(op, rows)
+    warning = compare_fields(read_vectors(op), c).warning
+    assert "the field is in the object frame and the reference in the image frame" in warning
 
 
 @pytest.mark.parametrize(

@@ -41,7 +41,8 @@ difference, :func:`compare_fields` checks what a file's conventions most often g
   where the two correlate closely (r >= 0.99: the reference's own noise flattens the slope by
   about 1 - r^2, which at r = 0.965 made 0.87 of a field that was 1 of it).
 
-It also warns when fewer than half of the reference's valid vectors can be compared, and when
+It also warns when fewer than half of the reference's valid vectors can be compared, when one
+field is corrected for the distortion and the other is not (``VectorFile.frame``), and when
 the two fields' final windows differ (their differences then include the filtering of the
 flow by the larger window).
 """
@@ -485,6 +486,12 @@ def compare_with_differences(
         warnings.append(
             f"only {n} of the reference's {n_ref} valid vectors compared "
             f"({100 * n / n_ref:.0f} %): the rest are invalid in the field or outside it"
+        )
+    if {ref.frame, fld.frame} == {"image", "object"}:
+        warnings.append(
+            f"the field is in the {fld.frame} frame and the reference in the {ref.frame} frame "
+            "(one corrected for the distortion, one not): their positions and displacements "
+            "differ by the distortion; compare runs of one frame (a campaign's uncorrected run)"
         )
     if ref.window is not None and fld.window is not None and ref.window != fld.window:
         warnings.append(

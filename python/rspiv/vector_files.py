@@ -49,6 +49,7 @@ that are not a regular grid, and values that are not numbers.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import pathlib
 from typing import Any
@@ -102,6 +103,10 @@ class VectorFile:
         The final interrogation window ``(w, h)``, px, when the file gives it.
     notes : tuple of str
         What the reader assumed or left out, one line each.
+    frame : str
+        ``"image"`` (the raw recording's px: OpenPIV, PIVlab, an uncorrected rspiv run),
+        ``"object"`` (px of a distortion-corrected frame: rspiv's Method I or II), or ``""``
+        when the file does not say (DaVis, which may have dewarped the images itself).
     """
 
     x: np.ndarray
@@ -119,6 +124,7 @@ class VectorFile:
     mm_per_px: float = float("nan")
     window: tuple[int, int] | None = None
     notes: tuple[str, ...] = ()
+    frame: str = ""
 
     @property
     def spacing(self) -> tuple[float, float]:
@@ -317,7 +323,7 @@ def _openpiv(p: pathlib.Path, y_up: bool, scale: float, dt: float) -> VectorFile
     peak = snr if np.isfinite(snr).any() else None
     return VectorFile(
         x=x, y=y, u=u, v=v, valid=valid, postprocessed=post, peak_ratio=peak, sigma_u=None,
-        sigma_v=None, tool="OpenPIV", path=str(p), notes=tuple(notes),
+        sigma_v=None, tool="OpenPIV", path=str(p), notes=tuple(notes), frame="image",
     )  # fmt: skip
 
 
@@ -437,7 +443,7 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
     return VectorFile(
         x=x, y=y, u=np.where(computed, u, np.nan), v=np.where(computed, v, np.nan),
         valid=valid, postprocessed=post, peak_ratio=None, sigma_u=None, sigma_v=None,
-        tool="PIVlab", path=str(p), notes=tuple(notes),
+        tool="PIVlab", path=str(p), notes=tuple(notes), frame="image",
     )  # fmt: skip
 
 
@@ -469,10 +475,21 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
     def opt(name: str) -> np.ndarray | None:
         return ds[name].values.astype(float) if name in ds else None
 
+    # rspiv piv's attrs name the method of a corrected field; a campaign's files name the run
+    method = str(ds.attrs.get("method", "")).strip()
+    run = str(ds.attrs.get("run", "")).strip()
+    corrected = method in ("I", "II") or run.startswith("method_")
+    window = None
+    try:
+        window = tuple(int(w) for w in json.loads(ds.attrs["piv_settings"])["passes"][-1])[:2]
+    except (KeyError, ValueError, TypeError, IndexError):
+        pass
     return VectorFile(
         x=x, y=y, u=np.where(chc >= 0, u, np.nan), v=np.where(chc >= 0, v, np.nan),
         valid=chc == 1, postprocessed=chc == 0, peak_ratio=opt("peak_ratio"),
         sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"), tool="rspiv", path=str(p),
+        window=window if window and len(window) == 2 else None,
+        frame="object" if corrected else "image",
     )  # fmt: skip
 
 
