@@ -14,7 +14,7 @@ from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.compare import FieldComparison, compare_fields
 from rspiv.compare_series import SeriesComparison, compare_series
 from rspiv.conditional import ConditionalAccumulator
-from rspiv.correction import piv_vectors
+from rspiv.correction import correct_vectors, piv_vectors
 from rspiv.dewarp import dewarp
 from rspiv.ensemble import EnsembleAccumulator, EnsembleField
 from rspiv.errors import (
@@ -53,7 +53,7 @@ __all__ += ["BoundaryLayerResult", "load_dns"]
 __all__ += ["Mapping", "fit_mapping"]
 __all__ += ["PivField", "PivSettings", "piv", "piv_at", "window_response", "particle_diameter"]
 __all__ += ["Calibration", "calibrate", "calibrate_points", "MonteCarloResult", "monte_carlo"]
-__all__ += ["Campaign", "piv_vectors"]
+__all__ += ["Campaign", "piv_vectors", "correct_vectors"]
 __all__ += ["dewarp", "Wall", "find_wall"]
 __all__ += ["WallTable", "wall_table"]
 __all__ += ["read_tecplot", "write_tecplot"]

@@ -56,11 +56,10 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.vector_files import VectorFile, from_piv_field
+from rspiv.vector_files import VectorFile, as_vectors, axis_of, sample_at
 
 __all__ = ["FieldComparison", "compare_fields", "json_ready"]
 
-_SAME_POSITION = 0.01  # px
 _BETTER = 0.5  # the other way up scattering under this share of the stated reading's
 _NOTICE = 0.05  # px: a robust scatter under this raises no check of the rows' direction
 _OFFSET = 0.25  # px: a fitted offset of the positions from this on is said
@@ -178,27 +177,11 @@ class FieldComparison:
         return "\n".join(lines)
 
 
-def as_vectors(obj: Any, name: str) -> VectorFile:
-    """``obj`` as a :class:`VectorFile`: itself, or an rspiv :class:`~rspiv.PivField`."""
-    if isinstance(obj, VectorFile):
-        return obj
-    if hasattr(obj, "peak_choice") and hasattr(obj, "masked"):
-        return from_piv_field(obj, name)
-    raise InvalidInputError(f"{name}: a VectorFile or an rspiv PivField, not {type(obj).__name__}")
-
-
-def _axis(coords: np.ndarray) -> tuple[float, float, int]:
-    """(origin, step, n) of a regular axis."""
-    n = coords.size
-    step = float(coords[1] - coords[0]) if n > 1 else 1.0
-    return float(coords[0]), step, n
-
-
 def _gradients(f: VectorFile) -> list[np.ndarray]:
     """du/dx, du/dy, dv/dx, dv/dy of the field's valid vectors (central differences, one-sided
     of second order at its edges; NaN next to an invalid vector), px per px."""
-    x0, dx, nx = _axis(f.x[0])
-    y0, dy, ny = _axis(f.y[:, 0])
+    x0, dx, nx = axis_of(f.x[0])
+    y0, dy, ny = axis_of(f.y[:, 0])
     out = []
     for a in (f.u, f.v):
         a = np.where(f.valid, a, np.nan)
@@ -207,48 +190,6 @@ def _gradients(f: VectorFile) -> list[np.ndarray]:
             continue
         gy, gx = np.gradient(a, dy, dx, edge_order=2 if min(nx, ny) > 2 else 1)
         out += [gx, gy]
-    return out
-
-
-def _sample(
-    f: VectorFile, xs: np.ndarray, ys: np.ndarray, arrays: list[np.ndarray | None]
-) -> list[np.ndarray]:
-    """``arrays`` of the field (u, v, ...) at positions (xs, ys): the node itself where one lies
-    within 0.01 px, else bilinear from four valid nodes; NaN where neither (or None given)."""
-    x0, dx, nx = _axis(f.x[0])
-    y0, dy, ny = _axis(f.y[:, 0])
-    fx = (xs - x0) / dx
-    fy = (ys - y0) / dy
-    out = []
-    good = f.valid & np.isfinite(f.u) & np.isfinite(f.v)
-    ix = np.rint(fx).astype(np.int64)
-    iy = np.rint(fy).astype(np.int64)
-    on_node = (
-        (np.abs(fx - ix) * abs(dx) < _SAME_POSITION)
-        & (np.abs(fy - iy) * abs(dy) < _SAME_POSITION)
-        & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    )  # fmt: skip
-    i0 = np.clip(np.floor(fx).astype(np.int64), 0, max(nx - 2, 0))
-    j0 = np.clip(np.floor(fy).astype(np.int64), 0, max(ny - 2, 0))
-    tx = fx - i0
-    ty = fy - j0
-    inside = (fx >= 0) & (fx <= nx - 1) & (fy >= 0) & (fy <= ny - 1) & (nx > 1) & (ny > 1)
-    i1 = np.minimum(i0 + 1, nx - 1)
-    j1 = np.minimum(j0 + 1, ny - 1)
-    four = inside & good[j0, i0] & good[j0, i1] & good[j1, i0] & good[j1, i1]
-    ixc = np.clip(ix, 0, nx - 1)
-    iyc = np.clip(iy, 0, ny - 1)
-    node_ok = on_node & good[iyc, ixc]
-    for a in arrays:
-        if a is None:
-            out.append(np.full(xs.shape, np.nan))
-            continue
-        bil = (
-            (1 - tx) * (1 - ty) * a[j0, i0] + tx * (1 - ty) * a[j0, i1]
-            + (1 - tx) * ty * a[j1, i0] + tx * ty * a[j1, i1]
-        )  # fmt: skip
-        val = np.where(node_ok, a[iyc, ixc], np.where(four & ~on_node, bil, np.nan))
-        out.append(val)
     return out
 
 
@@ -288,7 +229,7 @@ def _differences(ref: VectorFile, fld: VectorFile, flip: bool = False) -> _Diff:
     ys = ref.y[valid_read]
     ru, rv = pick(ref.u), pick(ref.v, -1.0 if flip else 1.0)
     rsu, rsv = pick(ref.sigma_u), pick(ref.sigma_v)
-    sampled = _sample(fld, xs, ys, [fld.u, fld.v, fld.sigma_u, fld.sigma_v, *_gradients(fld)])
+    sampled = sample_at(fld, xs, ys, [fld.u, fld.v, fld.sigma_u, fld.sigma_v, *_gradients(fld)])
     fu, fv = sampled[0], sampled[1]
     k = np.isfinite(fu) & np.isfinite(fv)
     return _Diff(

@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.compare import as_vectors, compare_with_differences, json_ready
+from rspiv.compare import compare_with_differences, json_ready
 from rspiv.errors import InvalidInputError
-from rspiv.vector_files import VectorFile, read_vectors
+from rspiv.vector_files import VectorFile, as_vectors, read_vectors
 
 __all__ = ["SeriesComparison", "compare_series"]
 

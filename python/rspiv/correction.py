@@ -75,9 +75,11 @@ from rspiv.settings import (
     parse_method,
     per_pass,
 )
+from rspiv.vector_files import VectorFile, as_vectors, sample_at
 
 __all__ = [
     "correct",
+    "correct_vectors",
     "dewarp_pair",
     "grid_for_windows",
     "final_grid",
@@ -657,3 +659,64 @@ def correct(
         predictor=predictor,
         mask=mask,
     )
+
+
+# -- another tool's vectors ----------------------------------------------------------------------
+def correct_vectors(vectors: Any, calibration: Any, *, mapping: str = "full") -> VectorFile:
+    """Method II for a vector field measured on the raw frames by any tool (a DaVis, OpenPIV or
+    PIVlab result read by :func:`rspiv.vector_files.read_vectors`, or an uncorrected rspiv run).
+
+    At every point ``X`` of the field's own grid, now read as object px, the field is taken at
+    the image point ``x = F(X)`` (bilinear from its four valid neighbours: the vectors are not
+    correlated again, so this adds the interpolation's smoothing between the field's nodes,
+    which rspiv's own Method II, placing windows at ``F(X)``, does not) and its displacement is
+    mapped as :func:`map_displacements` does (``mapping="full"``: through the inverse,
+    ``F^-1(x + d/2) - F^-1(x - d/2)``; ``"positions"``: kept). The tool's uncertainties are
+    carried by :func:`map_sigmas`.
+
+    Parameters
+    ----------
+    vectors : VectorFile or PivField
+        The field on the raw frames (image px).
+    calibration : Calibration or Mapping
+        Object px -> image px, of the camera that recorded the frames.
+    mapping : {"full", "positions"}
+
+    Returns
+    -------
+    VectorFile
+        On the input's grid in object px (``frame="object"``); valid where the image point has
+        four valid neighbours and the inverse map converges, NaN elsewhere.
+
+    Raises
+    ------
+    InvalidInputError
+        A field already corrected, not a field, a calibration that is not one.
+    """
+    vf = as_vectors(vectors, "vectors")
+    if vf.frame == "object":
+        raise InvalidInputError(f"{vf.path}: already corrected for the distortion (object px)")
+    mode = parse_mapping_mode(mapping)
+    m = mapping_of(calibration)
+    obj = np.column_stack([vf.x.ravel(), vf.y.ravel()])
+    img = m.forward(obj)
+    u, v, su, sv = sample_at(vf, img[:, 0], img[:, 1], [vf.u, vf.v, vf.sigma_u, vf.sigma_v])
+    d_obj = map_displacements(m, img, np.column_stack([u, v]), mode)
+    shape = vf.u.shape
+    sig = None
+    if vf.sigma_u is not None and vf.sigma_v is not None:
+        sig = map_sigmas(m, obj, np.column_stack([su, sv]), mode)
+    ok = np.all(np.isfinite(d_obj), axis=1).reshape(shape)
+    return dataclasses.replace(
+        vf,
+        u=d_obj[:, 0].reshape(shape),
+        v=d_obj[:, 1].reshape(shape),
+        valid=ok,
+        postprocessed=np.zeros(shape, dtype=bool),
+        peak_ratio=None,
+        sigma_u=None if sig is None else sig[:, 0].reshape(shape),
+        sigma_v=None if sig is None else sig[:, 1].reshape(shape),
+        frame="object",
+        notes=vf.notes + (f"corrected by rspiv's Method II ({mode}): the field interpolated at "
+                          "the image points of its grid read as object px",),
+    )  # fmt: skip

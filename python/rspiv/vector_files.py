@@ -58,7 +58,13 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field"]
+__all__ = [
+    "VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field", "sample_at",
+    "axis_of", "as_vectors",
+]  # fmt: skip
+
+#: Positions closer than this (px) are the same vector's (:func:`sample_at`).
+_SAME_POSITION = 0.01
 
 #: Suffixes :func:`read_vectors` reads, by tool.
 VECTOR_SUFFIXES = {
@@ -581,6 +587,55 @@ def read_vectors(
     return _rspiv_tecplot(p)
 
 
+def axis_of(coords: np.ndarray) -> tuple[float, float, int]:
+    """(origin, step, n) of a regular axis."""
+    n = coords.size
+    step = float(coords[1] - coords[0]) if n > 1 else 1.0
+    return float(coords[0]), step, n
+
+
+def sample_at(
+    f: VectorFile, xs: np.ndarray, ys: np.ndarray, arrays: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    """``arrays`` of the field (u, v, ...) at positions (xs, ys): the node itself where one lies
+    within 0.01 px, else bilinear from four valid nodes; NaN where neither (or None given)."""
+    x0, dx, nx = axis_of(f.x[0])
+    y0, dy, ny = axis_of(f.y[:, 0])
+    fx = (xs - x0) / dx
+    fy = (ys - y0) / dy
+    out = []
+    good = f.valid & np.isfinite(f.u) & np.isfinite(f.v)
+    ix = np.rint(fx).astype(np.int64)
+    iy = np.rint(fy).astype(np.int64)
+    on_node = (
+        (np.abs(fx - ix) * abs(dx) < _SAME_POSITION)
+        & (np.abs(fy - iy) * abs(dy) < _SAME_POSITION)
+        & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    )  # fmt: skip
+    i0 = np.clip(np.floor(fx).astype(np.int64), 0, max(nx - 2, 0))
+    j0 = np.clip(np.floor(fy).astype(np.int64), 0, max(ny - 2, 0))
+    tx = fx - i0
+    ty = fy - j0
+    inside = (fx >= 0) & (fx <= nx - 1) & (fy >= 0) & (fy <= ny - 1) & (nx > 1) & (ny > 1)
+    i1 = np.minimum(i0 + 1, nx - 1)
+    j1 = np.minimum(j0 + 1, ny - 1)
+    four = inside & good[j0, i0] & good[j0, i1] & good[j1, i0] & good[j1, i1]
+    ixc = np.clip(ix, 0, nx - 1)
+    iyc = np.clip(iy, 0, ny - 1)
+    node_ok = on_node & good[iyc, ixc]
+    for a in arrays:
+        if a is None:
+            out.append(np.full(xs.shape, np.nan))
+            continue
+        bil = (
+            (1 - tx) * (1 - ty) * a[j0, i0] + tx * (1 - ty) * a[j0, i1]
+            + (1 - tx) * ty * a[j1, i0] + tx * ty * a[j1, i1]
+        )  # fmt: skip
+        val = np.where(node_ok, a[iyc, ixc], np.where(four & ~on_node, bil, np.nan))
+        out.append(val)
+    return out
+
+
 def vector_frames(path: str | os.PathLike) -> int:
     """How many fields a vector file holds: the frames of a DaVis buffer, the pairs (cells) of a
     PIVlab file, 1 for the others. InvalidInputError naming the file if it cannot be read."""
@@ -620,3 +675,12 @@ def from_piv_field(field: Any, name: str = "rspiv") -> VectorFile:
         sigma_v=np.asarray(field.sigma_v, dtype=np.float64), tool="rspiv", path=name,
         window=tuple(int(w) for w in field.window),
     )  # fmt: skip
+
+
+def as_vectors(obj: Any, name: str) -> VectorFile:
+    """``obj`` as a :class:`VectorFile`: itself, or an rspiv :class:`~rspiv.PivField`."""
+    if isinstance(obj, VectorFile):
+        return obj
+    if hasattr(obj, "peak_choice") and hasattr(obj, "masked"):
+        return from_piv_field(obj, name)
+    raise InvalidInputError(f"{name}: a VectorFile or an rspiv PivField, not {type(obj).__name__}")

@@ -3,8 +3,11 @@
 The reference is the lab's result of another tool (DaVis ``.vc7``, OpenPIV ``.txt``, PIVlab
 ``.mat``) and the field rspiv's (``rspiv piv A.tif B.tif -o field.nc``), or any two of them
 (:mod:`rspiv.vector_files` gives each format's conventions, :mod:`rspiv.compare` the figures).
-The report goes to stdout; a suspected convention error (y upward, positions shifted, another
-dt) or a poor coverage is said on stderr as well. ``--json`` writes the figures and the rows.
+With ``--calibration cal.json`` the reference, measured on the raw frames, is first corrected
+by rspiv's Method II (:func:`rspiv.correction.correct_vectors`), to be compared with an rspiv
+run corrected by the same calibration. The report goes to stdout; a suspected convention error
+(y upward, positions shifted, another dt), a corrected field against an uncorrected one or a
+poor coverage is said on stderr as well. ``--json`` writes the figures and the rows.
 
 Two series of the same pairs (a glob, quoted, a folder, or a file of several pairs such as a
 PIVlab session: ``rspiv compare "davis/*.vc7" OUT/fields/uncorrected``) are compared pair by
@@ -21,8 +24,10 @@ import pathlib
 import sys
 from typing import Any
 
+from rspiv.calibration import Calibration
 from rspiv.compare import compare_fields
 from rspiv.compare_series import compare_series
+from rspiv.correction import correct_vectors
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text
 from rspiv.vector_files import VECTOR_SUFFIXES, read_vectors, vector_frames
@@ -75,11 +80,15 @@ def run(args: argparse.Namespace) -> int:
     if (refs is None) != (flds is None):
         raise InvalidInputError("a series against one file: give two files or two series")
     if refs is not None and flds is not None:
+        if args.calibration is not None:
+            raise InvalidInputError("--calibration corrects one reference field, not a series")
         return _run_series(args, refs, flds)
     ref = read_vectors(
         args.reference, frame=args.frame, y_up=args.y_up, scale=args.scale, dt=args.dt
     )
     fld = read_vectors(args.field, frame=args.field_frame)
+    if args.calibration is not None:
+        ref = correct_vectors(ref, Calibration.load(args.calibration), mapping=args.mapping)
     for f in (ref, fld):
         print(f.describe())
         for note in f.notes:
@@ -113,6 +122,12 @@ def register(sub) -> None:
     p.add_argument(
         "--threshold", type=float, default=0.5, help="px: vectors farther apart disagree (0.5)"
     )
+    p.add_argument(
+        "--calibration", default=None,
+        help="calibration JSON: correct the reference (raw-frame vectors) by Method II first",
+    )  # fmt: skip
+    p.add_argument("--mapping", default="full", choices=("full", "positions"),
+                   help="with --calibration: the displacement mapping (full)")  # fmt: skip
     p.add_argument("--rows", action="store_true", help="print the differences row by row")
     p.add_argument("--json", default=None, help="write the figures as JSON")
     p.set_defaults(func=run)
