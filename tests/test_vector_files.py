@@ -271,7 +271,7 @@ def test_rspiv_files_read_back_exactly(tmp_path):
         ("f.txt", "16 16 1 2\n32 16 1 2\n80 16 1 2\n", "not evenly spaced"),
         ("f.txt", "a b c d\n", "not an OpenPIV text file"),
         ("f.vec", "nan 16 1 2\n", "position that is not a number"),
-        ("f.mat", "not a mat file", "not a MATLAB file"),
+        ("f.mat", "not a mat file", "not a MAT file"),
         ("f.vc7", "not a buffer", "cannot read the DaVis buffer: 12 bytes only"),
         ("f.tif", "", "not a vector file rspiv reads"),
     ],

@@ -334,8 +334,8 @@ def _openpiv(p: pathlib.Path, y_up: bool, scale: float, dt: float) -> VectorFile
 
 
 def _mat_variables(p: pathlib.Path) -> dict[str, Any]:
-    """MATLAB variables of a v5-v7 (scipy) or v7.3 (HDF5) file, in MATLAB's shapes; a cell is
-    an object array of arrays."""
+    """MATLAB variables of a v5-v7 (:mod:`rspiv.matfile`) or v7.3 (HDF5, h5py) file, in MATLAB's
+    shapes; a cell is an object array of arrays."""
     head = p.read_bytes()[:8]
     if head.startswith(b"\x89HDF"):
         import h5py
@@ -359,13 +359,9 @@ def _mat_variables(p: pathlib.Path) -> dict[str, Any]:
         except Exception as exc:  # h5py raises RuntimeError, OSError, KeyError... on damage
             raise _fail(p, f"not a MATLAB v7.3 file h5py reads: {exc}") from None
         return out
-    import scipy.io
+    from rspiv.matfile import read_mat  # deferred: only PIVlab files need it
 
-    try:
-        raw = scipy.io.loadmat(p, squeeze_me=False)
-    except Exception as exc:  # scipy raises MatReadError, ValueError, TypeError... on damage
-        raise _fail(p, f"not a MATLAB file scipy reads: {exc}") from None
-    return {k: v for k, v in raw.items() if not k.startswith("__")}
+    return read_mat(p)  # not scipy's reader: a damaged file crashed it (rspiv.matfile)
 
 
 def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> tuple[float, float]:
@@ -373,7 +369,10 @@ def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> tuple[float, float]:
     def scalar(key: str) -> float | None:
         if key not in var:
             return None
-        c = np.asarray(var[key], dtype=np.float64).ravel()
+        try:
+            c = np.asarray(var[key], dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise _fail(p, f"{key} is not a number") from None
         return float(c[0]) if c.size else None
 
     calxy, caluv = scalar("calxy"), scalar("caluv")
