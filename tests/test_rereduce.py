@@ -195,3 +195,25 @@ def test_a_checkpoint_that_cannot_be_re_reduced_is_refused_saying_why(runs, tmp_
     # the fields off
     with pytest.raises(InvalidInputError, match=r"field files: \[output\] fields is off"):
         _run(d, "off", more.replace("fields = true", "fields = false"))
+
+
+def test_field_files_read_as_vector_files(runs):
+    """``rspiv.read_vectors`` (``rspiv compare``) reads a campaign's field files as the campaign
+    reads them back: the valid vectors, the PIV's replacements apart, the run's frame."""
+    from rspiv.campaign.fields import read_pair
+    from rspiv.vector_files import read_vectors
+
+    d = runs[0]
+    for run, frame in (("method_II", "object"), ("uncorrected", "image")):
+        path = d / "out" / "fields" / run / "pair_000001.nc"
+        vf = read_vectors(path)
+        with h5py.File(path, "r") as h:
+            fp = h.attrs["fields_fingerprint"]
+            fp = fp.decode() if isinstance(fp, bytes) else str(fp)
+        u, v, valid, su, _ = read_pair(path, vf.u.shape, run, fp)
+        assert vf.frame == frame and vf.tool == "rspiv"
+        np.testing.assert_array_equal(vf.valid, valid)
+        np.testing.assert_array_equal(vf.postprocessed, ~valid & np.isfinite(u))
+        np.testing.assert_allclose(vf.u[np.isfinite(u)], u[np.isfinite(u)], rtol=1e-7)
+        if su is not None:
+            np.testing.assert_allclose(vf.sigma_u[valid], su[valid], rtol=1e-7)

@@ -287,16 +287,26 @@ def test_bad_files_refused_in_one_line(tmp_path, name, text, match):
 
 
 def test_damaged_real_files_read_or_refused(tmp_path):
+    import rspiv
+    from rspiv.outputs import write_netcdf
+    from rspiv.synth import particle_pair
+
+    a, b = particle_pair((96, 128), (1.3, -0.7), seed=2)
+    f = rspiv.piv(a, b, passes=[(32, 32)])
+    write_netcdf(f.to_xarray(), tmp_path / "own.nc")
+    rspiv.write_tecplot(f, tmp_path / "own.dat")
     rng = np.random.default_rng(7)
-    for src in ("pivpy_openpiv_exp1_001_b.txt", "pivpy_pivlab_session.mat"):
-        data = bytearray((REAL / src).read_bytes())
+    sources = [REAL / "pivpy_openpiv_exp1_001_b.txt", REAL / "pivpy_pivlab_session.mat",
+               tmp_path / "own.nc", tmp_path / "own.dat"]  # fmt: skip
+    for src in sources:
+        data = bytearray(src.read_bytes())
         for k in range(40):
             bad = bytearray(data)
             for pos in rng.integers(0, len(bad), size=8):
                 bad[pos] = int(rng.integers(0, 256))
             if k % 4 == 0:
                 bad = bad[: int(rng.integers(1, len(bad)))]
-            p = tmp_path / f"{k}{pathlib.Path(src).suffix}"
+            p = tmp_path / f"{k}{src.suffix}"
             p.write_bytes(bytes(bad))
             try:
                 r = read_vectors(p)

@@ -106,8 +106,8 @@ def read_tecplot(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[s
     p = pathlib.Path(path)
     try:
         lines = p.read_text().splitlines()
-    except OSError as exc:
-        raise InvalidInputError(f"{p}: cannot read: {exc}") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InvalidInputError(f"{p}: cannot read as text: {exc}") from None
     names: list[str] = []
     aux: dict[str, str] = {}
     shape = None

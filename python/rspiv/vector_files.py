@@ -452,41 +452,71 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
     )  # fmt: skip
 
 
-def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
-    import xarray as xr
+def _text(value: Any) -> str:
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    if isinstance(value, np.ndarray) and value.size == 1:
+        return _text(value.ravel()[0])
+    return str(value)
 
+
+def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
+    """rspiv's NetCDF-4 fields, read with h5py (its layout is rspiv's own: no xarray needed,
+    and h5netcdf's failure on a damaged file left a noisy destructor behind)."""
+    import h5py
+
+    names = ("x", "y", "u", "v", "chc", "valid", "peak_ratio", "sigma_u", "sigma_v",
+             "replaced_index", "replaced_u", "replaced_v")  # fmt: skip
     try:
-        with xr.open_dataset(p) as ds:
-            ds = ds.load()
-    except (OSError, ValueError) as exc:
-        raise _fail(p, f"not a NetCDF file xarray reads: {exc}") from None
-    if "u" not in ds or "v" not in ds or "x" not in ds.coords or "y" not in ds.coords:
+        with h5py.File(p, "r") as h:
+            arr = {k: np.asarray(h[k][()]) for k in names if isinstance(h.get(k), h5py.Dataset)}
+            units = {k: _text(h[k].attrs.get("units", "pix")) for k in ("u", "v") if k in arr}
+            attrs = {k: _text(h.attrs.get(k, "")) for k in ("method", "run", "piv_settings")}
+    except Exception as exc:  # h5py raises OSError, KeyError, RuntimeError... on damage
+        first = (str(exc).splitlines() or [""])[0]
+        raise _fail(p, f"not a NetCDF-4 file rspiv reads ({type(exc).__name__}: {first})") from None
+    if not {"u", "v", "x", "y"} <= set(arr):
         raise _fail(p, "not an rspiv vector field on a grid (u, v on coordinates x, y)")
-    for name in ("u", "v"):
-        unit = str(ds[name].attrs.get("units", "pix"))
+    for name, unit in units.items():
         if unit not in ("pix", "px"):
             raise _fail(p, f"{name} in {unit!r}: only fields in px are read")
-    x, y = np.meshgrid(ds["x"].values.astype(float), ds["y"].values.astype(float))
+    try:
+        x, y = np.meshgrid(arr["x"].astype(float), arr["y"].astype(float))
+        u = arr["u"].astype(float)
+        v = arr["v"].astype(float)
+        if u.shape != x.shape or v.shape != x.shape:
+            raise ValueError(f"u {u.shape}, v {v.shape} on a grid of {x.shape}")
+    except (TypeError, ValueError) as exc:
+        raise _fail(p, f"not an rspiv vector field on a grid ({exc})") from None
     _check_regular(p, x, y)
-    u = ds["u"].values.astype(float)
-    v = ds["v"].values.astype(float)
-    if "chc" in ds:  # rspiv piv's field: 1 valid, 0 replaced, -1 not computed
-        chc = ds["chc"].values
-    elif "valid" in ds:  # a campaign's field file: rejected vectors NaN, valid 1
-        chc = np.where(ds["valid"].values.astype(bool) & np.isfinite(u), 1, -1)
+    if "chc" in arr:  # rspiv piv's field: 1 valid, 0 replaced, -1 not computed
+        chc = arr["chc"]
+    elif "valid" in arr:  # a campaign's field file: rejected vectors NaN, valid 1, and the
+        chc = np.where(arr["valid"].astype(bool) & np.isfinite(u), 1, -1)  # replacements apart
+        rep = [arr.get(k) for k in ("replaced_index", "replaced_u", "replaced_v")]
+        if all(r is not None and r.ndim == 1 and r.size == rep[0].size for r in rep):
+            idx = rep[0].astype(np.int64)
+            if idx.size and (idx.min() < 0 or idx.max() >= u.size):
+                raise _fail(p, "replaced vectors outside the grid")
+            u, v = u.copy(), v.copy()
+            u.flat[idx], v.flat[idx] = rep[1], rep[2]
+            chc.flat[idx] = 0
     else:
         chc = np.where(np.isfinite(u), 1, -1)
+    if chc.shape != x.shape:
+        raise _fail(p, f"flags of shape {chc.shape} on a grid of {x.shape}")
 
     def opt(name: str) -> np.ndarray | None:
-        return ds[name].values.astype(float) if name in ds else None
+        a = arr.get(name)
+        return a.astype(float) if a is not None and a.shape == x.shape else None
 
     # rspiv piv's attrs name the method of a corrected field; a campaign's files name the run
-    method = str(ds.attrs.get("method", "")).strip()
-    run = str(ds.attrs.get("run", "")).strip()
+    method = attrs["method"].strip()
+    run = attrs["run"].strip()
     corrected = method in ("I", "II") or run.startswith("method_")
     window = None
     try:
-        window = tuple(int(w) for w in json.loads(ds.attrs["piv_settings"])["passes"][-1])[:2]
+        window = tuple(int(w) for w in json.loads(attrs["piv_settings"])["passes"][-1])[:2]
     except (KeyError, ValueError, TypeError, IndexError):
         pass
     return VectorFile(
