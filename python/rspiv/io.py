@@ -141,7 +141,7 @@ _DAVIS_MAX_VALUES = 1 << 28
 
 def _davis_header_check(p: pathlib.Path) -> None:
     """Refuse a DaVis buffer whose header announces absurd sizes (little-endian int32 sizeX,
-    sizeY, sizeZ, sizeF at bytes 8-23 of IMX/IM7/VC7 headers), which lvpyio would allocate."""
+    sizeY, sizeZ, sizeF at bytes 8-23 of the IM7/VC7 header), which lvpyio would allocate."""
     try:
         with p.open("rb") as fh:
             head = fh.read(24)
@@ -161,7 +161,8 @@ def _davis_header_check(p: pathlib.Path) -> None:
 
 def _davis_buffer(p: pathlib.Path) -> Any:
     lv = _lvpyio(str(p))
-    _davis_header_check(p)
+    if p.suffix.lower() in (".im7", ".vc7"):  # DaVis 7+ headers; the older .imx has another
+        _davis_header_check(p)
     try:
         return lv.read_buffer(str(p))
     except Exception as exc:  # truncated or foreign file: lvpyio raises various types
