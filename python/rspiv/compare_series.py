@@ -157,7 +157,7 @@ def compare_series(
     grid = None
     sums: dict[str, np.ndarray] = {}
     count = None
-    row_means: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per pair: n, du, dv
+    rows_acc = None  # per row: pairs giving it a vector; mean and M2 of their row du, dv
     pairs = []
     pooled = np.zeros(5)  # n, sum du, sum dv, sum du^2, sum dv^2
     hist = np.zeros(_BINS + 1, dtype=np.int64)  # |d| in bins of _BIN px, the last beyond
@@ -177,6 +177,7 @@ def compare_series(
             grid = (ref.x, ref.y)
             sums = {s: np.zeros(ref.u.shape) for s in _SUMS}
             count = np.zeros(ref.u.shape, dtype=np.int64)
+            rows_acc = np.zeros((5, ref.u.shape[0]))
         elif ref.x.shape != grid[0].shape or not (
             np.allclose(ref.x, grid[0]) and np.allclose(ref.y, grid[1])
         ):
@@ -193,17 +194,20 @@ def compare_series(
             "ruv": d.ru * d.rv, "fuu": d.fu**2, "fvv": d.fv**2, "fuv": d.fu * d.fv,
             "du": d.du, "dv": d.dv,
         }  # fmt: skip
-        for s in _SUMS:
-            np.add.at(sums[s].reshape(-1), idx, vals[s])
-        np.add.at(count.reshape(-1), idx, 1)
+        for s in _SUMS:  # each reference vector at most once per pair: a plain add
+            sums[s].reshape(-1)[idx] += vals[s]
+        count.reshape(-1)[idx] += 1
         rows_of = idx // ref.u.shape[1]
         nrow = ref.u.shape[0]
         n_row = np.bincount(rows_of, minlength=nrow)
-        row_means.append((
-            n_row,
-            np.bincount(rows_of, d.du, minlength=nrow) / np.maximum(n_row, 1),
-            np.bincount(rows_of, d.dv, minlength=nrow) / np.maximum(n_row, 1),
-        ))  # fmt: skip
+        given = n_row > 0
+        mu = np.bincount(rows_of, d.du, minlength=nrow)[given] / n_row[given]
+        mv = np.bincount(rows_of, d.dv, minlength=nrow)[given] / n_row[given]
+        rows_acc[0, given] += 1  # Welford's update of each row's mean and M2, du then dv
+        for k, x in ((1, mu), (3, mv)):
+            delta = x - rows_acc[k, given]
+            rows_acc[k, given] += delta / rows_acc[0, given]
+            rows_acc[k + 1, given] += delta * (x - rows_acc[k, given])
         pooled += [d.du.size, d.du.sum(), d.dv.sum(), (d.du**2).sum(), (d.dv**2).sum()]
         hist += np.bincount(
             np.minimum((np.hypot(d.du, d.dv) / _BIN).astype(np.int64), _BINS), minlength=_BINS + 1
@@ -211,10 +215,10 @@ def compare_series(
         k += 1
     if k == 0 or grid is None or count is None:
         raise InvalidInputError("compare: no pairs given")
-    return _finish(grid, sums, count, row_means, pairs, pooled, hist, threshold)
+    return _finish(grid, sums, count, rows_acc, pairs, pooled, hist, threshold)
 
 
-def _finish(grid, sums, count, row_means, pairs, pooled, hist, threshold) -> SeriesComparison:
+def _finish(grid, sums, count, rows_acc, pairs, pooled, hist, threshold) -> SeriesComparison:
     n, su, sv, suu, svv = pooled
     bias_u, bias_v = su / n, sv / n
     std_u = float(np.sqrt(max(suu / n - bias_u**2, 0.0)))
@@ -230,25 +234,21 @@ def _finish(grid, sums, count, row_means, pairs, pooled, hist, threshold) -> Ser
             "uv_ref": m["ruv"] - m["ru"] * m["rv"], "uu_field": m["fuu"] - m["fu"] ** 2,
             "vv_field": m["fvv"] - m["fv"] ** 2, "uv_field": m["fuv"] - m["fu"] * m["fv"],
         }  # fmt: skip
-    per_pair_n = np.array([r[0] for r in row_means])
-    per_pair_du = np.array([r[1] for r in row_means])
-    per_pair_dv = np.array([r[2] for r in row_means])
     for j in range(count.shape[0]):
         cols = count[j] >= 2
-        given = per_pair_n[:, j] > 0
-        if not cols.any() or given.sum() < 2:
+        npairs = int(rows_acc[0, j])
+        if not cols.any() or npairs < 2:
             continue
 
         def avg(a: np.ndarray, j: int = j, cols: np.ndarray = cols) -> float:
             return float(np.mean(a[j][cols]))
 
-        du_pairs = per_pair_du[given, j]
-        dv_pairs = per_pair_dv[given, j]
-        npairs = int(given.sum())
+        def mean_err(k: int, j: int = j, n: int = npairs) -> tuple[float, float]:
+            """Mean of the pairs' row means and its standard error (their scatter)."""
+            return float(rows_acc[k, j]), float(np.sqrt(rows_acc[k + 1, j] / (n - 1) / n))
+
         rows.append((
-            float(grid[1][j, 0]), npairs,
-            float(du_pairs.mean()), float(du_pairs.std(ddof=1) / np.sqrt(npairs)),
-            float(dv_pairs.mean()), float(dv_pairs.std(ddof=1) / np.sqrt(npairs)),
+            float(grid[1][j, 0]), npairs, *mean_err(1), *mean_err(3),
             avg(m["ru"]), avg(m["fu"]), avg(m["rv"]), avg(m["fv"]),
             avg(cov["uu_ref"]), avg(cov["uu_field"]), avg(cov["vv_ref"]), avg(cov["vv_field"]),
             avg(cov["uv_ref"]), avg(cov["uv_field"]),

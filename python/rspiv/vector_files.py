@@ -250,6 +250,8 @@ def _davis(p: pathlib.Path, frame: int) -> VectorFile:
         attrs = dict(f.attributes)
     except (KeyError, AttributeError, IndexError, TypeError, ValueError) as exc:
         raise _fail(p, f"a DaVis vector buffer without the expected parts ({exc})") from None
+    if gx < 1 or gy < 1:
+        raise _fail(p, f"a DaVis vector grid of {gx} x {gy} px")
     known = on & (choice >= 0) & (choice <= 5)
     u[~known] = np.nan
     v[~known] = np.nan
