@@ -266,3 +266,23 @@ def test_a_file_of_several_pairs_is_a_series(tmp_path, capsys):
     f.write_text("16 16 1 2\n32 16 1 2\n")
     assert main(["compare", str(session), str(f)]) == 2
     assert "a series against one file" in capsys.readouterr().err
+
+
+def test_the_bias_error_holds_for_neighbours_that_share_their_pixels():
+    """Differences correlated over neighbouring vectors (as windows overlapping by half make
+    them): the stated error of the bias matches the scatter of the bias over realisations,
+    where the scatter of single vectors over their number understates it."""
+    from scipy.ndimage import uniform_filter
+
+    ref = _field()
+    rng = np.random.default_rng(9)
+    biases, stated, naive = [], [], []
+    for _ in range(200):
+        noise = uniform_filter(rng.normal(0, 0.1, ref.u.shape), size=3, mode="wrap")
+        c = compare_fields(ref, dataclasses.replace(ref, u=ref.u + noise))
+        biases.append(c.bias_u)
+        stated.append(c.bias_err_u)
+        naive.append(c.std_u / np.sqrt(c.n_compared))
+    truth = np.std(biases, ddof=1)
+    assert np.mean(stated) == pytest.approx(truth, rel=0.2)
+    assert np.mean(naive) < 0.5 * truth  # what a count of single vectors would have said

@@ -5,7 +5,10 @@ the lab's DaVis result) and a field to test (an rspiv :class:`~rspiv.PivField` o
 file), brings the second to the reference's vector positions and states their differences
 over the vectors valid in both, all in px over the pair (v down):
 
-- ``bias_u``, ``bias_v``: the mean of (field - reference), with its standard error;
+- ``bias_u``, ``bias_v``: the mean of (field - reference), with its standard error from the
+  scatter of the means of blocks of 4 x 4 vectors (neighbouring vectors share their windows'
+  pixels at the usual overlaps, and their differences with them: the scatter of single vectors
+  over their number understates it; NaN with fewer than 4 blocks);
 - ``std_u``, ``std_v``: the scatter of the differences about it; ``rms``: of their magnitude;
 - ``median``, ``p95``: percentiles of the magnitude ``|d|``; ``share_apart``: the share of
   vectors more than ``threshold`` px apart (0.5 by default; a wrong vector in one of the
@@ -292,6 +295,21 @@ def _position_offset(du, dv, grads, small) -> tuple[np.ndarray, np.ndarray, floa
     return offset, err, explained
 
 
+def _block_error(d: np.ndarray, index: np.ndarray, shape: tuple[int, int], b: int = 4) -> float:
+    """Standard error of the mean of ``d`` (at flat ``index`` of a grid of ``shape``) from the
+    scatter of its means over blocks of ``b`` x ``b`` vectors, weighted by their counts."""
+    rows, cols = np.divmod(index, shape[1])
+    block = (rows // b) * ((shape[1] + b - 1) // b) + cols // b
+    _, inv, counts = np.unique(block, return_inverse=True, return_counts=True)
+    if counts.size < 4:
+        return float("nan")
+    means = np.bincount(inv, d) / counts
+    w = counts / counts.sum()
+    mean = float(w @ means)
+    var = float(w @ (means - mean) ** 2) / (1.0 - float(w @ w))  # unbiased, weighted
+    return float(np.sqrt(var * float(w @ w)))
+
+
 def _rms(du: np.ndarray, dv: np.ndarray) -> float:
     return float(np.sqrt(np.mean(du**2 + dv**2))) if du.size else float("nan")
 
@@ -444,8 +462,8 @@ def compare_with_differences(
         reference=ref.path, field=fld.path, n_compared=int(n), n_reference_valid=n_ref,
         n_field_valid=n_fld, interpolated=bool(interpolated),
         bias_u=float(du.mean()), bias_v=float(dv.mean()),
-        bias_err_u=float(du.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan"),
-        bias_err_v=float(dv.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan"),
+        bias_err_u=_block_error(du, d.index, ref.u.shape),
+        bias_err_v=_block_error(dv, d.index, ref.u.shape),
         std_u=float(du.std(ddof=1)) if n > 1 else float("nan"),
         std_v=float(dv.std(ddof=1)) if n > 1 else float("nan"),
         rms=rms, median=median, p95=float(np.percentile(mag, 95)),
