@@ -275,14 +275,16 @@ def test_the_bias_error_holds_for_neighbours_that_share_their_pixels():
     from scipy.ndimage import uniform_filter
 
     ref = _field()
+    ny, nx = ref.u.shape
     rng = np.random.default_rng(9)
     biases, stated, naive = [], [], []
-    for _ in range(200):
-        noise = uniform_filter(rng.normal(0, 0.1, ref.u.shape), size=3, mode="wrap")
+    for _ in range(300):
+        # noise correlated over one neighbour, cut from a larger field (its mean then varies)
+        noise = uniform_filter(rng.normal(0, 0.1, (ny + 10, nx + 10)), size=3)[5:-5, 5:-5]
         c = compare_fields(ref, dataclasses.replace(ref, u=ref.u + noise))
         biases.append(c.bias_u)
         stated.append(c.bias_err_u)
         naive.append(c.std_u / np.sqrt(c.n_compared))
     truth = np.std(biases, ddof=1)
-    assert np.mean(stated) == pytest.approx(truth, rel=0.2)
+    assert np.mean(stated) == pytest.approx(truth, rel=0.15)  # measured -6 % (300 samples: 4 %)
     assert np.mean(naive) < 0.5 * truth  # what a count of single vectors would have said
