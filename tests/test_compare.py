@@ -288,3 +288,24 @@ def test_the_bias_error_holds_for_neighbours_that_share_their_pixels():
     truth = np.std(biases, ddof=1)
     assert np.mean(stated) == pytest.approx(truth, rel=0.15)  # measured -6 % (300 samples: 4 %)
     assert np.mean(naive) < 0.5 * truth  # what a count of single vectors would have said
+
+
+def test_entry_points_refuse_bad_input_in_one_line(tmp_path):
+    from rspiv.compare_series import compare_series
+    from rspiv.correction import correct_vectors
+    from rspiv.vector_files import vector_frames
+
+    ref = _field()
+    with pytest.raises(InvalidInputError, match="no pairs given"):
+        compare_series([], [])
+    with pytest.raises(InvalidInputError, match="give the same pairs"):
+        compare_series([ref, ref], [ref])
+    other = _field(x0=7.5)
+    with pytest.raises(InvalidInputError, match="on another grid than the first reference"):
+        compare_series([ref, dataclasses.replace(other, path="other")], [ref, ref])
+    with pytest.raises(InvalidInputError, match="must be an rspiv Calibration or Mapping"):
+        correct_vectors(ref, {"k1": 0.1})
+    with pytest.raises(InvalidInputError, match="no such file"):
+        vector_frames(tmp_path / "missing.vc7")
+    with pytest.raises(InvalidInputError, match="a folder, not a vector file"):
+        vector_frames(tmp_path)

@@ -596,6 +596,8 @@ def read_vectors(
         naming the file).
     """
     p = pathlib.Path(path)
+    if p.is_dir():
+        raise InvalidInputError(f"{p}: a folder, not a vector file (rspiv compare takes folders)")
     if not p.is_file():
         raise InvalidInputError(f"{p}: no such file")
     tool = VECTOR_SUFFIXES.get(p.suffix.lower())
