@@ -173,9 +173,11 @@ def test_cli_compare(pair, tmp_path, capsys):
     shifted["u"] = shifted["u"] + 0.25
     write_netcdf(shifted, tmp_path / "g.nc")
     out = tmp_path / "c.json"
+    png = tmp_path / "rows.png"
     assert main(["compare", str(tmp_path / "f.nc"), str(tmp_path / "g.nc"), "--json", str(out),
-                 "--rows"]) == 0  # fmt: skip
+                 "--rows", "--figure", str(png)]) == 0  # fmt: skip
     text = capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and f"figure: {png}" in text
     assert "bias du +0.2500" in text and "rows: y px" in text
     d = json.loads(out.read_text())
     assert d["bias_u"] == pytest.approx(0.25, abs=1e-6) and d["warning"] == ""
@@ -238,9 +240,11 @@ def test_cli_compares_two_series(tmp_path, capsys):
             (tmp_path / folder).mkdir(exist_ok=True)
             np.savetxt(tmp_path / folder / f"B{k:05d}.txt", rows, fmt="%.10f")
     out = tmp_path / "s.json"
+    png = tmp_path / "profiles.png"
     assert main(["compare", str(tmp_path / "ref"), str(tmp_path / "fld" / "B*.txt"), "--rows",
-                 "--json", str(out)]) == 0  # fmt: skip
+                 "--json", str(out), "--figure", str(png)]) == 0  # fmt: skip
     text = capsys.readouterr().out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "4 pairs" in text and "bias du +0.0500" in text and "rows: y px" in text
     d = json.loads(out.read_text())
     assert d["n_pairs"] == 4 and d["rows"][0][2] == pytest.approx(0.05, abs=1e-9)

@@ -7,7 +7,8 @@ With ``--calibration cal.json`` the reference, measured on the raw frames, is fi
 by rspiv's Method II (:func:`rspiv.correction.correct_vectors`), to be compared with an rspiv
 run corrected by the same calibration. The report goes to stdout; a suspected convention error
 (y upward, positions shifted, another dt), a corrected field against an uncorrected one or a
-poor coverage is said on stderr as well. ``--json`` writes the figures and the rows.
+poor coverage is said on stderr as well. ``--json`` writes the figures and the rows,
+``--figure`` a PNG of the rows (:mod:`rspiv.plots.compare`).
 
 Two series of the same pairs (a glob, quoted, a folder, or a file of several pairs such as a
 PIVlab session: ``rspiv compare "davis/*.vc7" OUT/fields/uncorrected``) are compared pair by
@@ -67,9 +68,13 @@ def _run_series(args: argparse.Namespace, refs: list[str], flds: list[str]) -> i
 
 
 def _written(args: argparse.Namespace, c) -> int:
-    """The JSON file when asked, the warning on stderr; the exit code."""
+    """The JSON file and the figure when asked, the warning on stderr; the exit code."""
     if args.json:
         atomic_write_text(args.json, c.to_json() + "\n")
+    if args.figure:
+        from rspiv.plots.compare import plot_comparison  # deferred: matplotlib on request
+
+        print(f"figure: {plot_comparison(args.figure, c)}")
     if c.warning:
         print(f"rspiv compare: warning: {c.warning}", file=sys.stderr)
     return 0
@@ -130,4 +135,8 @@ def register(sub) -> None:
                    help="with --calibration: the displacement mapping (full)")  # fmt: skip
     p.add_argument("--rows", action="store_true", help="print the differences row by row")
     p.add_argument("--json", default=None, help="write the figures as JSON")
+    p.add_argument(
+        "--figure", default=None,
+        help="PNG of the rows: the differences (one field), both tools' profiles (a series)",
+    )  # fmt: skip
     p.set_defaults(func=run)
