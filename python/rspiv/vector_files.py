@@ -139,6 +139,32 @@ class VectorFile:
         dy = float(self.y[1, 0] - self.y[0, 0]) if self.y.shape[0] > 1 else float("nan")
         return dx, dy
 
+    def to_xarray(self):
+        """The field as an :class:`xarray.Dataset` in the layout ``rspiv piv`` writes (``u``,
+        ``v`` px, ``chc`` 1 valid, 0 filled or smoothed, -1 not computed, the peak ratio and
+        uncertainties when given; coordinates ``x``, ``y`` px), with the tool, the source file
+        and the frame as attributes, so that :func:`read_vectors` reads it back as it is."""
+        import xarray as xr
+
+        dims = ("y", "x")
+        chc = np.where(self.valid, 1, np.where(self.postprocessed, 0, -1)).astype(np.int8)
+        pix = {"units": "pix"}
+        data = {"u": (dims, self.u, pix), "v": (dims, self.v, pix), "chc": (dims, chc)}
+        for name in ("peak_ratio", "sigma_u", "sigma_v"):
+            arr = getattr(self, name)
+            if arr is not None:
+                data[name] = (dims, arr, {} if name == "peak_ratio" else pix)
+        attrs = {"tool": self.tool, "source": self.path, "frame": self.frame}
+        if self.window is not None:
+            attrs["window"] = f"{self.window[0]} {self.window[1]}"
+        for key, val in (("dt_s", self.dt), ("mm_per_px", self.mm_per_px)):
+            if np.isfinite(val):
+                attrs[key] = float(val)
+        if self.notes:
+            attrs["notes"] = "; ".join(self.notes)
+        coords = {"x": ("x", self.x[0], pix), "y": ("y", self.y[:, 0], pix)}
+        return xr.Dataset(data, coords=coords, attrs=attrs)
+
     def describe(self) -> str:
         """One line: the tool, the grid, the vectors valid and post-processed."""
         ny, nx = self.u.shape
@@ -473,7 +499,10 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
         with h5py.File(p, "r") as h:
             arr = {k: np.asarray(h[k][()]) for k in names if isinstance(h.get(k), h5py.Dataset)}
             units = {k: _text(h[k].attrs.get("units", "pix")) for k in ("u", "v") if k in arr}
-            attrs = {k: _text(h.attrs.get(k, "")) for k in ("method", "run", "piv_settings")}
+            attrs = {
+                k: _text(h.attrs.get(k, ""))
+                for k in ("method", "run", "piv_settings", "frame", "tool", "window")
+            }
     except Exception as exc:  # h5py raises OSError, KeyError, RuntimeError... on damage
         first = (str(exc).splitlines() or [""])[0]
         raise _fail(p, f"not a NetCDF-4 file rspiv reads ({type(exc).__name__}: {first})") from None
@@ -512,21 +541,27 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
         a = arr.get(name)
         return a.astype(float) if a is not None and a.shape == x.shape else None
 
-    # rspiv piv's attrs name the method of a corrected field; a campaign's files name the run
-    method = attrs["method"].strip()
-    run = attrs["run"].strip()
-    corrected = method in ("I", "II") or run.startswith("method_")
+    # rspiv piv's attrs name the method of a corrected field, a campaign's files the run, and a
+    # VectorFile written by to_xarray its tool and frame (empty where the tool did not say)
+    method, run = attrs["method"].strip(), attrs["run"].strip()
+    tool, frame = attrs["tool"].strip(), attrs["frame"].strip()
+    if method in ("I", "II") or run.startswith("method_") or frame == "object":
+        frame = "object"
+    elif not (tool and frame == ""):
+        frame = "image"
     window = None
     try:
         window = tuple(int(w) for w in json.loads(attrs["piv_settings"])["passes"][-1])[:2]
     except (KeyError, ValueError, TypeError, IndexError):
-        pass
+        try:
+            window = tuple(int(w) for w in attrs["window"].split())[:2]
+        except ValueError:
+            pass
     return VectorFile(
         x=x, y=y, u=np.where(chc >= 0, u, np.nan), v=np.where(chc >= 0, v, np.nan),
         valid=chc == 1, postprocessed=chc == 0, peak_ratio=opt("peak_ratio"),
-        sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"), tool="rspiv", path=str(p),
-        window=window if window and len(window) == 2 else None,
-        frame="object" if corrected else "image",
+        sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"), tool=tool or "rspiv", path=str(p),
+        window=window if window and len(window) == 2 else None, frame=frame,
     )  # fmt: skip
 
 

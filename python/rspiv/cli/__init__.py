@@ -20,6 +20,7 @@ _COMMANDS: list[str] = [
     "rspiv.cli.check",
     "rspiv.cli.piv",
     "rspiv.cli.compare",
+    "rspiv.cli.correct_vectors",
     "rspiv.cli.dewarp",
     "rspiv.cli.wall",
     "rspiv.cli.process",
