@@ -8,6 +8,7 @@ uncorrected rspiv field, corrected so, must agree with rspiv's own Method II and
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -143,3 +144,7 @@ def test_cli_corrects_a_batch_and_reads_it_back(mapping, tmp_path, capsys):
     assert "0 fields corrected" in capsys.readouterr().out
     assert main([*args[:-4], str(tmp_path / "missing.txt"), *args[-4:]]) == 2
     assert "missing.txt: no such file" in capsys.readouterr().err
+    # a field of a larger sensor than the calibration's: refused, not extrapolated
+    big = dataclasses.replace(raw, x=raw.x * 2.0, path="big")
+    with pytest.raises(InvalidInputError, match="reach past the calibration's 640 x 400 px"):
+        correct_vectors(big, cal)

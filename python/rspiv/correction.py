@@ -691,13 +691,28 @@ def correct_vectors(vectors: Any, calibration: Any, *, mapping: str = "full") ->
     Raises
     ------
     InvalidInputError
-        A field already corrected, not a field, a calibration that is not one.
+        A field already corrected, not a field, a calibration that is not one, or vectors
+        outside the sensor a :class:`rspiv.Calibration` was made for (a bare Mapping does not
+        know it: its polynomial would extrapolate without a word).
     """
     vf = as_vectors(vectors, "vectors")
     if vf.frame == "object":
         raise InvalidInputError(f"{vf.path}: already corrected for the distortion (object px)")
     mode = parse_mapping_mode(mapping)
     m = mapping_of(calibration)
+    shape = getattr(calibration, "image_shape", None)
+    if shape is not None:  # a Calibration knows its sensor; a bare Mapping does not
+        h, w = (int(v) for v in shape)
+        ok = np.isfinite(vf.u)
+        if ok.any() and (
+            vf.x[ok].min() < -0.5 or vf.x[ok].max() > w - 0.5
+            or vf.y[ok].min() < -0.5 or vf.y[ok].max() > h - 0.5
+        ):  # fmt: skip
+            raise InvalidInputError(
+                f"{vf.path}: vectors from ({vf.x[ok].min():.1f}, {vf.y[ok].min():.1f}) to "
+                f"({vf.x[ok].max():.1f}, {vf.y[ok].max():.1f}) px reach past the calibration's "
+                f"{w} x {h} px sensor: a calibration of another camera or binning?"
+            )
     obj = np.column_stack([vf.x.ravel(), vf.y.ravel()])
     img = m.forward(obj)
     u, v, su, sv = sample_at(vf, img[:, 0], img[:, 1], [vf.u, vf.v, vf.sigma_u, vf.sigma_v])
