@@ -220,7 +220,8 @@ class _Diff:
 
 def _differences(ref: VectorFile, fld: VectorFile, flip: bool = False) -> _Diff:
     """Field - reference at the reference's valid vectors where the field has a value (the
-    reference's rows read the other way up with ``flip``)."""
+    reference's rows read the other way up with ``flip``, without the field's gradients: the
+    direction check needs only the differences)."""
     valid = ref.valid & np.isfinite(ref.u) & np.isfinite(ref.v)
     valid_read = valid[::-1] if flip else valid
 
@@ -233,7 +234,8 @@ def _differences(ref: VectorFile, fld: VectorFile, flip: bool = False) -> _Diff:
     ys = ref.y[valid_read]
     ru, rv = pick(ref.u), pick(ref.v, -1.0 if flip else 1.0)
     rsu, rsv = pick(ref.sigma_u), pick(ref.sigma_v)
-    sampled = sample_at(fld, xs, ys, [fld.u, fld.v, fld.sigma_u, fld.sigma_v, *_gradients(fld)])
+    grads = [] if flip else _gradients(fld)
+    sampled = sample_at(fld, xs, ys, [fld.u, fld.v, fld.sigma_u, fld.sigma_v, *grads])
     fu, fv = sampled[0], sampled[1]
     k = np.isfinite(fu) & np.isfinite(fv)
     return _Diff(

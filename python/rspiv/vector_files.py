@@ -361,10 +361,27 @@ def _openpiv(p: pathlib.Path, y_up: bool, scale: float, dt: float) -> VectorFile
     )  # fmt: skip
 
 
+#: The last MAT file parsed, ``((path, mtime_ns, size), variables)``: a PIVlab session holds
+#: every pair of a series, read a pair at a time; parsing it once is enough (one file held).
+_LAST_MAT: list[Any] = [None]
+
+
 def _mat_variables(p: pathlib.Path) -> dict[str, Any]:
     """MATLAB variables of a v5-v7 (:mod:`rspiv.matfile`) or v7.3 (HDF5, h5py) file, in MATLAB's
-    shapes; a cell is an object array of arrays."""
-    head = p.read_bytes()[:8]
+    shapes; a cell is an object array of arrays. The last file's are kept (:data:`_LAST_MAT`)."""
+    st = p.stat()
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
+    last = _LAST_MAT[0]  # one (key, variables) tuple, replaced atomically
+    if last is not None and last[0] == key:
+        return last[1]
+    out = _parse_mat(p)
+    _LAST_MAT[0] = (key, out)
+    return out
+
+
+def _parse_mat(p: pathlib.Path) -> dict[str, Any]:
+    with p.open("rb") as fh:
+        head = fh.read(8)
     if head.startswith(b"\x89HDF"):
         import h5py
 
