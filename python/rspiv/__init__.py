@@ -42,6 +42,7 @@ from rspiv.stats import FieldAccumulator
 from rspiv.temporal import TemporalAccumulator
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vector_files import VectorFile, read_vectors
+from rspiv.vector_statistics import VectorStatistics, vector_statistics
 from rspiv.vortices import find_vortices, fit_oseen
 from rspiv.wall import Wall, find_wall
 from rspiv.wall_table import WallTable, wall_table
@@ -65,3 +66,4 @@ __all__ += ["locking_amplitude", "ScreenBounds", "screen_bounds", "ConditionalAc
 __all__ += ["TemporalAccumulator", "SpodResult", "spod"]
 __all__ += ["VectorFile", "read_vectors", "FieldComparison", "compare_fields"]
 __all__ += ["SeriesComparison", "compare_series"]
+__all__ += ["VectorStatistics", "vector_statistics"]

@@ -60,7 +60,8 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.vector_files import VectorFile, as_vectors, axis_of, sample_at
+from rspiv.vector_files import VectorFile, as_vectors
+from rspiv.vector_sampling import axis_of, sample_at
 
 __all__ = ["FieldComparison", "compare_fields", "json_ready"]
 

@@ -75,7 +75,8 @@ from rspiv.settings import (
     parse_method,
     per_pass,
 )
-from rspiv.vector_files import VectorFile, as_vectors, sample_at
+from rspiv.vector_files import VectorFile, as_vectors
+from rspiv.vector_sampling import sample_at
 
 __all__ = [
     "correct",

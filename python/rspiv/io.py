@@ -159,6 +159,15 @@ def _davis_header_check(p: pathlib.Path) -> None:
         )
 
 
+def davis_frames(p: pathlib.Path) -> int:
+    """The frames of a DaVis 7+ buffer (``.im7``/``.vc7``) from its header alone (sizeF, bytes
+    20-23), the header checked as before lvpyio reads it; InvalidInputError in one line."""
+    _davis_header_check(p)
+    with p.open("rb") as fh:
+        head = fh.read(24)
+    return int.from_bytes(head[20:24], "little", signed=True)
+
+
 def _davis_buffer(p: pathlib.Path) -> Any:
     lv = _lvpyio(str(p))
     if p.suffix.lower() in (".im7", ".vc7"):  # DaVis 7+ headers; the older .imx has another
@@ -277,6 +286,7 @@ def recording_rate(rec: PhotronRecording | PhantomRecording) -> str:
             return f"{rec.fps:g} fps ({rec.record_fps:g} fps recorded, every {step}th frame saved)"
         return f"{rec.fps:g} fps"
     return note or "no frame rate in the file"
+
 
 #: The IJG (libjpeg) luminance quantisation table at quality 50, natural order.
 _IJG_LUMA = np.array(
@@ -406,9 +416,7 @@ def turn_frame(a: np.ndarray, turn: int) -> np.ndarray:
     return np.ascontiguousarray(np.rot90(a, turn % 4))
 
 
-def read_mask(
-    source: str | os.PathLike | Any, shape: tuple[int, int], turn: int = 0
-) -> np.ndarray:
+def read_mask(source: str | os.PathLike | Any, shape: tuple[int, int], turn: int = 0) -> np.ndarray:
     """A PIV mask (bool, True = excluded) of the frames' ``shape = (h, w)``.
 
     ``source`` is an image (non-zero = excluded; any format :func:`read_image` reads), a bool

@@ -49,6 +49,7 @@ that are not a regular grid, and values that are not numbers.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import json
 import os
 import pathlib
@@ -59,12 +60,10 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 
 __all__ = [
-    "VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field", "sample_at",
-    "axis_of", "as_vectors",
+    "VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field",
+    "as_vectors", "vector_series",
 ]  # fmt: skip
 
-#: Positions closer than this (px) are the same vector's (:func:`sample_at`).
-_SAME_POSITION = 0.01
 
 #: Suffixes :func:`read_vectors` reads, by tool.
 VECTOR_SUFFIXES = {
@@ -411,6 +410,7 @@ def _parse_mat(p: pathlib.Path) -> dict[str, Any]:
 
 def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> tuple[float, float]:
     """The signs PIVlab gave u and v in px (``calu``/``calv`` of +-1); refuses a calibration."""
+
     def scalar(key: str) -> float | None:
         if key not in var:
             return None
@@ -520,6 +520,9 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
                 k: _text(h.attrs.get(k, ""))
                 for k in ("method", "run", "piv_settings", "frame", "tool", "window")
             }
+            # the pulse separation and scale: a campaign's field files (dt_s, m_per_px) and a
+            # VectorFile written by to_xarray (dt_s, mm_per_px)
+            scales = {k: h.attrs.get(k) for k in ("dt_s", "m_per_px", "mm_per_px")}
     except Exception as exc:  # h5py raises OSError, KeyError, RuntimeError... on damage
         first = (str(exc).splitlines() or [""])[0]
         raise _fail(p, f"not a NetCDF-4 file rspiv reads ({type(exc).__name__}: {first})") from None
@@ -574,12 +577,25 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
             window = tuple(int(w) for w in attrs["window"].split())[:2]
         except ValueError:
             pass
+    dt, mm = (_positive(scales[k]) for k in ("dt_s", "mm_per_px"))
+    if not np.isfinite(mm):
+        mm = _positive(scales["m_per_px"]) * 1e3
     return VectorFile(
         x=x, y=y, u=np.where(chc >= 0, u, np.nan), v=np.where(chc >= 0, v, np.nan),
         valid=chc == 1, postprocessed=chc == 0, peak_ratio=opt("peak_ratio"),
         sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"), tool=tool or "rspiv", path=str(p),
-        window=window if window and len(window) == 2 else None, frame=frame,
+        window=window if window and len(window) == 2 else None, frame=frame, dt=dt,
+        mm_per_px=mm,
     )  # fmt: skip
+
+
+def _positive(value: Any) -> float:
+    """A file's scalar attribute as a positive float, NaN when absent or not one."""
+    try:
+        x = float(np.asarray(value, dtype=np.float64).ravel()[0])
+    except (TypeError, ValueError, IndexError):
+        return float("nan")
+    return x if np.isfinite(x) and x > 0 else float("nan")
 
 
 def _rspiv_tecplot(p: pathlib.Path) -> VectorFile:
@@ -672,55 +688,6 @@ def read_vectors(
     return _rspiv_tecplot(p)
 
 
-def axis_of(coords: np.ndarray) -> tuple[float, float, int]:
-    """(origin, step, n) of a regular axis."""
-    n = coords.size
-    step = float(coords[1] - coords[0]) if n > 1 else 1.0
-    return float(coords[0]), step, n
-
-
-def sample_at(
-    f: VectorFile, xs: np.ndarray, ys: np.ndarray, arrays: list[np.ndarray | None]
-) -> list[np.ndarray]:
-    """``arrays`` of the field (u, v, ...) at positions (xs, ys): the node itself where one lies
-    within 0.01 px, else bilinear from four valid nodes; NaN where neither (or None given)."""
-    x0, dx, nx = axis_of(f.x[0])
-    y0, dy, ny = axis_of(f.y[:, 0])
-    fx = (xs - x0) / dx
-    fy = (ys - y0) / dy
-    out = []
-    good = f.valid & np.isfinite(f.u) & np.isfinite(f.v)
-    ix = np.rint(fx).astype(np.int64)
-    iy = np.rint(fy).astype(np.int64)
-    on_node = (
-        (np.abs(fx - ix) * abs(dx) < _SAME_POSITION)
-        & (np.abs(fy - iy) * abs(dy) < _SAME_POSITION)
-        & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-    )  # fmt: skip
-    i0 = np.clip(np.floor(fx).astype(np.int64), 0, max(nx - 2, 0))
-    j0 = np.clip(np.floor(fy).astype(np.int64), 0, max(ny - 2, 0))
-    tx = fx - i0
-    ty = fy - j0
-    inside = (fx >= 0) & (fx <= nx - 1) & (fy >= 0) & (fy <= ny - 1) & (nx > 1) & (ny > 1)
-    i1 = np.minimum(i0 + 1, nx - 1)
-    j1 = np.minimum(j0 + 1, ny - 1)
-    four = inside & good[j0, i0] & good[j0, i1] & good[j1, i0] & good[j1, i1]
-    ixc = np.clip(ix, 0, nx - 1)
-    iyc = np.clip(iy, 0, ny - 1)
-    node_ok = on_node & good[iyc, ixc]
-    for a in arrays:
-        if a is None:
-            out.append(np.full(xs.shape, np.nan))
-            continue
-        bil = (
-            (1 - tx) * (1 - ty) * a[j0, i0] + tx * (1 - ty) * a[j0, i1]
-            + (1 - tx) * ty * a[j1, i0] + tx * ty * a[j1, i1]
-        )  # fmt: skip
-        val = np.where(node_ok, a[iyc, ixc], np.where(four & ~on_node, bil, np.nan))
-        out.append(val)
-    return out
-
-
 def vector_frames(path: str | os.PathLike) -> int:
     """How many fields a vector file holds: the frames of a DaVis buffer, the pairs (cells) of a
     PIVlab file, 1 for the others. InvalidInputError naming the file if it cannot be read."""
@@ -728,10 +695,10 @@ def vector_frames(path: str | os.PathLike) -> int:
     tool = VECTOR_SUFFIXES.get(p.suffix.lower())
     if not p.is_file() or tool is None:
         read_vectors(p)  # the one-line refusal of a missing or foreign file
-    if tool == "DaVis":
-        from rspiv.io import _davis_buffer  # deferred: lvpyio is imported only for DaVis files
+    if tool == "DaVis" and p.suffix.lower() == ".vc7":
+        from rspiv.io import davis_frames  # deferred: io imports the image readers
 
-        return len(_davis_buffer(p))
+        return davis_frames(p)  # the header's frame count: the buffer is not decoded twice
     if tool == "PIVlab":
         var = _mat_variables(p)
         for name in ("x", "u_original", "u"):
@@ -769,3 +736,21 @@ def as_vectors(obj: Any, name: str) -> VectorFile:
     if hasattr(obj, "peak_choice") and hasattr(obj, "masked"):
         return from_piv_field(obj, name)
     raise InvalidInputError(f"{name}: a VectorFile or an rspiv PivField, not {type(obj).__name__}")
+
+
+def vector_series(arg: str) -> list[Any] | None:
+    """The files of a folder or a glob, sorted, or the fields of one multi-frame file (a
+    PIVlab file of several pairs, a DaVis buffer of several frames) as ``(file, frame)``; None
+    for a file of one field. InvalidInputError (one line) for a folder or glob of no vector
+    file."""
+    p = pathlib.Path(arg)
+    if p.is_dir():
+        files = sorted(str(f) for f in p.iterdir() if f.suffix.lower() in VECTOR_SUFFIXES)
+    elif any(c in arg for c in "*?["):
+        files = sorted(glob.glob(arg))
+    else:
+        n = vector_frames(p)
+        return [(arg, k) for k in range(n)] if n > 1 else None
+    if not files:
+        raise InvalidInputError(f"{arg}: no vector file")
+    return files

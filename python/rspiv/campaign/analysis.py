@@ -62,6 +62,7 @@ __all__ = [
     "find_run_wall",
     "partial_correlation_note",
     "remove_stale",
+    "run_statistics_dataset",
     "scaled_accumulator",
     "wall_dict",
     "wall_figure",
@@ -120,14 +121,26 @@ def find_run_wall(acc: FieldAccumulator, gx, gy, stations: int, side: str, min_c
 
 
 def analyse_run(
-    run: RunSpec, acc: FieldAccumulator, gx, gy, cfg: CampaignConfig, mag, dt, window
+    run: RunSpec,
+    acc: FieldAccumulator,
+    gx,
+    gy,
+    cfg: CampaignConfig,
+    mag,
+    dt,
+    window,
+    y_wall_px: float | None = None,
 ) -> RunAnalysis:
     """Wall, profile (SI when ``mag`` and ``dt`` are known) and boundary-layer analysis of one
-    run's accumulator."""
+    run's accumulator. ``y_wall_px``: the wall's row (px, level), given rather than found
+    (``cfg.wall.side`` then says where the flow is: not ``"auto"``)."""
     st = cfg.statistics
     xs, ys = gx[0], gy[:, 0]
     wall, side = None, "above"
-    if cfg.wall.enabled:
+    if y_wall_px is not None:
+        side = "above" if cfg.wall.side != "top" else "below"
+        y_wall = float(y_wall_px)
+    elif cfg.wall.enabled:
         wall, side = find_run_wall(acc, gx, gy, cfg.wall.stations, cfg.wall.side, st.min_count)
         y_wall = float(wall.line(np.mean(xs)))
     else:
@@ -247,6 +260,27 @@ def profile_extra(
     return out
 
 
+def run_statistics_dataset(
+    acc: FieldAccumulator, an: RunAnalysis, gx, gy, dt: float, attrs: dict[str, Any]
+):
+    """The per-vector statistics of a run's accumulator as written (``statistics_<run>.nc``):
+    in SI units where the analysis had them (else px per pair), x along the wall and y the
+    distance from it, the vectors behind the wall masked (:func:`mask_behind_wall`)."""
+    si = an.profile.get("si", False)
+    k = an.profile.get("k", 1.0)
+    ds = statistics_dataset(
+        scaled_accumulator(acc, k, an.profile.get("sign_x", 1.0), an.profile.get("sign_y", 1.0)),
+        x=an.profile["x_coord"],
+        y=an.profile["y_coord"],
+        velocity_units="m s-1" if si else "pix",
+        dt=dt if dt > 0 else None,
+        attrs=attrs,
+    )
+    if an.wall is not None:
+        ds = mask_behind_wall(ds, an.wall, an.flow_side, gx, gy)
+    return ds
+
+
 def behind_wall(wall, flow_side: str, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     """Grid points (window centres, px) on the far side of the found wall from the flow: the
     wall's reflection in the model surface, which is not flow (bool, shape of ``gx``)."""
@@ -311,7 +345,6 @@ def wall_figure(path: pathlib.Path, res: CampaignResult, pilot: dict | None) -> 
     """Wall position per station: pilot (before rotation) and each run, relative to its mean."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # deferred: matplotlib
     from matplotlib.figure import Figure  # deferred: matplotlib
-
 
     fig = Figure(figsize=(7.0, 4.0), layout="constrained")
     FigureCanvasAgg(fig)
@@ -415,6 +448,7 @@ def write_shard(camp: Any, res: CampaignResult) -> None:
         path = camp.out_dir / "shards" / f"statistics_{name}.shard-{i}-of-{n}.nc"
         res.files[f"shard_{name}"] = write_netcdf(ds, path)
 
+
 def analyse_result(camp: Any, res: CampaignResult) -> None:
     """Analyse the accumulators of ``res`` and write the outputs of ``camp``.
 
@@ -468,17 +502,13 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             if run.method != "none" and run.method != ctx.runs[0].method:
                 cond += f" (Method {run.method})"
             res.wall_deviation[cond] = an.wall.max_deviation_px
-        si = an.profile.get("si", False)
-        k = an.profile.get("k", 1.0)
-        ds = statistics_dataset(
-            scaled_accumulator(
-                acc, k, an.profile.get("sign_x", 1.0), an.profile.get("sign_y", 1.0)
-            ),
-            x=an.profile["x_coord"],
-            y=an.profile["y_coord"],
-            velocity_units="m s-1" if si else "pix",
-            dt=dt if dt > 0 else None,
-            attrs={
+        ds = run_statistics_dataset(
+            acc,
+            an,
+            gx,
+            gy,
+            dt,
+            {
                 "run": run.name,
                 "label": run.label,
                 "method": run.method,
@@ -488,8 +518,6 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 **({"warning": note} if note else {}),
             },
         )
-        if an.wall is not None:
-            ds = mask_behind_wall(ds, an.wall, an.flow_side, gx, gy)
         if cfg.output.netcdf:
             res.files[f"statistics_{run.name}"] = write_netcdf(
                 ds, out / f"statistics_{run.name}.nc"
@@ -604,6 +632,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     )
     if cfg.output.report:
         write_report(camp, res)
+
 
 def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
     """Write the campaign report of ``res`` (``OUT/report/report.{md,html}``), with

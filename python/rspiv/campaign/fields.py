@@ -143,6 +143,8 @@ class FieldWriter:
                 "frame": "raw image" if methods.get(run) == "none" else "object",
                 "campaign": self.campaign,
                 "fields_fingerprint": fp,
+                # the final window (read back by rspiv.read_vectors)
+                "window": " ".join(str(int(w)) for w in context.piv.final_window),
             }
             if self.dt:
                 attrs["dt_s"] = float(self.dt)

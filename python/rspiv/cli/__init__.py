@@ -21,6 +21,7 @@ _COMMANDS: list[str] = [
     "rspiv.cli.piv",
     "rspiv.cli.compare",
     "rspiv.cli.correct_vectors",
+    "rspiv.cli.statistics",
     "rspiv.cli.dewarp",
     "rspiv.cli.wall",
     "rspiv.cli.process",

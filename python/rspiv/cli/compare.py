@@ -20,8 +20,6 @@ with its error).
 from __future__ import annotations
 
 import argparse
-import glob
-import pathlib
 import sys
 from typing import Any
 
@@ -31,24 +29,7 @@ from rspiv.compare_series import compare_series
 from rspiv.correction import correct_vectors
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_write_text
-from rspiv.vector_files import VECTOR_SUFFIXES, read_vectors, vector_frames
-
-
-def _series(arg: str) -> list[Any] | None:
-    """The files of a folder or a glob, sorted, or the fields of one multi-frame file (a
-    PIVlab file of several pairs, a DaVis buffer of several frames) as (file, frame); None for
-    a file of one field."""
-    p = pathlib.Path(arg)
-    if p.is_dir():
-        files = sorted(str(f) for f in p.iterdir() if f.suffix.lower() in VECTOR_SUFFIXES)
-    elif any(c in arg for c in "*?["):
-        files = sorted(glob.glob(arg))
-    else:
-        n = vector_frames(p)
-        return [(arg, k) for k in range(n)] if n > 1 else None
-    if not files:
-        raise InvalidInputError(f"{arg}: no vector file")
-    return files
+from rspiv.vector_files import read_vectors, vector_series
 
 
 def _name(item: Any) -> str:
@@ -81,7 +62,7 @@ def _written(args: argparse.Namespace, c) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    refs, flds = _series(args.reference), _series(args.field)
+    refs, flds = vector_series(args.reference), vector_series(args.field)
     if (refs is None) != (flds is None):
         raise InvalidInputError("a series against one file: give two files or two series")
     if refs is not None and flds is not None:

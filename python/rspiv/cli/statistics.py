@@ -1,0 +1,114 @@
+"""``rspiv statistics FILES... --nu NU -o OUT``: a series of vector fields another tool measured
+(DaVis ``.vc7``, OpenPIV text, PIVlab MAT, rspiv's own NetCDF) reduced to a campaign's
+statistics and boundary layer in wall units (:mod:`rspiv.vector_statistics`).
+
+FILES are files, folders or quoted globs, in time order (a PIVlab session or a DaVis buffer of
+several frames gives each of its fields). The pulse separation and the scale come from DaVis'
+files, else from ``--dt`` and ``--mm-per-px``; with ``--calibration cal.json`` the raw-frame
+fields are corrected by Method II and the calibration gives the scale. The wall is found from
+the mean profile's mirror symmetry (the particles' reflection) and levelled. Written to OUT
+atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` and
+``profile.csv`` (wall units with their uncertainties), ``summary.json`` and, with
+``--figures``, the profiles against the DNS. A stopped run started again with the same files
+and options resumes from ``OUT/checkpoint.pkl``. Warnings go to stderr as well; a series
+without a usable field or a wall rspiv cannot see is refused in one line (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rspiv.calibration import Calibration
+from rspiv.outlier_screen import SIGMAS
+from rspiv.progress import Progress
+from rspiv.vector_statistics import vector_statistics
+
+
+def _window(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    w, _, h = text.lower().partition("x")
+    try:
+        return (int(w), int(h or w))
+    except ValueError:
+        raise ValueError(f"--window {text!r}: W or WxH in px") from None
+
+
+class _Bar:
+    """The reduction's progress (:class:`rspiv.progress.Progress` on stderr), opened at the
+    first field it reports (a resumed run counts the fields still to do)."""
+
+    def __init__(self) -> None:
+        self.bar: Progress | None = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            self.bar = Progress(total - done + 1, "fields").__enter__()
+        self.bar.advance()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.__exit__(None, None, None)
+
+
+def run(args: argparse.Namespace) -> int:
+    cal = None if args.calibration is None else Calibration.load(args.calibration)
+    read = {"y_up": args.y_up, "scale": args.openpiv_scale, "dt": args.openpiv_dt}
+    level = {"auto": "auto", "yes": True, "no": False}[args.level]
+    bar = _Bar()
+    try:
+        r = vector_statistics(
+            args.files, nu=args.nu, dt=args.dt, mm_per_px=args.mm_per_px, calibration=cal,
+            mapping=args.mapping, level=level, pilot=args.pilot, wall=args.wall,
+            wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
+            u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
+            window=_window(args.window),
+            read_options={k: v for k, v in read.items() if v not in (False, None)},
+            out_dir=args.output, progress=bar,
+        )  # fmt: skip
+    finally:
+        bar.close()
+    print(r.report())
+    files = r.write(args.output, figures=args.figures)
+    print(f"written: {', '.join(str(p) for p in files.values())}")
+    for w in r.warnings:
+        print(f"rspiv statistics: warning: {w}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "statistics",
+        help="another tool's vector fields (DaVis, OpenPIV, PIVlab) to wall-unit statistics",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("files", nargs="+", help="vector files, folders or quoted globs, in order")
+    p.add_argument("--nu", type=float, required=True, help="kinematic viscosity, m^2/s")
+    p.add_argument("--dt", type=float, default=None, help="pulse separation, s (not in file)")
+    p.add_argument("--mm-per-px", type=float, default=None, help="scale, mm/px (not in file)")
+    p.add_argument("--calibration", default=None, help="calibration JSON: Method II first")
+    p.add_argument("--mapping", default="full", choices=("full", "positions"),
+                   help="with --calibration: the displacement mapping (full)")  # fmt: skip
+    p.add_argument("--level", default="auto", choices=("auto", "yes", "no"),
+                   help="rotate the fields to level the wall (auto)")  # fmt: skip
+    p.add_argument("--pilot", type=int, default=50, help="fields that find the wall's angle")
+    p.add_argument("--wall", default="auto", choices=("auto", "bottom", "top"),
+                   help="where the wall is: bottom (flow above it), top, auto")  # fmt: skip
+    p.add_argument("--wall-y", type=float, default=None,
+                   help="the wall's row, px, its reflection unseen (with --wall)")  # fmt: skip
+    p.add_argument("--stations", type=int, default=16, help="wall stations along x (16)")
+    p.add_argument("--min-count", type=int, default=10, help="fields a vector needs (10)")
+    p.add_argument("--u-inf", type=float, default=None, help="free-stream velocity, m/s")
+    p.add_argument("--noise-correction", action="store_true",
+                   help="remove the tool's uncertainties' variance from the stresses")  # fmt: skip
+    p.add_argument("--screen", type=float, default=SIGMAS,
+                   help=f"screen beyond this many local spreads ({SIGMAS:g}; 0: off)")  # fmt: skip
+    p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
+    p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
+    p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
+    p.add_argument("--openpiv-dt", type=float, default=None, help="OpenPIV: s its u, v are per")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--figures", action="store_true", help="the profiles against the DNS (PNG)")
+    p.set_defaults(func=run)

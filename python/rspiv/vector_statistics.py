@@ -1,0 +1,697 @@
+"""Boundary-layer statistics in wall units from the vector fields another tool measured.
+
+A lab comes to rspiv with years of DaVis, OpenPIV or PIVlab results whose images are archived,
+not at hand, or were never kept. :func:`vector_statistics` reduces such a series of vector files
+as a campaign reduces image pairs: the same statistics (:class:`rspiv.stats.FieldAccumulator`:
+mean, Reynolds stresses, central moments to order 8, the lag-1 chains of the effective sample
+count, the tool's uncertainties for the noise correction), the same wall from the mean
+profile's mirror symmetry and the same boundary-layer analysis in wall units
+(:func:`rspiv.campaign.analysis.analyse_run`), to the same files (``rspiv statistics``).
+
+The steps, for the fields in the order given (a file of several fields, a PIVlab session or a
+DaVis buffer, in its own order):
+
+1. Each field is read in rspiv's pixel frame (:func:`rspiv.vector_files.read_vectors`). Only the
+   vectors the tool's validation accepted enter the statistics: vectors it filled or smoothed
+   afterwards are no measurement (in a boundary layer they are many at the wall, and they
+   carry the interpolation's smoothed stresses). The first field fixes the grid, the pulse
+   separation and the scale; a later field on another grid, or whose file states another
+   pulse separation or scale (a second recording mixed in), is skipped and named.
+2. With a ``calibration`` the fields, measured on the raw frames, are corrected by Method II
+   (:func:`rspiv.correction.correct_vectors`: each grid point read as object px takes the field
+   at ``F(X)``, its displacement mapped through the inverse). The scale is then the
+   calibration's magnification; a file's own scale more than 2 % from it is said (the files
+   are of another camera or another calibration).
+3. With a calibration the wall is levelled as the campaign levels it (paper section 3.2): its
+   angle is found on the first ``pilot`` fields and the calibration rotated by it (Method II
+   resamples the fields anyway). Without one the fields keep their nodes (``level="auto"``):
+   rotating them means resampling between nodes, which smooths the fluctuations (on the
+   synthetic series of ``tests/test_vector_statistics.py``, tilted 0.3 degree, the median
+   error of uu+ went from 0.000 to -0.075 levelled so, against 0.000 not levelled: with rows
+   16 px apart a tilt that small mixes little). A wall that rises more than half a row across
+   the field is said; ``level=True`` rotates the fields anyway. On rows 16 px apart
+   :func:`rspiv.find_wall` places the wall with an error that follows the wall's position
+   between two rows (-1.4 to +2.0 px along the tilted wall above, a constant -1.1 px on the
+   level one, which the composite fit's offset takes up): it read that tilt as 0.41 degree.
+4. Units: the magnification from the calibration, else the files' scale (DaVis) or
+   ``mm_per_px``; the pulse separation from the files (DaVis) or ``dt``. Without both the
+   statistics are in px per pair and no wall units are derived (said).
+
+Refused in one line (:class:`rspiv.errors.InvalidInputError`): no field could be used (with the
+first file's reason), a wall the mean profile does not show (:func:`rspiv.find_wall`'s
+refusal), fewer than 8 profile points beyond it. Warned (``warnings``, the CLI's stderr,
+``summary.json``): fields skipped, uncorrected raw-frame fields (the lens distortion is in the
+statistics), a final window assumed, a wall tilted and not levelled, a scale that disagrees
+with the calibration, and the boundary-layer analysis' own warning.
+
+Units and frames: positions px of the fields' frame (object px when corrected), x right, y
+down; the accumulator holds px per pair, pixel axes; the outputs are SI (m, m/s) with y the
+distance from the wall, as a campaign's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import pathlib
+import pickle
+import time
+from collections.abc import Callable, Iterable
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign import screen as screen_work
+from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
+from rspiv.campaign.spec import RunSpec
+from rspiv.campaign.state import RunAnalysis, json_default
+from rspiv.campaign_config import FlowConfig, StatisticsConfig, WallConfig
+from rspiv.correction import correct_vectors
+from rspiv.errors import InvalidInputError, RspivError
+from rspiv.mapping import fit_mapping
+from rspiv.outlier_screen import HALF_WIDTH, ScreenTally, screen_bounds
+from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
+from rspiv.outputs import (
+    atomic_write_bytes,
+    atomic_write_text,
+    profile_dataset,
+    write_netcdf,
+    write_profile_csv,
+)
+from rspiv.stats import FieldAccumulator
+from rspiv.vector_files import VectorFile, read_vectors, vector_frames, vector_series
+
+__all__ = ["VectorStatistics", "vector_statistics"]
+
+#: The checkpoint's format tag and version (``OUT/checkpoint.pkl``).
+_CHECKPOINT = ("rspiv-vector-statistics", 1)
+#: A file's scale may differ from the calibration's by this share before it is said.
+_SCALE_TOLERANCE = 0.02
+
+
+@dataclasses.dataclass
+class VectorStatistics:
+    """What :func:`vector_statistics` gives (module docstring).
+
+    Attributes
+    ----------
+    accumulator : FieldAccumulator
+        The fields' statistics, px per pair along the pixel axes, on the grid ``x, y``.
+    x, y : ndarray
+        The grid's columns and rows, px of the fields' frame (object px when corrected).
+    analysis : RunAnalysis
+        The wall, the profile (SI when the units are known) and the boundary-layer result
+        (``analysis.result``, None without SI units).
+    tool : str
+        The tool that wrote the first field.
+    frame : str
+        ``"object"`` (corrected by the calibration, or fields already corrected), ``"image"``
+        (raw frames, uncorrected) or ``""`` (the files do not say: DaVis).
+    used, skipped : int, dict
+        Fields in the statistics; file (with its frame) -> why it was left out.
+    mm_per_px, dt : float
+        The scale (mm per px of the fields' frame) and pulse separation (s) used; NaN unknown.
+    window : tuple of int
+        The final window ``(w, h)``, px (the files', or given, or assumed: ``warnings``).
+    rotation_deg : float
+        The rotation applied to level the wall (0: none).
+    warnings : list of str
+        What the result's reader must know, one line each.
+    """
+
+    accumulator: FieldAccumulator
+    x: np.ndarray
+    y: np.ndarray
+    analysis: RunAnalysis
+    tool: str
+    frame: str
+    used: int
+    skipped: dict[str, str]
+    mm_per_px: float
+    dt: float
+    window: tuple[int, int]
+    rotation_deg: float
+    warnings: list[str]
+    seconds: float = 0.0
+
+    def screened(self) -> dict[str, Any] | None:
+        """The vectors the screen left out of the statistics (their number and share of the
+        valid ones), None without a screen."""
+        tally = getattr(self.accumulator, "screen", None)
+        if tally is None:
+            return None
+        n = int(tally.count.sum())
+        total = n + int(self.accumulator.count.sum())
+        return {"vectors": n, "share": n / total if total else 0.0}
+
+    @property
+    def result(self) -> Any:
+        """The :class:`rspiv.boundary_layer.BoundaryLayerResult`, None without SI units."""
+        return self.analysis.result
+
+    def to_xarray(self) -> Any:
+        """The statistics per vector as the campaign writes them (``statistics_<run>.nc``: SI
+        when known, y the distance from the wall, the rows behind the wall masked)."""
+        gx, gy = np.meshgrid(self.x, self.y)
+        return run_statistics_dataset(
+            self.accumulator, self.analysis, gx, gy, self.dt if self.dt > 0 else 0.0,
+            {"tool": self.tool, "frame": self.frame or "unknown", "n_pairs": self.used},
+        )  # fmt: skip
+
+    def summary(self) -> dict[str, Any]:
+        """The figures as a JSON-ready dict (``summary.json``)."""
+        an = self.analysis
+        out: dict[str, Any] = {
+            "tool": self.tool,
+            "frame": self.frame or "unknown",
+            "fields": self.used,
+            "skipped": self.skipped,
+            "mm_per_px": self.mm_per_px,
+            "dt_s": self.dt,
+            "window_px": list(self.window),
+            "rotation_deg": self.rotation_deg,
+            "screened": self.screened(),
+            "flow_side": an.flow_side,
+            "seconds": self.seconds,
+            "warnings": list(self.warnings),
+        }
+        if an.wall is not None:
+            out["wall"] = wall_dict(an.wall)
+        if an.result is not None:
+            out.update(an.result.summary())
+        elif an.error:
+            out["error"] = an.error
+        return out
+
+    def report(self) -> str:
+        """A few lines for the terminal."""
+        lines = [
+            f"{self.used} {self.tool} fields ({self.frame or 'frame unknown'}), "
+            f"{len(self.skipped)} skipped; grid {self.x.size} x {self.y.size}, "
+            f"window {self.window[0]} x {self.window[1]} px",
+        ]
+        sc = self.screened()
+        if sc is not None:
+            lines.append(f"screened: {sc['vectors']} vectors ({100 * sc['share']:.3f} %)")
+        w = self.analysis.wall
+        if w is not None:
+            lines.append(
+                f"wall at y = {float(w.line(np.mean(self.x))):.2f} px, angle {w.angle_deg:.4f} "
+                f"deg, flow {self.analysis.flow_side}; levelled by {self.rotation_deg:.4f} deg"
+            )
+        r = self.result
+        if r is not None:
+            lines.append(
+                f"u_tau = {r.u_tau:.4g} +/- {r.u_tau_std:.2g} m/s (Clauser {r.u_tau_clauser:.4g}),"
+                f" delta99 = {r.delta99 * 1e3:.2f} mm, Re_tau = {r.re_tau:.0f}, "
+                f"Re_theta = {r.re_theta:.0f}, H = {r.H:.3f}"
+            )
+        elif self.analysis.error:
+            lines.append(f"no wall units: {self.analysis.error}")
+        lines += [f"WARNING: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def write(self, out_dir: str | os.PathLike, figures: bool = False) -> dict[str, pathlib.Path]:
+        """Write ``statistics.nc``, ``profile.nc``, ``profile.csv`` and ``summary.json`` (and
+        with ``figures`` the profiles in wall units against the DNS) atomically to
+        ``out_dir``; returns name -> path."""
+        out = pathlib.Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        files = {"statistics": write_netcdf(self.to_xarray(), out / "statistics.nc")}
+        r = self.result
+        if r is not None:
+            meta = {"tool": self.tool, "fields": self.used}
+            files["profile_nc"] = write_netcdf(profile_dataset(r, attrs=meta), out / "profile.nc")
+            files["profile_csv"] = write_profile_csv(out / "profile.csv", r, metadata=meta)
+            if figures:
+                from rspiv.plots.boundary_layer import plot_boundary_layer  # deferred: matplotlib
+
+                for k, p in plot_boundary_layer(out, {f"{self.tool} fields": r}).items():
+                    files[f"figure_{k}"] = pathlib.Path(p)
+        files["summary"] = atomic_write_text(
+            out / "summary.json", json.dumps(self.summary(), indent=1, default=json_default)
+        )
+        return files
+
+
+def _entries(files: Any) -> list[Any]:
+    """The fields to read, in order: paths, (path, frame) tuples; a folder, a glob or a file of
+    several fields expanded (:func:`rspiv.vector_files.vector_series`, each file of a folder
+    or glob by its own fields). A file that cannot be opened stays one entry, named when the
+    reduction skips it."""
+    if isinstance(files, (str, os.PathLike)):
+        files = [files]
+    out: list[Any] = []
+    for item in files:
+        if isinstance(item, tuple):
+            out.append((str(item[0]), int(item[1])))
+            continue
+        try:
+            series = vector_series(str(item))
+        except InvalidInputError:
+            if any(c in str(item) for c in "*?[") or pathlib.Path(item).is_dir():
+                raise
+            series = None
+        for f in [str(item)] if series is None else series:
+            out.extend(_frames(f) if isinstance(f, str) and series is not None else [f])
+    if not out:
+        raise InvalidInputError("statistics: no vector file given")
+    return out
+
+
+def _frames(path: str) -> list[Any]:
+    """One file of a folder or glob: itself, or its fields when it holds several."""
+    try:
+        n = vector_frames(path)
+    except InvalidInputError:
+        return [path]
+    return [(path, k) for k in range(n)] if n > 1 else [path]
+
+
+def _name(entry: Any) -> str:
+    return f"{entry[0]}[{entry[1]}]" if isinstance(entry, tuple) else str(entry)
+
+
+def _read(entry: Any, options: dict[str, Any]) -> VectorFile:
+    if isinstance(entry, tuple):
+        return read_vectors(entry[0], **{**options, "frame": entry[1]})
+    return read_vectors(entry, **options)
+
+
+def _identity(x: np.ndarray, y: np.ndarray) -> Any:
+    """The identity mapping over the grid's extent (a P3 fitted to points mapped onto
+    themselves): rotated, it levels a field without a calibration."""
+    gx, gy = np.meshgrid(np.linspace(x[0], x[-1], 7), np.linspace(y[0], y[-1], 7))
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    return fit_mapping(pts, pts, "p3")
+
+
+class _Reducer:
+    """The fields of one series summed into an accumulator, with the checks of step 1."""
+
+    def __init__(self, first: VectorFile, mm_per_px: float, dt: float) -> None:
+        self.first = first
+        self.mm_per_px = mm_per_px
+        self.dt = dt
+
+    def check(self, vf: VectorFile) -> str:
+        """Why ``vf`` cannot join the first field's series ("" when it can)."""
+        f = self.first
+        if vf.u.shape != f.u.shape or not (np.allclose(vf.x, f.x) and np.allclose(vf.y, f.y)):
+            return f"on another grid ({vf.u.shape[1]} x {vf.u.shape[0]}) than the first field"
+        for what, a, b in (("pulse separation", vf.dt, f.dt), ("scale", vf.mm_per_px,
+                                                                f.mm_per_px)):  # fmt: skip
+            if np.isfinite(a) and np.isfinite(b) and abs(a - b) > 1e-6 * abs(b):
+                return f"its {what} {a:.6g} is not the first field's {b:.6g}"
+        return ""
+
+    @staticmethod
+    def add(acc: FieldAccumulator, vf: VectorFile, pair_id: int, bounds: Any = None) -> None:
+        """Add a field's valid vectors, those the screen ``bounds`` leaves out excepted (counted
+        in ``acc.screen``)."""
+        valid = vf.valid & np.isfinite(vf.u) & np.isfinite(vf.v)
+        su, sv = vf.sigma_u, vf.sigma_v
+        if su is None or sv is None or not np.isfinite(su[valid]).any():
+            su = sv = None
+        u, v = vf.u, vf.v
+        if bounds is not None:
+            u, v, valid = screen_work.apply(bounds, u, v, valid, acc.screen, pair_id)
+        acc.add(u, v, valid, pair_id=pair_id, sigma_u=su, sigma_v=sv)
+
+
+def vector_statistics(
+    files: Any,
+    *,
+    nu: float,
+    dt: float | None = None,
+    mm_per_px: float | None = None,
+    calibration: Any = None,
+    mapping: str = "full",
+    level: str | bool = "auto",
+    pilot: int = 50,
+    wall: str = "auto",
+    wall_y: float | None = None,
+    stations: int = 16,
+    min_count: int = 10,
+    u_inf: float | None = None,
+    noise_correction: bool = False,
+    screen: float = SCREEN_SIGMAS,
+    window: tuple[int, int] | None = None,
+    read_options: dict[str, Any] | None = None,
+    out_dir: str | os.PathLike | None = None,
+    checkpoint_every: int = 500,
+    progress: Callable[[int, int], None] | None = None,
+) -> VectorStatistics:
+    """Reduce a series of vector files to statistics and a boundary layer in wall units
+    (module docstring).
+
+    Parameters
+    ----------
+    files : path, glob, folder, or an iterable of paths and (path, frame) tuples
+        The fields, one pair each, in time order (the effective sample count reads the lag-1
+        correlation between successive fields).
+    nu : float
+        Kinematic viscosity, m^2/s (required: no fluid is assumed).
+    dt, mm_per_px : float, optional
+        Pulse separation (s) and scale (mm per px) where the files do not give them; a file's
+        own figure wins for ``dt``, the calibration's for the scale.
+    calibration : Calibration, optional
+        Of the camera that recorded the raw frames: the fields are corrected by Method II.
+    mapping : {"full", "positions"}
+        Method II's displacement mapping.
+    level : "auto", True or False
+        Rotate the fields so that the wall is level (step 3).
+    pilot : int
+        Fields over which the wall's angle is found before the reduction.
+    wall : {"auto", "bottom", "top"}
+        Where the flow lies from the wall (``"bottom"``: the wall at the bottom of the image,
+        the flow above it); ``"auto"`` reads it from the mean profile.
+    wall_y : float, optional
+        The wall's row, px of the fields' frame (object px when corrected), where the fields
+        do not show its reflection (masked, out of view); ``wall`` must then be ``"bottom"``
+        or ``"top"``. Nothing is levelled and no wall is checked: the row is the user's word.
+    stations, min_count, u_inf, noise_correction
+        As a campaign's ``[wall] stations``, ``[statistics] min_count``, ``[flow] u_inf``
+        and ``[statistics] noise_correction`` (the tool's uncertainties, where it wrote them).
+    screen : float
+        Leave out of the statistics the vectors beyond this many local spreads of their row
+        (:mod:`rspiv.outlier_screen`, a campaign's ``[statistics] screen``: random vectors the
+        tool's validation kept), the bounds from ``pilot`` fields spread over the series (at
+        most 20); 0 switches it off.
+    window : (w, h), optional
+        The final window where the files do not say (else twice the grid's spacing, said).
+    read_options : dict, optional
+        For :func:`rspiv.vector_files.read_vectors` (OpenPIV's ``y_up``, ``scale``, ``dt``).
+    out_dir : path, optional
+        Keep a checkpoint there (``checkpoint.pkl`` every ``checkpoint_every`` fields): a run
+        stopped and started again with the same files and options resumes. Only what decides
+        the sums must be the same (the reading, the calibration and mapping, the levelling):
+        a finished run started again with other units, ``nu``, ``wall_y`` or ``u_inf`` is
+        analysed again from its checkpoint without reading a file.
+    progress : callable(done, total), optional
+
+    Returns
+    -------
+    VectorStatistics
+
+    Raises
+    ------
+    InvalidInputError
+        One line: no usable field, a bad option, no wall seen, too few points beyond it.
+    """
+    t_start = time.perf_counter()
+    if not (np.isfinite(nu) and nu > 0):
+        raise InvalidInputError(f"statistics: nu = {nu} m^2/s must be positive")
+    for name, val in (("dt", dt), ("mm_per_px", mm_per_px), ("u_inf", u_inf)):
+        if val is not None and not (np.isfinite(val) and val > 0):
+            raise InvalidInputError(f"statistics: {name} = {val} must be positive")
+    if wall not in ("auto", "bottom", "top"):
+        raise InvalidInputError(f"statistics: wall {wall!r}: auto, bottom or top")
+    if wall_y is not None and not (np.isfinite(wall_y) and wall in ("bottom", "top")):
+        raise InvalidInputError(
+            f"statistics: wall_y = {wall_y} needs wall='bottom' or 'top' (where the flow is)"
+        )
+    if level not in ("auto", True, False):
+        raise InvalidInputError(f"statistics: level {level!r}: auto, True or False")
+    entries = _entries(files)
+    opts = dict(read_options or {})
+    # the first readable field fixes the series
+    first, start, skipped = None, 0, {}
+    for k, e in enumerate(entries):
+        try:
+            first, start = _read(e, opts), k
+            break
+        except RspivError as exc:
+            skipped[_name(e)] = str(exc)
+    if first is None:
+        raise InvalidInputError(
+            f"statistics: no field could be read ({next(iter(skipped.values()))})"
+        )
+    warnings: list[str] = []
+    cal_scale = None
+    if calibration is not None:
+        mag = float(calibration.magnification)
+        cal_scale = 1.0 / mag
+        if np.isfinite(first.mm_per_px) and abs(first.mm_per_px / cal_scale - 1) > _SCALE_TOLERANCE:
+            warnings.append(
+                f"the files' scale {first.mm_per_px:.5g} mm/px is "
+                f"{100 * (first.mm_per_px / cal_scale - 1):+.1f} % from the calibration's "
+                f"{cal_scale:.5g}: are they of this camera and this calibration?"
+            )
+    scale = cal_scale or (first.mm_per_px if np.isfinite(first.mm_per_px) else mm_per_px)
+    pulse = first.dt if np.isfinite(first.dt) else dt
+    if window is None:
+        window = first.window
+    if window is None:
+        sx, sy = (
+            abs(float(first.x[0, 1] - first.x[0, 0])),
+            abs(float(first.y[1, 0] - first.y[0, 0])),
+        )
+        window = (int(round(2 * sx)), int(round(2 * sy)))
+        warnings.append(
+            f"the files do not give the final window: {window[0]} x {window[1]} px assumed "
+            "(twice the grid's spacing; give window=)"
+        )
+    frame = "object" if (calibration is not None or first.frame == "object") else first.frame
+    if frame == "image":
+        warnings.append(
+            "fields of the raw frames, not corrected: the lens distortion is in these statistics "
+            "(give the camera's calibration)"
+        )
+    xs, ys = first.x[0].copy(), first.y[:, 0].copy()
+    gx, gy = np.meshgrid(xs, ys)
+    red = _Reducer(first, scale, pulse)
+    levelled = level if wall_y is None else False  # a wall given is not looked for
+    # what decides the sums (the units, nu and the analysis' options do not: a finished run
+    # started again with other ones is analysed again from its checkpoint)
+    settings: dict[str, Any] = {
+        "read": opts, "mapping": mapping, "level": levelled, "screen": float(screen),
+        "calibration": None if calibration is None else calibration.mapping.to_json(),
+    }  # fmt: skip
+    if levelled is not False:
+        settings.update(pilot=pilot, wall=wall, stations=stations, min_count=min_count)
+    ck_path = None if out_dir is None else pathlib.Path(out_dir) / "checkpoint.pkl"
+    key = _fingerprint(settings)
+    state = _load_checkpoint(ck_path, key, entries)
+    base = calibration.mapping if calibration is not None else None
+    if state is None:
+        rotation, base = _levelling(
+            entries, start, first, red, opts, base, calibration, mapping, levelled, pilot,
+            (gx, gy), (wall, stations, min_count), warnings,
+        )  # fmt: skip
+        state = {"done": 0, "acc": FieldAccumulator(first.u.shape), "skipped": skipped,
+                 "rotation": rotation, "warnings": warnings, "bounds": None}  # fmt: skip
+    elif calibration is None and state["rotation"] != 0.0:
+        base = _identity(xs, ys).rotated(state["rotation"])
+    elif calibration is not None:
+        base = calibration.mapping.rotated(state["rotation"])
+    transform = _transform(base, calibration is not None or state["rotation"] != 0.0, mapping)
+    acc = state["acc"]
+    if state["done"] == 0 and screen > 0:
+        state["bounds"] = _screen(entries, opts, red, transform, float(screen), pilot, warnings)
+        if state["bounds"] is not None:
+            acc.screen = ScreenTally(acc.shape)
+    for k in range(state["done"], len(entries)):
+        e = entries[k]
+        try:
+            vf = first if k == start else _read(e, opts)
+            why = red.check(vf)
+            if why:
+                raise InvalidInputError(why)
+            red.add(acc, transform(vf), k, state["bounds"])
+        except RspivError as exc:
+            state["skipped"][_name(e)] = str(exc)
+        state["done"] = k + 1
+        if progress is not None:
+            progress(k + 1, len(entries))
+        if ck_path is not None and (k + 1) % max(int(checkpoint_every), 1) == 0:
+            _save_checkpoint(ck_path, key, entries, state)
+    if acc.n_fields == 0:
+        raise InvalidInputError(
+            f"statistics: no field could be used ({next(iter(state['skipped'].values()))})"
+        )
+    if ck_path is not None:
+        _save_checkpoint(ck_path, key, entries, state)
+    warnings = list(state["warnings"])
+    if state["skipped"]:
+        name, why = next(iter(state["skipped"].items()))
+        warnings.append(f"{len(state['skipped'])} field(s) skipped, the first {name}: {why}")
+    cfg = SimpleNamespace(
+        statistics=StatisticsConfig(min_count=min_count, noise_correction=noise_correction),
+        wall=WallConfig(side=wall, stations=stations),
+        flow=FlowConfig(nu=nu, dt=pulse or 0.0, u_inf=u_inf or 0.0),
+    )
+    run = RunSpec("vectors", f"{first.tool} fields", "II" if calibration is not None else "none")
+    mag = None if scale is None else 1.0 / scale
+    an = analyse_run(run, acc, gx, gy, cfg, mag, pulse or 0.0, window, wall_y)
+    rise, row = _rise(an.wall, gx, gy) if an.wall is not None else (0.0, 1.0)
+    if state["rotation"] == 0.0 and rise > 0.5 * row:
+        warnings.append(
+            f"the wall rises {rise:.2f} px across the field (angle {an.wall.angle_deg:.4f} deg) "
+            f"and was not levelled: each row's profile mixes wall distances over {rise:.2f} px "
+            "(a calibration levels it; level=True rotates the fields)"
+        )
+    sag = _bow(an.wall) if an.wall is not None else 0.0
+    if abs(sag) > max(0.25 * row, 1.0):
+        hint = (
+            "is the calibration this camera's?"
+            if calibration is not None
+            else "a straight wall seen through an uncorrected lens does this: give the "
+            "camera's calibration"
+        )
+        warnings.append(
+            f"the wall bows by {sag:+.1f} px across the field (a parabola through its "
+            f"stations; more than a quarter of a row): {hint}"
+        )
+    if an.result is not None and an.result.warning:
+        warnings.append(an.result.warning)
+    if an.result is None:
+        warnings.append(f"no wall units: {an.error}")
+    return VectorStatistics(
+        acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
+        float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
+        (int(window[0]), int(window[1])), float(state["rotation"]), warnings,
+        time.perf_counter() - t_start,
+    )  # fmt: skip
+
+
+def _transform(mapping_obj: Any, on: bool, mode: str) -> Callable[[VectorFile], VectorFile]:
+    """The per-field resampling: Method II through ``mapping_obj`` (a calibration's mapping,
+    possibly rotated, or a rotated identity), or nothing."""
+    if not on or mapping_obj is None:
+        return lambda vf: vf
+
+    def apply(vf: VectorFile) -> VectorFile:
+        if vf.frame == "object":  # an already corrected field, levelled only (identity)
+            vf = dataclasses.replace(vf, frame="image")
+        return correct_vectors(vf, mapping_obj, mapping=mode)
+
+    return apply
+
+
+def _levelling(
+    entries,
+    start,
+    first,
+    red,
+    opts,
+    base,
+    calibration,
+    mode,
+    level,
+    pilot,
+    grid,
+    wall_opts,
+    warnings,
+) -> tuple[float, Any]:
+    """The rotation (degrees) that levels the wall, from the first ``pilot`` fields (step 3),
+    and the mapping to resample every field through (None: none)."""
+    if level is False or (level == "auto" and calibration is None):
+        return 0.0, base
+    gx, gy = grid
+    side, stations, min_count = wall_opts
+    pre = _transform(base, calibration is not None, mode)
+    acc = FieldAccumulator(first.u.shape)
+    for k in range(start, min(len(entries), start + max(int(pilot), 1))):
+        try:
+            vf = first if k == start else _read(entries[k], opts)
+            if not red.check(vf):
+                red.add(acc, pre(vf), k)
+        except RspivError:
+            continue  # the main pass names it
+    w, _ = find_run_wall(acc, gx, gy, stations, side, min(min_count, acc.n_fields))
+    theta = float(w.rotation_deg)
+    if calibration is not None:
+        return theta, base.rotated(theta)
+    warnings.append(
+        f"the fields were rotated by {theta:.4f} deg to level the wall, bilinear between their "
+        "nodes: it lowers the stresses a little (level=False keeps the nodes)"
+    )
+    return theta, _identity(gx[0], gy[:, 0]).rotated(theta)
+
+
+def _screen(entries, opts, red, transform, sigmas, pilot, warnings) -> Any:
+    """The screen's bounds (:func:`rspiv.outlier_screen.screen_bounds`, row by row: a wall's
+    layer) from up to ``pilot`` (at most 20) fields spread evenly over the series, as the
+    statistics will see them; None with fewer than 3 usable ones (said)."""
+    n = len(entries)
+    picks = sorted({int(round(t)) for t in np.linspace(0, n - 1, min(n, max(min(pilot, 20), 3)))})
+    got, used = [], []
+    for k in picks:
+        try:
+            vf = _read(entries[k], opts)
+            if not red.check(vf):
+                vf = transform(vf)
+                got.append((vf.u, vf.v, vf.valid & np.isfinite(vf.u) & np.isfinite(vf.v)))
+                used.append(k)
+        except RspivError:
+            continue
+    if len(got) < 3:
+        warnings.append(f"no screen of the statistics: {len(got)} usable pilot field(s), 3 needed")
+        return None
+    us, vs, oks = zip(*got, strict=True)
+    return screen_bounds(us, vs, oks, sigmas=sigmas, half_width=HALF_WIDTH, pairs=used)
+
+
+def _rise(w: Any, gx: np.ndarray, gy: np.ndarray) -> tuple[float, float]:
+    """How far (px) the wall ``w`` rises across the field, and the rows' spacing (px)."""
+    rise = abs(np.tan(np.deg2rad(w.angle_deg))) * float(np.ptp(gx))
+    return rise, abs(float(gy[1, 0] - gy[0, 0]))
+
+
+def _bow(w: Any) -> float:
+    """The wall's bow, px: the quadratic term of a parabola through its stations, from the
+    middle of the field to its ends (0 with fewer than 4 stations)."""
+    ok = np.isfinite(w.position_px)
+    x = np.asarray(w.x_px, dtype=np.float64)[ok]
+    if x.size < 4 or np.ptp(x) <= 0:
+        return 0.0
+    xc = (x - 0.5 * (x.min() + x.max())) / (0.5 * np.ptp(x))
+    return float(np.polyfit(xc, np.asarray(w.position_px)[ok], 2)[0])
+
+
+def _fingerprint(settings: dict[str, Any]) -> str:
+    text = json.dumps(settings, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _keys(entries: Iterable[Any]) -> list[str]:
+    """The fields' identities: their files' names (not folders) and frames."""
+    return [
+        f"{pathlib.Path(e[0]).name}[{e[1]}]" if isinstance(e, tuple) else pathlib.Path(e).name
+        for e in entries
+    ]
+
+
+def _save_checkpoint(path: pathlib.Path, key: str, entries: list[Any], state: dict) -> None:
+    done = state["done"]
+    blob = {"format": _CHECKPOINT, "key": key, "fields": _keys(entries[:done]), **state}
+    atomic_write_bytes(path, pickle.dumps(blob, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _load_checkpoint(path: pathlib.Path | None, key: str, entries: list[Any]) -> dict | None:
+    """The state of an earlier run of the same settings whose fields are this run's first ones;
+    None when there is none. A checkpoint of other settings or other fields is refused."""
+    if path is None or not path.is_file():
+        return None
+    try:
+        blob = pickle.loads(path.read_bytes())
+        if blob.get("format") != _CHECKPOINT:
+            raise ValueError("not a checkpoint of rspiv statistics")
+    except Exception as exc:  # noqa: BLE001 - any damage is one line
+        raise InvalidInputError(
+            f"{path}: cannot resume ({exc}); remove it to start again"
+        ) from None
+    if blob["key"] != key:
+        raise InvalidInputError(
+            f"{path}: written for other options; remove it to start again with these"
+        )
+    done = int(blob["done"])
+    if done > len(entries) or blob["fields"] != _keys(entries[:done]):
+        raise InvalidInputError(
+            f"{path}: its {done} fields are not this run's first ones; remove it to start again"
+        )
+    return {k: blob[k] for k in ("done", "acc", "skipped", "rotation", "warnings", "bounds")}

@@ -1,0 +1,212 @@
+"""Statistics in wall units from another tool's vector files (:mod:`rspiv.vector_statistics`).
+
+Ground truth: series of the synthetic layer's exact fields written as DaVis and OpenPIV files
+(``vector_series_cases``), whose mean profile, Reynolds stresses and friction velocity are the
+flow's (:class:`rspiv.synth.tbl.TBLFlow`); through a strong known lens, the raw-frame fields a
+tool measures, to be corrected by Method II.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import rspiv
+from lens_cases import strong_lens
+from rspiv.cli import main
+from rspiv.errors import InvalidInputError
+from rspiv.synth.tbl import TBLFlow
+from rspiv.vector_statistics import vector_statistics
+from vector_series_cases import exact_field, write_series, write_vc7
+
+pytest.importorskip("lvpyio", reason="the series are DaVis files (rspiv[davis])")
+FLOW = TBLFlow()
+NU = FLOW.nu
+
+
+def _errors(r):
+    """Median and largest error of U+, uu+, vv+, uv+ against the flow, away from the wall."""
+    res = r.result
+    yp = res.y_plus
+    far = res.extra["near_wall"] == 0
+    uu, vv, uv = FLOW.stresses_plus(yp)
+    out = {}
+    for name, got, want in (("U", res.u_plus, FLOW.u_plus(yp)), ("uu", res.uu_plus, uu),
+                            ("vv", res.vv_plus, vv), ("uv", res.uv_plus, uv)):  # fmt: skip
+        d = (got - want)[far]
+        out[name] = (float(np.nanmedian(d)), float(np.nanmax(np.abs(d))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def level(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("level")
+    files, truth = write_series(folder, 80)
+    return folder, files, truth
+
+
+def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
+    folder, files, truth = level
+    r = vector_statistics(str(folder / "*.vc7"), nu=NU)
+    assert r.used == 80 and not r.skipped and r.tool == "DaVis" and r.window == (32, 32)
+    # the scale and pulse separation come from the files' scales
+    assert r.mm_per_px == pytest.approx(1 / truth.magnification, rel=1e-5)  # 6 digits
+    assert r.dt == pytest.approx(truth.dt, rel=1e-5)
+    assert r.warnings == []
+    res = r.result
+    assert res.u_tau == pytest.approx(truth.u_tau, rel=0.003)  # measured: +0.04 %
+    assert res.delta99 * 1e3 == pytest.approx(FLOW.delta99_mm, rel=0.02)  # measured: -0.9 %
+    err = _errors(r)
+    assert abs(err["U"][0]) < 0.03 and err["U"][1] < 0.1
+    for k in ("uu", "vv", "uv"):  # 80 independent fields: the stresses' own scatter
+        assert abs(err[k][0]) < 0.03, (k, err[k])
+    assert abs(r.analysis.wall.line(1000.0) - truth.wall_y(1000.0)) < 2.0
+    files_out = r.write(tmp_path / "out")
+    assert {"statistics", "profile_nc", "profile_csv", "summary"} <= set(files_out)
+    ds = r.to_xarray()
+    assert ds.attrs["tool"] == "DaVis" and ds["u"].attrs["units"] == "m s-1"
+    # the command gives the same figures
+    out = tmp_path / "cli"
+    assert main(["statistics", str(folder), "--nu", repr(NU), "-o", str(out), "--figures"]) == 0
+    assert (out / "mean_velocity.png").stat().st_size > 10_000
+    import json
+
+    summ = json.loads((out / "summary.json").read_text())
+    assert summ["u_tau"] == pytest.approx(res.u_tau, rel=1e-12) and summ["fields"] == 80
+
+
+def test_openpiv_text_of_the_same_fields_sums_the_same(level, tmp_path):
+    folder, files, truth = level
+    for s in range(30):
+        _, x, y, u, v = exact_field(s)
+        flags = np.zeros(x.size)
+        rows = np.column_stack([x.ravel() + 0.5, y.ravel() + 0.5, u.astype(np.float32).ravel(),
+                                v.astype(np.float32).ravel(), flags, flags])  # fmt: skip
+        np.savetxt(tmp_path / f"B{s:05d}.txt", rows, header="x y u v flags mask")
+    davis = vector_statistics(files[:30], nu=NU)
+    text = vector_statistics(
+        str(tmp_path / "*.txt"), nu=NU, dt=truth.dt, mm_per_px=1 / truth.magnification,
+        window=(32, 32),
+    )  # fmt: skip
+    a, b = davis.accumulator, text.accumulator
+    np.testing.assert_allclose(b.mean_u, a.mean_u, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(b.m2_uu, a.m2_uu, rtol=1e-5, atol=1e-5)
+    assert text.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
+    assert text.frame == "image" and any("lens distortion" in w for w in text.warnings)
+
+
+@pytest.fixture(scope="module")
+def lens_series(tmp_path_factory):
+    shape = (1322, 2216)
+    m = 8.6345  # the scene's magnification at SCALE
+    lens = strong_lens(shape)
+    gx, gy = np.meshgrid(np.linspace(40, shape[1] - 41, 23), np.linspace(40, shape[0] - 41, 14))
+    obj = np.column_stack([gx.ravel(), gy.ravel()])
+    cal = rspiv.calibrate_points(lens.distort(obj), obj / m, image_shape=shape, sigma_px=0.02)
+    folder = tmp_path_factory.mktemp("lens")
+    write_series(folder, 60, wall_y0=1150.0, camera=cal.mapping)
+    return folder, cal
+
+
+def test_method_two_corrects_a_series_seen_through_a_lens(lens_series):
+    folder, cal = lens_series
+    r = vector_statistics(folder, nu=NU, calibration=cal)
+    assert r.frame == "object" and r.warnings == []
+    assert r.result.u_tau == pytest.approx(FLOW.u_tau, rel=0.005)  # measured: +0.06 %
+    err = _errors(r)
+    # the resampling between nodes smooths the fluctuations: uu+ low by 0.08 (median)
+    assert -0.15 < err["uu"][0] < 0 and abs(err["uv"][0]) < 0.05
+    # uncorrected, the wall bows and the friction velocity is off: said
+    raw = vector_statistics(folder, nu=NU)
+    assert abs(raw.result.u_tau / FLOW.u_tau - 1) > 0.01  # measured: +1.9 %
+    assert any("bows by +8" in w and "calibration" in w for w in raw.warnings), raw.warnings
+
+
+def test_a_tilted_wall_is_said_or_levelled(tmp_path):
+    write_series(tmp_path, 30, angle=0.3)
+    r = vector_statistics(tmp_path, nu=NU)
+    assert r.rotation_deg == 0.0
+    assert any("rises" in w and "not levelled" in w for w in r.warnings), r.warnings
+    lv = vector_statistics(tmp_path, nu=NU, level=True)
+    # find_wall reads 0.41 deg on rows 16 px apart (module docs)
+    assert 0.25 < lv.rotation_deg < 0.5 and any("rotated" in w for w in lv.warnings)
+    assert not any("not levelled" in w for w in lv.warnings)
+
+
+def test_a_stopped_run_resumes_to_the_same_sums(level, tmp_path):
+    folder, files, _ = level
+    whole = vector_statistics(files[:25], nu=NU)
+
+    def stop(done, total):
+        if done == 17:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        vector_statistics(files[:25], nu=NU, out_dir=out, checkpoint_every=5, progress=stop)
+    seen = []
+    again = vector_statistics(
+        files[:25], nu=NU, out_dir=out, checkpoint_every=5, progress=lambda d, t: seen.append(d)
+    )
+    assert seen[0] == 16  # resumed after the 15 fields of the last checkpoint
+    for name in ("mean_u", "m2_uu", "c_uv", "count", "lag_c_u"):
+        np.testing.assert_array_equal(getattr(again.accumulator, name),
+                                      getattr(whole.accumulator, name))  # fmt: skip
+    with pytest.raises(InvalidInputError, match="other options"):
+        vector_statistics(files[:25], nu=NU, out_dir=out, level=True)
+    # the analysis' options do not enter the sums: analysed again from the checkpoint
+    seen.clear()
+    other = vector_statistics(
+        files[:25], nu=2 * NU, out_dir=out, progress=lambda d, t: seen.append(d)
+    )
+    assert seen == [] and other.used == 25
+    assert other.result.u_tau != pytest.approx(again.result.u_tau, rel=1e-3)
+    with pytest.raises(InvalidInputError, match="not this run's first"):
+        vector_statistics(files[1:26], nu=NU, out_dir=out)
+
+
+def test_bad_fields_skipped_and_bad_series_refused(level, tmp_path, capsys):
+    folder, files, truth = level
+    other = write_vc7(tmp_path / "other.vc7", np.ones((5, 7)), np.ones((5, 7)), 0.1, 1e-3)
+    broken = tmp_path / "broken.vc7"
+    broken.write_bytes(files[0].read_bytes()[:300])
+    r = vector_statistics([*files[:10], other, broken, *files[10:20]], nu=NU)
+    assert r.used == 20 and set(r.skipped) == {str(other), str(broken)}
+    assert "another grid" in r.skipped[str(other)]
+    assert any("2 field(s) skipped" in w for w in r.warnings)
+    with pytest.raises(InvalidInputError, match="no field could be read"):
+        vector_statistics([broken], nu=NU)
+    # a uniform flow has no wall to mirror: refused, not given one
+    _, x, _, _, _ = exact_field(0)
+    flat = [write_vc7(tmp_path / f"flat{k}.vc7", np.full(x.shape, 5.0 + 0.01 * k),
+                      np.zeros(x.shape), 0.1, 1e-3) for k in range(12)]  # fmt: skip
+    with pytest.raises(InvalidInputError):
+        vector_statistics(flat, nu=NU)
+    for bad in ({"nu": 0.0}, {"nu": NU, "dt": -1.0}, {"nu": NU, "wall": "left"}):
+        with pytest.raises(InvalidInputError):
+            vector_statistics(files[:3], **bad)
+    assert main(["statistics", str(broken), "--nu", "1e-6", "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "broken.vc7" in err[0]
+
+
+def test_random_vectors_the_tool_kept_are_screened(level, tmp_path):
+    folder, files, truth = level
+    rng = np.random.default_rng(3)
+    planted = 0
+    series = []
+    for s in range(30):
+        tr, x, _, u, v = exact_field(s)
+        if s in (4, 11, 23):  # 40 random vectors the tool's validation passed
+            j = rng.integers(5, 50, 40)
+            i = rng.integers(2, x.shape[1] - 2, 40)
+            u[j, i] += rng.choice([-1, 1], 40) * rng.uniform(15, 25, 40)
+            planted += len(set(zip(j, i, strict=True)))
+        series.append(write_vc7(tmp_path / f"B{s:05d}.vc7", u, v, 1 / tr.magnification, tr.dt))
+    clean = vector_statistics(files[:30], nu=NU, min_count=5)
+    kept = vector_statistics(series, nu=NU, min_count=5, screen=0)
+    screened = vector_statistics(series, nu=NU, min_count=5)
+    sc = screened.screened()
+    assert kept.screened() is None and planted - 5 <= sc["vectors"] <= planted + 20, sc
+    bad = np.nanmax(np.abs(kept.result.uu_plus - clean.result.uu_plus))
+    good = np.nanmax(np.abs(screened.result.uu_plus - clean.result.uu_plus))
+    assert bad > 0.5 and good < 0.1 * bad, (bad, good)  # measured: 1.06 and 0.004 (120 of 120)
