@@ -60,6 +60,9 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
     for k in ("uu", "vv", "uv"):  # 80 independent fields: the stresses' own scatter
         assert abs(err[k][0]) < 0.03, (k, err[k])
     assert abs(r.analysis.wall.line(1000.0) - truth.wall_y(1000.0)) < 2.0
+    # a dt given against the files' own: the files' is used, and said
+    other = vector_statistics(files[:20], nu=NU, dt=2 * truth.dt)
+    assert other.dt == r.dt and any("dt = " in w and "files'" in w for w in other.warnings)
     files_out = r.write(tmp_path / "out")
     assert {"statistics", "profile_nc", "profile_csv", "summary"} <= set(files_out)
     ds = r.to_xarray()
@@ -175,8 +178,12 @@ def test_bad_fields_skipped_and_bad_series_refused(level, tmp_path, capsys):
     assert any("2 field(s) skipped" in w for w in r.warnings)
     with pytest.raises(InvalidInputError, match="no field could be read"):
         vector_statistics([broken], nu=NU)
+    # every vector filled by the tool (PIVMat's DaVis jet is so): no measurement to sum
+    _, x, _, u, v = exact_field(0)
+    filled = write_vc7(tmp_path / "filled.vc7", u, v, 0.1, 1e-3, choice=4)
+    with pytest.raises(InvalidInputError, match=r"validation accepted \(\d+ filled"):
+        vector_statistics([filled], nu=NU)
     # a uniform flow has no wall to mirror: refused, not given one
-    _, x, _, _, _ = exact_field(0)
     flat = [write_vc7(tmp_path / f"flat{k}.vc7", np.full(x.shape, 5.0 + 0.01 * k),
                       np.zeros(x.shape), 0.1, 1e-3) for k in range(12)]  # fmt: skip
     with pytest.raises(InvalidInputError):
@@ -210,3 +217,19 @@ def test_random_vectors_the_tool_kept_are_screened(level, tmp_path):
     bad = np.nanmax(np.abs(kept.result.uu_plus - clean.result.uu_plus))
     good = np.nanmax(np.abs(screened.result.uu_plus - clean.result.uu_plus))
     assert bad > 0.5 and good < 0.1 * bad, (bad, good)  # measured: 1.06 and 0.004 (120 of 120)
+
+
+def test_peak_locking_in_the_fields_is_measured_and_said(level, tmp_path):
+    folder, files, truth = level
+    a = 0.04  # px, towards whole pixels (rspiv.peak_locking's model)
+    series = []
+    for s in range(30):
+        tr, _, _, u, v = exact_field(s)
+        locked = [d - a * np.sin(2 * np.pi * d) for d in (u, v)]
+        series.append(write_vc7(tmp_path / f"B{s:05d}.vc7", *locked, 1 / tr.magnification, tr.dt))
+    r = vector_statistics(series, nu=NU)
+    assert r.locking["amplitude_px"] == pytest.approx(a, abs=0.01) and r.locking["said"]
+    assert any(w.startswith("peak locking") for w in r.warnings)
+    clean = vector_statistics(files[:30], nu=NU)
+    assert abs(clean.locking["amplitude_px"]) < 0.005 and not clean.locking["said"]
+    assert not any("peak locking" in w for w in clean.warnings)

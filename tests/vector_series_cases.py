@@ -46,8 +46,11 @@ def exact_field(
     return tr, x, y, disp[:, 0].reshape(x.shape), disp[:, 1].reshape(x.shape)
 
 
-def write_vc7(path: pathlib.Path, u: np.ndarray, v: np.ndarray, mm_per_px: float, dt: float):
-    """A DaVis vector buffer of one field (lvpyio's writer), its scales giving mm/px and dt."""
+def write_vc7(
+    path: pathlib.Path, u: np.ndarray, v: np.ndarray, mm_per_px: float, dt: float, choice: int = 0
+):
+    """A DaVis vector buffer of one field (lvpyio's writer), its scales giving mm/px and dt;
+    every vector of DaVis' ``choice`` (0: the highest peak, 4: filled by DaVis)."""
     lv = pytest.importorskip("lvpyio", reason="DaVis files need lvpyio (rspiv[davis])")
     from lvpyio.types.buffer import Buffer
     from lvpyio.types.component import Component, Components
@@ -59,7 +62,7 @@ def write_vc7(path: pathlib.Path, u: np.ndarray, v: np.ndarray, mm_per_px: float
     for k in range(4):
         comps[f"U{k}"] = Component(vel, [u.astype(np.float32)])
         comps[f"V{k}"] = Component(vel, [v.astype(np.float32)])
-    comps["ACTIVE_CHOICE"] = Component(counts, [np.zeros(u.shape, np.int32)])
+    comps["ACTIVE_CHOICE"] = Component(counts, [np.full(u.shape, choice, np.int32)])
     comps["ENABLED"] = Component(counts, [np.ones(u.shape, np.uint8)])
     scales = lv.Scales(
         lv.Scale(mm_per_px, 0.0, "mm", "position"), lv.Scale(-mm_per_px, 0.0, "mm", "position"),

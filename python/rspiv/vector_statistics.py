@@ -81,6 +81,7 @@ from rspiv.outputs import (
     write_netcdf,
     write_profile_csv,
 )
+from rspiv.peak_locking import LockingHistogram
 from rspiv.stats import FieldAccumulator
 from rspiv.vector_files import VectorFile, read_vectors, vector_frames, vector_series
 
@@ -120,6 +121,12 @@ class VectorStatistics:
         The rotation applied to level the wall (0: none).
     warnings : list of str
         What the result's reader must know, one line each.
+    locking : dict
+        The displacements' lean towards whole pixels over the series
+        (:meth:`rspiv.peak_locking.LockingHistogram.result`: ``amplitude_px``,
+        ``standard_error_px``, ``said``).
+    seconds : float
+        The reduction's wall time.
     """
 
     accumulator: FieldAccumulator
@@ -135,6 +142,7 @@ class VectorStatistics:
     window: tuple[int, int]
     rotation_deg: float
     warnings: list[str]
+    locking: dict[str, Any] = dataclasses.field(default_factory=dict)
     seconds: float = 0.0
 
     def screened(self) -> dict[str, Any] | None:
@@ -174,6 +182,7 @@ class VectorStatistics:
             "window_px": list(self.window),
             "rotation_deg": self.rotation_deg,
             "screened": self.screened(),
+            "peak_locking": self.locking,
             "flow_side": an.flow_side,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
@@ -193,6 +202,14 @@ class VectorStatistics:
             f"{len(self.skipped)} skipped; grid {self.x.size} x {self.y.size}, "
             f"window {self.window[0]} x {self.window[1]} px",
         ]
+        lk = self.locking
+        if lk.get("amplitude_px") is not None:
+            err = lk.get("standard_error_px")
+            lines.append(
+                f"peak locking: {lk['amplitude_px']:.4f}"
+                + (f" +- {err:.4f}" if err is not None else "")
+                + " px"
+            )
         sc = self.screened()
         if sc is not None:
             lines.append(f"screened: {sc['vectors']} vectors ({100 * sc['share']:.3f} %)")
@@ -302,6 +319,9 @@ class _Reducer:
         f = self.first
         if vf.u.shape != f.u.shape or not (np.allclose(vf.x, f.x) and np.allclose(vf.y, f.y)):
             return f"on another grid ({vf.u.shape[1]} x {vf.u.shape[0]}) than the first field"
+        if not vf.valid.any():
+            post = int(np.count_nonzero(vf.postprocessed))
+            return f"no vector its tool's validation accepted ({post} filled or smoothed)"
         for what, a, b in (("pulse separation", vf.dt, f.dt), ("scale", vf.mm_per_px,
                                                                 f.mm_per_px)):  # fmt: skip
             if np.isfinite(a) and np.isfinite(b) and abs(a - b) > 1e-6 * abs(b):
@@ -320,6 +340,8 @@ class _Reducer:
         if bounds is not None:
             u, v, valid = screen_work.apply(bounds, u, v, valid, acc.screen, pair_id)
         acc.add(u, v, valid, pair_id=pair_id, sigma_u=su, sigma_v=sv)
+        if acc.locking is not None:  # not on the levelling pilot's accumulator
+            acc.locking.add(u, v, valid, pair_id=pair_id)
 
 
 def vector_statistics(
@@ -443,6 +465,10 @@ def vector_statistics(
             )
     scale = cal_scale or (first.mm_per_px if np.isfinite(first.mm_per_px) else mm_per_px)
     pulse = first.dt if np.isfinite(first.dt) else dt
+    for what, given, used in (("dt", dt, pulse), ("mm_per_px", mm_per_px, scale)):
+        if given is not None and used is not None and abs(given / used - 1) > 1e-6:
+            src = "calibration's" if what == "mm_per_px" and cal_scale else "files'"
+            warnings.append(f"{what} = {given:.6g} given, the {src} {used:.6g} used")
     if window is None:
         window = first.window
     if window is None:
@@ -477,13 +503,15 @@ def vector_statistics(
     key = _fingerprint(settings)
     state = _load_checkpoint(ck_path, key, entries)
     base = calibration.mapping if calibration is not None else None
+    pilot_said: list[str] = []  # what the pilots say, kept with the checkpoint
     if state is None:
         rotation, base = _levelling(
             entries, start, first, red, opts, base, calibration, mapping, levelled, pilot,
-            (gx, gy), (wall, stations, min_count), warnings,
+            (gx, gy), (wall, stations, min_count), pilot_said,
         )  # fmt: skip
         state = {"done": 0, "acc": FieldAccumulator(first.u.shape), "skipped": skipped,
-                 "rotation": rotation, "warnings": warnings, "bounds": None}  # fmt: skip
+                 "rotation": rotation, "warnings": pilot_said, "bounds": None}  # fmt: skip
+        state["acc"].locking = LockingHistogram()
     elif calibration is None and state["rotation"] != 0.0:
         base = _identity(xs, ys).rotated(state["rotation"])
     elif calibration is not None:
@@ -491,7 +519,9 @@ def vector_statistics(
     transform = _transform(base, calibration is not None or state["rotation"] != 0.0, mapping)
     acc = state["acc"]
     if state["done"] == 0 and screen > 0:
-        state["bounds"] = _screen(entries, opts, red, transform, float(screen), pilot, warnings)
+        state["bounds"] = _screen(
+            entries, opts, red, transform, float(screen), pilot, state["warnings"]
+        )
         if state["bounds"] is not None:
             acc.screen = ScreenTally(acc.shape)
     for k in range(state["done"], len(entries)):
@@ -515,7 +545,7 @@ def vector_statistics(
         )
     if ck_path is not None:
         _save_checkpoint(ck_path, key, entries, state)
-    warnings = list(state["warnings"])
+    warnings += state["warnings"]
     if state["skipped"]:
         name, why = next(iter(state["skipped"].items()))
         warnings.append(f"{len(state['skipped'])} field(s) skipped, the first {name}: {why}")
@@ -546,6 +576,17 @@ def vector_statistics(
             f"the wall bows by {sag:+.1f} px across the field (a parabola through its "
             f"stations; more than a quarter of a row): {hint}"
         )
+    locking = acc.locking.result() if acc.locking is not None else {}
+    if locking.get("said"):
+        bound = (
+            " (a lower bound: Method II maps the raw frame's displacements)" if calibration else ""
+        )
+        warnings.append(
+            f"peak locking: the fields' displacements lean towards whole pixels, amplitude "
+            f"{locking['amplitude_px']:.3f} +- {locking['standard_error_px']:.3f} px over "
+            f"{locking['pairs']} fields{bound}; it does not average out (the mean, v'v' and the "
+            "PDFs carry it): particle images under 2 px or saturated, or the tool's sub-pixel fit"
+        )
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)
     if an.result is None:
@@ -553,7 +594,7 @@ def vector_statistics(
     return VectorStatistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
-        (int(window[0]), int(window[1])), float(state["rotation"]), warnings,
+        (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking,
         time.perf_counter() - t_start,
     )  # fmt: skip
 
