@@ -60,6 +60,10 @@ cfg.statistics.two_point = os.environ.get("RSPIV_BENCH_TWO_POINT") == "1"
 extras = os.environ.get("RSPIV_BENCH_EXTRAS") == "1"
 cfg.statistics.vorticity = cfg.statistics.quadrant = extras
 cfg.statistics.pod = cfg.statistics.vortices = extras
+# the other passes over the fields (the synthetic campaign turns conditional averages on): only
+# with the extras, which write the fields they read
+for key in ("conditional", "temporal", "spod"):
+    setattr(cfg.statistics, key, extras and getattr(cfg.statistics, key))
 # each pair's fields, and a second run with pair 1 left out, summed again from them
 rereduce = os.environ.get("RSPIV_BENCH_REREDUCE") == "1"
 cfg.output.fields = extras or rereduce
