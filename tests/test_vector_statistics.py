@@ -8,6 +8,8 @@ tool measures, to be corrected by Method II.
 
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 import pytest
 import rspiv
@@ -19,6 +21,7 @@ from rspiv.vector_statistics import vector_statistics
 from vector_series_cases import exact_field, write_series, write_vc7
 
 pytest.importorskip("lvpyio", reason="the series are DaVis files (rspiv[davis])")
+REAL = pathlib.Path(__file__).parent / "data" / "real"
 FLOW = TBLFlow()
 NU = FLOW.nu
 
@@ -165,6 +168,9 @@ def test_a_stopped_run_resumes_to_the_same_sums(level, tmp_path):
     assert other.result.u_tau != pytest.approx(again.result.u_tau, rel=1e-3)
     with pytest.raises(InvalidInputError, match="not this run's first"):
         vector_statistics(files[1:26], nu=NU, out_dir=out)
+    (out / "checkpoint.pkl").write_bytes(b"\x80\x04garbage")
+    with pytest.raises(InvalidInputError, match="cannot resume"):
+        vector_statistics(files[:25], nu=NU, out_dir=out)
 
 
 def test_bad_fields_skipped_and_bad_series_refused(level, tmp_path, capsys):
@@ -233,3 +239,11 @@ def test_peak_locking_in_the_fields_is_measured_and_said(level, tmp_path):
     clean = vector_statistics(files[:30], nu=NU)
     assert abs(clean.locking["amplitude_px"]) < 0.005 and not clean.locking["said"]
     assert not any("peak locking" in w for w in clean.warnings)
+
+
+def test_real_fields_without_a_wall_are_refused_not_given_one():
+    """pivpy's samples (BSD 3-clause, tests/data/real): OpenPIV's exp1_001 and a PIVlab session
+    of two pairs (read as its two fields) hold no wall: refused in one line."""
+    for name in ("pivpy_openpiv_exp1_001_b.txt", "pivpy_pivlab_session.mat"):
+        with pytest.raises(InvalidInputError, match="no wall reflection seen"):
+            vector_statistics(REAL / name, nu=1e-6, min_count=1)
