@@ -71,8 +71,16 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
     ds = r.to_xarray()
     assert ds.attrs["tool"] == "DaVis" and ds["u"].attrs["units"] == "m s-1"
     # the command gives the same figures
+    # the vorticity statistics: the mean is the flow's -dU+/dy+ away from the wall
+    vort = vector_statistics(files, nu=NU, vorticity=True).vorticity
+    far = ~vort["near_wall"] & (vort["y_plus"] < 2000)
+    yp = vort["y_plus"][far]
+    slope = (FLOW.u_plus(yp * 1.001) - FLOW.u_plus(yp * 0.999)) / (0.002 * yp)
+    rel = vort["omega_mean_plus"][far] / -slope - 1
+    assert np.median(np.abs(rel)) < 0.05, rel  # measured: 2 % (200 fields)
     out = tmp_path / "cli"
-    assert main(["statistics", str(folder), "--nu", repr(NU), "-o", str(out), "--figures"]) == 0
+    cmd = ["statistics", str(folder), "--nu", repr(NU), "-o", str(out), "--figures"]
+    assert main([*cmd, "--vorticity"]) == 0 and (out / "vorticity.nc").is_file()
     assert (out / "mean_velocity.png").stat().st_size > 10_000
     import json
 
@@ -194,7 +202,8 @@ def test_bad_fields_skipped_and_bad_series_refused(level, tmp_path, capsys):
                       np.zeros(x.shape), 0.1, 1e-3) for k in range(12)]  # fmt: skip
     with pytest.raises(InvalidInputError):
         vector_statistics(flat, nu=NU)
-    for bad in ({"nu": 0.0}, {"nu": NU, "dt": -1.0}, {"nu": NU, "wall": "left"}):
+    for bad in ({"nu": 0.0}, {"nu": NU, "dt": -1.0}, {"nu": NU, "wall": "left"},
+                {"nu": NU, "vorticity": "spline"}):  # fmt: skip
         with pytest.raises(InvalidInputError):
             vector_statistics(files[:3], **bad)
     assert main(["statistics", str(broken), "--nu", "1e-6", "-o", str(tmp_path / "o")]) == 2

@@ -68,8 +68,10 @@ from rspiv.campaign import screen as screen_work
 from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
+from rspiv.campaign.vorticity import vorticity_dataset, vorticity_profile
 from rspiv.campaign_config import FlowConfig, StatisticsConfig, WallConfig
 from rspiv.correction import correct_vectors
+from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.mapping import fit_mapping
 from rspiv.outlier_screen import HALF_WIDTH, ScreenTally, screen_bounds
@@ -84,6 +86,7 @@ from rspiv.outputs import (
 from rspiv.peak_locking import LockingHistogram
 from rspiv.stats import FieldAccumulator
 from rspiv.vector_files import VectorFile, read_vectors, vector_frames, vector_series
+from rspiv.vorticity import VorticityAccumulator
 
 __all__ = ["VectorStatistics", "vector_statistics"]
 
@@ -125,6 +128,9 @@ class VectorStatistics:
         The displacements' lean towards whole pixels over the series
         (:meth:`rspiv.peak_locking.LockingHistogram.result`: ``amplitude_px``,
         ``standard_error_px``, ``said``).
+    vorticity : dict or None
+        The vorticity statistics per row (with ``vorticity=``; their keys:
+        :func:`rspiv.campaign.vorticity.vorticity_profile`).
     seconds : float
         The reduction's wall time.
     """
@@ -143,6 +149,7 @@ class VectorStatistics:
     rotation_deg: float
     warnings: list[str]
     locking: dict[str, Any] = dataclasses.field(default_factory=dict)
+    vorticity: dict[str, Any] | None = None
     seconds: float = 0.0
 
     def screened(self) -> dict[str, Any] | None:
@@ -183,6 +190,7 @@ class VectorStatistics:
             "rotation_deg": self.rotation_deg,
             "screened": self.screened(),
             "peak_locking": self.locking,
+            "vorticity_rows": None if self.vorticity is None else int(self.vorticity["y"].size),
             "flow_side": an.flow_side,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
@@ -232,9 +240,9 @@ class VectorStatistics:
         return "\n".join(lines)
 
     def write(self, out_dir: str | os.PathLike, figures: bool = False) -> dict[str, pathlib.Path]:
-        """Write ``statistics.nc``, ``profile.nc``, ``profile.csv`` and ``summary.json`` (and
-        with ``figures`` the profiles in wall units against the DNS) atomically to
-        ``out_dir``; returns name -> path."""
+        """Write ``statistics.nc``, ``profile.nc``, ``profile.csv``, ``summary.json`` and with
+        ``vorticity=`` ``vorticity.nc`` (and with ``figures`` the profiles in wall units
+        against the DNS) atomically to ``out_dir``; returns name -> path."""
         out = pathlib.Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         files = {"statistics": write_netcdf(self.to_xarray(), out / "statistics.nc")}
@@ -248,6 +256,9 @@ class VectorStatistics:
 
                 for k, p in plot_boundary_layer(out, {f"{self.tool} fields": r}).items():
                     files[f"figure_{k}"] = pathlib.Path(p)
+        if self.vorticity is not None:
+            ds = vorticity_dataset(self.vorticity, self.analysis.run)
+            files["vorticity"] = write_netcdf(ds, out / "vorticity.nc")
         files["summary"] = atomic_write_text(
             out / "summary.json", json.dumps(self.summary(), indent=1, default=json_default)
         )
@@ -340,8 +351,9 @@ class _Reducer:
         if bounds is not None:
             u, v, valid = screen_work.apply(bounds, u, v, valid, acc.screen, pair_id)
         acc.add(u, v, valid, pair_id=pair_id, sigma_u=su, sigma_v=sv)
-        if acc.locking is not None:  # not on the levelling pilot's accumulator
-            acc.locking.add(u, v, valid, pair_id=pair_id)
+        for extra in (acc.locking, acc.vorticity):  # not on the levelling pilot's
+            if extra is not None:
+                extra.add(u, v, valid, pair_id=pair_id)
 
 
 def vector_statistics(
@@ -361,6 +373,7 @@ def vector_statistics(
     u_inf: float | None = None,
     noise_correction: bool = False,
     screen: float = SCREEN_SIGMAS,
+    vorticity: str | bool = False,
     window: tuple[int, int] | None = None,
     read_options: dict[str, Any] | None = None,
     out_dir: str | os.PathLike | None = None,
@@ -403,6 +416,11 @@ def vector_statistics(
         (:mod:`rspiv.outlier_screen`, a campaign's ``[statistics] screen``: random vectors the
         tool's validation kept), the bounds from ``pilot`` fields spread over the series (at
         most 20); 0 switches it off.
+    vorticity : bool or str
+        The vorticity statistics per row (a campaign's ``[statistics] vorticity``,
+        :func:`rspiv.campaign.vorticity.vorticity_profile`: mean vorticity and its rms, the
+        signed swirling strength, in 1/s and wall units): True for least-squares differences,
+        or the scheme's name (:data:`rspiv.derivatives.SCHEMES`).
     window : (w, h), optional
         The final window where the files do not say (else twice the grid's spacing, said).
     read_options : dict, optional
@@ -435,6 +453,11 @@ def vector_statistics(
     if wall_y is not None and not (np.isfinite(wall_y) and wall in ("bottom", "top")):
         raise InvalidInputError(
             f"statistics: wall_y = {wall_y} needs wall='bottom' or 'top' (where the flow is)"
+        )
+    scheme = "least_squares" if vorticity is True else (vorticity or None)
+    if scheme is not None and scheme not in SCHEMES:
+        raise InvalidInputError(
+            f"statistics: vorticity {vorticity!r}: True or one of {sorted(SCHEMES)}"
         )
     if level not in ("auto", True, False):
         raise InvalidInputError(f"statistics: level {level!r}: auto, True or False")
@@ -495,6 +518,7 @@ def vector_statistics(
     # started again with other ones is analysed again from its checkpoint)
     settings: dict[str, Any] = {
         "read": opts, "mapping": mapping, "level": levelled, "screen": float(screen),
+        "vorticity": scheme,
         "calibration": None if calibration is None else calibration.mapping.to_json(),
     }  # fmt: skip
     if levelled is not False:
@@ -512,6 +536,9 @@ def vector_statistics(
         state = {"done": 0, "acc": FieldAccumulator(first.u.shape), "skipped": skipped,
                  "rotation": rotation, "warnings": pilot_said, "bounds": None}  # fmt: skip
         state["acc"].locking = LockingHistogram()
+        if scheme is not None:
+            dx, dy = float(xs[1] - xs[0]), float(ys[1] - ys[0])
+            state["acc"].vorticity = VorticityAccumulator(first.u.shape, dx, dy, scheme)
     elif calibration is None and state["rotation"] != 0.0:
         base = _identity(xs, ys).rotated(state["rotation"])
     elif calibration is not None:
@@ -587,6 +614,9 @@ def vector_statistics(
             f"{locking['pairs']} fields{bound}; it does not average out (the mean, v'v' and the "
             "PDFs carry it): particle images under 2 px or saturated, or the tool's sub-pixel fit"
         )
+    vort = None
+    if acc.vorticity is not None:
+        vort = vorticity_profile(acc, an, min_count, pulse or 0.0, window[1])
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)
     if an.result is None:
@@ -594,7 +624,7 @@ def vector_statistics(
     return VectorStatistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
-        (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking,
+        (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking, vort,
         time.perf_counter() - t_start,
     )  # fmt: skip
 

@@ -33,7 +33,9 @@ from rspiv.reference import dns_profile_for_re_tau
 from rspiv.report import ReportSection
 from rspiv.vorticity import VorticityAccumulator
 
-__all__ = ["attach", "report_section", "write_outputs"]
+__all__ = [
+    "attach", "report_section", "vorticity_dataset", "vorticity_profile", "write_outputs",
+]  # fmt: skip
 
 
 def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
@@ -55,15 +57,38 @@ def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
     """The vorticity profile of ``run`` (module docstring) written as
     ``OUT/vorticity_<run>.nc`` (with ``[output] netcdf``); None when the run has none."""
+    acc = res.accumulators[run.name]
+    if getattr(acc, "vorticity", None) is None or not res.context.vorticity:
+        return None
+    prof = vorticity_profile(
+        acc, an, camp.config.statistics.min_count, camp.config.flow.dt,
+        res.context.piv.final_window[1],
+    )  # fmt: skip
+    if camp.config.output.netcdf:
+        res.files[f"vorticity_{run.name}"] = write_netcdf(
+            vorticity_dataset(prof, run), camp.out_dir / f"vorticity_{run.name}.nc"
+        )
+    return prof
+
+
+def vorticity_profile(acc: Any, an: Any, min_count: int, dt: float, window_h: float) -> dict:
+    """The rows of an accumulator's :class:`~rspiv.vorticity.VorticityAccumulator` on the flow
+    side of the analysis ``an``'s wall (module docstring): a dict of per-row arrays (``y``,
+    ``dist_px``, ``omega_mean``, ``omega_rms``, ``swirl_mean``, ``swirl_rms``, their
+    ``_plus`` with SI units, ``vectors``, ``near_wall``) and the run's figures. ``dt``: the
+    pulse separation (s; 0: per pair); ``window_h``: the final window's height (px).
+
+    Raises
+    ------
+    InvalidInputError
+        No row on the flow side holds the vorticity of two pairs.
+    """
     from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
 
-    acc = res.accumulators[run.name]
-    va = getattr(acc, "vorticity", None)
-    if va is None or not res.context.vorticity:
-        return None
+    va = acc.vorticity
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    usable = (acc.count >= max(camp.config.statistics.min_count, 2)) & (dist > 0)[:, None]
+    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
     # a reflection of one axis flips the vorticity: the flow frame against the image's y-up
     orient = float(p.get("sign_x", 1.0)) * -float(p.get("sign_y", 1.0))
     rows = va.profile(usable, orient)
@@ -73,7 +98,6 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     keep = keep[np.argsort(dist[keep])]
     # a row's differences reach this far towards the wall: into the rows the wall shapes
     reach = max(abs(k) for k in SCHEMES[va.scheme][0]) * va.dy
-    dt = camp.config.flow.dt
     per_s = 1.0 / dt if dt > 0 else 1.0
     m = p["m_per_px"] if p.get("si") else 1.0
     prof: dict[str, Any] = {
@@ -81,7 +105,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "dist_px": dist[keep],
         "rows": keep,
         "vectors": rows["omega_vectors"][keep],
-        "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1] + reach,
+        "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * window_h + reach,
         "si": bool(p.get("si")),
         "per_s": dt > 0,
         "scheme": va.scheme,
@@ -98,14 +122,11 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             for stat in ("mean", "rms"):
                 prof[f"{name}_{stat}_plus"] = prof[f"{name}_{stat}"] * scale
         prof["re_tau"] = float(r.delta99 * r.u_tau / r.nu)
-    if camp.config.output.netcdf:
-        res.files[f"vorticity_{run.name}"] = write_netcdf(
-            _dataset(prof, run), camp.out_dir / f"vorticity_{run.name}.nc"
-        )
     return prof
 
 
-def _dataset(prof: dict, run: RunSpec) -> Any:
+def vorticity_dataset(prof: dict, run: RunSpec) -> Any:
+    """The profile of :func:`vorticity_profile` as ``vorticity_<run>.nc``'s Dataset."""
     import xarray as xr
 
     length = "m" if prof["si"] else "pix"

@@ -8,7 +8,8 @@ files, else from ``--dt`` and ``--mm-per-px``; with ``--calibration cal.json`` t
 fields are corrected by Method II and the calibration gives the scale. The wall is found from
 the mean profile's mirror symmetry (the particles' reflection) and levelled. Written to OUT
 atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` and
-``profile.csv`` (wall units with their uncertainties), ``summary.json`` and, with
+``profile.csv`` (wall units with their uncertainties), ``summary.json``, with ``--vorticity``
+``vorticity.nc`` (the mean vorticity, its rms and the swirling strength per row) and, with
 ``--figures``, the profiles against the DNS. A stopped run started again with the same files
 and options resumes from ``OUT/checkpoint.pkl``. Warnings go to stderr as well; a series
 without a usable field or a wall rspiv cannot see is refused in one line (exit 2).
@@ -63,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
             mapping=args.mapping, level=level, pilot=args.pilot, wall=args.wall,
             wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
             u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
+            vorticity=args.vorticity or False,
             window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
             out_dir=args.output, progress=bar,
@@ -105,6 +107,8 @@ def register(sub) -> None:
                    help="remove the tool's uncertainties' variance from the stresses")  # fmt: skip
     p.add_argument("--screen", type=float, default=SIGMAS,
                    help=f"screen beyond this many local spreads ({SIGMAS:g}; 0: off)")  # fmt: skip
+    p.add_argument("--vorticity", nargs="?", const="least_squares", default=None,
+                   help="vorticity statistics per row (scheme: least_squares)")  # fmt: skip
     p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
     p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
     p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
