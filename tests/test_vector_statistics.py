@@ -77,7 +77,8 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
     yp = vort["y_plus"][far]
     slope = (FLOW.u_plus(yp * 1.001) - FLOW.u_plus(yp * 0.999)) / (0.002 * yp)
     rel = vort["omega_mean_plus"][far] / -slope - 1
-    assert np.median(np.abs(rel)) < 0.05, rel  # measured: 2 % (200 fields)
+    # measured: median error -0.04 %, median |error| 4.2 % (2.3 % over 200 fields: noise)
+    assert abs(np.median(rel)) < 0.01 and np.median(np.abs(rel)) < 0.06, rel
     out = tmp_path / "cli"
     cmd = ["statistics", str(folder), "--nu", repr(NU), "-o", str(out), "--figures"]
     assert main([*cmd, "--vorticity"]) == 0 and (out / "vorticity.nc").is_file()
