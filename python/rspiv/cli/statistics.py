@@ -6,7 +6,8 @@ FILES are files, folders or quoted globs, in time order (a PIVlab session or a D
 several frames gives each of its fields). The pulse separation and the scale come from DaVis'
 files, else from ``--dt`` and ``--mm-per-px``; with ``--calibration cal.json`` the raw-frame
 fields are corrected by Method II and the calibration gives the scale. The wall is found from
-the mean profile's mirror symmetry (the particles' reflection) and levelled. Written to OUT
+the mean profile's mirror symmetry (the particles' reflection) and levelled with a calibration
+(``--level yes`` rotates the fields without one; ``--wall-y`` gives a wall not seen). Written to OUT
 atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` and
 ``profile.csv`` (wall units with their uncertainties), ``summary.json``, with ``--vorticity``
 ``vorticity.nc`` (the mean vorticity, its rms and the swirling strength per row) and, with
