@@ -25,6 +25,7 @@ import json
 import os
 import pathlib
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -183,19 +184,31 @@ def _davis_buffer(p: pathlib.Path) -> Any:
 _LAST_DAVIS: list[Any] = [None]
 
 
-def _davis_images(p: pathlib.Path) -> list[np.ndarray]:
-    """The images of a DaVis buffer in file order (frames, then their planes)."""
+def last_file(slot: list[Any], p: pathlib.Path, load: Callable[[pathlib.Path], Any]) -> Any:
+    """``load(p)``, kept in the one-entry cache ``slot`` (a list of one ``(key, value)`` or
+    None) under the file's path, modification time and size: a file read again at once (a
+    pair's two frames, a session's pairs) is loaded once, one file held. What ``load`` raises
+    is not kept."""
     st = p.stat()
     key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
-    last = _LAST_DAVIS[0]  # one (key, images) tuple, replaced atomically
+    last = slot[0]  # one (key, value) tuple, replaced atomically
     if last is not None and last[0] == key:
         return last[1]
-    buf = _davis_buffer(p)
-    out = [np.asarray(img) for frame in buf for img in frame.images]
-    if not out:
-        raise InvalidInputError(f"{p}: the DaVis buffer holds no image")
-    _LAST_DAVIS[0] = (key, out)
-    return out
+    value = load(p)
+    slot[0] = (key, value)
+    return value
+
+
+def _davis_images(p: pathlib.Path) -> list[np.ndarray]:
+    """The images of a DaVis buffer in file order (frames, then their planes)."""
+
+    def load(path: pathlib.Path) -> list[np.ndarray]:
+        out = [np.asarray(img) for frame in _davis_buffer(path) for img in frame.images]
+        if not out:
+            raise InvalidInputError(f"{path}: the DaVis buffer holds no image")
+        return out
+
+    return last_file(_LAST_DAVIS, p, load)
 
 
 def davis_info(path: str | os.PathLike) -> dict[str, Any]:

@@ -368,14 +368,9 @@ _LAST_MAT: list[Any] = [None]
 def _mat_variables(p: pathlib.Path) -> dict[str, Any]:
     """MATLAB variables of a v5-v7 (:mod:`rspiv.matfile`) or v7.3 (HDF5, h5py) file, in MATLAB's
     shapes; a cell is an object array of arrays. The last file's are kept (:data:`_LAST_MAT`)."""
-    st = p.stat()
-    key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
-    last = _LAST_MAT[0]  # one (key, variables) tuple, replaced atomically
-    if last is not None and last[0] == key:
-        return last[1]
-    out = _parse_mat(p)
-    _LAST_MAT[0] = (key, out)
-    return out
+    from rspiv.io import last_file  # deferred: io imports the image readers
+
+    return last_file(_LAST_MAT, p, _parse_mat)
 
 
 def _parse_mat(p: pathlib.Path) -> dict[str, Any]:
