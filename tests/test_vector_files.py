@@ -230,6 +230,66 @@ def test_real_files_of_openpiv_and_a_pivlab_session():
     )
 
 
+def test_insight_vec_in_mm_and_in_pixels(tmp_path):
+    """TSI Insight's ``.vec`` (``rspiv.insight``): y up from the header's origin, positions
+    half a pixel past the windows' centres, m/s over the header's pulse separation, and the
+    choice code: 1-3 valid, 4 filled, 0 and below not counted."""
+    from rspiv.compare import compare_fields
+    from vector_series_cases import write_insight
+
+    gx, gy = _grid()
+    u, v = _values()
+    chc = np.ones(u.shape, dtype=int)
+    chc[1, 2], chc[2, 3], chc[3, 4], chc[4, 5], chc[5, 6], chc[6, 8] = 2, 3, 4, -1, 0, -3
+    mm = read_vectors(
+        write_insight(tmp_path / "mm.vec", gx, gy, u, v, chc, mm_per_px=0.01953, dt=2e-3)
+    )
+    assert mm.tool == "Insight" and mm.frame == "image" and mm.notes == ()
+    assert mm.dt == pytest.approx(2e-3, rel=1e-12) and mm.mm_per_px == pytest.approx(0.01953)
+    np.testing.assert_allclose(mm.x, gx, atol=1e-6)  # 9 decimals of a mm
+    np.testing.assert_allclose(mm.y, gy, atol=1e-6)
+    counted = chc >= 1
+    np.testing.assert_allclose(mm.u[counted], u[counted], rtol=1e-6)
+    np.testing.assert_allclose(mm.v[counted], v[counted], rtol=1e-6)
+    np.testing.assert_array_equal(mm.valid, (chc >= 1) & (chc <= 3))
+    np.testing.assert_array_equal(mm.postprocessed, chc == 4)
+    assert np.isnan(mm.u[~counted]).all() and np.isnan(mm.v[~counted]).all()
+    # pixel units, the origin at the bottom row as Insight writes it, images it dewarped
+    h = 160
+    px = read_vectors(
+        write_insight(tmp_path / "px.vec", gx, gy, u, v, chc, origin=(0.0, h - 1.0),
+                      dewarped="1", fmt="%.6f")  # fmt: skip
+    )
+    np.testing.assert_array_equal(px.x, gx)
+    np.testing.assert_array_equal(px.y, gy)
+    np.testing.assert_allclose(px.u, mm.u, atol=1e-6)
+    np.testing.assert_array_equal(px.valid, mm.valid)
+    assert px.frame == "object" and np.isnan(px.dt) and np.isnan(px.mm_per_px)
+    # the same field as OpenPIV writes it: no difference, no offset
+    rows = np.column_stack([(gx + 0.5).ravel(), (gy + 0.5).ravel(), u.ravel(), v.ravel()])
+    np.savetxt(tmp_path / "op.txt", rows, fmt="%.9f")
+    c = compare_fields(read_vectors(tmp_path / "op.txt"), mm)
+    assert c.n_compared == int(mm.valid.sum()) and c.rms < 1e-5
+    assert abs(c.bias_u) < 1e-6 and abs(c.bias_v) < 1e-6 and c.warning == ""
+    # an OpenPIV .vec file (numbers from the first line) is still OpenPIV's
+    np.savetxt(tmp_path / "op.vec", rows)
+    assert read_vectors(tmp_path / "op.vec").tool == "OpenPIV"
+
+
+def test_real_insight_file():
+    """pivpy's TSI Insight sample (BSD 3-clause, tests/data/real): a cavity flow in pixel units,
+    y up from OriginInImageY 2671, dt 55 ms; choice codes 1 (1500) and -1 (263)."""
+    r = read_vectors(REAL / "pivpy_insight_day2a005000.vec")
+    assert r.tool == "Insight" and r.u.shape == (43, 41) and r.spacing == (32.0, 32.0)
+    assert r.x[0, 0] == 1538.5 and r.y[0, 0] == 2671 - 1546 - 0.5  # its first line's node
+    assert r.dt == pytest.approx(0.055) and np.isnan(r.mm_per_px) and r.frame == "image"
+    assert r.valid.sum() == 1500 and np.isnan(r.u).sum() == 263
+    # its line "1827.000000, 1546.000000, -0.043177, 0.257086, 1": v turned downward
+    j = int(np.flatnonzero(r.x[0] == 1826.5)[0])
+    assert r.u[0, j] == pytest.approx(-0.043177) and r.v[0, j] == pytest.approx(-0.257086)
+    assert r.valid[0, j] and not r.valid[0, 0]
+
+
 def test_rspiv_files_read_back_exactly(tmp_path):
     import rspiv
     from rspiv.outputs import write_netcdf
@@ -262,6 +322,13 @@ def test_rspiv_files_read_back_exactly(tmp_path):
     assert "the field is in the object frame and the reference in the image frame" in warning
 
 
+_INSIGHT_PX = (
+    'TITLE="f" VARIABLES="X pixel", "Y pixel", "U pixel", "V pixel", "CHC", DATASETAUXDATA '
+    'SourceImageWidth="100" DATASETAUXDATA SourceImageHeight="100" ZONE I=2, J=1, F=POINT\n'
+)
+_TWO = "16, -16, 0, 0, 1\n48, -16, 0, 0, 1\n"
+
+
 @pytest.mark.parametrize(
     "name, text, match",
     [
@@ -274,6 +341,15 @@ def test_rspiv_files_read_back_exactly(tmp_path):
         ("f.mat", "not a mat file", "not a MAT file"),
         ("f.vc7", "not a buffer", "cannot read the DaVis buffer: 12 bytes only"),
         ("f.tif", "", "not a vector file rspiv reads"),
+        ("f.vec", _INSIGHT_PX + "1, 1, 0, 0, 1\n", "1 vectors in a zone of I=2 x J=1"),
+        ("f.vec", _INSIGHT_PX.replace("X pixel", "X furlong") + _TWO, "length unit rspiv does"),
+        ("f.vec", _INSIGHT_PX.replace("pixel", "mm") + _TWO, "without MicrometersPerPixel"),
+        ("f.vec", _INSIGHT_PX.replace("POINT", "BLOCK") + _TWO, "only Insight's F=POINT"),
+        ("f.vec", _INSIGHT_PX.replace("U pixel", "U pixel/s") + _TWO, "without Microseconds"),
+        ("f.vec", _INSIGHT_PX.replace("100", "10") + _TWO, "2 vectors outside the 10 x 10"),
+        ("f.vec", _INSIGHT_PX + _TWO.replace("0, 1", "x, 1"), "not numbers"),
+        ("f.vec", _INSIGHT_PX + _TWO.replace(", 1\n", ", 1.5\n"), "not an integer"),
+        ("f.vec", 'TITLE="t"\n', "an Insight header without vectors"),
     ],
 )
 def test_bad_files_refused_in_one_line(tmp_path, name, text, match):
@@ -297,7 +373,8 @@ def test_damaged_real_files_read_or_refused(tmp_path):
     rspiv.write_tecplot(f, tmp_path / "own.dat")
     rng = np.random.default_rng(7)
     sources = [REAL / "pivpy_openpiv_exp1_001_b.txt", REAL / "pivpy_pivlab_session.mat",
-               tmp_path / "own.nc", tmp_path / "own.dat"]  # fmt: skip
+               REAL / "pivpy_insight_day2a005000.vec", tmp_path / "own.nc",
+               tmp_path / "own.dat"]  # fmt: skip
     for src in sources:
         data = bytearray(src.read_bytes())
         for k in range(40):
@@ -316,6 +393,42 @@ def test_damaged_real_files_read_or_refused(tmp_path):
                 assert r.u.shape == r.x.shape
 
 
+def test_a_damaged_global_heap_is_refused_before_hdf5_loops(tmp_path):
+    """A field file's string attributes live in an HDF5 global heap, which carries no checksum.
+    One object's size changed there (8 -> 111 bytes, found by the damaged-file test above) sent
+    HDF5 into an endless loop at 100 % CPU. rspiv walks the heap as HDF5 does first
+    (``rspiv.hdf5_check``): each such file is refused in one line, or read."""
+    import rspiv
+    from rspiv.hdf5_check import global_heap_damage
+    from rspiv.outputs import write_netcdf
+    from rspiv.synth import particle_pair
+
+    a, b = particle_pair((96, 128), (1.3, -0.7), seed=2)
+    write_netcdf(rspiv.piv(a, b, passes=[(32, 32)]).to_xarray(), tmp_path / "own.nc")
+    data = (tmp_path / "own.nc").read_bytes()
+    assert global_heap_damage(tmp_path / "own.nc") is None
+    g = data.find(b"GCOL")
+    end = g + int.from_bytes(data[g + 8 : g + 16], "little")
+    pos, objects = g + 16, []
+    while int.from_bytes(data[pos : pos + 2], "little") != 0:
+        size = int.from_bytes(data[pos + 8 : pos + 16], "little")
+        objects.append(pos)
+        pos += 16 + (size + 7) // 8 * 8
+    assert len(objects) > 20 and pos < end
+    loops = 0
+    for k, at in enumerate(objects):
+        bad = bytearray(data)
+        bad[at + 8 : at + 16] = (111).to_bytes(8, "little")
+        p = tmp_path / f"{k}.nc"
+        p.write_bytes(bytes(bad))
+        try:
+            read_vectors(p)
+        except InvalidInputError as exc:
+            assert "\n" not in str(exc) and str(p) in str(exc)
+            loops += "loop forever" in str(exc)
+    assert loops >= 1
+
+
 def test_damaged_davis_header_refused_before_lvpyio_allocates(tmp_path):
     u, v = _values()
     good = _vc7(tmp_path / "good.vc7", u, v).read_bytes()
@@ -332,6 +445,8 @@ def test_damaged_davis_header_refused_before_lvpyio_allocates(tmp_path):
 def test_options_only_where_they_apply(tmp_path):
     with pytest.raises(InvalidInputError, match="OpenPIV text files only"):
         read_vectors(REAL / "pivpy_pivlab_session.mat", y_up=True)
+    with pytest.raises(InvalidInputError, match="OpenPIV text files only"):
+        read_vectors(REAL / "pivpy_insight_day2a005000.vec", dt=1e-3)  # Insight's own .vec
     with pytest.raises(InvalidInputError, match="no such file"):
         read_vectors(tmp_path / "missing.vc7")
     with pytest.raises(InvalidInputError, match="must be positive"):

@@ -18,7 +18,7 @@ from rspiv.cli import main
 from rspiv.errors import InvalidInputError
 from rspiv.synth.tbl import TBLFlow
 from rspiv.vector_statistics import vector_statistics
-from vector_series_cases import exact_field, write_series, write_vc7
+from vector_series_cases import exact_field, write_insight, write_series, write_vc7
 
 pytest.importorskip("lvpyio", reason="the series are DaVis files (rspiv[davis])")
 REAL = pathlib.Path(__file__).parent / "data" / "real"
@@ -107,6 +107,26 @@ def test_openpiv_text_of_the_same_fields_sums_the_same(level, tmp_path):
     np.testing.assert_allclose(b.m2_uu, a.m2_uu, rtol=1e-5, atol=1e-5)
     assert text.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
     assert text.frame == "image" and any("lens distortion" in w for w in text.warnings)
+
+
+def test_insight_files_of_the_same_fields_give_the_same_wall_units(level, tmp_path):
+    """TSI Insight's ``.vec`` (mm, m/s, y up, dt and the scale in the header): the same
+    statistics as the DaVis files, the units taken from the files."""
+    folder, files, truth = level
+    mm = 1 / truth.magnification
+    for s in range(30):
+        _, x, y, u, v = exact_field(s)
+        write_insight(tmp_path / f"Run{s:06d}.T000.D000.P000.H001.L.vec", x, y,
+                      u.astype(np.float32), v.astype(np.float32), mm_per_px=mm, dt=truth.dt)
+    davis = vector_statistics(files[:30], nu=NU)
+    tsi = vector_statistics(tmp_path, nu=NU, window=(32, 32))
+    assert tsi.tool == "Insight" and tsi.used == 30 and tsi.frame == "image"
+    assert tsi.dt == pytest.approx(truth.dt, rel=1e-9)
+    assert tsi.mm_per_px == pytest.approx(mm, rel=1e-6)  # the header's 6 decimals of a um
+    a, b = davis.accumulator, tsi.accumulator
+    np.testing.assert_allclose(b.mean_u, a.mean_u, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(b.m2_uu, a.m2_uu, rtol=1e-5, atol=1e-5)
+    assert tsi.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
 
 
 @pytest.fixture(scope="module")

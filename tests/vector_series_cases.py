@@ -83,3 +83,39 @@ def write_series(folder: pathlib.Path, n: int, **kw) -> tuple[list[pathlib.Path]
         truth = truth or tr
         files.append(write_vc7(folder / f"B{s:05d}.vc7", u, v, 1.0 / tr.magnification, tr.dt))
     return files, truth
+
+
+def write_insight(
+    path: pathlib.Path, x, y, u, v, chc=None, *, mm_per_px=None, dt=None, origin=(0.0, 0.0),
+    dewarped="0", fmt="%.12g", extra_aux="",
+):  # fmt: skip
+    """A TSI Insight ``.vec`` file of a field given in rspiv's frame (px; v down), in Insight's
+    layout (``rspiv.insight``): positions from ``origin`` with y up, at ``x + 1/2``; in mm and
+    m/s when ``mm_per_px`` and ``dt`` are given, else in pixel per pair; one line per vector,
+    x fastest, the top row first."""
+    ox, oy = origin
+    px, py = x + 0.5 - ox, oy - (y + 0.5)  # Insight's px from its origin, y up
+    if mm_per_px is None:
+        names = '"X pixel", "Y pixel", "U pixel", "V pixel", "CHC"'
+        cols = [px, py, u, -v]
+        aux = 'DATASETAUXDATA LengthUnit="pixel" DATASETAUXDATA TimeUnit="deltaT" '
+    else:
+        k = mm_per_px * 1e-3 / dt
+        names = '"X mm", "Y mm", "U m/s", "V m/s", "CHC"'
+        cols = [px * mm_per_px, py * mm_per_px, u * k, -v * k]
+        aux = (f'DATASETAUXDATA MicrometersPerPixelX="{mm_per_px * 1e3:.6f}" '
+               f'DATASETAUXDATA MicrometersPerPixelY="{mm_per_px * 1e3:.6f}" '
+               'DATASETAUXDATA LengthUnit="mm" DATASETAUXDATA TimeUnit="ms" ')  # fmt: skip
+    if dt is not None:
+        aux += f'DATASETAUXDATA MicrosecondsPerDeltaT="{dt * 1e6:.6f}" '
+    chc = np.ones(u.shape) if chc is None else chc
+    ny, nx = u.shape
+    head = (
+        f'TITLE="C:\\Analysis\\{path.name}" VARIABLES={names}, DATASETAUXDATA Application="PIV" '
+        f'{aux}DATASETAUXDATA OriginInImageX="{ox:.6f}" DATASETAUXDATA OriginInImageY="{oy:.6f}" '
+        f'DATASETAUXDATA DewarpedImageSource="{dewarped}" {extra_aux}ZONE I={nx}, J={ny}, F=POINT'
+    )
+    rows = np.column_stack([c.ravel() for c in cols] + [np.asarray(chc).ravel()])
+    body = "\n".join(", ".join([fmt % r for r in row[:4]] + [str(int(row[4]))]) for row in rows)
+    path.write_text(head + "\n" + body + "\n")
+    return path

@@ -1,4 +1,4 @@
-"""How far two vector fields of one pair agree: rspiv against DaVis, OpenPIV or PIVlab.
+"""How far two vector fields of one pair agree: rspiv against DaVis, OpenPIV, PIVlab or Insight.
 
 :func:`compare_fields` takes a reference field (any :class:`rspiv.vector_files.VectorFile`, e.g.
 the lab's DaVis result) and a field to test (an rspiv :class:`~rspiv.PivField` or another

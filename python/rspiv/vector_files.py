@@ -39,6 +39,10 @@ in px over the pair, u right and v down. Each reader states how it gets there:
   post-processing (``typevector_filtered`` of the GUI's export, ``typevector_filt`` of
   ``PIVlab_commandline``: when present it decides validity). A calibrated export
   (``calxy`` or ``caluv`` not 1) is refused: export it in px.
+- **TSI Insight** ``.vec`` files (a Tecplot-style header: ``TITLE=``, ``VARIABLES=``, ``CHC``;
+  told from OpenPIV's ``.vec`` by that header): y up from the header's origin, positions half a
+  pixel past the windows' centres, the header's units, dt and scale; choice codes 1-3 valid, 4
+  and above filled, 0 and below not counted (:mod:`rspiv.insight`).
 - **rspiv**'s own NetCDF (``rspiv piv -o field.nc``, a campaign's ``OUT/fields/<run>/pair_*.nc``)
   and Tecplot files (``.dat``, ``.tec``, ``.plt`` with ``units = "px"``).
 
@@ -58,6 +62,8 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.hdf5_check import global_heap_damage
+from rspiv.insight import is_insight, read_insight
 
 __all__ = [
     "VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field",
@@ -97,13 +103,14 @@ class VectorFile:
         The tool's peak ratio (or signal-to-noise ratio) and standard uncertainties (px), when it
         wrote them; NaN where it did not.
     tool : str
-        ``"DaVis"``, ``"OpenPIV"``, ``"PIVlab"`` or ``"rspiv"``.
+        ``"DaVis"``, ``"OpenPIV"``, ``"PIVlab"``, ``"Insight"`` or ``"rspiv"``.
     path : str
         The file read.
     dt : float
-        Pulse separation, s, when the file gives it (DaVis), else NaN.
+        Pulse separation, s, when the file gives it (DaVis, Insight, rspiv), else NaN.
     mm_per_px : float
-        Scale of the recording, mm per px, when the file gives it (DaVis), else NaN.
+        Scale of the recording, mm per px, when the file gives it (DaVis, Insight, rspiv), else
+        NaN.
     window : tuple of int or None
         The final interrogation window ``(w, h)``, px, when the file gives it.
     notes : tuple of str
@@ -507,6 +514,9 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
 
     names = ("x", "y", "u", "v", "chc", "valid", "peak_ratio", "sigma_u", "sigma_v",
              "replaced_index", "replaced_u", "replaced_v")  # fmt: skip
+    damage = global_heap_damage(p)  # HDF5 would loop on it (rspiv.hdf5_check)
+    if damage:
+        raise _fail(p, f"not a NetCDF-4 file rspiv reads ({damage})")
     try:
         with h5py.File(p, "r") as h:
             arr = {k: np.asarray(h[k][()]) for k in names if isinstance(h.get(k), h5py.Dataset)}
@@ -593,6 +603,18 @@ def _positive(value: Any) -> float:
     return x if np.isfinite(x) and x > 0 else float("nan")
 
 
+def _insight(p: pathlib.Path) -> VectorFile:
+    c = read_insight(p)
+    x, y, (u, v, chc) = _grid_from_columns(p, c.x, c.y, [c.u, c.v, c.chc.astype(float)])
+    computed = chc >= 1  # 0 and below: rejected or not computed (rspiv.insight)
+    return VectorFile(
+        x=x, y=y, u=np.where(computed, u, np.nan), v=np.where(computed, v, np.nan),
+        valid=computed & (chc <= 3), postprocessed=chc >= 4, peak_ratio=None, sigma_u=None,
+        sigma_v=None, tool="Insight", path=str(p), dt=c.dt, mm_per_px=c.mm_per_px,
+        notes=c.notes, frame=c.frame,
+    )  # fmt: skip
+
+
 def _rspiv_tecplot(p: pathlib.Path) -> VectorFile:
     from rspiv.export import read_tecplot  # deferred: export imports the field classes
 
@@ -633,13 +655,14 @@ def read_vectors(
     scale: float = 1.0,
     dt: float = 1.0,
 ) -> VectorFile:
-    """Read a vector field of DaVis, OpenPIV, PIVlab or rspiv into rspiv's pixel frame.
+    """Read a vector field of DaVis, OpenPIV, PIVlab, Insight or rspiv into rspiv's pixel frame.
 
     Parameters
     ----------
     path : str or PathLike
-        ``.vc7`` (DaVis), ``.txt``/``.vec`` (OpenPIV), ``.mat`` (PIVlab), ``.nc`` or
-        ``.dat``/``.tec``/``.plt`` (rspiv); the module docstring gives each one's conventions.
+        ``.vc7`` (DaVis), ``.txt``/``.vec`` (OpenPIV; a ``.vec`` with Insight's header: TSI
+        Insight), ``.mat`` (PIVlab), ``.nc`` or ``.dat``/``.tec``/``.plt`` (rspiv); the module
+        docstring gives each one's conventions.
     frame : int
         The frame of a multi-frame DaVis buffer or the pair (cell) of a PIVlab file.
     y_up : bool
@@ -668,12 +691,15 @@ def read_vectors(
         raise InvalidInputError(
             f"{p}: not a vector file rspiv reads ({', '.join(sorted(VECTOR_SUFFIXES))})"
         )
-    if tool != "OpenPIV" and (y_up or scale != 1.0 or dt != 1.0):
+    insight = p.suffix.lower() == ".vec" and is_insight(p)
+    if (tool != "OpenPIV" or insight) and (y_up or scale != 1.0 or dt != 1.0):
         raise InvalidInputError(f"{p}: y_up, scale and dt are for OpenPIV text files only")
     if frame < 0:
         raise InvalidInputError(f"{p}: frame {frame} is negative")
     if tool == "DaVis":
         return _davis(p, frame)
+    if insight:
+        return _insight(p)
     if tool == "OpenPIV":
         return _openpiv(p, y_up, scale, dt)
     if tool == "PIVlab":

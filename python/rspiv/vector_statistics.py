@@ -1,11 +1,12 @@
 """Boundary-layer statistics in wall units from the vector fields another tool measured.
 
-A lab comes to rspiv with years of DaVis, OpenPIV or PIVlab results whose images are archived,
-not at hand, or were never kept. :func:`vector_statistics` reduces such a series of vector files
-as a campaign reduces image pairs: the same statistics (:class:`rspiv.stats.FieldAccumulator`:
-mean, Reynolds stresses, central moments to order 8, the lag-1 chains of the effective sample
-count, the tool's uncertainties for the noise correction), the same wall from the mean
-profile's mirror symmetry and the same boundary-layer analysis in wall units
+A lab comes to rspiv with years of DaVis, OpenPIV, PIVlab or Insight results whose images are
+archived, not at hand, or were never kept. :func:`vector_statistics` reduces such a series of
+vector files as a campaign reduces image pairs: the same statistics
+(:class:`rspiv.stats.FieldAccumulator`: mean, Reynolds stresses, central moments to order 8, the
+lag-1 chains of the effective sample count, the tool's uncertainties for the noise
+correction), the same wall from the mean profile's mirror symmetry and the same boundary-layer
+analysis in wall units
 (:func:`rspiv.campaign.analysis.analyse_run`), to the same files (``rspiv statistics``).
 
 The steps, for the fields in the order given (a file of several fields, a PIVlab session or a

@@ -416,7 +416,8 @@ def _find_wall(
                 f'find_wall: stations must be "auto", an int or None, got {stations!r}'
             )
         stations = AUTO_STATIONS if u.shape[1] > AUTO_STATION_COLUMNS else None
-    if isinstance(band, str):
+    auto = isinstance(band, str)
+    if auto:
         if band != "auto":
             raise InvalidInputError(
                 f'find_wall: band must be "auto", (y0, y1) or None, got {band!r}'
@@ -429,7 +430,14 @@ def _find_wall(
         keep = (yy >= min(band)) & (yy <= max(band))
         u, yy = u[keep], yy[keep]
     if len(yy) < 5:
-        raise InvalidInputError(f"find_wall: {len(yy)} rows in the band; need at least 5")
+        msg = f"find_wall: {len(yy)} rows in the band; need at least 5"
+        if auto:
+            msg = (
+                f"find_wall: {len(yy)} rows in the band around the row of smallest mean |u| "
+                f"(y {np.mean(band):g} px, near the field's edge), need at least 5: no wall "
+                "with its reflection inside the field"
+            )
+        raise InvalidInputError(msg)
     dy = np.diff(yy)
     if not np.allclose(dy, dy[0], rtol=1e-6, atol=1e-9) or dy[0] <= 0:
         raise InvalidInputError("find_wall: the profile's y must be equally spaced")

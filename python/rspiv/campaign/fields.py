@@ -70,6 +70,7 @@ import numpy as np
 
 from rspiv.campaign.spec import PairContext, PairResult, PairSpec
 from rspiv.errors import InvalidInputError
+from rspiv.hdf5_check import global_heap_damage
 from rspiv.outputs import write_netcdf
 
 __all__ = ["FieldWriter", "each_field", "finish_pass", "grid_x", "read_field", "read_pair"]
@@ -210,6 +211,9 @@ def read_field(
     """
     import h5py  # deferred: only a second pass reads fields
 
+    damage = global_heap_damage(path)  # HDF5 would loop on it (rspiv.hdf5_check)
+    if damage:
+        raise InvalidInputError(f"{path}: not a readable field file ({damage})")
     try:
         with h5py.File(path, "r") as f:
             got = _text(f.attrs.get("run"))

@@ -1,8 +1,9 @@
 """``rspiv compare REFERENCE FIELD``: how far two vector fields of one pair agree.
 
 The reference is the lab's result of another tool (DaVis ``.vc7``, OpenPIV ``.txt``, PIVlab
-``.mat``) and the field rspiv's (``rspiv piv A.tif B.tif -o field.nc``), or any two of them
-(:mod:`rspiv.vector_files` gives each format's conventions, :mod:`rspiv.compare` the figures).
+``.mat``, TSI Insight ``.vec``) and the field rspiv's (``rspiv piv A.tif B.tif -o field.nc``),
+or any two of them (:mod:`rspiv.vector_files` gives each format's conventions,
+:mod:`rspiv.compare` the figures).
 With ``--calibration cal.json`` the reference, measured on the raw frames, is first corrected
 by rspiv's Method II (:func:`rspiv.correction.correct_vectors`), to be compared with an rspiv
 run corrected by the same calibration. The report goes to stdout; a suspected convention error
@@ -91,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     p = sub.add_parser(
         "compare",
-        help="how far two vector fields of one pair agree (rspiv against DaVis, OpenPIV, PIVlab)",
+        help="how far two vector fields of one pair agree (rspiv against DaVis, OpenPIV, PIVlab, "
+        "Insight)",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

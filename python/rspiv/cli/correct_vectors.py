@@ -1,6 +1,6 @@
 """``rspiv correct-vectors FILES... --calibration cal.json -o DIR``: rspiv's Method II for vector
-fields another tool measured on the raw frames (DaVis ``.vc7``, OpenPIV text, PIVlab MAT, an
-uncorrected rspiv run; :func:`rspiv.correction.correct_vectors`).
+fields another tool measured on the raw frames (DaVis ``.vc7``, OpenPIV text, PIVlab MAT, TSI
+Insight ``.vec``, an uncorrected rspiv run; :func:`rspiv.correction.correct_vectors`).
 
 Each field (each frame of a multi-frame file: a PIVlab session's pairs) is read, corrected and
 written as ``DIR/<name>.nc`` (``<name>_<frame>.nc`` for a file of several), one at a time and

@@ -1,6 +1,7 @@
 """``rspiv statistics FILES... --nu NU -o OUT``: a series of vector fields another tool measured
-(DaVis ``.vc7``, OpenPIV text, PIVlab MAT, rspiv's own NetCDF) reduced to a campaign's
-statistics and boundary layer in wall units (:mod:`rspiv.vector_statistics`).
+(DaVis ``.vc7``, OpenPIV text, PIVlab MAT, TSI Insight ``.vec``, rspiv's own NetCDF)
+reduced to a campaign's statistics and boundary layer in wall units
+(:mod:`rspiv.vector_statistics`).
 
 FILES are files, folders or quoted globs, in time order (a PIVlab session or a DaVis buffer of
 several frames gives each of its fields). The pulse separation and the scale come from DaVis'
@@ -83,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
 def register(sub) -> None:
     p = sub.add_parser(
         "statistics",
-        help="another tool's vector fields (DaVis, OpenPIV, PIVlab) to wall-unit statistics",
+        help="another tool's vector fields (DaVis, OpenPIV, PIVlab, Insight) to wall-unit "
+        "statistics",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
