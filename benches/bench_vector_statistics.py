@@ -11,9 +11,13 @@ reading, the screen's bounds from 20 fields and the screen, the accumulator (mom
 8, the lag-1 chains, the uncertainties' sums), the wall and the boundary-layer analysis; a
 second run with the screen off shows the screen's cost (its pilot reads 20 fields more).
 
+With ``--tool insight`` the same fields are TSI Insight ``.vec`` text files (mm, m/s; 8.5 MB
+each) and the floor is numpy's ``loadtxt`` of each file with the same sums.
+
 Usage::
 
     python benches/bench_vector_statistics.py [--fields 200] [--workdir /tmp/rspiv-vstat]
+                                              [--tool davis|insight]
 
 Prints a Markdown table (fields per second, the ratio to the floor, peak memory) for
 ``benches/RESULTS.md``.
@@ -33,34 +37,51 @@ import numpy as np
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
 
 
-def _write(workdir: pathlib.Path, n: int) -> list[pathlib.Path]:
-    from vector_series_cases import exact_field, write_vc7
+def _write(workdir: pathlib.Path, n: int, tool: str) -> list[pathlib.Path]:
+    from vector_series_cases import exact_field, write_insight, write_vc7
 
     workdir.mkdir(parents=True, exist_ok=True)
-    files = sorted(workdir.glob("B*.vc7"))
+    suffix = ".vc7" if tool == "davis" else ".vec"
+    files = sorted(workdir.glob(f"B*{suffix}"))
     if len(files) >= n:
         return files[:n]
     seeds = 4  # four distinct fields at full size, copied: the reading is what is timed
     first = []
     for s in range(seeds):
-        tr, _, _, u, v = exact_field(s, scale=1.0)
-        first.append(write_vc7(workdir / f"B{s:05d}.vc7", u, v, 1 / tr.magnification, tr.dt))
+        tr, x, y, u, v = exact_field(s, scale=1.0)
+        path = workdir / f"B{s:05d}{suffix}"
+        if tool == "davis":
+            first.append(write_vc7(path, u, v, 1 / tr.magnification, tr.dt))
+        else:
+            first.append(write_insight(path, x, y, u, v, mm_per_px=1 / tr.magnification,
+                                       dt=tr.dt, fmt="%.6f"))  # fmt: skip
     for k in range(seeds, n):
-        shutil.copyfile(first[k % seeds], workdir / f"B{k:05d}.vc7")
-    return sorted(workdir.glob("B*.vc7"))[:n]
+        shutil.copyfile(first[k % seeds], workdir / f"B{k:05d}{suffix}")
+    return sorted(workdir.glob(f"B*{suffix}"))[:n]
 
 
-def _floor(files: list[pathlib.Path]) -> float:
-    """lvpyio + numpy: the mean and covariance of u, v over the valid vectors (Welford)."""
+def _read_davis(f: pathlib.Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     import lvpyio as lv
 
+    frame = lv.read_buffer(str(f))[0]
+    u = np.asarray(frame.components["U0"][0], np.float64)
+    v = np.asarray(frame.components["V0"][0], np.float64)
+    return u, v, np.asarray(frame.enabled[0]) != 0
+
+
+def _read_text(f: pathlib.Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    a = np.loadtxt(f, delimiter=",", skiprows=1)
+    return a[:, 2], a[:, 3], a[:, 4] > 0
+
+
+def _floor(files: list[pathlib.Path], tool: str) -> float:
+    """lvpyio (or numpy's loadtxt) + numpy: the mean and covariance of u, v over the valid
+    vectors (Welford)."""
+    read = _read_davis if tool == "davis" else _read_text
     t0 = time.perf_counter()
     n = mu = mv = suu = svv = suv = None
     for f in files:
-        frame = lv.read_buffer(str(f))[0]
-        u = np.asarray(frame.components["U0"][0], np.float64)
-        v = np.asarray(frame.components["V0"][0], np.float64)
-        ok = np.asarray(frame.enabled[0]) != 0
+        u, v, ok = read(f)
         if n is None:
             n = np.zeros(u.shape)
             mu, mv, suu, svv, suv = (np.zeros(u.shape) for _ in range(5))
@@ -79,12 +100,13 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fields", type=int, default=200)
     ap.add_argument("--workdir", default="/tmp/rspiv-vstat")
+    ap.add_argument("--tool", choices=("davis", "insight"), default="davis")
     args = ap.parse_args()
     from rspiv.synth.tbl import TBLFlow
     from rspiv.vector_statistics import vector_statistics
 
-    files = _write(pathlib.Path(args.workdir), args.fields)
-    floor = _floor(files)
+    files = _write(pathlib.Path(args.workdir), args.fields, args.tool)
+    floor = _floor(files, args.tool)
     t0 = time.perf_counter()
     r = vector_statistics(files, nu=TBLFlow().nu)
     rs = time.perf_counter() - t0
@@ -93,10 +115,11 @@ def main() -> int:
     bare = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     ny, nx = r.accumulator.shape
-    print(f"{len(files)} DaVis fields of {nx} x {ny} vectors; u_tau {r.result.u_tau:.4f} m/s")
+    print(f"{len(files)} {r.tool} fields of {nx} x {ny} vectors; u_tau {r.result.u_tau:.4f} m/s")
     print("| | s | fields/s | ratio |")
     print("|---|---|---|---|")
-    print(f"| lvpyio + numpy mean/cov (floor) | {floor:.2f} | {len(files) / floor:.1f} | 1 |")
+    reader = "lvpyio" if args.tool == "davis" else "np.loadtxt"
+    print(f"| {reader} + numpy mean/cov (floor) | {floor:.2f} | {len(files) / floor:.1f} | 1 |")
     print(f"| rspiv.vector_statistics | {rs:.2f} | {len(files) / rs:.1f} | {rs / floor:.2f} |")
     print(
         f"| rspiv, screen off (no pilot) | {bare:.2f} | {len(files) / bare:.1f} "

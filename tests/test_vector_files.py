@@ -254,6 +254,15 @@ def test_insight_vec_in_mm_and_in_pixels(tmp_path):
     np.testing.assert_array_equal(mm.valid, (chc >= 1) & (chc <= 3))
     np.testing.assert_array_equal(mm.postprocessed, chc == 4)
     assert np.isnan(mm.u[~counted]).all() and np.isnan(mm.v[~counted]).all()
+    # Insight's own 6 decimals of a mm at a 47 MP camera's scale: the nodes still on the grid
+    # (1e-5 px off before rounding: unequal rows to find_wall's 1e-6)
+    six = read_vectors(
+        write_insight(tmp_path / "six.vec", gx + 1000.0, gy + 500.0, u, v, chc,
+                      mm_per_px=1 / 34.5345, dt=2e-3, fmt="%.6f")  # fmt: skip
+    )
+    np.testing.assert_array_equal(six.x, gx + 1000.0)
+    np.testing.assert_array_equal(six.y, gy + 500.0)
+    np.testing.assert_allclose(six.u[counted], u[counted], atol=1e-4)  # 6 decimals of m/s
     # pixel units, the origin at the bottom row as Insight writes it, images it dewarped
     h = 160
     px = read_vectors(

@@ -13,7 +13,8 @@ The conventions, from the entries the file carries:
   ``MicrometersPerPixelX``/``Y``, 1 for pixel units). Insight labels a window of w px from pixel
   i by ``i + w/2`` (its real samples: 32 px windows of a 1024 px image at 16, 32, ... 1008),
   half a pixel past the window's centre ``i + (w - 1)/2`` in rspiv's frame (origin at the
-  top-left pixel's centre): ``x - 1/2``, ``y - 1/2``.
+  top-left pixel's centre): ``x - 1/2``, ``y - 1/2``, rounded to 1e-3 px (Insight's 6
+  decimals of a mm are not a regular grid to a millionth of its step).
 - **Displacements.** ``U``, ``V`` in a velocity unit (``m/s``, ``mm/s``, ``pixel/s``...) are
   multiplied by the pulse separation ``MicrosecondsPerDeltaT``; a unit without a time
   (``"U pixel"``, ``TimeUnit="deltaT"``) is already per pair. ``v`` is turned downward.
@@ -95,13 +96,18 @@ def is_insight(p: pathlib.Path) -> bool:
     return head.startswith((b"TITLE", b"VARIABLES"))
 
 
-def _header(p: pathlib.Path, text: str) -> tuple[str, list[str]]:
-    """The header (every line before the first line of numbers) and the data lines."""
-    lines = text.splitlines()
-    for k, line in enumerate(lines):
-        s = line.lstrip()
-        if s and (s[0].isdigit() or s[0] in "+-."):
-            return " ".join(lines[:k]), [ln for ln in lines[k:] if ln.strip()]
+def _header(p: pathlib.Path) -> tuple[str, int]:
+    """The header (every line before the first line of numbers) and its number of lines."""
+    try:
+        with open(p, "rb") as fh:
+            for k, raw in enumerate(fh):
+                s = raw.lstrip()
+                if s[:1].isdigit() or s[:1] in (b"+", b"-", b"."):
+                    fh.seek(0)
+                    head = b" ".join(fh.readline().rstrip(b"\r\n") for _ in range(k))
+                    return head.decode("latin-1"), k
+    except OSError as exc:
+        raise _fail(p, f"cannot read: {exc}") from None
     raise _fail(p, "an Insight header without vectors")
 
 
@@ -142,11 +148,7 @@ def _aux_float(aux: dict[str, str], key: str) -> float:
 def read_insight(p: pathlib.Path) -> InsightColumns:
     """Read one Insight ``.vec`` file (module docstring); InvalidInputError naming the file for
     a file that is not one, a header it cannot place in px or values that are not numbers."""
-    try:
-        text = p.read_bytes().decode("latin-1")
-    except OSError as exc:
-        raise _fail(p, f"cannot read: {exc}") from None
-    head, rows = _header(p, text)
+    head, skip = _header(p)
     upper = head.upper()
     start = upper.find("VARIABLES")
     if start < 0:
@@ -177,7 +179,7 @@ def read_insight(p: pathlib.Path) -> InsightColumns:
         if i and j:
             shape = (int(j.group(1)), int(i.group(1)))
     try:
-        data = np.loadtxt([r.replace(",", " ") for r in rows], ndmin=2)
+        data = np.loadtxt(p, delimiter=",", skiprows=skip, ndmin=2, encoding="latin-1")
     except ValueError as exc:
         raise _fail(p, f"Insight vectors that are not numbers: {exc}") from None
     if data.shape[1] != len(names):
@@ -201,8 +203,10 @@ def read_insight(p: pathlib.Path) -> InsightColumns:
         notes.append("no OriginInImageX/Y: positions taken from the image's top-left corner")
     fx = _unit(p, cols["X"][1] or aux.get("LengthUnit", "pixel"), mm_x, "positions")
     fy = _unit(p, cols["Y"][1] or aux.get("LengthUnit", "pixel"), mm_y, "positions")
-    x = ox + data[:, cols["X"][0]] * fx - 0.5
-    y = oy - data[:, cols["Y"][0]] * fy - 0.5
+    # Insight writes mm to 6 decimals: 1e-5 px off a 16 px grid, enough to make the rows
+    # unequally spaced to a 1e-6 test; its nodes are whole or half px, so 1e-3 px is exact
+    x = np.round(ox + data[:, cols["X"][0]] * fx - 0.5, 3)
+    y = np.round(oy - data[:, cols["Y"][0]] * fy - 0.5, 3)
     u = data[:, cols["U"][0]] * _velocity(p, cols["U"][1] or "pixel", mm_x, dt)
     v = -data[:, cols["V"][0]] * _velocity(p, cols["V"][1] or "pixel", mm_y, dt)
     w_img, h_img = _aux_float(aux, "SourceImageWidth"), _aux_float(aux, "SourceImageHeight")
