@@ -72,6 +72,17 @@ def test_openpiv_save_reads_back_at_rspivs_positions(tmp_path):
     mm = read_vectors(tmp_path / "mm.txt", scale=0.05, dt=1e-3)
     np.testing.assert_allclose(mm.x, gx, atol=1e-9)
     np.testing.assert_allclose(mm.u, r.u, rtol=1e-8)
+    # OpenPIV's own format (%.4e: 5 digits) of mm at 1/34.5 mm per px, far from the origin:
+    # nodes up to 0.09 px off their grid in the file, put back on it (a fit) and said
+    k = 1 / 34.5345
+    tools.save(tmp_path / "e4.txt", (x + 3000) * k, (y + 2000) * k, u * k / 1e-3, v * k / 1e-3,
+               flags, mask)  # fmt: skip
+    e4 = read_vectors(tmp_path / "e4.txt", scale=k, dt=1e-3)
+    np.testing.assert_allclose(e4.x, gx + 3000, atol=0.05)
+    np.testing.assert_allclose(e4.y, gy + 2000, atol=0.05)
+    assert np.ptp(np.diff(e4.x, axis=1)) < 1e-9 and np.ptp(np.diff(e4.y, axis=0)) < 1e-9
+    assert any("off a regular grid (the file's rounding)" in n for n in e4.notes)
+    np.testing.assert_allclose(e4.u, r.u, rtol=1e-4)
 
 
 def test_openpiv_five_columns_flags_or_signal_to_noise(tmp_path):

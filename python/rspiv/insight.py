@@ -39,7 +39,7 @@ import re
 
 import numpy as np
 
-from rspiv.errors import InvalidInputError
+from rspiv.vector_grid import file_error as _fail
 
 __all__ = ["InsightColumns", "is_insight", "read_insight"]
 
@@ -80,10 +80,6 @@ class InsightColumns:
     mm_per_px: float
     frame: str
     notes: tuple[str, ...]
-
-
-def _fail(p: pathlib.Path, what: str) -> InvalidInputError:
-    return InvalidInputError(f"{p}: {what}")
 
 
 def is_insight(p: pathlib.Path) -> bool:

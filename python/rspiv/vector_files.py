@@ -64,6 +64,9 @@ import numpy as np
 from rspiv.errors import InvalidInputError
 from rspiv.hdf5_check import global_heap_damage
 from rspiv.insight import is_insight, read_insight
+from rspiv.vector_grid import check_regular as _check_regular
+from rspiv.vector_grid import file_error as _fail
+from rspiv.vector_grid import grid_from_columns as _grid_from_columns
 
 __all__ = [
     "VECTOR_SUFFIXES", "VectorFile", "read_vectors", "vector_frames", "from_piv_field",
@@ -191,50 +194,6 @@ class VectorFile:
         )
 
 
-def _fail(p: pathlib.Path, what: str) -> InvalidInputError:
-    return InvalidInputError(f"{p}: {what}")
-
-
-def _grid_from_columns(
-    p: pathlib.Path, xs: np.ndarray, ys: np.ndarray, cols: list[np.ndarray]
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Scattered rows (x, y, values...) of a regular grid -> (ny, nx) arrays, y increasing."""
-    if not (np.all(np.isfinite(xs)) and np.all(np.isfinite(ys))):
-        raise _fail(p, "a position that is not a number")
-    ux = np.unique(xs)
-    uy = np.unique(ys)
-    if ux.size * uy.size != xs.size:
-        raise _fail(
-            p,
-            f"{xs.size} vectors at {ux.size} x positions and {uy.size} y positions: "
-            "not one vector per node of a regular grid",
-        )
-    ix = np.searchsorted(ux, xs)
-    iy = np.searchsorted(uy, ys)
-    taken = np.zeros((uy.size, ux.size), dtype=bool)
-    taken[iy, ix] = True
-    if not taken.all():
-        raise _fail(p, "two vectors at one position: not a regular grid")
-    out = []
-    for c in cols:
-        a = np.full((uy.size, ux.size), np.nan)
-        a[iy, ix] = c
-        out.append(a)
-    gx, gy = np.meshgrid(ux, uy)
-    _check_regular(p, gx, gy)
-    return gx, gy, out
-
-
-def _check_regular(p: pathlib.Path, x: np.ndarray, y: np.ndarray) -> None:
-    for arr, axis, name in ((x, 1, "x"), (y, 0, "y")):
-        if arr.shape[axis] < 2:
-            continue
-        d = np.diff(arr, axis=axis)
-        step = float(np.median(d))
-        if step <= 0 or np.max(np.abs(d - step)) > 1e-3 * step + 1e-6:
-            raise _fail(p, f"the {name} positions are not evenly spaced and increasing")
-
-
 def _davis(p: pathlib.Path, frame: int) -> VectorFile:
     from rspiv.io import _davis_buffer  # deferred: lvpyio is imported only for DaVis files
 
@@ -349,7 +308,9 @@ def _openpiv(p: pathlib.Path, y_up: bool, scale: float, dt: float) -> VectorFile
         else:
             snr = col
             notes.append("fifth column read as the signal-to-noise ratio")
-    x, y, (u, v, flags, mask, snr) = _grid_from_columns(p, xs, ys, [u, v, flags, mask, snr])
+    x, y, (u, v, flags, mask, snr) = _grid_from_columns(
+        p, xs, ys, [u, v, flags, mask, snr], notes
+    )
     if y_up:
         # OpenPIV's transform_coordinates reverses the rows and negates v
         u, v, flags, mask, snr = (a[::-1] for a in (u, v, flags, mask, snr))
@@ -605,13 +566,16 @@ def _positive(value: Any) -> float:
 
 def _insight(p: pathlib.Path) -> VectorFile:
     c = read_insight(p)
-    x, y, (u, v, chc) = _grid_from_columns(p, c.x, c.y, [c.u, c.v, c.chc.astype(float)])
+    notes = list(c.notes)
+    x, y, (u, v, chc) = _grid_from_columns(
+        p, c.x, c.y, [c.u, c.v, c.chc.astype(float)], notes
+    )
     computed = chc >= 1  # 0 and below: rejected or not computed (rspiv.insight)
     return VectorFile(
         x=x, y=y, u=np.where(computed, u, np.nan), v=np.where(computed, v, np.nan),
         valid=computed & (chc <= 3), postprocessed=chc >= 4, peak_ratio=None, sigma_u=None,
         sigma_v=None, tool="Insight", path=str(p), dt=c.dt, mm_per_px=c.mm_per_px,
-        notes=c.notes, frame=c.frame,
+        notes=tuple(notes), frame=c.frame,
     )  # fmt: skip
 
 
