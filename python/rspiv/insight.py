@@ -22,7 +22,9 @@ The conventions, from the entries the file carries:
   correlation peak that Insight's validation accepted (``valid``); 4 and
   above a vector Insight filled after the validation (``postprocessed``); 0 and below rejected or
   not computed (NaN; TSI's samples hold -1 and -3, some with the rejected value written: it is
-  not counted). A file without ``CHC`` counts every vector, and says so.
+  not counted). A file without ``CHC`` counts every vector, and says so. The real files rspiv
+  was tried on hold only the codes 1, -1 and -3; the reading of 2-4 follows TSI's description of
+  the code (the peak chosen, then the vectors filled), not a sample.
 - **Frame.** ``DewarpedImageSource="0"``: the raw recording (``"image"``); ``"1"``: images
   Insight dewarped (``"object"``); absent: not said.
 - ``MicrosecondsPerDeltaT`` gives ``dt``; ``MicrometersPerPixelX`` the scale.
