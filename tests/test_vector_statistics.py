@@ -127,6 +127,7 @@ def test_openpiv_files_in_mm_as_openpiv_saves_them(level, tmp_path):
         read_options={"scale": mm, "dt": truth.dt},
     )  # fmt: skip
     assert text.used == 20
+    assert any(w.startswith("as read (") and "the file's rounding" in w for w in text.warnings)
     np.testing.assert_allclose(text.accumulator.mean_u, davis.accumulator.mean_u, atol=1e-3)
     assert text.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-4)
 

@@ -476,7 +476,9 @@ def vector_statistics(
         raise InvalidInputError(
             f"statistics: no field could be read ({next(iter(skipped.values()))})"
         )
-    warnings: list[str] = []
+    # what the reader assumed or left out (a 3C field's w, a file without validity flags, the
+    # file's rounded positions): said once, of the first file
+    warnings: list[str] = [f"as read ({_name(entries[start])}): {n}" for n in first.notes]
     cal_scale = None
     if calibration is not None:
         mag = float(calibration.magnification)
