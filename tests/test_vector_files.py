@@ -271,8 +271,11 @@ def test_insight_vec_in_mm_and_in_pixels(tmp_path):
         write_insight(tmp_path / "six.vec", gx + 1000.0, gy + 500.0, u, v, chc,
                       mm_per_px=1 / 34.5345, dt=2e-3, fmt="%.6f")  # fmt: skip
     )
-    np.testing.assert_array_equal(six.x, gx + 1000.0)
-    np.testing.assert_array_equal(six.y, gy + 500.0)
+    # to the file's precision: the header's pixel size has 8 digits (1e-5 px at 1100 px)
+    np.testing.assert_allclose(six.x, gx + 1000.0, rtol=0, atol=2e-5)
+    np.testing.assert_allclose(six.y, gy + 500.0, rtol=0, atol=2e-5)
+    assert np.ptp(np.diff(six.x, axis=1)) < 1e-9 and np.ptp(np.diff(six.y, axis=0)) < 1e-9
+    assert six.notes == ()  # 1e-5 px: not worth a word
     np.testing.assert_allclose(six.u[counted], u[counted], atol=1e-4)  # 6 decimals of m/s
     # pixel units, the origin at the bottom row as Insight writes it, images it dewarped
     h = 160

@@ -13,8 +13,8 @@ The conventions, from the entries the file carries:
   ``MicrometersPerPixelX``/``Y``, 1 for pixel units). Insight labels a window of w px from pixel
   i by ``i + w/2`` (its real samples: 32 px windows of a 1024 px image at 16, 32, ... 1008),
   half a pixel past the window's centre ``i + (w - 1)/2`` in rspiv's frame (origin at the
-  top-left pixel's centre): ``x - 1/2``, ``y - 1/2``, rounded to 1e-3 px (Insight's 6
-  decimals of a mm are not a regular grid to a millionth of its step).
+  top-left pixel's centre): ``x - 1/2``, ``y - 1/2``; the nodes 6 decimals of a mm leave off
+  their grid are put back on it (:mod:`rspiv.vector_grid`).
 - **Displacements.** ``U``, ``V`` in a velocity unit (``m/s``, ``mm/s``, ``pixel/s``...) are
   multiplied by the pulse separation ``MicrosecondsPerDeltaT``; a unit without a time
   (``"U pixel"``, ``TimeUnit="deltaT"``) is already per pair. ``v`` is turned downward.
@@ -201,10 +201,9 @@ def read_insight(p: pathlib.Path) -> InsightColumns:
         notes.append("no OriginInImageX/Y: positions taken from the image's top-left corner")
     fx = _unit(p, cols["X"][1] or aux.get("LengthUnit", "pixel"), mm_x, "positions")
     fy = _unit(p, cols["Y"][1] or aux.get("LengthUnit", "pixel"), mm_y, "positions")
-    # Insight writes mm to 6 decimals: 1e-5 px off a 16 px grid, enough to make the rows
-    # unequally spaced to a 1e-6 test; its nodes are whole or half px, so 1e-3 px is exact
-    x = np.round(ox + data[:, cols["X"][0]] * fx - 0.5, 3)
-    y = np.round(oy - data[:, cols["Y"][0]] * fy - 0.5, 3)
+    # 6 decimals of a mm leave the nodes 1e-5 px off their grid: rspiv.vector_grid puts them back
+    x = ox + data[:, cols["X"][0]] * fx - 0.5
+    y = oy - data[:, cols["Y"][0]] * fy - 0.5
     u = data[:, cols["U"][0]] * _velocity(p, cols["U"][1] or "pixel", mm_x, dt)
     v = -data[:, cols["V"][0]] * _velocity(p, cols["V"][1] or "pixel", mm_y, dt)
     w_img, h_img = _aux_float(aux, "SourceImageWidth"), _aux_float(aux, "SourceImageHeight")

@@ -59,7 +59,8 @@ def on_grid(p: pathlib.Path, values: np.ndarray, name: str, notes: list[str]) ->
     """A text file's sorted node positions placed on the regular grid they round: OpenPIV's
     ``tools.save`` writes 5 significant digits (``%.4e``), which at a scale of mm leaves the
     nodes up to 0.04 px off their grid; the rows would then not be equally spaced for the wall
-    finder (8.7321e+01 mm is 3015.50 +- 0.09 px at 1/34.5 mm per px). Off by more than 5 % of
+    finder (8.7321e+01 mm is 3015.50 +- 0.09 px at 1/34.5 mm per px; Insight's 6 decimals of a
+    mm leave 1e-5 px, enough for the wall finder's 1e-6 of the step). Off by more than 5 % of
     the step: not a regular grid, refused."""
     n = values.size
     if n < 3:
@@ -71,7 +72,10 @@ def on_grid(p: pathlib.Path, values: np.ndarray, name: str, notes: list[str]) ->
         return values
     if step <= 0 or off > 0.05 * step:
         raise file_error(p, f"the {name} positions are not evenly spaced and increasing")
-    notes.append(f"{name} positions up to {off:.2g} px off a regular grid (the file's rounding)")
+    if off > 1e-3:  # Insight's 6 decimals of a mm (1e-5 px) are not worth a word
+        notes.append(
+            f"{name} positions up to {off:.2g} px off a regular grid (the file's rounding)"
+        )
     return first + step * k
 
 
