@@ -169,10 +169,14 @@ def test_method_two_corrects_a_series_seen_through_a_lens(lens_series):
     folder, cal = lens_series
     r = vector_statistics(folder, nu=NU, calibration=cal)
     assert r.frame == "object" and r.warnings == []
-    assert r.result.u_tau == pytest.approx(FLOW.u_tau, rel=0.005)  # measured: +0.06 %
+    assert r.result.u_tau == pytest.approx(FLOW.u_tau, rel=0.005)  # measured: -0.17 %
     err = _errors(r)
-    # the resampling between nodes smooths the fluctuations: uu+ low by 0.08 (median)
-    assert -0.15 < err["uu"][0] < 0 and abs(err["uv"][0]) < 0.05
+    # the resampling between nodes (rspiv.vector_sampling, Keys' cubic) smooths the
+    # fluctuations a little: the stresses' median errors -0.004 (uu+), -0.0001 (vv+), 0.0000
+    # (uv+), the largest 0.11 (uu+); bilinear sampling gave -0.083, -0.032, +0.017 and 0.47
+    for k in ("uu", "vv", "uv"):
+        assert abs(err[k][0]) < 0.03, (k, err[k])
+    assert err["uu"][1] < 0.25 and abs(err["U"][0]) < 0.05
     # uncorrected, the wall bows and the friction velocity is off: said
     raw = vector_statistics(folder, nu=NU)
     assert abs(raw.result.u_tau / FLOW.u_tau - 1) > 0.01  # measured: +1.9 %

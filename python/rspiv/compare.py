@@ -22,9 +22,10 @@ over the vectors valid in both, all in px over the pair (v down):
   errors independent; the two tools' errors are correlated on one pair, so under 1 is expected).
 
 When the positions coincide (within 0.01 px) the values are taken as they are; otherwise the
-field is interpolated bilinearly from its four valid neighbours (a position without four is
-left out, and the interpolation's own smoothing is part of the difference: say so in a
-report, and compare on one grid where it matters).
+field is interpolated from its valid neighbours (:func:`rspiv.vector_sampling.sample_at`:
+Keys' cubic from 4 x 4, else bilinear from four; a position without four is left out, and the
+interpolation's own smoothing is part of the difference: say so in a report, and compare on
+one grid where it matters).
 
 A comparison whose conventions are probably wrong looks like a bad tool. Before stating a
 difference, :func:`compare_fields` checks what a file's conventions most often get wrong, and

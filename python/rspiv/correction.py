@@ -668,9 +668,11 @@ def correct_vectors(vectors: Any, calibration: Any, *, mapping: str = "full") ->
     PIVlab result read by :func:`rspiv.vector_files.read_vectors`, or an uncorrected rspiv run).
 
     At every point ``X`` of the field's own grid, now read as object px, the field is taken at
-    the image point ``x = F(X)`` (bilinear from its four valid neighbours: the vectors are not
-    correlated again, so this adds the interpolation's smoothing between the field's nodes,
-    which rspiv's own Method II, placing windows at ``F(X)``, does not) and its displacement is
+    the image point ``x = F(X)`` (:func:`rspiv.vector_sampling.sample_at`: Keys' cubic from the
+    4 x 4 valid nodes about it, else bilinear from four: the vectors are not correlated again,
+    so this adds the interpolation's smoothing between the field's nodes, which rspiv's own
+    Method II, placing windows at ``F(X)``, does not; on the tests' lens series 0.040 px rms,
+    0.097 px bilinear) and its displacement is
     mapped as :func:`map_displacements` does (``mapping="full"``: through the inverse,
     ``F^-1(x + d/2) - F^-1(x - d/2)``; ``"positions"``: kept). The tool's uncertainties are
     carried by :func:`map_sigmas`.
@@ -687,7 +689,7 @@ def correct_vectors(vectors: Any, calibration: Any, *, mapping: str = "full") ->
     -------
     VectorFile
         On the input's grid in object px (``frame="object"``); valid where the image point has
-        four valid neighbours and the inverse map converges, NaN elsewhere.
+        (at least) four valid neighbours and the inverse map converges, NaN elsewhere.
 
     Raises
     ------
