@@ -11,13 +11,20 @@ reading, the screen's bounds from 20 fields and the screen, the accumulator (mom
 8, the lag-1 chains, the uncertainties' sums), the wall and the boundary-layer analysis; a
 second run with the screen off shows the screen's cost (its pilot reads 20 fields more).
 
+With ``--structures`` it also times the statistics with the streamwise spectra and two-point
+correlations and the quadrant analysis (``two_point=True, quadrant=True``: a second pass over
+the files), beside numpy's floor for the same work: the first pass's sums plus each row's
+real FFT of u and v summed (transforms and their products), and a second reading of every file
+whose fluctuations about the first pass's means are sorted into quadrants (``np.bincount`` per
+row and quadrant).
+
 With ``--tool insight`` the same fields are TSI Insight ``.vec`` text files (mm, m/s; 8.5 MB
 each) and the floor is numpy's ``loadtxt`` of each file with the same sums.
 
 Usage::
 
     python benches/bench_vector_statistics.py [--fields 200] [--workdir /tmp/rspiv-vstat]
-                                              [--tool davis|insight]
+                                              [--tool davis|insight] [--structures]
 
 Prints a Markdown table (fields per second, the ratio to the floor, peak memory) for
 ``benches/RESULTS.md``.
@@ -96,11 +103,43 @@ def _floor(files: list[pathlib.Path], tool: str) -> float:
     return time.perf_counter() - t0
 
 
+def _floor_structures(files: list[pathlib.Path], tool: str) -> float:
+    """numpy's floor for the spectra and the quadrant analysis (module docstring)."""
+    read = _read_davis if tool == "davis" else _read_text
+    t0 = time.perf_counter()
+    n = mu = mv = fa = fb = fab = None
+    for f in files:
+        u, v, ok = read(f)
+        if n is None:
+            n = np.zeros(u.shape)
+            mu, mv = np.zeros(u.shape), np.zeros(u.shape)
+        n += ok
+        mu += np.where(ok, u - mu, 0.0) / np.maximum(n, 1)
+        mv += np.where(ok, v - mv, 0.0) / np.maximum(n, 1)
+        a, b = np.fft.rfft(np.nan_to_num(u), axis=1), np.fft.rfft(np.nan_to_num(v), axis=1)
+        if fa is None:
+            fa, fb, fab = np.zeros(a.shape, complex), np.zeros(a.shape, complex), 0
+        fa += a
+        fb += b
+        fab = fab + (a.conj() * a).real + (b.conj() * b).real + (a.conj() * b).real
+    ny = mu.shape[0]
+    counts = np.zeros(ny * 4)
+    rows = np.repeat(np.arange(ny), mu.shape[1]).reshape(mu.shape)
+    for f in files:
+        u, v, ok = read(f)
+        du, dv = u - mu, v - mv
+        q = np.where(du >= 0, np.where(dv >= 0, 0, 3), np.where(dv >= 0, 1, 2))
+        idx = (rows * 4 + q)[ok & np.isfinite(du) & np.isfinite(dv)]
+        counts += np.bincount(idx, minlength=ny * 4)
+    return time.perf_counter() - t0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fields", type=int, default=200)
     ap.add_argument("--workdir", default="/tmp/rspiv-vstat")
     ap.add_argument("--tool", choices=("davis", "insight"), default="davis")
+    ap.add_argument("--structures", action="store_true", help="also two-point and quadrant")
     args = ap.parse_args()
     from rspiv.synth.tbl import TBLFlow
     from rspiv.vector_statistics import vector_statistics
@@ -125,6 +164,22 @@ def main() -> int:
         f"| rspiv, screen off (no pilot) | {bare:.2f} | {len(files) / bare:.1f} "
         f"| {bare / floor:.2f} |"
     )
+    if args.structures:
+        floor2 = _floor_structures(files, args.tool)
+        t0 = time.perf_counter()
+        st = vector_statistics(files, nu=TBLFlow().nu, two_point=True, quadrant=True)
+        both = time.perf_counter() - t0
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        n = len(files)
+        print(
+            f"| {reader} + numpy, row FFTs + a second reading into quadrants (floor) | "
+            f"{floor2:.2f} | {n / floor2:.1f} | 1 |"
+        )
+        print(
+            f"| rspiv.vector_statistics, two_point and quadrant | {both:.2f} | {n / both:.1f} "
+            f"| {both / floor2:.2f} |"
+        )
+        print(f"two-point rows {st.two_point['y'].size}, quadrant rows {st.quadrant['y'].size}")
     print(f"peak RSS {peak:.0f} MB")
     return 0
 

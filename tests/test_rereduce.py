@@ -89,6 +89,54 @@ def _close(a, b, what):
     assert float(np.max(np.abs(a[ok] - b[ok]), initial=0.0)) <= REL * scale, what
 
 
+def test_field_files_give_the_campaigns_quadrant_and_two_point(runs):
+    """The campaign's field files through ``rspiv statistics --two-point --quadrant``
+    (:mod:`rspiv.vector_structures`): the campaign's own quadrant analysis and two-point
+    correlations (the same fields, about the same means)."""
+    import xarray as xr
+    from rspiv.campaign.quadrant import accumulate, quadrant_accumulator, quadrant_profile
+    from rspiv.vector_statistics import vector_statistics
+
+    d, _, _, fresh, _ = runs
+    out = d / "out_fresh"
+    cfg = json.loads((out / "summary.json").read_text())
+    for run in ("method_II", "uncorrected"):
+        files = sorted((out / "fields" / run).glob("pair_*.nc"))
+        r = vector_statistics(
+            files, nu=cfg["runs"][run]["nu"], min_count=2, screen=0, two_point=True, quadrant=True
+        )
+        qd, tp = r.quadrant, r.two_point
+        # the campaign's own second pass (rspiv.campaign.quadrant.write_outputs' sums), over
+        # its files with its screen, about its statistics
+        acc, an = fresh.accumulators[run], fresh.analyses[run]
+        q = quadrant_accumulator(acc, an, 2, (0.0, 1.0, 2.0, 4.0))
+        paths = {pid: out / "fields" / run / f"pair_{pid:06d}.nc" for pid in acc.pair_ids}
+        n, missing = accumulate(q, paths, run, screen=fresh.context.screens().get(run))
+        assert n == len(files) and not missing
+        ref, _ = quadrant_profile(q, acc, an, 2, 8.0)
+        # the same rows; the wall found apart (without the screen's vectors) within 0.1 px
+        np.testing.assert_array_equal(qd["rows"], ref["rows"])
+        np.testing.assert_allclose(qd["dist_px"], ref["dist_px"], atol=0.1)
+        # the campaign's screen left out a few vectors the files hold: 1.1e-5 measured
+        a, b = qd["fraction"][..., 0], ref["fraction"][..., 0]
+        ok = np.isfinite(b) & ~ref["near_wall"][:, None]
+        assert ok.sum() > 100 and np.array_equal(np.isfinite(a)[ok], np.isfinite(b)[ok])
+        assert np.abs(a - b)[ok & np.isfinite(a)].max() < 1e-3, run
+        with xr.open_dataset(out / f"two_point_{run}.nc", engine="h5netcdf") as t:
+            assert tp["y"].size == t.sizes["y"]
+            # the campaign leaves out the columns whose windows reach past the frames, rspiv
+            # statistics those whose vectors its pilot fields found not valid: within a column
+            c0, c1 = t.attrs["columns"]
+            assert abs(tp["columns"][0] - c0) <= 1 and abs(tp["columns"][1] - c1) <= 1
+            far = ~t["near_wall"].values
+            ia, ib = int(np.argmin(np.abs(tp["dx"]))), int(np.argmin(np.abs(t["dx"].values)))
+            ra = np.nanmedian(tp["R_uu"][far][:, ia + 1 : ia + 4], axis=0)
+            rb = np.nanmedian(t["R_uu"].values[far][:, ib + 1 : ib + 4], axis=0)
+            # measured: 1e-8 where the columns agree (uncorrected), 0.0009 a column apart
+            same = tuple(tp["columns"]) == (c0, c1)
+            np.testing.assert_allclose(ra, rb, atol=1e-6 if same else 0.003)
+
+
 def test_pairs_left_out_are_re_reduced_from_the_fields_without_the_piv(runs):
     d, first, again, fresh, calls = runs
     assert first.n_done == FIRST

@@ -26,24 +26,31 @@ DaVis buffer, in its own order):
 3. With a calibration the wall is levelled as the campaign levels it (paper section 3.2): its
    angle is found on the first ``pilot`` fields and the calibration rotated by it (Method II
    resamples the fields anyway). Without one the fields keep their nodes (``level="auto"``):
-   rotating them means resampling between nodes, which smooths the fluctuations (on the
-   synthetic series of ``tests/test_vector_statistics.py``, tilted 0.3 degree, the median
-   error of uu+ went from 0.000 to -0.075 levelled so, against 0.000 not levelled: with rows
-   16 px apart a tilt that small mixes little). A wall that rises more than half a row across
-   the field is said; ``level=True`` rotates the fields anyway. On rows 16 px apart
+   rotating them means resampling between nodes (:func:`rspiv.vector_sampling.sample_at`),
+   which smooths the fluctuations a little (on the synthetic series of
+   ``tests/test_vector_statistics.py``, tilted 0.3 degree, the median error of uu+ went from
+   0.000 to -0.001 levelled so, -0.094 with bilinear sampling: with rows 16 px apart a tilt
+   that small mixes little). A wall that rises more than half a row across the field is said;
+   ``level=True`` rotates the fields anyway. On rows 16 px apart
    :func:`rspiv.find_wall` places the wall with an error that follows the wall's position
    between two rows (-1.4 to +2.0 px along the tilted wall above, a constant -1.1 px on the
    level one, which the composite fit's offset takes up): it read that tilt as 0.41 degree.
 4. Units: the magnification from the calibration, else the files' scale (DaVis) or
    ``mm_per_px``; the pulse separation from the files (DaVis) or ``dt``. Without both the
    statistics are in px per pair and no wall units are derived (said).
+5. With ``two_point`` and ``quadrant``, the boundary layer's structure as a campaign gives it
+   (:mod:`rspiv.vector_structures`): the streamwise spectra and two-point correlations per
+   row, summed beside the statistics, and the quadrant analysis, a second pass over the files
+   once each vector's mean is known.
 
 Refused in one line (:class:`rspiv.errors.InvalidInputError`): no field could be used (with the
 first file's reason), a wall the mean profile does not show (:func:`rspiv.find_wall`'s
-refusal), fewer than 8 profile points beyond it. Warned (``warnings``, the CLI's stderr,
-``summary.json``): fields skipped, uncorrected raw-frame fields (the lens distortion is in the
-statistics), a final window assumed, a wall tilted and not levelled, a scale that disagrees
-with the calibration, and the boundary-layer analysis' own warning.
+refusal), fewer than 8 profile points beyond it, fewer than 8 contiguous columns for the
+two-point sums. Warned (``warnings``, the CLI's stderr, ``summary.json``): fields skipped,
+uncorrected raw-frame fields (the lens distortion is in the statistics), a final window
+assumed, a wall tilted and not levelled, a scale that disagrees with the calibration, the
+boundary-layer analysis' own warning, and the two-point and quadrant analyses' (rows that
+entered few fields, ``u'v'`` unresolved, fields lost between the passes).
 
 Units and frames: positions px of the fields' frame (object px when corrected), x right, y
 down; the accumulator holds px per pair, pixel axes; the outputs are SI (m, m/s) with y the
@@ -53,19 +60,16 @@ distance from the wall, as a campaign's.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 import pathlib
-import pickle
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Sequence
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
-from rspiv.campaign import screen as screen_work
 from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
@@ -77,22 +81,32 @@ from rspiv.errors import InvalidInputError, RspivError
 from rspiv.mapping import fit_mapping
 from rspiv.outlier_screen import HALF_WIDTH, ScreenTally, screen_bounds
 from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
-from rspiv.outputs import (
-    atomic_write_bytes,
-    atomic_write_text,
-    profile_dataset,
-    write_netcdf,
-    write_profile_csv,
-)
+from rspiv.outputs import atomic_write_text, profile_dataset, write_netcdf, write_profile_csv
 from rspiv.peak_locking import LockingHistogram
 from rspiv.stats import FieldAccumulator
-from rspiv.vector_files import VectorFile, read_vectors, vector_frames, vector_series
+from rspiv.two_point import TwoPointAccumulator
+from rspiv.vector_files import VectorFile
+from rspiv.vector_reduction import (
+    SeriesReducer,
+    entry_name,
+    fingerprint,
+    load_checkpoint,
+    pilot_fields,
+    read_entry,
+    save_checkpoint,
+    series_entries,
+)
+from rspiv.vector_structures import (
+    quadrant_pass,
+    quadrant_result,
+    two_point_columns,
+    two_point_result,
+    write_structures,
+)
 from rspiv.vorticity import VorticityAccumulator
 
 __all__ = ["VectorStatistics", "vector_statistics"]
 
-#: The checkpoint's format tag and version (``OUT/checkpoint.pkl``).
-_CHECKPOINT = ("rspiv-vector-statistics", 1)
 #: A file's scale may differ from the calibration's by this share before it is said.
 _SCALE_TOLERANCE = 0.02
 
@@ -132,6 +146,11 @@ class VectorStatistics:
     vorticity : dict or None
         The vorticity statistics per row (with ``vorticity=``; their keys:
         :func:`rspiv.campaign.vorticity.vorticity_profile`).
+    two_point, quadrant : dict or None
+        The spectra and two-point correlations per row, and the quadrant analysis (with
+        ``two_point=``, ``quadrant=``; their keys: :func:`rspiv.campaign.two_point.
+        two_point_profile`, :func:`rspiv.campaign.quadrant.quadrant_profile`;
+        :mod:`rspiv.vector_structures`).
     seconds : float
         The reduction's wall time.
     """
@@ -151,6 +170,8 @@ class VectorStatistics:
     warnings: list[str]
     locking: dict[str, Any] = dataclasses.field(default_factory=dict)
     vorticity: dict[str, Any] | None = None
+    two_point: dict[str, Any] | None = None
+    quadrant: dict[str, Any] | None = None
     seconds: float = 0.0
 
     def screened(self) -> dict[str, Any] | None:
@@ -192,6 +213,8 @@ class VectorStatistics:
             "screened": self.screened(),
             "peak_locking": self.locking,
             "vorticity_rows": None if self.vorticity is None else int(self.vorticity["y"].size),
+            "two_point_rows": None if self.two_point is None else int(self.two_point["y"].size),
+            "quadrant_rows": None if self.quadrant is None else int(self.quadrant["y"].size),
             "flow_side": an.flow_side,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
@@ -237,13 +260,23 @@ class VectorStatistics:
             )
         elif self.analysis.error:
             lines.append(f"no wall units: {self.analysis.error}")
+        tp, qd = self.two_point, self.quadrant
+        if tp is not None:
+            c0, c1 = tp["columns"]
+            lines.append(
+                f"two-point: {tp['y'].size} rows, columns {c0}-{c1 - 1}, {tp['pairs']} fields"
+            )
+        if qd is not None:
+            lines.append(f"quadrant: {qd['y'].size} rows, {qd['pairs']} fields")
         lines += [f"WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
 
     def write(self, out_dir: str | os.PathLike, figures: bool = False) -> dict[str, pathlib.Path]:
-        """Write ``statistics.nc``, ``profile.nc``, ``profile.csv``, ``summary.json`` and with
-        ``vorticity=`` ``vorticity.nc`` (and with ``figures`` the profiles in wall units
-        against the DNS) atomically to ``out_dir``; returns name -> path."""
+        """Write ``statistics.nc``, ``profile.nc``, ``profile.csv``, ``summary.json``, with
+        ``vorticity=`` ``vorticity.nc``, with ``two_point=`` ``two_point.nc`` and with
+        ``quadrant=`` ``quadrant.nc`` (and with ``figures`` the profiles in wall units against
+        the DNS, the spectra and the quadrant shares) atomically to ``out_dir``; returns name
+        -> path."""
         out = pathlib.Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         files = {"statistics": write_netcdf(self.to_xarray(), out / "statistics.nc")}
@@ -260,54 +293,12 @@ class VectorStatistics:
         if self.vorticity is not None:
             ds = vorticity_dataset(self.vorticity, self.analysis.run)
             files["vorticity"] = write_netcdf(ds, out / "vorticity.nc")
+        run = self.analysis.run
+        files.update(write_structures(out, run, self.two_point, self.quadrant, figures))
         files["summary"] = atomic_write_text(
             out / "summary.json", json.dumps(self.summary(), indent=1, default=json_default)
         )
         return files
-
-
-def _entries(files: Any) -> list[Any]:
-    """The fields to read, in order: paths, (path, frame) tuples; a folder, a glob or a file of
-    several fields expanded (:func:`rspiv.vector_files.vector_series`, each file of a folder
-    or glob by its own fields). A file that cannot be opened stays one entry, named when the
-    reduction skips it."""
-    if isinstance(files, (str, os.PathLike)):
-        files = [files]
-    out: list[Any] = []
-    for item in files:
-        if isinstance(item, tuple):
-            out.append((str(item[0]), int(item[1])))
-            continue
-        try:
-            series = vector_series(str(item))
-        except InvalidInputError:
-            if any(c in str(item) for c in "*?[") or pathlib.Path(item).is_dir():
-                raise
-            series = None
-        for f in [str(item)] if series is None else series:
-            out.extend(_frames(f) if isinstance(f, str) and series is not None else [f])
-    if not out:
-        raise InvalidInputError("statistics: no vector file given")
-    return out
-
-
-def _frames(path: str) -> list[Any]:
-    """One file of a folder or glob: itself, or its fields when it holds several."""
-    try:
-        n = vector_frames(path)
-    except InvalidInputError:
-        return [path]
-    return [(path, k) for k in range(n)] if n > 1 else [path]
-
-
-def _name(entry: Any) -> str:
-    return f"{entry[0]}[{entry[1]}]" if isinstance(entry, tuple) else str(entry)
-
-
-def _read(entry: Any, options: dict[str, Any]) -> VectorFile:
-    if isinstance(entry, tuple):
-        return read_vectors(entry[0], **{**options, "frame": entry[1]})
-    return read_vectors(entry, **options)
 
 
 def _identity(x: np.ndarray, y: np.ndarray) -> Any:
@@ -316,45 +307,6 @@ def _identity(x: np.ndarray, y: np.ndarray) -> Any:
     gx, gy = np.meshgrid(np.linspace(x[0], x[-1], 7), np.linspace(y[0], y[-1], 7))
     pts = np.column_stack([gx.ravel(), gy.ravel()])
     return fit_mapping(pts, pts, "p3")
-
-
-class _Reducer:
-    """The fields of one series summed into an accumulator, with the checks of step 1."""
-
-    def __init__(self, first: VectorFile, mm_per_px: float, dt: float) -> None:
-        self.first = first
-        self.mm_per_px = mm_per_px
-        self.dt = dt
-
-    def check(self, vf: VectorFile) -> str:
-        """Why ``vf`` cannot join the first field's series ("" when it can)."""
-        f = self.first
-        if vf.u.shape != f.u.shape or not (np.allclose(vf.x, f.x) and np.allclose(vf.y, f.y)):
-            return f"on another grid ({vf.u.shape[1]} x {vf.u.shape[0]}) than the first field"
-        if not vf.valid.any():
-            post = int(np.count_nonzero(vf.postprocessed))
-            return f"no vector its tool's validation accepted ({post} filled or smoothed)"
-        for what, a, b in (("pulse separation", vf.dt, f.dt), ("scale", vf.mm_per_px,
-                                                                f.mm_per_px)):  # fmt: skip
-            if np.isfinite(a) and np.isfinite(b) and abs(a - b) > 1e-6 * abs(b):
-                return f"its {what} {a:.6g} is not the first field's {b:.6g}"
-        return ""
-
-    @staticmethod
-    def add(acc: FieldAccumulator, vf: VectorFile, pair_id: int, bounds: Any = None) -> None:
-        """Add a field's valid vectors, those the screen ``bounds`` leaves out excepted (counted
-        in ``acc.screen``)."""
-        valid = vf.valid & np.isfinite(vf.u) & np.isfinite(vf.v)
-        su, sv = vf.sigma_u, vf.sigma_v
-        if su is None or sv is None or not np.isfinite(su[valid]).any():
-            su = sv = None
-        u, v = vf.u, vf.v
-        if bounds is not None:
-            u, v, valid = screen_work.apply(bounds, u, v, valid, acc.screen, pair_id)
-        acc.add(u, v, valid, pair_id=pair_id, sigma_u=su, sigma_v=sv)
-        for extra in (acc.locking, acc.vorticity):  # not on the levelling pilot's
-            if extra is not None:
-                extra.add(u, v, valid, pair_id=pair_id)
 
 
 def vector_statistics(
@@ -375,6 +327,8 @@ def vector_statistics(
     noise_correction: bool = False,
     screen: float = SCREEN_SIGMAS,
     vorticity: str | bool = False,
+    two_point: bool | float = False,
+    quadrant: bool | Sequence[float] = False,
     window: tuple[int, int] | None = None,
     read_options: dict[str, Any] | None = None,
     out_dir: str | os.PathLike | None = None,
@@ -422,6 +376,13 @@ def vector_statistics(
         :func:`rspiv.campaign.vorticity.vorticity_profile`: mean vorticity and its rms, the
         signed swirling strength, in 1/s and wall units): True for least-squares differences,
         or the scheme's name (:data:`rspiv.derivatives.SCHEMES`).
+    two_point : bool or float
+        Streamwise spectra and two-point correlations per row (a campaign's ``[statistics]
+        two_point``, :mod:`rspiv.vector_structures`): True, or the share of valid vectors a
+        row of a field needs to enter (default 0.9, a campaign's ``two_point_min_valid``).
+    quadrant : bool or sequence of float
+        The quadrant analysis of ``u'v'`` (a campaign's ``[statistics] quadrant``), a second
+        pass over the files: True (hole sizes 0, 1, 2, 4), or the hole sizes.
     window : (w, h), optional
         The final window where the files do not say (else twice the grid's spacing, said).
     read_options : dict, optional
@@ -462,23 +423,34 @@ def vector_statistics(
         )
     if level not in ("auto", True, False):
         raise InvalidInputError(f"statistics: level {level!r}: auto, True or False")
-    entries = _entries(files)
+    tp_min = (0.9 if two_point is True else float(two_point)) if two_point is not False else None
+    if tp_min is not None and not 0 < tp_min <= 1:
+        raise InvalidInputError(f"statistics: two_point = {two_point}: True or a share in (0, 1]")
+    holes = None if quadrant is False else (0.0, 1.0, 2.0, 4.0) if quadrant is True else quadrant
+    if holes is not None:
+        h = np.asarray(holes, np.float64).ravel()
+        if h.size == 0 or not np.all(np.isfinite(h)) or h[0] < 0 or np.any(np.diff(h) <= 0):
+            raise InvalidInputError(
+                f"statistics: quadrant holes {list(holes)} must be increasing numbers >= 0"
+            )
+        holes = tuple(float(x) for x in h)
+    entries = series_entries(files)
     opts = dict(read_options or {})
     # the first readable field fixes the series
     first, start, skipped = None, 0, {}
     for k, e in enumerate(entries):
         try:
-            first, start = _read(e, opts), k
+            first, start = read_entry(e, opts), k
             break
         except RspivError as exc:
-            skipped[_name(e)] = str(exc)
+            skipped[entry_name(e)] = str(exc)
     if first is None:
         raise InvalidInputError(
             f"statistics: no field could be read ({next(iter(skipped.values()))})"
         )
     # what the reader assumed or left out (a 3C field's w, a file without validity flags, the
     # file's rounded positions): said once, of the first file
-    warnings: list[str] = [f"as read ({_name(entries[start])}): {n}" for n in first.notes]
+    warnings: list[str] = [f"as read ({entry_name(entries[start])}): {n}" for n in first.notes]
     cal_scale = None
     if calibration is not None:
         mag = float(calibration.magnification)
@@ -515,7 +487,7 @@ def vector_statistics(
         )
     xs, ys = first.x[0].copy(), first.y[:, 0].copy()
     gx, gy = np.meshgrid(xs, ys)
-    red = _Reducer(first, scale, pulse)
+    red = SeriesReducer(first, scale, pulse)
     levelled = level if wall_y is None else False  # a wall given is not looked for
     # what decides the sums (the units, nu and the analysis' options do not: a finished run
     # started again with other ones is analysed again from its checkpoint)
@@ -526,9 +498,11 @@ def vector_statistics(
     }  # fmt: skip
     if levelled is not False:
         settings.update(pilot=pilot, wall=wall, stations=stations, min_count=min_count)
+    if tp_min is not None:
+        settings["two_point"] = tp_min
     ck_path = None if out_dir is None else pathlib.Path(out_dir) / "checkpoint.pkl"
-    key = _fingerprint(settings)
-    state = _load_checkpoint(ck_path, key, entries)
+    key = fingerprint(settings)
+    state = load_checkpoint(ck_path, key, entries)
     base = calibration.mapping if calibration is not None else None
     pilot_said: list[str] = []  # what the pilots say, kept with the checkpoint
     if state is None:
@@ -548,33 +522,37 @@ def vector_statistics(
         base = calibration.mapping.rotated(state["rotation"])
     transform = _transform(base, calibration is not None or state["rotation"] != 0.0, mapping)
     acc = state["acc"]
-    if state["done"] == 0 and screen > 0:
-        state["bounds"] = _screen(
-            entries, opts, red, transform, float(screen), pilot, state["warnings"]
-        )
-        if state["bounds"] is not None:
-            acc.screen = ScreenTally(acc.shape)
+    if state["done"] == 0 and (screen > 0 or tp_min is not None):
+        pilots, used = pilot_fields(entries, opts, red, transform, pilot)
+        if screen > 0:
+            state["bounds"] = _screen(pilots, used, float(screen), state["warnings"])
+            if state["bounds"] is not None:
+                acc.screen = ScreenTally(acc.shape)
+        if tp_min is not None:
+            cols = two_point_columns(pilots, tp_min)
+            acc.two_point = TwoPointAccumulator(acc.shape, cols, tp_min)
+    n_all = len(entries) * (1 if holes is None else 2)  # the quadrant's second pass counts
     for k in range(state["done"], len(entries)):
         e = entries[k]
         try:
-            vf = first if k == start else _read(e, opts)
+            vf = first if k == start else read_entry(e, opts)
             why = red.check(vf)
             if why:
                 raise InvalidInputError(why)
             red.add(acc, transform(vf), k, state["bounds"])
         except RspivError as exc:
-            state["skipped"][_name(e)] = str(exc)
+            state["skipped"][entry_name(e)] = str(exc)
         state["done"] = k + 1
         if progress is not None:
-            progress(k + 1, len(entries))
+            progress(k + 1, n_all)
         if ck_path is not None and (k + 1) % max(int(checkpoint_every), 1) == 0:
-            _save_checkpoint(ck_path, key, entries, state)
+            save_checkpoint(ck_path, key, entries, state)
     if acc.n_fields == 0:
         raise InvalidInputError(
             f"statistics: no field could be used ({next(iter(state['skipped'].values()))})"
         )
     if ck_path is not None:
-        _save_checkpoint(ck_path, key, entries, state)
+        save_checkpoint(ck_path, key, entries, state)
     warnings += state["warnings"]
     if state["skipped"]:
         name, why = next(iter(state["skipped"].items()))
@@ -620,6 +598,23 @@ def vector_statistics(
     vort = None
     if acc.vorticity is not None:
         vort = vorticity_profile(acc, an, min_count, pulse or 0.0, window[1])
+    tp_prof = qd_prof = None
+    if acc.two_point is not None:
+        tp_prof, said = two_point_result(acc, an, window, abs(float(xs[1] - xs[0])))
+        warnings += said
+    if holes is not None:
+
+        def save() -> None:
+            if ck_path is not None:
+                save_checkpoint(ck_path, key, entries, state)
+
+        q, lost = quadrant_pass(
+            acc, an, min_count, holes, entries, opts, red, transform, state["bounds"], state,
+            save, checkpoint_every, progress,
+        )  # fmt: skip
+        save()
+        qd_prof, said = quadrant_result(q, acc, an, min_count, window, lost)
+        warnings += said
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)
     if an.result is None:
@@ -628,7 +623,7 @@ def vector_statistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
         (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking, vort,
-        time.perf_counter() - t_start,
+        tp_prof, qd_prof, time.perf_counter() - t_start,
     )  # fmt: skip
 
 
@@ -671,7 +666,7 @@ def _levelling(
     acc = FieldAccumulator(first.u.shape)
     for k in range(start, min(len(entries), start + max(int(pilot), 1))):
         try:
-            vf = first if k == start else _read(entries[k], opts)
+            vf = first if k == start else read_entry(entries[k], opts)
             if not red.check(vf):
                 red.add(acc, pre(vf), k)
         except RspivError:
@@ -681,32 +676,22 @@ def _levelling(
     if calibration is not None:
         return theta, base.rotated(theta)
     warnings.append(
-        f"the fields were rotated by {theta:.4f} deg to level the wall, bilinear between their "
-        "nodes: it lowers the stresses a little (level=False keeps the nodes)"
+        f"the fields were rotated by {theta:.4f} deg to level the wall, interpolated between "
+        "their nodes: it lowers the stresses a little (level=False keeps the nodes)"
     )
     return theta, _identity(gx[0], gy[:, 0]).rotated(theta)
 
 
-def _screen(entries, opts, red, transform, sigmas, pilot, warnings) -> Any:
+def _screen(pilots: list, used: list[int], sigmas: float, warnings: list[str]) -> Any:
     """The screen's bounds (:func:`rspiv.outlier_screen.screen_bounds`, row by row: a wall's
-    layer) from up to ``pilot`` (at most 20) fields spread evenly over the series, as the
-    statistics will see them; None with fewer than 3 usable ones (said)."""
-    n = len(entries)
-    picks = sorted({int(round(t)) for t in np.linspace(0, n - 1, min(n, max(min(pilot, 20), 3)))})
-    got, used = [], []
-    for k in picks:
-        try:
-            vf = _read(entries[k], opts)
-            if not red.check(vf):
-                vf = transform(vf)
-                got.append((vf.u, vf.v, vf.valid & np.isfinite(vf.u) & np.isfinite(vf.v)))
-                used.append(k)
-        except RspivError:
-            continue
-    if len(got) < 3:
-        warnings.append(f"no screen of the statistics: {len(got)} usable pilot field(s), 3 needed")
+    layer) from the pilot fields (:func:`rspiv.vector_reduction.pilot_fields`: up to 20 spread
+    evenly over the series, as the statistics will see them); None with fewer than 3 (said)."""
+    if len(pilots) < 3:
+        warnings.append(
+            f"no screen of the statistics: {len(pilots)} usable pilot field(s), 3 needed"
+        )
         return None
-    us, vs, oks = zip(*got, strict=True)
+    us, vs, oks = zip(*pilots, strict=True)
     return screen_bounds(us, vs, oks, sigmas=sigmas, half_width=HALF_WIDTH, pairs=used)
 
 
@@ -727,45 +712,3 @@ def _bow(w: Any) -> float:
     return float(np.polyfit(xc, np.asarray(w.position_px)[ok], 2)[0])
 
 
-def _fingerprint(settings: dict[str, Any]) -> str:
-    text = json.dumps(settings, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _keys(entries: Iterable[Any]) -> list[str]:
-    """The fields' identities: their files' names (not folders) and frames."""
-    return [
-        f"{pathlib.Path(e[0]).name}[{e[1]}]" if isinstance(e, tuple) else pathlib.Path(e).name
-        for e in entries
-    ]
-
-
-def _save_checkpoint(path: pathlib.Path, key: str, entries: list[Any], state: dict) -> None:
-    done = state["done"]
-    blob = {"format": _CHECKPOINT, "key": key, "fields": _keys(entries[:done]), **state}
-    atomic_write_bytes(path, pickle.dumps(blob, protocol=pickle.HIGHEST_PROTOCOL))
-
-
-def _load_checkpoint(path: pathlib.Path | None, key: str, entries: list[Any]) -> dict | None:
-    """The state of an earlier run of the same settings whose fields are this run's first ones;
-    None when there is none. A checkpoint of other settings or other fields is refused."""
-    if path is None or not path.is_file():
-        return None
-    try:
-        blob = pickle.loads(path.read_bytes())
-        if blob.get("format") != _CHECKPOINT:
-            raise ValueError("not a checkpoint of rspiv statistics")
-    except Exception as exc:  # noqa: BLE001 - any damage is one line
-        raise InvalidInputError(
-            f"{path}: cannot resume ({exc}); remove it to start again"
-        ) from None
-    if blob["key"] != key:
-        raise InvalidInputError(
-            f"{path}: written for other options; remove it to start again with these"
-        )
-    done = int(blob["done"])
-    if done > len(entries) or blob["fields"] != _keys(entries[:done]):
-        raise InvalidInputError(
-            f"{path}: its {done} fields are not this run's first ones; remove it to start again"
-        )
-    return {k: blob[k] for k in ("done", "acc", "skipped", "rotation", "warnings", "bounds")}

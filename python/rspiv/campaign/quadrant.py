@@ -46,7 +46,14 @@ from rspiv.campaign.spec import RunSpec
 from rspiv.errors import InvalidInputError
 from rspiv.quadrant import QUADRANTS, QuadrantAccumulator, gaussian_quadrant
 
-__all__ = ["accumulate", "report_section", "write_outputs"]
+__all__ = [
+    "accumulate",
+    "quadrant_accumulator",
+    "quadrant_dataset",
+    "quadrant_profile",
+    "report_section",
+    "write_outputs",
+]
 
 
 def _t95(batches: np.ndarray) -> np.ndarray:
@@ -86,23 +93,16 @@ def accumulate(
     return acc.n_fields, missing
 
 
-def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
-    """The quadrant analysis of ``run`` (module docstring), written as ``OUT/quadrant_<run>.nc``
-    (with ``[output] netcdf``); None when ``[statistics] quadrant`` is off."""
-    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
-
-    st = camp.config.statistics
-    if not st.quadrant:
-        return None
-    acc = res.accumulators[run.name]
-    if not acc.pair_ids:
-        raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
-    t0 = time.perf_counter()
+def quadrant_accumulator(acc: Any, an: Any, min_count: int, holes) -> QuadrantAccumulator:
+    """An empty QuadrantAccumulator about the run's statistics ``acc`` (FieldAccumulator) and
+    analysis ``an``: each vector's mean and standard deviation, the flow's signs, and the
+    vectors that may enter (rows on the flow side, at least ``min_count`` valid samples: the
+    profiles' rule; ``min_count`` below 2 counts as 2)."""
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]
+    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
     with np.errstate(invalid="ignore"):
-        q = QuadrantAccumulator(
+        return QuadrantAccumulator(
             acc.mean_u,
             acc.mean_v,
             np.sqrt(acc.uu),
@@ -110,15 +110,22 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             usable=usable,
             sign_x=float(p.get("sign_x", 1.0)),
             sign_y=float(p.get("sign_y", 1.0)),
-            holes=st.quadrant_holes,
+            holes=holes,
         )
-    writer = camp.field_writer()
-    paths = {pid: writer.path(run.name, pid) for pid in acc.pair_ids}
-    n, missing = accumulate(q, paths, run.name, screen=res.context.screens().get(run.name))
-    if n == 0:
-        raise InvalidInputError(
-            f"none of the {len(paths)} pairs has a field file in {writer.path(run.name, 0).parent}"
-        )
+
+
+def quadrant_profile(
+    q: QuadrantAccumulator, acc: Any, an: Any, min_count: int, window_height: float
+) -> tuple[dict[str, Any], list[str]]:
+    """The rows of ``q`` (:func:`quadrant_accumulator` of ``acc`` and ``an``, the fields
+    added) on the flow side, nearest the wall first, in the run's units (module docstring's
+    variables), and what must be said of them (rows whose ``<u'v'>`` is unresolved, holes the
+    pairs cannot reach). ``window_height`` (px) sets the ``near_wall`` rows."""
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    p = an.profile
+    dist = np.asarray(p["dist_px"], np.float64)
+    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
     r = q.results()
     keep = np.flatnonzero((dist > 0) & (r["count"] > 0))
     keep = keep[np.argsort(dist[keep])]
@@ -152,11 +159,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "jpdf": r["jpdf"][keep],
         "centres": r["centres"],
         "holes": r["holes"],
-        "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1],
+        "near_wall": dist[keep] < NEAR_WALL_HEIGHTS * window_height,
         "si": si,
-        "pairs": int(n),
-        "missing": missing,
-        "seconds": time.perf_counter() - t0,
+        "pairs": int(q.n_fields),
     }
     res_bl = an.result
     if res_bl is not None and si:
@@ -164,16 +169,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         prof["y_plus"] = prof["y"] / lv
         prof["stress_plus"] = prof["stress"] / res_bl.u_tau**2
         prof["delta_99"] = float(res_bl.delta99)
-    camp.say(
-        f"{run.label}: quadrant analysis of {n} pairs' fields ({prof['seconds']:.1f} s)"
-    )
     said = []
-    if missing:
-        said.append(
-            f"{len(missing)} of {len(paths)} pairs have no field file (first: pair "
-            f"{missing[0]}): the quadrant analysis holds {n} pairs, about the means of all "
-            f"{len(paths)}"
-        )
     # the rows a user reads: off the wall, and inside the layer when it is known
     inner = ~prof["near_wall"] & (prof["y"] <= prof.get("delta_99", np.inf))
     bad = int(np.count_nonzero(prof["uv_unresolved"] & inner))
@@ -185,15 +181,51 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     # a vector's |u'| / u_rms is at most (n - 1) / sqrt(n) over n samples
     n_typ = int(np.median(acc.count[usable])) if usable.any() else 0
     reach = (n_typ - 1) ** 2 / max(n_typ, 1)
-    if any(h > reach for h in st.quadrant_holes):
+    if any(h > reach for h in q.holes):
         said.append(
             f"with {n_typ} pairs per vector |u'v'| / (u_rms v_rms) cannot exceed {reach:.2f}: "
             "the shares of larger holes are 0 by construction"
         )
-    return finish_pass(camp, res, run, prof, said, "quadrant", "quadrant", _dataset)
+    return prof, said
 
 
-def _dataset(prof: dict, run: RunSpec) -> Any:
+def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
+    """The quadrant analysis of ``run`` (module docstring), written as ``OUT/quadrant_<run>.nc``
+    (with ``[output] netcdf``); None when ``[statistics] quadrant`` is off."""
+    st = camp.config.statistics
+    if not st.quadrant:
+        return None
+    acc = res.accumulators[run.name]
+    if not acc.pair_ids:
+        raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
+    t0 = time.perf_counter()
+    q = quadrant_accumulator(acc, an, st.min_count, st.quadrant_holes)
+    writer = camp.field_writer()
+    paths = {pid: writer.path(run.name, pid) for pid in acc.pair_ids}
+    n, missing = accumulate(q, paths, run.name, screen=res.context.screens().get(run.name))
+    if n == 0:
+        raise InvalidInputError(
+            f"none of the {len(paths)} pairs has a field file in {writer.path(run.name, 0).parent}"
+        )
+    prof, rows_said = quadrant_profile(q, acc, an, st.min_count, res.context.piv.final_window[1])
+    prof["pairs"] = int(n)
+    prof["missing"] = missing
+    prof["seconds"] = time.perf_counter() - t0
+    camp.say(f"{run.label}: quadrant analysis of {n} pairs' fields ({prof['seconds']:.1f} s)")
+    said = []
+    if missing:
+        said.append(
+            f"{len(missing)} of {len(paths)} pairs have no field file (first: pair "
+            f"{missing[0]}): the quadrant analysis holds {n} pairs, about the means of all "
+            f"{len(paths)}"
+        )
+    said += rows_said
+    return finish_pass(camp, res, run, prof, said, "quadrant", "quadrant", quadrant_dataset)
+
+
+def quadrant_dataset(prof: dict, run: RunSpec) -> Any:
+    """The rows ``prof`` (:func:`quadrant_profile`) of ``run`` as a dataset
+    (``quadrant_<run>.nc``: the module docstring's variables)."""
     import xarray as xr
 
     length = "m" if prof["si"] else "pix"

@@ -31,7 +31,16 @@ from rspiv.outputs import write_netcdf
 from rspiv.report import ReportSection
 from rspiv.two_point import TwoPointAccumulator, integral_length
 
-__all__ = ["attach", "map_rows", "plan", "report_section", "write_outputs", "FILTER_WIDTHS"]
+__all__ = [
+    "attach",
+    "map_rows",
+    "plan",
+    "report_section",
+    "two_point_dataset",
+    "two_point_profile",
+    "write_outputs",
+    "FILTER_WIDTHS",
+]
 
 #: Wavelengths shorter than this many final-window widths lose more than 20 % of their energy
 #: to the window's average along x (the top hat's transfer ``sinc^2(pi w / lambda)`` is 0.81
@@ -200,8 +209,12 @@ def attach(ctx: PairContext, accs: dict[str, Any]) -> dict[str, Any]:
     return accs
 
 
-def _rows(tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: float) -> dict:
-    """The spectra and correlations of the rows on the flow side, in the run's units."""
+def two_point_profile(
+    tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: float
+) -> dict[str, Any]:
+    """The spectra and correlations of the rows on the flow side, nearest the wall first, in
+    the run's units (module docstring's variables): ``an`` the run's analysis, ``window``
+    the final window ``(w, h)`` px, ``dx_px`` the grid's step along a row, px."""
     from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
 
     p = an.profile
@@ -265,7 +278,9 @@ def _rows(tp: TwoPointAccumulator, an: Any, window: tuple[int, int], dx_px: floa
     return out
 
 
-def _dataset(prof: dict, run: RunSpec) -> Any:
+def two_point_dataset(prof: dict, run: RunSpec) -> Any:
+    """The rows ``prof`` (:func:`two_point_profile`) of ``run`` as a dataset
+    (``two_point_<run>.nc``: the module docstring's variables)."""
     import xarray as xr
 
     si = prof["si"]
@@ -329,7 +344,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     if tp is None or not res.context.two_point:
         return None
     gx, _ = res.context.grid()
-    prof = _rows(tp, an, res.context.piv.final_window, float(gx[0, 1] - gx[0, 0]))
+    prof = two_point_profile(tp, an, res.context.piv.final_window, float(gx[0, 1] - gx[0, 0]))
     # rows whose windows reach past the frames (the field's edge) never enter: not said
     edge = ~np.all(_inside_frames(res.context, run, axis=1), axis=1)[prof["rows"]]
     away = ~prof["near_wall"] & ~edge
@@ -343,7 +358,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         )
         camp.say(f"WARNING: {run.label}: two-point: {prof['warning']}")
     if camp.config.output.netcdf:
-        ds = _dataset(prof, run)
+        ds = two_point_dataset(prof, run)
         if few:
             ds.attrs["warning"] = prof["warning"]
         res.files[f"two_point_{run.name}"] = write_netcdf(

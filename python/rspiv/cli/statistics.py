@@ -12,7 +12,10 @@ the mean profile's mirror symmetry (the particles' reflection) and levelled with
 atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` and
 ``profile.csv`` (wall units with their uncertainties), ``summary.json``, with ``--vorticity``
 ``vorticity.nc`` (the mean vorticity, its rms and the swirling strength per row) and, with
-``--figures``, the profiles against the DNS. A stopped run started again with the same files
+``--two-point`` ``two_point.nc`` (streamwise spectra and two-point correlations per row), with
+``--quadrant`` ``quadrant.nc`` (the quadrant analysis of u'v', a second pass over the files;
+:mod:`rspiv.vector_structures`) and, with ``--figures``, the profiles against the DNS, the
+spectra and the quadrant shares. A stopped run started again with the same files
 and options resumes from ``OUT/checkpoint.pkl``. Warnings go to stderr as well; a series
 without a usable field or a wall rspiv cannot see is refused in one line (exit 2).
 """
@@ -36,6 +39,24 @@ def _window(text: str | None) -> tuple[int, int] | None:
         return (int(w), int(h or w))
     except ValueError:
         raise ValueError(f"--window {text!r}: W or WxH in px") from None
+
+
+def _two_point(text: str | None) -> bool | float:
+    if text is None:
+        return False
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--two-point {text!r}: a share of valid vectors, e.g. 0.9") from None
+
+
+def _holes(text: str | None) -> bool | tuple[float, ...]:
+    if text is None:
+        return False
+    try:
+        return tuple(float(h) for h in text.split(","))
+    except ValueError:
+        raise ValueError(f"--quadrant {text!r}: hole sizes, e.g. 0,1,2,4") from None
 
 
 class _Bar:
@@ -66,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
             mapping=args.mapping, level=level, pilot=args.pilot, wall=args.wall,
             wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
             u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
-            vorticity=args.vorticity or False,
+            vorticity=args.vorticity or False, two_point=_two_point(args.two_point),
+            quadrant=_holes(args.quadrant),
             window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
             out_dir=args.output, progress=bar,
@@ -112,6 +134,11 @@ def register(sub) -> None:
                    help=f"screen beyond this many local spreads ({SIGMAS:g}; 0: off)")  # fmt: skip
     p.add_argument("--vorticity", nargs="?", const="least_squares", default=None,
                    help="vorticity statistics per row (scheme: least_squares)")  # fmt: skip
+    p.add_argument("--two-point", nargs="?", const="0.9", default=None, metavar="MIN_VALID",
+                   help="spectra and two-point correlations per row (a row of a field enters "
+                   "with this share of valid vectors: 0.9)")  # fmt: skip
+    p.add_argument("--quadrant", nargs="?", const="0,1,2,4", default=None, metavar="HOLES",
+                   help="quadrant analysis of u'v' (hole sizes: 0,1,2,4), a second pass")
     p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
     p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
     p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
