@@ -207,3 +207,59 @@ def test_bad_input_is_refused():
         acc.add(np.zeros((3, 16)), np.zeros((3, 16)), pair_id=1)
     # one field: no fluctuation is defined yet
     assert np.all(np.isnan(acc.correlation()["R_uu"]))
+
+
+def _old_state(acc):
+    """``acc`` as an rspiv before :func:`pad_length` made it: the correlations' transforms
+    padded to exactly twice the row."""
+    n = acc.n_columns + 1
+    for k in ("sum_a", "pow_a", "cross_a", "map_sum", "map_pow", "map_cross"):
+        old = getattr(acc, k)
+        setattr(acc, k, np.zeros((*old.shape[:-1], n), old.dtype))
+    return acc
+
+
+def test_padding_to_a_fast_length_gives_the_same_correlations():
+    """A row of 277 vectors is padded to 576 (5-smooth), not 554 = 2 x 277: the same linear
+    correlations and maps as the exact doubling of earlier versions, whose states still read,
+    add and save as they were (and do not merge with the new)."""
+    import xarray as xr
+    from rspiv.two_point import pad_length
+
+    assert pad_length(277) == 576 and pad_length(554) == 1152 and pad_length(24) == 48
+    for n in range(8, 700):
+        p = pad_length(n)
+        assert p >= 2 * n and p % 2 == 0 and p <= 2 * n * 1.25
+    rng = np.random.default_rng(5)
+    shape = (5, 277)
+    kw = {"min_valid": 0.9, "band": (1, 5), "refs": (2, 3)}
+    new = TwoPointAccumulator(shape, **kw)
+    old = _old_state(TwoPointAccumulator(shape, **kw))
+    assert new.n_pad == 576 and old.n_pad == 554
+    fields = list(_fields(rng, 10, shape, gap=0.01))
+    for p, u, v, valid in fields[:6]:
+        new.add(u, v, valid, pair_id=p)
+        old.add(u, v, valid, pair_id=p)
+    # the old state saved and read back stays padded as it was, and takes more fields
+    variables, attrs = old.to_dataset_vars()
+    old = TwoPointAccumulator.from_dataset_vars(xr.Dataset(variables, attrs=attrs), old.pair_ids)
+    assert old.n_pad == 554
+    for p, u, v, valid in fields[6:]:
+        new.add(u, v, valid, pair_id=p)
+        old.add(u, v, valid, pair_id=p)
+    a, b = new.correlation(), old.correlation()
+    assert new.count.min() >= 2
+    for k in ("R_uu", "R_vv", "R_uv", "var_u", "cov_uv"):
+        np.testing.assert_allclose(a[k], b[k], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(new.maps()["R_uu"], old.maps()["R_uu"], rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(new.spectra()["phi_uu"], old.spectra()["phi_uu"])
+    # against the direct sums, row 1, lags 0 and 5
+    us = np.stack([u[1] for _, u, _, _ in fields])
+    vs = np.stack([v[1] for _, _, v, _ in fields])
+    for d in (0, 5, -7):
+        uu, _ = _direct(us, vs, d)
+        m = int(np.flatnonzero(a["lag"] == d)[0])
+        got = a["R_uu"][1, m] * a["var_u"][1] * (len(fields) - 1) * (277 - abs(d))
+        assert got == pytest.approx(uu, rel=1e-9)
+    with pytest.raises(InvalidInputError, match="padded length"):
+        new.merge(old)

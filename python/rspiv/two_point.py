@@ -31,8 +31,10 @@ past the sensor). A row of a field enters when all its values there are finite a
 counted separately (``count``). Per row the accumulator keeps ``n``, the sums of the rows'
 discrete Fourier transforms and of their products:
 
-- zero-padded to twice the length (no wrap-around) and without a taper for the correlations:
-  ``sum A`` and ``sum conj(A_a) A_b``;
+- zero-padded to at least twice the length (no wrap-around: the next even length whose FFT
+  is fast, :func:`pad_length`; a row of 554 vectors is padded to 1152, not 1108 = 4 x 277,
+  whose transform takes 5 times longer) and without a taper for the correlations: ``sum A`` and
+  ``sum conj(A_a) A_b``;
 - tapered by a Hann window for the spectra: ``sum B`` and ``sum conj(B_a) B_b``.
 
 The transform is linear, so the fluctuations' sums are ``sum conj(A_a') A_b' = sum conj(A_a)
@@ -59,15 +61,30 @@ from collections.abc import Hashable
 from typing import Any
 
 import numpy as np
+import scipy.fft as sfft
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["TwoPointAccumulator", "integral_length"]
+__all__ = ["TwoPointAccumulator", "integral_length", "pad_length"]
 
 _COMPONENTS = ("uu", "vv", "uv")
 #: The state's sums besides ``count`` (module docstring): transforms, powers, cross products.
 _SUMS = ("sum_a", "pow_a", "cross_a", "sum_b", "pow_b", "cross_b")
 _MAP_SUMS = ("map_sum", "map_pow", "map_cross")
+
+
+def pad_length(n: int) -> int:
+    """The padded transform's length for rows of ``n`` columns: the smallest even length of at
+    least ``2 n`` whose FFT is fast (:func:`scipy.fft.next_fast_len`). Any length from ``2 n
+    - 1`` on gives the same linear correlation; even, so that the length follows from the
+    one-sided transform's ``L // 2 + 1`` bins (states of earlier versions, padded to ``2 n``
+    exactly, are read and added to as they are)."""
+    m = 2 * int(n)
+    while True:
+        length = sfft.next_fast_len(m, real=True)
+        if length % 2 == 0:
+            return int(length)
+        m = length + 1
 
 
 class TwoPointAccumulator:
@@ -116,7 +133,7 @@ class TwoPointAccumulator:
         self.columns = (c0, c1)
         self.min_valid = float(min_valid)
         ny, n = shape[0], c1 - c0
-        nk_pad = n + 1  # rfft of 2 n points
+        nk_pad = pad_length(n) // 2 + 1  # rfft of pad_length(n) points
         nk = n // 2 + 1
         self.count = np.zeros(ny, np.int64)
         self.sum_a = np.zeros((2, ny, nk_pad), np.complex128)  # u, v
@@ -153,6 +170,12 @@ class TwoPointAccumulator:
     @property
     def n_columns(self) -> int:
         return self.columns[1] - self.columns[0]
+
+    @property
+    def n_pad(self) -> int:
+        """The padded transform's length (:func:`pad_length`; ``2 n`` in states of earlier
+        versions), from the sums themselves."""
+        return 2 * (self.sum_a.shape[-1] - 1)
 
     def _taper(self) -> np.ndarray:
         return np.hanning(self.n_columns + 2)[1:-1]  # nowhere zero
@@ -199,9 +222,8 @@ class TwoPointAccumulator:
             return 0
         every = bool(rows.all())
         uv = np.stack([u, v] if every else [u[rows], v[rows]])  # (2, rows, N)
-        n = self.n_columns
-        a = np.fft.rfft(uv, n=2 * n, axis=-1)
-        b = np.fft.rfft(uv * self._taper(), axis=-1)
+        a = sfft.rfft(uv, n=self.n_pad, axis=-1)
+        b = sfft.rfft(uv * self._taper(), axis=-1)
         at = slice(None) if every else rows
         for part, f in (("a", a), ("b", b)):
             getattr(self, f"sum_{part}")[:, at] += f
@@ -233,12 +255,12 @@ class TwoPointAccumulator:
         """
         if not isinstance(other, TwoPointAccumulator):
             raise InvalidInputError(f"other: expected a TwoPointAccumulator, got {type(other)!r}")
-        mine = (self.shape, self.columns, self.min_valid, self.band, self.refs)
-        theirs = (other.shape, other.columns, other.min_valid, other.band, other.refs)
+        mine = (self.shape, self.columns, self.min_valid, self.band, self.refs, self.n_pad)
+        theirs = (other.shape, other.columns, other.min_valid, other.band, other.refs, other.n_pad)
         if mine != theirs:
             raise InvalidInputError(
-                f"other: (shape, columns, min_valid, band, refs) {theirs} differ from this "
-                f"accumulator's {mine}"
+                f"other: (shape, columns, min_valid, band, refs, padded length) {theirs} differ "
+                f"from this accumulator's {mine}"
             )
         common = self.pair_ids & other.pair_ids
         if common:
@@ -311,9 +333,10 @@ class TwoPointAccumulator:
         if m < 0:
             raise InvalidInputError(f"max_lag: expected >= 0, got {max_lag}")
         f = self._fluct("a")
-        c = np.fft.irfft(f, n=2 * n, axis=-1)  # lag d at d, -d at 2n - d
+        size = self.n_pad
+        c = sfft.irfft(f, n=size, axis=-1)  # lag d at d, -d at size - d
         lag = np.arange(-m, m + 1)
-        c = c[..., lag % (2 * n)]
+        c = c[..., lag % size]
         nm1 = (self.count - 1.0)[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             cov = c / ((n - np.abs(lag)) * nm1)
@@ -366,12 +389,13 @@ class TwoPointAccumulator:
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = self.map_sum / cnt
             auto = self.map_pow - cnt * (mean.real**2 + mean.imag**2)  # (2, nb, k)
-            var = np.fft.irfft(auto, n=2 * n, axis=-1)[..., 0] / (n * (cnt - 1.0))
+            size = self.n_pad
+            var = sfft.irfft(auto, n=size, axis=-1)[..., 0] / (n * (cnt - 1.0))
             idx = [r - r0 for r in self.refs]
             cross = self.map_cross - cnt * np.conj(mean[:, idx]).transpose(1, 0, 2)[
                 :, :, None, :
             ] * mean[None]
-            c = np.fft.irfft(cross, n=2 * n, axis=-1)[..., lag % (2 * n)]
+            c = sfft.irfft(cross, n=size, axis=-1)[..., lag % size]
             cov = c / ((n - np.abs(lag)) * (cnt - 1.0))
             norm = np.sqrt(var[:, idx].T[:, :, None] * var[None])  # (refs, 2, nb)
             r = cov / norm[..., None]
@@ -434,6 +458,13 @@ class TwoPointAccumulator:
                 () if band is None else tuple(np.ravel(ds.attrs[f"{prefix}refs"])),
             )
             acc.count = np.array(ds[f"{prefix}count"].values, np.int64)
+            nk = int(np.shape(ds[f"{prefix}sum_a_re"].values)[-1])  # padded as when written
+            if nk != acc.sum_a.shape[-1]:
+                if 2 * (nk - 1) < 2 * acc.n_columns:
+                    raise ValueError(f"sum_a has {nk} wavenumbers, fewer than {acc.n_columns + 1}")
+                for k in ("sum_a", "pow_a", "cross_a", *_MAP_SUMS):
+                    old = getattr(acc, k)
+                    setattr(acc, k, np.zeros((*old.shape[:-1], nk), old.dtype))
             if band is not None:
                 acc.map_count = int(ds.attrs[f"{prefix}map_count"])
             for k in _SUMS + (_MAP_SUMS if band is not None else ()):
