@@ -211,5 +211,6 @@ def load_checkpoint(path: pathlib.Path | None, key: str, entries: list[Any]) -> 
             f"{path}: its {done} fields are not this run's first ones; remove it to start again"
         )
     state = {k: blob[k] for k in ("done", "acc", "skipped", "rotation", "warnings", "bounds")}
-    state["second"] = blob.get("second", {})  # the second passes' sums (rspiv.vector_structures)
+    state["second"] = blob.get("second", {})  # the second pass's sums (rspiv.vector_structures)
+    state["columns"] = blob.get("columns")  # the two-point sums' columns
     return state

@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
+from rspiv.campaign.quadrant import quadrant_accumulator
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
 from rspiv.campaign.vorticity import vorticity_dataset, vorticity_profile
@@ -97,8 +98,9 @@ from rspiv.vector_reduction import (
     series_entries,
 )
 from rspiv.vector_structures import (
-    quadrant_pass,
+    map_rows_of,
     quadrant_result,
+    second_pass,
     two_point_columns,
     two_point_result,
     write_structures,
@@ -328,6 +330,7 @@ def vector_statistics(
     screen: float = SCREEN_SIGMAS,
     vorticity: str | bool = False,
     two_point: bool | float = False,
+    two_point_maps: Sequence[float] | None = None,
     quadrant: bool | Sequence[float] = False,
     window: tuple[int, int] | None = None,
     read_options: dict[str, Any] | None = None,
@@ -380,6 +383,11 @@ def vector_statistics(
         Streamwise spectra and two-point correlations per row (a campaign's ``[statistics]
         two_point``, :mod:`rspiv.vector_structures`): True, or the share of valid vectors a
         row of a field needs to enter (default 0.9, a campaign's ``two_point_min_valid``).
+    two_point_maps : sequence of float, optional
+        With ``two_point``: the two-point maps about reference rows at these heights, in
+        delta_99 from the wall (a campaign's ``two_point_heights``, e.g. ``(0.1, 0.3,
+        0.6)``). Their rows are placed from the wall, so the two-point sums are then made in
+        the second pass over the files (with the quadrant analysis when it is asked for).
     quadrant : bool or sequence of float
         The quadrant analysis of ``u'v'`` (a campaign's ``[statistics] quadrant``), a second
         pass over the files: True (hole sizes 0, 1, 2, 4), or the hole sizes.
@@ -426,6 +434,12 @@ def vector_statistics(
     tp_min = (0.9 if two_point is True else float(two_point)) if two_point is not False else None
     if tp_min is not None and not 0 < tp_min <= 1:
         raise InvalidInputError(f"statistics: two_point = {two_point}: True or a share in (0, 1]")
+    maps = None if two_point_maps is None else tuple(float(h) for h in two_point_maps)
+    if maps is not None and (tp_min is None or not maps or not all(h > 0 for h in maps)):
+        raise InvalidInputError(
+            f"statistics: two_point_maps {two_point_maps}: positive heights in delta_99, with "
+            "two_point"
+        )
     holes = None if quadrant is False else (0.0, 1.0, 2.0, 4.0) if quadrant is True else quadrant
     if holes is not None:
         h = np.asarray(holes, np.float64).ravel()
@@ -500,6 +514,8 @@ def vector_statistics(
         settings.update(pilot=pilot, wall=wall, stations=stations, min_count=min_count)
     if tp_min is not None:
         settings["two_point"] = tp_min
+    if maps is not None:  # the two-point sums move to the second pass
+        settings["two_point_pass"] = 2
     ck_path = None if out_dir is None else pathlib.Path(out_dir) / "checkpoint.pkl"
     key = fingerprint(settings)
     state = load_checkpoint(ck_path, key, entries)
@@ -529,9 +545,10 @@ def vector_statistics(
             if state["bounds"] is not None:
                 acc.screen = ScreenTally(acc.shape)
         if tp_min is not None:
-            cols = two_point_columns(pilots, tp_min)
-            acc.two_point = TwoPointAccumulator(acc.shape, cols, tp_min)
-    n_all = len(entries) * (1 if holes is None else 2)  # the quadrant's second pass counts
+            state["columns"] = two_point_columns(pilots, tp_min)
+            if maps is None:
+                acc.two_point = TwoPointAccumulator(acc.shape, state["columns"], tp_min)
+    n_all = len(entries) * (1 if holes is None and maps is None else 2)  # with a second pass
     for k in range(state["done"], len(entries)):
         e = entries[k]
         try:
@@ -598,22 +615,39 @@ def vector_statistics(
     vort = None
     if acc.vorticity is not None:
         vort = vorticity_profile(acc, an, min_count, pulse or 0.0, window[1])
-    tp_prof = qd_prof = None
-    if acc.two_point is not None:
-        tp_prof, said = two_point_result(acc, an, window, abs(float(xs[1] - xs[0])))
-        warnings += said
+    parts: dict[str, Any] = {}  # the second pass's accumulators
     if holes is not None:
+        parts["quadrant"] = quadrant_accumulator(acc, an, min_count, holes)
+    if maps is not None:
+        rows, said = map_rows_of(an, maps, window[1])
+        warnings += said
+        band, refs = rows if rows is not None else (None, ())
+        cols = state.get("columns")
+        parts["two_point"] = TwoPointAccumulator(acc.shape, cols, tp_min, band, refs)
+    if parts:
 
         def save() -> None:
             if ck_path is not None:
                 save_checkpoint(ck_path, key, entries, state)
 
-        q, lost = quadrant_pass(
-            acc, an, min_count, holes, entries, opts, red, transform, state["bounds"], state,
-            save, checkpoint_every, progress,
+        parts, lost = second_pass(
+            parts, entries, opts, red, transform, state["bounds"], state, save,
+            checkpoint_every, progress,
         )  # fmt: skip
         save()
-        qd_prof, said = quadrant_result(q, acc, an, min_count, window, lost)
+        if lost:
+            warnings.append(
+                f"{len(lost)} field(s) read in the first pass failed in the second and are not "
+                f"in its analyses ({', '.join(sorted(parts))}: their fields are about the means "
+                f"of all {acc.n_fields}); the first {lost[0]}"
+            )
+    tp_prof = qd_prof = None
+    tp = parts.get("two_point", acc.two_point)
+    if tp is not None:
+        tp_prof, said = two_point_result(tp, an, window, abs(float(xs[1] - xs[0])))
+        warnings += said
+    if "quadrant" in parts:
+        qd_prof, said = quadrant_result(parts["quadrant"], acc, an, min_count, window)
         warnings += said
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)

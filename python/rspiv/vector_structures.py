@@ -14,13 +14,16 @@ boundary layer's structure, computed as a campaign computes them and written to 
   contiguous run in which the tool accepted at least ``min_valid`` times the best column's
   share of vectors. A row of a field enters when all its vectors there are finite and at least
   ``min_valid`` of them valid (the tool's filled vectors fill the others, as a campaign's
-  replacements do). There are no two-point maps: their reference rows are placed from the
-  wall, which is found only after the first pass.
+  replacements do). The two-point maps (``R_uu(dx, y; y_ref)``, ``R_vv`` about reference
+  rows at heights in delta_99, ``two_point_maps``) need the wall and delta_99 to place their
+  rows, known only after the first pass: with maps the two-point sums are made in the second
+  pass instead (:func:`second_pass`), and without wall units, or with a height the rows cannot
+  hold, the maps are left out and said.
 - **Quadrant** (:mod:`rspiv.campaign.quadrant`: ``<u'v'>`` per quadrant and hole size, the
   time fractions, the joint PDF of ``(u'/u_rms, v'/v_rms)``, the standard error of ``<u'v'>``
   from 8 batches of contiguous fields; ``quadrant.nc``). Each vector's fluctuation is taken
   about its own mean, which is known only at the end of the statistics, so the quadrant
-  analysis is a second pass over the files (:func:`quadrant_pass`): every field read again,
+  analysis is a second pass over the files (:func:`second_pass`): every field read again,
   checked, corrected and screened as in the first pass. The sums are exact about the
   series' means. The pass is kept in the checkpoint, so a stopped run resumes it. A file
   that read in the first pass and fails in the second (changed or removed since) is left out
@@ -47,16 +50,17 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.quadrant import quadrant_accumulator, quadrant_dataset, quadrant_profile
-from rspiv.campaign.two_point import two_point_dataset, two_point_profile
+from rspiv.campaign.quadrant import quadrant_dataset, quadrant_profile
+from rspiv.campaign.two_point import map_rows, two_point_dataset, two_point_profile
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outputs import write_netcdf
 from rspiv.vector_files import VectorFile
 from rspiv.vector_reduction import SeriesReducer, entry_name, read_entry
 
 __all__ = [
-    "quadrant_pass",
+    "map_rows_of",
     "quadrant_result",
+    "second_pass",
     "two_point_columns",
     "two_point_result",
     "write_structures",
@@ -96,17 +100,16 @@ def two_point_columns(
 
 
 def two_point_result(
-    acc: Any, an: Any, window: tuple[int, int], dx_px: float
+    tp: Any, an: Any, window: tuple[int, int], dx_px: float
 ) -> tuple[dict[str, Any] | None, list[str]]:
-    """The two-point rows of the series' accumulator ``acc`` (its ``two_point``; :func:`rspiv.
-    campaign.two_point.two_point_profile`) and what must be said: rows away from the wall and
-    inside the field that entered fewer than half the fields, or no row at all (then None)."""
-    tp = acc.two_point
+    """The two-point rows (and maps) of the filled accumulator ``tp`` (:func:`rspiv.campaign.
+    two_point.two_point_profile`) and what must be said: rows away from the wall and inside
+    the field that entered fewer than half the fields, or no row at all (then None)."""
     try:
         prof = two_point_profile(tp, an, window, dx_px)
     except InvalidInputError as exc:
         return None, [f"no two-point statistics: {exc}"]
-    ny = acc.shape[0]
+    ny = tp.shape[0]
     inside = (prof["rows"] > 0) & (prof["rows"] < ny - 1)  # a field's outer rows: its edge
     away = ~prof["near_wall"] & inside
     few = int(np.count_nonzero(away & (prof["count"] < 0.5 * prof["pairs"])))
@@ -122,21 +125,41 @@ def two_point_result(
     return prof, said
 
 
-def _quadrant_key(q: Any, n: int) -> str:
-    """What the quadrant sums are about: the holes, the vectors that may enter, the signs, the
-    means and standard deviations, the number of fields."""
+def map_rows_of(
+    an: Any, heights: Any, window_height: float
+) -> tuple[tuple[tuple[int, int], tuple[int, ...]] | None, list[str]]:
+    """The two-point maps' band and reference rows (:func:`rspiv.campaign.two_point.map_rows`)
+    of reference ``heights`` in delta_99 from the wall analysed in ``an``, or None and why not
+    (no wall units, or a height the rows cannot hold)."""
+    p, bl = an.profile, an.result
+    if bl is None or not p.get("si") or not np.isfinite(bl.delta99):
+        return None, ["no two-point maps: their heights are in delta_99, which needs wall units"]
+    px = [float(h) * bl.delta99 / p["m_per_px"] for h in heights]
+    try:
+        return map_rows(np.asarray(p["dist_px"], np.float64), px, window_height), []
+    except InvalidInputError as exc:
+        return None, [f"no two-point maps: {exc}"]
+
+
+def _key(parts: dict[str, Any], n: int) -> str:
+    """What the second pass's sums are about: the quadrant's holes, vectors that may enter,
+    signs, means and standard deviations; the two-point sums' grid, columns, rows and maps;
+    the number of fields."""
     h = hashlib.sha256()
-    for a in (q.holes, q.usable, q.mean_u, q.mean_v, q.rms_u, q.rms_v):
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(f"{q.sign_x},{q.sign_y},{n}".encode())
+    q = parts.get("quadrant")
+    if q is not None:
+        for a in (q.holes, q.usable, q.mean_u, q.mean_v, q.rms_u, q.rms_v):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(f"{q.sign_x},{q.sign_y}".encode())
+    tp = parts.get("two_point")
+    if tp is not None:
+        h.update(repr((tp.shape, tp.columns, tp.min_valid, tp.band, tp.refs)).encode())
+    h.update(f"{sorted(parts)},{n}".encode())
     return h.hexdigest()[:16]
 
 
-def quadrant_pass(
-    acc: Any,
-    an: Any,
-    min_count: int,
-    holes: Any,
+def second_pass(
+    parts: dict[str, Any],
     entries: list[Any],
     options: dict[str, Any],
     reducer: SeriesReducer,
@@ -146,25 +169,26 @@ def quadrant_pass(
     save: Callable[[], None] | None = None,
     every: int = 500,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[Any, list[str]]:
-    """The second pass of the quadrant analysis (module docstring) over ``entries`` (those in
-    ``state["skipped"]`` excepted); returns the filled
-    :class:`rspiv.quadrant.QuadrantAccumulator` and the names of the fields that read in the
-    first pass and not now.
+) -> tuple[dict[str, Any], list[str]]:
+    """The second pass over ``entries`` (module docstring; those in ``state["skipped"]``
+    excepted): every field read, checked, corrected and screened as in the first pass, and
+    added to the empty accumulators ``parts`` (``"quadrant"``: a
+    :class:`rspiv.quadrant.QuadrantAccumulator`, ``"two_point"``: a
+    :class:`rspiv.two_point.TwoPointAccumulator` with its maps). Returns the filled
+    accumulators and the names of the fields that read in the first pass and not now.
 
-    ``state`` is the statistics' checkpoint state: its ``second["quadrant"]`` holds the pass's
-    sums and is resumed when they are about the same means, holes and rows; ``save()`` writes
-    the checkpoint every ``every`` fields. ``progress(done, total)`` counts both passes.
+    ``state`` is the statistics' checkpoint state: its ``second`` holds the pass's sums and is
+    resumed when they are about the same means, rows and maps (:func:`_key`); ``save()``
+    writes the checkpoint every ``every`` fields. ``progress(done, total)`` counts both passes.
     """
-    q = quadrant_accumulator(acc, an, min_count, holes)
     n = len(entries)
-    key = _quadrant_key(q, n)
-    second = state.setdefault("second", {})
-    part = second.get("quadrant")
-    if part is None or part.get("key") != key:
-        part = {"key": key, "done": 0, "acc": q, "lost": []}
-        second["quadrant"] = part
-    q = part["acc"]
+    key = _key(parts, n)
+    part = state.get("second") or {}
+    if part.get("key") != key:
+        part = {"key": key, "done": 0, "parts": parts, "lost": []}
+        state["second"] = part
+    parts = part["parts"]
+    q, tp = parts.get("quadrant"), parts.get("two_point")
     skipped = state["skipped"]
     for k in range(part["done"], n):
         e = entries[k]
@@ -176,7 +200,10 @@ def quadrant_pass(
                 if why:
                     raise InvalidInputError(why)
                 u, v, valid = reducer.vectors(transform(vf), bounds, None, k)
-                q.add(u, v, valid, pair_id=k, batch=k * q.batches // n)
+                if q is not None:
+                    q.add(u, v, valid, pair_id=k, batch=k * q.batches // n)
+                if tp is not None:
+                    tp.add(u, v, valid, pair_id=k)
             except RspivError as exc:
                 part["lost"].append(f"{name}: {exc}")
         part["done"] = k + 1
@@ -184,24 +211,17 @@ def quadrant_pass(
             progress(n + k + 1, 2 * n)
         if save is not None and (k + 1) % max(int(every), 1) == 0:
             save()
-    return q, list(part["lost"])
+    return parts, list(part["lost"])
 
 
 def quadrant_result(
-    q: Any, acc: Any, an: Any, min_count: int, window: tuple[int, int], lost: list[str]
+    q: Any, acc: Any, an: Any, min_count: int, window: tuple[int, int]
 ) -> tuple[dict[str, Any] | None, list[str]]:
     """The quadrant rows of the filled accumulator ``q`` (:func:`rspiv.campaign.quadrant.
     quadrant_profile`) and what must be said of them, or None when no field entered."""
     if q.n_fields == 0:
         return None, ["no quadrant analysis: no field entered its second pass"]
     prof, said = quadrant_profile(q, acc, an, min_count, window[1])
-    if lost:
-        said.insert(
-            0,
-            f"{len(lost)} field(s) read in the first pass failed in the second and are not in "
-            f"the quadrant analysis (its {q.n_fields} fields are about the means of all "
-            f"{acc.n_fields}); the first {lost[0]}",
-        )
     if said:
         prof["warning"] = "quadrant: " + "; ".join(said)
     return prof, ([prof["warning"]] if said else [])
@@ -224,11 +244,17 @@ def write_structures(
         files[stem] = write_netcdf(ds, out / f"{stem}.nc")
         if figures and "y_plus" in prof:
             from rspiv.plots.quadrant import plot_quadrant  # deferred: matplotlib
-            from rspiv.plots.two_point import plot_two_point  # deferred: matplotlib
+            from rspiv.plots.two_point import (  # deferred: matplotlib
+                plot_two_point,
+                plot_two_point_maps,
+            )
 
-            plot = plot_two_point if stem == "two_point" else plot_quadrant
-            try:
-                files[f"figure_{stem}"] = plot(out / f"{stem}.png", prof)
-            except InvalidInputError:
-                pass  # too few rows in wall units to draw: the file holds them
+            plots = [(stem, plot_two_point if stem == "two_point" else plot_quadrant)]
+            if stem == "two_point" and "R_uu_map" in prof:
+                plots.append(("two_point_maps", plot_two_point_maps))
+            for name, plot in plots:
+                try:
+                    files[f"figure_{name}"] = plot(out / f"{name}.png", prof)
+                except InvalidInputError:
+                    pass  # too few rows in wall units to draw: the file holds them
     return files

@@ -12,7 +12,8 @@ the mean profile's mirror symmetry (the particles' reflection) and levelled with
 atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` and
 ``profile.csv`` (wall units with their uncertainties), ``summary.json``, with ``--vorticity``
 ``vorticity.nc`` (the mean vorticity, its rms and the swirling strength per row) and, with
-``--two-point`` ``two_point.nc`` (streamwise spectra and two-point correlations per row), with
+``--two-point`` ``two_point.nc`` (streamwise spectra and two-point correlations per row;
+``--two-point-maps 0.1,0.3,0.6`` adds the maps about rows at those heights in delta_99), with
 ``--quadrant`` ``quadrant.nc`` (the quadrant analysis of u'v', a second pass over the files;
 :mod:`rspiv.vector_structures`) and, with ``--figures``, the profiles against the DNS, the
 spectra and the quadrant shares. A stopped run started again with the same files
@@ -59,6 +60,17 @@ def _holes(text: str | None) -> bool | tuple[float, ...]:
         raise ValueError(f"--quadrant {text!r}: hole sizes, e.g. 0,1,2,4") from None
 
 
+def _heights(text: str | None) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(float(h) for h in text.split(","))
+    except ValueError:
+        raise ValueError(
+            f"--two-point-maps {text!r}: heights in delta_99, e.g. 0.1,0.3,0.6"
+        ) from None
+
+
 class _Bar:
     """The reduction's progress (:class:`rspiv.progress.Progress` on stderr), opened at the
     first field it reports (a resumed run counts the fields still to do)."""
@@ -88,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
             wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
             u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
             vorticity=args.vorticity or False, two_point=_two_point(args.two_point),
-            quadrant=_holes(args.quadrant),
+            two_point_maps=_heights(args.two_point_maps), quadrant=_holes(args.quadrant),
             window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
             out_dir=args.output, progress=bar,
@@ -137,6 +149,9 @@ def register(sub) -> None:
     p.add_argument("--two-point", nargs="?", const="0.9", default=None, metavar="MIN_VALID",
                    help="spectra and two-point correlations per row (a row of a field enters "
                    "with this share of valid vectors: 0.9)")  # fmt: skip
+    p.add_argument("--two-point-maps", default=None, metavar="HEIGHTS",
+                   help="with --two-point: maps about rows at these heights in delta_99 "
+                   "(e.g. 0.1,0.3,0.6), summed in a second pass")  # fmt: skip
     p.add_argument("--quadrant", nargs="?", const="0,1,2,4", default=None, metavar="HOLES",
                    help="quadrant analysis of u'v' (hole sizes: 0,1,2,4), a second pass")
     p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
