@@ -103,6 +103,17 @@ def test_incompatible_parts_are_refused(case, tmp_path):
     bad.write_bytes(b"not a netcdf file")
     with pytest.raises(rspiv.InvalidInputError, match="bad.nc: cannot read"):
         merge_files([p1, bad], tmp_path / "x.nc")
+    # a part whose HDF5 global heap is damaged (no checksum there; HDF5 can loop forever on
+    # one): refused in one line before HDF5 reads it (rspiv.hdf5_check)
+    data = bytearray(p1.read_bytes())
+    g = data.find(b"GCOL")
+    assert g > 0
+    data[g + 8 : g + 16] = (1 << 40).to_bytes(8, "little")
+    heap = tmp_path / "heap.nc"
+    heap.write_bytes(bytes(data))
+    with pytest.raises(rspiv.InvalidInputError, match="heap.nc: cannot read .*global heap") as e:
+        merge_files([p1, heap], tmp_path / "x.nc")
+    assert "\n" not in str(e.value)
     # parts of several runs into a folder: one file per run
     parts = _parts(shards) + _parts(shards, run="uncorrected")
     written = merge_files(parts, tmp_path / "merged")

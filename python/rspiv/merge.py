@@ -34,6 +34,7 @@ import numpy as np
 
 from rspiv.campaign import Campaign
 from rspiv.errors import InvalidInputError
+from rspiv.hdf5_check import global_heap_damage
 from rspiv.outputs import write_netcdf
 from rspiv.stats import FieldAccumulator
 
@@ -92,6 +93,9 @@ def read_part(path: str | os.PathLike) -> Part:
     p = pathlib.Path(path)
     if not p.is_file():
         raise InvalidInputError(f"{p}: no such file")
+    damage = global_heap_damage(p)  # HDF5 could loop on it (rspiv.hdf5_check)
+    if damage:
+        raise InvalidInputError(f"{p}: cannot read as NetCDF ({damage})")
     try:
         with xr.open_dataset(p, engine="h5netcdf") as ds:
             ds = ds.load()

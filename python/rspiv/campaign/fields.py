@@ -289,6 +289,9 @@ def grid_x(path: pathlib.Path) -> np.ndarray:
     """The ``x`` coordinate (px) of a field file."""
     import h5py  # deferred: only a second pass reads fields
 
+    damage = global_heap_damage(path)  # HDF5 would loop on it (rspiv.hdf5_check)
+    if damage:
+        raise InvalidInputError(f"{path}: not a readable field file ({damage})")
     try:
         with h5py.File(path, "r") as f:
             return np.asarray(f["x"], np.float64)
