@@ -347,6 +347,9 @@ def _parse_mat(p: pathlib.Path) -> dict[str, Any]:
     if head.startswith(b"\x89HDF"):
         import h5py
 
+        damage = global_heap_damage(p)  # HDF5 could loop on it (rspiv.hdf5_check)
+        if damage:
+            raise _fail(p, f"not a readable MAT file ({damage})")
         out: dict[str, Any] = {}
         try:
             with h5py.File(p, "r") as h:
