@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
+from rspiv.campaign.conditional import conditional_accumulator
 from rspiv.campaign.quadrant import quadrant_accumulator
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
@@ -98,6 +99,7 @@ from rspiv.vector_reduction import (
     series_entries,
 )
 from rspiv.vector_structures import (
+    conditional_result,
     map_rows_of,
     quadrant_result,
     second_pass,
@@ -148,10 +150,12 @@ class VectorStatistics:
     vorticity : dict or None
         The vorticity statistics per row (with ``vorticity=``; their keys:
         :func:`rspiv.campaign.vorticity.vorticity_profile`).
-    two_point, quadrant : dict or None
-        The spectra and two-point correlations per row, and the quadrant analysis (with
-        ``two_point=``, ``quadrant=``; their keys: :func:`rspiv.campaign.two_point.
-        two_point_profile`, :func:`rspiv.campaign.quadrant.quadrant_profile`;
+    two_point, quadrant, conditional : dict or None
+        The spectra and two-point correlations per row, the quadrant analysis and the
+        conditional averages (with ``two_point=``, ``quadrant=``, ``conditional=``; their
+        keys: :func:`rspiv.campaign.two_point.two_point_profile`,
+        :func:`rspiv.campaign.quadrant.quadrant_profile`,
+        :func:`rspiv.campaign.conditional.conditional_profile`;
         :mod:`rspiv.vector_structures`).
     seconds : float
         The reduction's wall time.
@@ -174,6 +178,7 @@ class VectorStatistics:
     vorticity: dict[str, Any] | None = None
     two_point: dict[str, Any] | None = None
     quadrant: dict[str, Any] | None = None
+    conditional: dict[str, Any] | None = None
     seconds: float = 0.0
 
     def screened(self) -> dict[str, Any] | None:
@@ -217,6 +222,9 @@ class VectorStatistics:
             "vorticity_rows": None if self.vorticity is None else int(self.vorticity["y"].size),
             "two_point_rows": None if self.two_point is None else int(self.two_point["y"].size),
             "quadrant_rows": None if self.quadrant is None else int(self.quadrant["y"].size),
+            "conditional_events": None
+            if self.conditional is None
+            else self.conditional["events"].tolist(),
             "flow_side": an.flow_side,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
@@ -270,6 +278,12 @@ class VectorStatistics:
             )
         if qd is not None:
             lines.append(f"quadrant: {qd['y'].size} rows, {qd['pairs']} fields")
+        if self.conditional is not None:
+            ev = self.conditional["events"]
+            lines.append(
+                f"conditional averages: {int(ev[:, 0].sum())} ejections, {int(ev[:, 1].sum())} "
+                f"sweeps at {ev.shape[0]} heights, {self.conditional['pairs']} fields"
+            )
         lines += [f"WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -295,8 +309,8 @@ class VectorStatistics:
         if self.vorticity is not None:
             ds = vorticity_dataset(self.vorticity, self.analysis.run)
             files["vorticity"] = write_netcdf(ds, out / "vorticity.nc")
-        run = self.analysis.run
-        files.update(write_structures(out, run, self.two_point, self.quadrant, figures))
+        run, extra = self.analysis.run, ("two_point", "quadrant", "conditional")
+        files.update(write_structures(out, run, {k: getattr(self, k) for k in extra}, figures))
         files["summary"] = atomic_write_text(
             out / "summary.json", json.dumps(self.summary(), indent=1, default=json_default)
         )
@@ -332,6 +346,8 @@ def vector_statistics(
     two_point: bool | float = False,
     two_point_maps: Sequence[float] | None = None,
     quadrant: bool | Sequence[float] = False,
+    conditional: bool | Sequence[float] = False,
+    conditional_hole: float = 1.0,
     window: tuple[int, int] | None = None,
     read_options: dict[str, Any] | None = None,
     out_dir: str | os.PathLike | None = None,
@@ -391,6 +407,11 @@ def vector_statistics(
     quadrant : bool or sequence of float
         The quadrant analysis of ``u'v'`` (a campaign's ``[statistics] quadrant``), a second
         pass over the files: True (hole sizes 0, 1, 2, 4), or the hole sizes.
+    conditional : bool or sequence of float
+        The conditional averages of u', v' about ejections and sweeps (a campaign's
+        ``[statistics] conditional``), in the second pass: True (events at 0.15 and 0.4
+        delta_99 from the wall), or the heights in delta_99; events with ``|u'v'| >=
+        conditional_hole u_rms v_rms``.
     window : (w, h), optional
         The final window where the files do not say (else twice the grid's spacing, said).
     read_options : dict, optional
@@ -440,6 +461,11 @@ def vector_statistics(
             f"statistics: two_point_maps {two_point_maps}: positive heights in delta_99, with "
             "two_point"
         )
+    cond = None if conditional is False else (0.15, 0.4) if conditional is True else conditional
+    if cond is not None and (not len(cond) or not all(float(h) > 0 for h in cond)):
+        raise InvalidInputError(f"statistics: conditional {conditional}: heights in delta_99")
+    if not (np.isfinite(conditional_hole) and conditional_hole >= 0):
+        raise InvalidInputError(f"statistics: conditional_hole = {conditional_hole}: >= 0")
     holes = None if quadrant is False else (0.0, 1.0, 2.0, 4.0) if quadrant is True else quadrant
     if holes is not None:
         h = np.asarray(holes, np.float64).ravel()
@@ -548,7 +574,8 @@ def vector_statistics(
             state["columns"] = two_point_columns(pilots, tp_min)
             if maps is None:
                 acc.two_point = TwoPointAccumulator(acc.shape, state["columns"], tp_min)
-    n_all = len(entries) * (1 if holes is None and maps is None else 2)  # with a second pass
+    second = holes is not None or maps is not None or cond is not None
+    n_all = len(entries) * (2 if second else 1)  # the second pass counts
     for k in range(state["done"], len(entries)):
         e = entries[k]
         try:
@@ -618,10 +645,18 @@ def vector_statistics(
     parts: dict[str, Any] = {}  # the second pass's accumulators
     if holes is not None:
         parts["quadrant"] = quadrant_accumulator(acc, an, min_count, holes)
-    if maps is not None:
-        rows, said = map_rows_of(an, maps, window[1])
+    dx_px = abs(float(xs[1] - xs[0]))
+    if cond is not None:
+        rows, said = map_rows_of(an, cond, window[1], "conditional averages")
         warnings += said
-        band, refs = rows if rows is not None else (None, ())
+        if rows is not None:
+            parts["conditional"] = conditional_accumulator(
+                acc, an, rows[0], rows[1], rows[2], dx_px, min_count, conditional_hole
+            )
+    if maps is not None:
+        rows, said = map_rows_of(an, maps, window[1], "two-point maps")
+        warnings += said
+        band, refs = rows[:2] if rows is not None else (None, ())
         cols = state.get("columns")
         parts["two_point"] = TwoPointAccumulator(acc.shape, cols, tp_min, band, refs)
     if parts:
@@ -641,10 +676,15 @@ def vector_statistics(
                 f"in its analyses ({', '.join(sorted(parts))}: their fields are about the means "
                 f"of all {acc.n_fields}); the first {lost[0]}"
             )
-    tp_prof = qd_prof = None
+    tp_prof = qd_prof = cd_prof = None
     tp = parts.get("two_point", acc.two_point)
     if tp is not None:
-        tp_prof, said = two_point_result(tp, an, window, abs(float(xs[1] - xs[0])))
+        tp_prof, said = two_point_result(tp, an, window, dx_px)
+        warnings += said
+    if "conditional" in parts:
+        cd_prof, said = conditional_result(
+            parts["conditional"], acc, an, dx_px, window, min_count
+        )
         warnings += said
     if "quadrant" in parts:
         qd_prof, said = quadrant_result(parts["quadrant"], acc, an, min_count, window)
@@ -657,7 +697,7 @@ def vector_statistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
         (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking, vort,
-        tp_prof, qd_prof, time.perf_counter() - t_start,
+        tp_prof, qd_prof, cd_prof, time.perf_counter() - t_start,
     )  # fmt: skip
 
 

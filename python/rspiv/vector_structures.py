@@ -1,5 +1,6 @@
-"""Streamwise spectra, two-point correlations and quadrant analysis of another tool's vector
-series (``rspiv statistics --two-point --quadrant``; :func:`rspiv.vector_statistics`).
+"""Streamwise spectra, two-point correlations, quadrant analysis and conditional averages of
+another tool's vector series (``rspiv statistics --two-point --quadrant --conditional``;
+:func:`rspiv.vector_statistics`).
 
 A lab's archive of DaVis, OpenPIV, PIVlab or Insight fields gets the campaign's analyses of the
 boundary layer's structure, computed as a campaign computes them and written to the same files:
@@ -28,6 +29,11 @@ boundary layer's structure, computed as a campaign computes them and written to 
   series' means. The pass is kept in the checkpoint, so a stopped run resumes it. A file
   that read in the first pass and fails in the second (changed or removed since) is left out
   and said.
+- **Conditional averages** (:mod:`rspiv.campaign.conditional`: u', v' averaged about the
+  ejections (Q2) and sweeps (Q4) with ``|u'v'| >= hole u_rms v_rms`` at reference rows placed at
+  heights in delta_99, over the rows from the wall's 2.5 window heights to twice the highest
+  height and offsets as far either way; ``conditional.nc``), in the same second pass. Not
+  about vortex cores: a series' vortex pass is a campaign's alone.
 
 With a calibration (Method II) or levelling, every field is resampled between its nodes
 (:func:`rspiv.vector_sampling.sample_at`, Keys' cubic), which smooths it a little: on the
@@ -50,6 +56,7 @@ from typing import Any
 
 import numpy as np
 
+from rspiv.campaign.conditional import conditional_dataset, conditional_profile
 from rspiv.campaign.quadrant import quadrant_dataset, quadrant_profile
 from rspiv.campaign.two_point import map_rows, two_point_dataset, two_point_profile
 from rspiv.errors import InvalidInputError, RspivError
@@ -58,6 +65,7 @@ from rspiv.vector_files import VectorFile
 from rspiv.vector_reduction import SeriesReducer, entry_name, read_entry
 
 __all__ = [
+    "conditional_result",
     "map_rows_of",
     "quadrant_result",
     "second_pass",
@@ -126,19 +134,20 @@ def two_point_result(
 
 
 def map_rows_of(
-    an: Any, heights: Any, window_height: float
-) -> tuple[tuple[tuple[int, int], tuple[int, ...]] | None, list[str]]:
-    """The two-point maps' band and reference rows (:func:`rspiv.campaign.two_point.map_rows`)
-    of reference ``heights`` in delta_99 from the wall analysed in ``an``, or None and why not
-    (no wall units, or a height the rows cannot hold)."""
+    an: Any, heights: Any, window_height: float, what: str
+) -> tuple[tuple[tuple[int, int], tuple[int, ...], list[float]] | None, list[str]]:
+    """The band and the reference rows (:func:`rspiv.campaign.two_point.map_rows`) of
+    reference ``heights`` in delta_99 from the wall analysed in ``an``, and the heights in px;
+    or None and why not, said of ``what`` (no wall units, or a height the rows cannot hold)."""
     p, bl = an.profile, an.result
     if bl is None or not p.get("si") or not np.isfinite(bl.delta99):
-        return None, ["no two-point maps: their heights are in delta_99, which needs wall units"]
+        return None, [f"no {what}: their heights are in delta_99, which needs wall units"]
     px = [float(h) * bl.delta99 / p["m_per_px"] for h in heights]
     try:
-        return map_rows(np.asarray(p["dist_px"], np.float64), px, window_height), []
+        band, refs = map_rows(np.asarray(p["dist_px"], np.float64), px, window_height)
     except InvalidInputError as exc:
-        return None, [f"no two-point maps: {exc}"]
+        return None, [f"no {what}: {exc}"]
+    return (band, refs, px), []
 
 
 def _key(parts: dict[str, Any], n: int) -> str:
@@ -146,11 +155,14 @@ def _key(parts: dict[str, Any], n: int) -> str:
     signs, means and standard deviations; the two-point sums' grid, columns, rows and maps;
     the number of fields."""
     h = hashlib.sha256()
-    q = parts.get("quadrant")
-    if q is not None:
-        for a in (q.holes, q.usable, q.mean_u, q.mean_v, q.rms_u, q.rms_v):
+    for name in ("quadrant", "conditional"):
+        q = parts.get(name)
+        if q is None:
+            continue
+        plan = (q.holes,) if name == "quadrant" else (q.ref_rows, q.map_rows, q.offsets)
+        for a in (*plan, q.usable, q.mean_u, q.mean_v, q.rms_u, q.rms_v):
             h.update(np.ascontiguousarray(a).tobytes())
-        h.update(f"{q.sign_x},{q.sign_y}".encode())
+        h.update(f"{name},{q.sign_x},{q.sign_y},{getattr(q, 'hole', '')}".encode())
     tp = parts.get("two_point")
     if tp is not None:
         h.update(repr((tp.shape, tp.columns, tp.min_valid, tp.band, tp.refs)).encode())
@@ -188,7 +200,7 @@ def second_pass(
         part = {"key": key, "done": 0, "parts": parts, "lost": []}
         state["second"] = part
     parts = part["parts"]
-    q, tp = parts.get("quadrant"), parts.get("two_point")
+    q, tp, cond = parts.get("quadrant"), parts.get("two_point"), parts.get("conditional")
     skipped = state["skipped"]
     for k in range(part["done"], n):
         e = entries[k]
@@ -204,6 +216,8 @@ def second_pass(
                     q.add(u, v, valid, pair_id=k, batch=k * q.batches // n)
                 if tp is not None:
                     tp.add(u, v, valid, pair_id=k)
+                if cond is not None:
+                    cond.add(u, v, valid, pair_id=k, batch=k * cond.batches // n)
             except RspivError as exc:
                 part["lost"].append(f"{name}: {exc}")
         part["done"] = k + 1
@@ -227,15 +241,30 @@ def quadrant_result(
     return prof, ([prof["warning"]] if said else [])
 
 
-def write_structures(
-    out: Any, run: Any, two_point: dict | None, quadrant: dict | None, figures: bool
-) -> dict[str, Any]:
-    """``two_point.nc`` and ``quadrant.nc`` (with their warnings as the files' ``warning``
-    attribute) in the folder ``out``, and with ``figures`` their figures in wall units
-    (``two_point.png``, ``quadrant.png``); returns name -> path."""
+def conditional_result(
+    c: Any, acc: Any, an: Any, dx_px: float, window: tuple[int, int], min_count: int
+) -> tuple[dict[str, Any] | None, list[str]]:
+    """The conditional averages of the filled accumulator ``c`` (:func:`rspiv.campaign.
+    conditional.conditional_profile`) and what must be said of them, or None when no field
+    entered."""
+    if c.n_fields == 0:
+        return None, ["no conditional averages: no field entered the second pass"]
+    prof, said = conditional_profile(c, acc, an, dx_px, window[1], min_count)
+    if said:
+        prof["warning"] = "conditional averages: " + "; ".join(said)
+    return prof, ([prof["warning"]] if said else [])
+
+
+def write_structures(out: Any, run: Any, profiles: dict[str, Any], figures: bool) -> dict:
+    """``two_point.nc``, ``quadrant.nc`` and ``conditional.nc`` of ``profiles`` (name -> the
+    profile or None; their warnings as the files' ``warning`` attribute) in the folder ``out``,
+    and with ``figures`` their figures in wall units (``two_point.png``,
+    ``two_point_maps.png``, ``quadrant.png``, ``conditional.png``); returns name -> path."""
     files: dict[str, Any] = {}
-    for stem, prof, dataset in (("two_point", two_point, two_point_dataset),
-                                ("quadrant", quadrant, quadrant_dataset)):  # fmt: skip
+    datasets = {"two_point": two_point_dataset, "quadrant": quadrant_dataset,
+                "conditional": conditional_dataset}  # fmt: skip
+    for stem, dataset in datasets.items():
+        prof = profiles.get(stem)
         if prof is None:
             continue
         ds = dataset(prof, run)
@@ -243,13 +272,16 @@ def write_structures(
             ds.attrs["warning"] = prof["warning"]
         files[stem] = write_netcdf(ds, out / f"{stem}.nc")
         if figures and "y_plus" in prof:
+            from rspiv.plots.conditional import plot_conditional  # deferred: matplotlib
             from rspiv.plots.quadrant import plot_quadrant  # deferred: matplotlib
             from rspiv.plots.two_point import (  # deferred: matplotlib
                 plot_two_point,
                 plot_two_point_maps,
             )
 
-            plots = [(stem, plot_two_point if stem == "two_point" else plot_quadrant)]
+            draw = {"two_point": plot_two_point, "quadrant": plot_quadrant,
+                    "conditional": plot_conditional}  # fmt: skip
+            plots = [(stem, draw[stem])]
             if stem == "two_point" and "R_uu_map" in prof:
                 plots.append(("two_point_maps", plot_two_point_maps))
             for name, plot in plots:

@@ -54,7 +54,15 @@ from rspiv.campaign.two_point import reference_rows
 from rspiv.conditional import KINDS, VORTEX_KINDS, ConditionalAccumulator
 from rspiv.errors import InvalidInputError
 
-__all__ = ["FAR", "FAR_SHARE", "report_section", "write_outputs"]
+__all__ = [
+    "FAR",
+    "FAR_SHARE",
+    "conditional_accumulator",
+    "conditional_dataset",
+    "conditional_profile",
+    "report_section",
+    "write_outputs",
+]
 
 #: The map's far part: offsets at this share of its half width or more.
 FAR = 0.75
@@ -62,34 +70,28 @@ FAR = 0.75
 FAR_SHARE = 0.5
 
 
-def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
-    """The conditional averages of ``run`` (module docstring), written as
-    ``OUT/conditional_<run>.nc`` (with ``[output] netcdf``); None when ``[statistics]
-    conditional`` is off."""
-    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
-
-    st = camp.config.statistics
-    if not st.conditional:
-        return None
-    acc = res.accumulators[run.name]
-    if not acc.pair_ids:
-        raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
-    t0 = time.perf_counter()
+def conditional_accumulator(
+    acc: Any,
+    an: Any,
+    band: tuple[int, int],
+    refs: Any,
+    heights_px: Any,
+    dx_px: float,
+    min_count: int,
+    hole: float,
+    kinds=KINDS,
+) -> ConditionalAccumulator:
+    """An empty ConditionalAccumulator about the run's statistics ``acc`` and analysis ``an``:
+    the map's rows ``band`` about the reference rows ``refs`` (at ``heights_px`` from the
+    wall, :func:`rspiv.campaign.two_point.map_rows`), offsets up to twice the highest height
+    either way (at most the field's width; ``dx_px`` the grid's step), the vectors with
+    ``min_count`` samples or more on the flow side, events outside ``hole``."""
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    band, refs, heights = reference_rows(
-        an, st.conditional_heights, st.conditional_height_units, "conditional_heights",
-        res.context.piv.final_window[1],
-    )
-    ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
-    dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
-    half_width = min(int(np.ceil(2.0 * max(heights) / dx_px)), acc.shape[1] - 1)
-    usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]
-    sign_x = float(p.get("sign_x", 1.0))
-    vort = res.vortices.get(run.name) if st.vortices else None
-    kinds = KINDS + VORTEX_KINDS if vort is not None else KINDS
+    half_width = min(int(np.ceil(2.0 * max(heights_px) / dx_px)), acc.shape[1] - 1)
+    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
     with np.errstate(invalid="ignore"):
-        q = ConditionalAccumulator(
+        return ConditionalAccumulator(
             acc.mean_u,
             acc.mean_v,
             np.sqrt(acc.uu),
@@ -98,31 +100,27 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             rows=band,
             half_width=half_width,
             usable=usable,
-            sign_x=sign_x,
+            sign_x=float(p.get("sign_x", 1.0)),
             sign_y=float(p.get("sign_y", 1.0)),
-            hole=st.conditional_hole,
+            hole=hole,
             kinds=kinds,
         )
-    n_pairs = len(ids)
-    none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
 
-    def add(part: ConditionalAccumulator, i: int, pid: int, u, v, valid) -> None:
-        events = None
-        if vort is not None:  # the pair's cores centred on a reference row
-            rows, cols, pro = vort["core_events"].get(pid, none)
-            events = {k: np.zeros((len(refs), acc.shape[1]), bool) for k in VORTEX_KINDS}
-            for j, ref in enumerate(refs):
-                at = rows == ref
-                events["prograde"][j, cols[at & pro]] = True
-                events["retrograde"][j, cols[at & ~pro]] = True
-        part.add(u, v, valid, pair_id=pid, batch=i * q.batches // n_pairs, events=events)
 
-    parts, missing = each_field(
-        paths, acc.shape, run.name, lambda w: q if w == 0 else q.empty_copy(), add,
-        screen=res.context.screens().get(run.name),
-    )  # fmt: skip
-    for other in parts[1:]:
-        q.merge(other)
+def conditional_profile(
+    q: ConditionalAccumulator, acc: Any, an: Any, dx_px: float, window_height: float,
+    min_count: int,
+) -> tuple[dict[str, Any], list[str]]:  # fmt: skip
+    """The filled accumulator ``q`` (:func:`conditional_accumulator`) in the run's units
+    (module docstring's variables: rows by distance from the wall, offsets downstream) and
+    what must be said of it (kinds without events, averages that do not decay, a hole the
+    pairs cannot reach). ``window_height`` (px) sets the ``near_wall`` rows."""
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
+
+    p = an.profile
+    dist = np.asarray(p["dist_px"], np.float64)
+    kinds = list(q.kinds)
+    sign_x = float(p.get("sign_x", 1.0))
     r = q.results()
     si = bool(p.get("si"))
     m = p["m_per_px"] if si else 1.0
@@ -148,7 +146,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "k": k,  # the velocity unit's factor from px per pair (1 without SI units)
         "y_ref": dist[r["ref_rows"]] * m,
         "ref_rows": r["ref_rows"],
-        "kinds": list(kinds),
+        "kinds": kinds,
         "u": u,
         "v": v,
         "u_se": u_se,
@@ -158,12 +156,11 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         "events": r["events"],
         "event_u": r["event_u"] * k,
         "event_v": r["event_v"] * k,
-        "hole": float(st.conditional_hole),
-        "near_wall": dist[r["rows"]][ry] < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1],
+        "hole": float(q.hole),
+        "near_wall": dist[r["rows"]][ry] < NEAR_WALL_HEIGHTS * window_height,
         "si": si,
         "per_s": si,
         "pairs": int(q.n_fields),
-        "missing": missing,
     }
     bl = an.result
     if bl is not None and si:
@@ -174,8 +171,102 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         for key in ("u", "v", "u_se", "v_se"):
             prof[f"{key}_plus"] = prof[key] / bl.u_tau
         prof["delta_99"] = float(bl.delta99)
-    prof["seconds"] = time.perf_counter() - t0
     ev = r["events"]
+    said = []
+    empty = [
+        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'}"
+        for i in range(ev.shape[0])
+        for j in range(ev.shape[1])
+        if ev[i, j] == 0
+    ]
+    if empty:
+        said.append(
+            f"no events (outside the hole H = {q.hole:g}, or vortex cores centred "
+            f"there): {', '.join(empty)}"
+        )
+    # a local structure decays away from its event; fluctuations of the whole field do not
+    far = np.abs(prof["dx_px"]) >= FAR * np.abs(prof["dx_px"]).max()
+    far_u = u[:, :, ~prof["near_wall"]][..., far]
+    fin = np.isfinite(far_u)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        far_mean = np.where(fin, far_u, 0.0).sum(axis=(2, 3)) / fin.sum(axis=(2, 3))
+        # over the events' own u' (quadrant kinds), or the map's largest |u'| (about a
+        # vortex core the event's own u' is about zero)
+        peak = np.nanmax(np.abs(np.where(np.isfinite(u), u, 0.0)[:, :, ~prof["near_wall"]]),
+                         axis=(2, 3))  # fmt: skip
+        own = np.where([kd in KINDS for kd in kinds], prof["event_u"], peak)
+        ratio = np.where(ev > 0, far_mean / own, np.nan)  # NaN for a kind without events
+    prof["far_ratio"] = ratio
+    coherent = [
+        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'} {ratio[i, j]:.2f}"
+        for i in range(ratio.shape[0])
+        for j in range(ratio.shape[1])
+        if ratio[i, j] > FAR_SHARE
+    ]
+    if coherent:
+        said.append(
+            f"they do not decay away from their events (u' at {FAR:g} of "
+            f"the map's half width or farther, over the event's own: {', '.join(coherent)}): "
+            "the fluctuations are of the whole field (a speed drifting over the run, pairs of "
+            "another pulse separation), not local structures"
+        )
+    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
+    n_typ = int(np.median(acc.count[usable])) if usable.any() else 0
+    reach = (n_typ - 1) ** 2 / max(n_typ, 1)
+    if q.hole > reach:
+        said.append(
+            f"with {n_typ} pairs per vector |u'v'| / (u_rms v_rms) cannot exceed {reach:.2f}, "
+            f"below the hole {q.hole:g}"
+        )
+    return prof, said
+
+
+def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
+    """The conditional averages of ``run`` (module docstring), written as
+    ``OUT/conditional_<run>.nc`` (with ``[output] netcdf``); None when ``[statistics]
+    conditional`` is off."""
+    st = camp.config.statistics
+    if not st.conditional:
+        return None
+    acc = res.accumulators[run.name]
+    if not acc.pair_ids:
+        raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
+    t0 = time.perf_counter()
+    window_h = res.context.piv.final_window[1]
+    band, refs, heights = reference_rows(
+        an, st.conditional_heights, st.conditional_height_units, "conditional_heights", window_h
+    )
+    ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
+    dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
+    vort = res.vortices.get(run.name) if st.vortices else None
+    kinds = KINDS + VORTEX_KINDS if vort is not None else KINDS
+    q = conditional_accumulator(
+        acc, an, band, refs, heights, dx_px, st.min_count, st.conditional_hole, kinds
+    )
+    n_pairs = len(ids)
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
+
+    def add(part: ConditionalAccumulator, i: int, pid: int, u, v, valid) -> None:
+        events = None
+        if vort is not None:  # the pair's cores centred on a reference row
+            rows, cols, pro = vort["core_events"].get(pid, none)
+            events = {k: np.zeros((len(refs), acc.shape[1]), bool) for k in VORTEX_KINDS}
+            for j, ref in enumerate(refs):
+                at = rows == ref
+                events["prograde"][j, cols[at & pro]] = True
+                events["retrograde"][j, cols[at & ~pro]] = True
+        part.add(u, v, valid, pair_id=pid, batch=i * q.batches // n_pairs, events=events)
+
+    parts, missing = each_field(
+        paths, acc.shape, run.name, lambda w: q if w == 0 else q.empty_copy(), add,
+        screen=res.context.screens().get(run.name),
+    )  # fmt: skip
+    for other in parts[1:]:
+        q.merge(other)
+    prof, profile_said = conditional_profile(q, acc, an, dx_px, window_h, st.min_count)
+    prof["missing"] = missing
+    prof["seconds"] = time.perf_counter() - t0
+    ev = prof["events"]
     cores = (
         f", {int(ev[:, 2].sum())} prograde and {int(ev[:, 3].sum())} retrograde vortex cores"
         if vort is not None
@@ -192,59 +283,20 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"{len(missing)} of {len(paths)} pairs have no field file (first: pair "
             f"{missing[0]}): the conditional averages hold {q.n_fields} pairs"
         )
-    empty = [
-        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'}"
-        for i in range(ev.shape[0])
-        for j in range(ev.shape[1])
-        if ev[i, j] == 0
-    ]
-    if empty:
-        said.append(
-            f"no events (outside the hole H = {st.conditional_hole:g}, or vortex cores centred "
-            f"there): {', '.join(empty)}"
-        )
     if st.vortices and vort is None:
         said.append(
             "no averages about vortex cores: the run's vortex pass did not run to its end "
             "(its error is in summary.json)"
         )
-    # a local structure decays away from its event; fluctuations of the whole field do not
-    far = np.abs(prof["dx_px"]) >= FAR * np.abs(prof["dx_px"]).max()
-    far_u = u[:, :, ~prof["near_wall"]][..., far]
-    fin = np.isfinite(far_u)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        far_mean = np.where(fin, far_u, 0.0).sum(axis=(2, 3)) / fin.sum(axis=(2, 3))
-        # over the events' own u' (quadrant kinds), or the map's largest |u'| (about a
-        # vortex core the event's own u' is about zero)
-        peak = np.nanmax(np.abs(np.where(np.isfinite(u), u, 0.0)[:, :, ~prof["near_wall"]]),
-                         axis=(2, 3))  # fmt: skip
-        own = np.where([k in KINDS for k in kinds], prof["event_u"], peak)
-        ratio = np.where(ev > 0, far_mean / own, np.nan)  # NaN for a kind without events
-    prof["far_ratio"] = ratio
-    coherent = [
-        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'} {ratio[i, j]:.2f}"
-        for i in range(ratio.shape[0])
-        for j in range(ratio.shape[1])
-        if ratio[i, j] > FAR_SHARE
-    ]
-    if coherent:
-        said.append(
-            f"they do not decay away from their events (u' at {FAR:g} of "
-            f"the map's half width or farther, over the event's own: {', '.join(coherent)}): "
-            "the fluctuations are of the whole field (a speed drifting over the run, pairs of "
-            "another pulse separation), not local structures"
-        )
-    n_typ = int(np.median(acc.count[usable])) if usable.any() else 0
-    reach = (n_typ - 1) ** 2 / max(n_typ, 1)
-    if st.conditional_hole > reach:
-        said.append(
-            f"with {n_typ} pairs per vector |u'v'| / (u_rms v_rms) cannot exceed {reach:.2f}, "
-            f"below the hole {st.conditional_hole:g}"
-        )
-    return finish_pass(camp, res, run, prof, said, "conditional", "conditional averages", _dataset)
+    said += profile_said
+    return finish_pass(
+        camp, res, run, prof, said, "conditional", "conditional averages", conditional_dataset
+    )
 
 
-def _dataset(prof: dict, run: RunSpec) -> Any:
+def conditional_dataset(prof: dict, run: RunSpec) -> Any:
+    """The averages ``prof`` (:func:`conditional_profile`) of ``run`` as a dataset
+    (``conditional_<run>.nc``: the module docstring's variables)."""
     import xarray as xr
 
     length = "m" if prof["si"] else "pix"

@@ -15,8 +15,10 @@ atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` 
 ``--two-point`` ``two_point.nc`` (streamwise spectra and two-point correlations per row;
 ``--two-point-maps 0.1,0.3,0.6`` adds the maps about rows at those heights in delta_99), with
 ``--quadrant`` ``quadrant.nc`` (the quadrant analysis of u'v', a second pass over the files;
-:mod:`rspiv.vector_structures`) and, with ``--figures``, the profiles against the DNS, the
-spectra and the quadrant shares. A stopped run started again with the same files
+:mod:`rspiv.vector_structures`), with ``--conditional 0.15,0.4`` ``conditional.nc`` (the
+conditional averages of u', v' about ejections and sweeps at those heights in delta_99, in the
+second pass) and, with ``--figures``, the profiles against the DNS, the spectra, the quadrant
+shares and the conditional averages. A stopped run started again with the same files
 and options resumes from ``OUT/checkpoint.pkl``. Warnings go to stderr as well; a series
 without a usable field or a wall rspiv cannot see is refused in one line (exit 2).
 """
@@ -60,15 +62,13 @@ def _holes(text: str | None) -> bool | tuple[float, ...]:
         raise ValueError(f"--quadrant {text!r}: hole sizes, e.g. 0,1,2,4") from None
 
 
-def _heights(text: str | None) -> tuple[float, ...] | None:
+def _heights(text: str | None, option: str) -> tuple[float, ...] | None:
     if text is None:
         return None
     try:
         return tuple(float(h) for h in text.split(","))
     except ValueError:
-        raise ValueError(
-            f"--two-point-maps {text!r}: heights in delta_99, e.g. 0.1,0.3,0.6"
-        ) from None
+        raise ValueError(f"{option} {text!r}: heights in delta_99, e.g. 0.15,0.4") from None
 
 
 class _Bar:
@@ -100,7 +100,10 @@ def run(args: argparse.Namespace) -> int:
             wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
             u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
             vorticity=args.vorticity or False, two_point=_two_point(args.two_point),
-            two_point_maps=_heights(args.two_point_maps), quadrant=_holes(args.quadrant),
+            two_point_maps=_heights(args.two_point_maps, "--two-point-maps"),
+            quadrant=_holes(args.quadrant),
+            conditional=_heights(args.conditional, "--conditional") or False,
+            conditional_hole=args.conditional_hole,
             window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
             out_dir=args.output, progress=bar,
@@ -154,6 +157,11 @@ def register(sub) -> None:
                    "(e.g. 0.1,0.3,0.6), summed in a second pass")  # fmt: skip
     p.add_argument("--quadrant", nargs="?", const="0,1,2,4", default=None, metavar="HOLES",
                    help="quadrant analysis of u'v' (hole sizes: 0,1,2,4), a second pass")
+    p.add_argument("--conditional", nargs="?", const="0.15,0.4", default=None,
+                   metavar="HEIGHTS", help="conditional averages about ejections and sweeps "
+                   "at these heights in delta_99 (0.15,0.4), a second pass")  # fmt: skip
+    p.add_argument("--conditional-hole", type=float, default=1.0,
+                   help="events with |u'v'| >= this times u_rms v_rms (1.0)")  # fmt: skip
     p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
     p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
     p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
