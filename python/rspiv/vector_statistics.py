@@ -38,10 +38,11 @@ DaVis buffer, in its own order):
 4. Units: the magnification from the calibration, else the files' scale (DaVis) or
    ``mm_per_px``; the pulse separation from the files (DaVis) or ``dt``. Without both the
    statistics are in px per pair and no wall units are derived (said).
-5. With ``two_point`` and ``quadrant``, the boundary layer's structure as a campaign gives it
-   (:mod:`rspiv.vector_structures`): the streamwise spectra and two-point correlations per
-   row, summed beside the statistics, and the quadrant analysis, a second pass over the files
-   once each vector's mean is known.
+5. With ``two_point``, ``quadrant`` and ``conditional``, the boundary layer's structure as a
+   campaign gives it (:mod:`rspiv.vector_structures`): the streamwise spectra and two-point
+   correlations per row, summed beside the statistics (with their maps, in the second pass),
+   and the quadrant analysis and the conditional averages, a second pass over the files once
+   each vector's mean and the wall are known.
 
 Refused in one line (:class:`rspiv.errors.InvalidInputError`): no field could be used (with the
 first file's reason), a wall the mean profile does not show (:func:`rspiv.find_wall`'s
