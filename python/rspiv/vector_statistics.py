@@ -50,8 +50,9 @@ refusal), fewer than 8 profile points beyond it, fewer than 8 contiguous columns
 two-point sums. Warned (``warnings``, the CLI's stderr, ``summary.json``): fields skipped,
 uncorrected raw-frame fields (the lens distortion is in the statistics), a final window
 assumed, a wall tilted and not levelled, a scale that disagrees with the calibration, the
-boundary-layer analysis' own warning, and the two-point and quadrant analyses' (rows that
-entered few fields, ``u'v'`` unresolved, fields lost between the passes).
+boundary-layer analysis' own warning, and the two-point, quadrant and conditional analyses'
+(rows that entered few fields, ``u'v'`` unresolved, no events, maps or heights the rows cannot
+hold, fields lost between the passes).
 
 Units and frames: positions px of the fields' frame (object px when corrected), x right, y
 down; the accumulator holds px per pair, pixel axes; the outputs are SI (m, m/s) with y the
@@ -290,10 +291,11 @@ class VectorStatistics:
 
     def write(self, out_dir: str | os.PathLike, figures: bool = False) -> dict[str, pathlib.Path]:
         """Write ``statistics.nc``, ``profile.nc``, ``profile.csv``, ``summary.json``, with
-        ``vorticity=`` ``vorticity.nc``, with ``two_point=`` ``two_point.nc`` and with
-        ``quadrant=`` ``quadrant.nc`` (and with ``figures`` the profiles in wall units against
-        the DNS, the spectra and the quadrant shares) atomically to ``out_dir``; returns name
-        -> path."""
+        ``vorticity=`` ``vorticity.nc``, with ``two_point=``, ``quadrant=`` and
+        ``conditional=`` ``two_point.nc``, ``quadrant.nc`` and ``conditional.nc`` (and with
+        ``figures`` the profiles in wall units against the DNS and the figures of
+        :func:`rspiv.vector_structures.write_structures`) atomically to ``out_dir``; returns
+        name -> path."""
         out = pathlib.Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         files = {"statistics": write_netcdf(self.to_xarray(), out / "statistics.nc")}
