@@ -44,6 +44,9 @@ def _window(text: str | None) -> tuple[int, int] | None:
         raise ValueError(f"--window {text!r}: W or WxH in px") from None
 
 
+_HEIGHTS = "heights in delta_99, e.g. 0.15,0.4"
+
+
 def _two_point(text: str | None) -> bool | float:
     if text is None:
         return False
@@ -53,22 +56,14 @@ def _two_point(text: str | None) -> bool | float:
         raise ValueError(f"--two-point {text!r}: a share of valid vectors, e.g. 0.9") from None
 
 
-def _holes(text: str | None) -> bool | tuple[float, ...]:
-    if text is None:
-        return False
-    try:
-        return tuple(float(h) for h in text.split(","))
-    except ValueError:
-        raise ValueError(f"--quadrant {text!r}: hole sizes, e.g. 0,1,2,4") from None
-
-
-def _heights(text: str | None, option: str) -> tuple[float, ...] | None:
+def _numbers(text: str | None, option: str, what: str) -> tuple[float, ...] | None:
+    """A comma-separated list of numbers given to ``option`` (None when not given)."""
     if text is None:
         return None
     try:
         return tuple(float(h) for h in text.split(","))
     except ValueError:
-        raise ValueError(f"{option} {text!r}: heights in delta_99, e.g. 0.15,0.4") from None
+        raise ValueError(f"{option} {text!r}: {what}") from None
 
 
 class _Bar:
@@ -100,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
             wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
             u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
             vorticity=args.vorticity or False, two_point=_two_point(args.two_point),
-            two_point_maps=_heights(args.two_point_maps, "--two-point-maps"),
-            quadrant=_holes(args.quadrant),
-            conditional=_heights(args.conditional, "--conditional") or False,
+            two_point_maps=_numbers(args.two_point_maps, "--two-point-maps", _HEIGHTS),
+            quadrant=_numbers(args.quadrant, "--quadrant", "hole sizes, e.g. 0,1,2,4") or False,
+            conditional=_numbers(args.conditional, "--conditional", _HEIGHTS) or False,
             conditional_hole=args.conditional_hole,
             window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
