@@ -87,9 +87,8 @@ def conditional_accumulator(
     either way (at most the field's width; ``dx_px`` the grid's step), the vectors with
     ``min_count`` samples or more on the flow side, events outside ``hole``."""
     p = an.profile
-    dist = np.asarray(p["dist_px"], np.float64)
     half_width = min(int(np.ceil(2.0 * max(heights_px) / dx_px)), acc.shape[1] - 1)
-    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
+    usable = an.flow_vectors(acc, min_count)
     with np.errstate(invalid="ignore"):
         return ConditionalAccumulator(
             acc.mean_u,
@@ -210,7 +209,7 @@ def conditional_profile(
             "the fluctuations are of the whole field (a speed drifting over the run, pairs of "
             "another pulse separation), not local structures"
         )
-    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
+    usable = an.flow_vectors(acc, min_count)
     n_typ = int(np.median(acc.count[usable])) if usable.any() else 0
     reach = (n_typ - 1) ** 2 / max(n_typ, 1)
     if q.hole > reach:

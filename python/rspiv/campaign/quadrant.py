@@ -99,8 +99,7 @@ def quadrant_accumulator(acc: Any, an: Any, min_count: int, holes) -> QuadrantAc
     vectors that may enter (rows on the flow side, at least ``min_count`` valid samples: the
     profiles' rule; ``min_count`` below 2 counts as 2)."""
     p = an.profile
-    dist = np.asarray(p["dist_px"], np.float64)
-    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
+    usable = an.flow_vectors(acc, min_count)
     with np.errstate(invalid="ignore"):
         return QuadrantAccumulator(
             acc.mean_u,
@@ -125,7 +124,7 @@ def quadrant_profile(
 
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
+    usable = an.flow_vectors(acc, min_count)
     r = q.results()
     keep = np.flatnonzero((dist > 0) & (r["count"] > 0))
     keep = keep[np.argsort(dist[keep])]

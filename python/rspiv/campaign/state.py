@@ -99,6 +99,13 @@ class RunAnalysis:
     result: Any
     error: str = ""
 
+    def flow_vectors(self, acc: Any, min_count: int) -> np.ndarray:
+        """The vectors the run's analyses use (the profiles' rule): on the flow side of the
+        wall (``profile["dist_px"] > 0``) with at least ``min_count`` (and 2) valid samples in
+        the run's FieldAccumulator ``acc``."""
+        dist = np.asarray(self.profile["dist_px"], np.float64)
+        return (acc.count >= max(int(min_count), 2)) & (dist > 0)[:, None]
+
 
 @dataclasses.dataclass
 class CampaignResult:

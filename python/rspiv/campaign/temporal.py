@@ -73,7 +73,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     dx_px = float(np.median(np.diff(x))) if x.size > 1 else 1.0
     images = cfg.images
     per_interval = images.pair_step / images.frame_gap  # px per pair -> px per pair interval
-    usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None]
+    usable = an.flow_vectors(acc, st.min_count)
     sign_x = float(p.get("sign_x", 1.0))
     ok_ref = usable[refs] & np.isfinite(acc.mean_u[refs])
     with np.errstate(invalid="ignore", divide="ignore"):

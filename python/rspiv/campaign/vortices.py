@@ -101,7 +101,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     t0 = time.perf_counter()
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    usable = (acc.count >= max(st.min_count, 2)) & (dist > 0)[:, None] & (va.swirl_count > 1)
+    usable = an.flow_vectors(acc, st.min_count) & (va.swirl_count > 1)
     orient = float(p.get("sign_x", 1.0)) * -float(p.get("sign_y", 1.0))
     reach = max(abs(k) for k in SCHEMES[va.scheme][0]) * va.dy
     near = dist < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1] + reach

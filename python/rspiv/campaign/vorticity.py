@@ -88,7 +88,7 @@ def vorticity_profile(acc: Any, an: Any, min_count: int, dt: float, window_h: fl
     va = acc.vorticity
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    usable = (acc.count >= max(min_count, 2)) & (dist > 0)[:, None]
+    usable = an.flow_vectors(acc, min_count)
     # a reflection of one axis flips the vorticity: the flow frame against the image's y-up
     orient = float(p.get("sign_x", 1.0)) * -float(p.get("sign_y", 1.0))
     rows = va.profile(usable, orient)
