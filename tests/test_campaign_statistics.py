@@ -683,7 +683,7 @@ def test_conditional_averages_of_a_whole_field_drift_are_said(processed, tmp_pat
     the run moves it) give conditional averages that do not decay away from their events: said
     in one line (log, file, summary), with the ratio per reference and kind."""
     import h5py
-    from rspiv.campaign.conditional import FAR_SHARE
+    from rspiv.campaign.conditional import FAR_SHARE, MIN_EVENTS
 
     prof = processed[2].analyses["method_II"].profile
     sx, sy = prof["sign_x"], prof["sign_y"]
@@ -704,10 +704,16 @@ def test_conditional_averages_of_a_whole_field_drift_are_said(processed, tmp_pat
     ratio = prof["far_ratio"][:, :2]  # the quadrant kinds (no vortex core centred there)
     assert np.all(ratio > 0.25) and (ratio > FAR_SHARE).sum() >= 2
     assert "do not decay away from their events" in prof["warning"]
+    decay = prof["warning"].split("do not decay")[1]
     for i, j in zip(*np.nonzero(ratio > FAR_SHARE), strict=True):
-        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m {ratio[i, j]:.2f}" in prof["warning"]
+        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m {ratio[i, j]:.2f}" in decay
     for i, j in zip(*np.nonzero(ratio <= FAR_SHARE), strict=True):
-        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m" not in prof["warning"]
+        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m" not in decay
+    # 3 pairs: 56-70 events per height and kind, said with their counts (MIN_EVENTS)
+    ev = prof["events"]
+    few = prof["warning"].split("few events to average")[1].split("fewer than")[0]
+    for i, j in zip(*np.nonzero((ev[:, :2] > 0) & (ev[:, :2] < MIN_EVENTS)), strict=True):
+        assert f"{('Q2', 'Q4')[j]} at {prof['y_ref'][i]:.4g} m {ev[i, j]}" in few
     assert any("WARNING" in m and "conditional averages" in m for m in said)
     assert "decay" not in res.conditional["uncorrected"].get("warning", "")
     assert np.all(np.abs(res.conditional["uncorrected"]["far_ratio"][:, :2]) < 0.5)

@@ -32,8 +32,8 @@ reference and kind; ``y`` the distance from the wall and ``dx`` the streamwise o
 (downstream positive), ``y_ref`` the reference heights. A report figure.
 
 Said in one line (log, file attribute, report): a pair whose field file is missing (left out);
-a reference height and kind without events (none outside the hole), a hole a short campaign
-cannot reach (the quadrant analysis's bound), and averages that do not decay away from their
+a reference height and kind without events (none outside the hole) or with fewer than
+:data:`MIN_EVENTS` (their noise), a hole a short campaign cannot reach (the quadrant analysis's bound), and averages that do not decay away from their
 events: where the mean ``u'`` at :data:`FAR` of the map's half width or farther exceeds
 :data:`FAR_SHARE` of the events' own (``far_ratio``), the fluctuations are of the whole field
 (OpenPIV's ``test14``, whose speed drifts by 35 % over its 33 pairs: 1.00-1.01), not local
@@ -57,6 +57,7 @@ from rspiv.errors import InvalidInputError
 __all__ = [
     "FAR",
     "FAR_SHARE",
+    "MIN_EVENTS",
     "conditional_accumulator",
     "conditional_dataset",
     "conditional_profile",
@@ -68,6 +69,10 @@ __all__ = [
 FAR = 0.75
 #: Said when the far part's mean u' exceeds this share of the events' own (no decay).
 FAR_SHARE = 0.5
+#: Said when a reference height and kind has fewer events (but some): where the structure has
+#: decayed an average of n events keeps about ``u_rms / sqrt(n)`` of noise (more where events
+#: share a field), a tenth of u_rms or more below 100 events: field-sized patches in the map.
+MIN_EVENTS = 100
 
 
 def conditional_accumulator(
@@ -182,6 +187,18 @@ def conditional_profile(
         said.append(
             f"no events (outside the hole H = {q.hole:g}, or vortex cores centred "
             f"there): {', '.join(empty)}"
+        )
+    few = [
+        f"{kinds[j]} at {prof['y_ref'][i]:.4g} {'m' if si else 'px'} {ev[i, j]}"
+        for i in range(ev.shape[0])
+        for j in range(ev.shape[1])
+        if 0 < ev[i, j] < MIN_EVENTS
+    ]
+    if few:
+        said.append(
+            f"few events to average ({', '.join(few)}; fewer than {MIN_EVENTS}): away from "
+            "the events their noise, about u_rms / sqrt(events), shows as patches; the "
+            "resolved flags say where the averages stand out of it"
         )
     # a local structure decays away from its event; fluctuations of the whole field do not
     far = np.abs(prof["dx_px"]) >= FAR * np.abs(prof["dx_px"]).max()
