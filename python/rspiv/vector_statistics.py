@@ -31,10 +31,10 @@ DaVis buffer, in its own order):
    ``tests/test_vector_statistics.py``, tilted 0.3 degree, the median error of uu+ went from
    0.000 to -0.001 levelled so, -0.094 with bilinear sampling: with rows 16 px apart a tilt
    that small mixes little). A wall that rises more than half a row across the field is said;
-   ``level=True`` rotates the fields anyway. On rows 16 px apart
-   :func:`rspiv.find_wall` places the wall with an error that follows the wall's position
-   between two rows (-1.4 to +2.0 px along the tilted wall above, a constant -1.1 px on the
-   level one, which the composite fit's offset takes up): it read that tilt as 0.41 degree.
+   ``level=True`` rotates the fields anyway. On rows 16 px apart :func:`rspiv.find_wall`'s
+   joint fit places the wall within 0.10 px along the tilted wall above and reads its tilt as
+   0.2975 degree (resampling the profile about its mirror, as before, erred by -1.4 to +2.0 px
+   with the wall's place between rows, -1.1 px on a level wall, and read 0.41 degree).
 4. Units: the magnification from the calibration, else the files' scale (DaVis) or
    ``mm_per_px``; the pulse separation from the files (DaVis) or ``dt``. Without both the
    statistics are in px per pair and no wall units are derived (said).
@@ -42,7 +42,8 @@ DaVis buffer, in its own order):
    campaign gives it (:mod:`rspiv.vector_structures`): the streamwise spectra and two-point
    correlations per row, summed beside the statistics (with their maps, in the second pass),
    and the quadrant analysis and the conditional averages, a second pass over the files once
-   each vector's mean and the wall are known.
+   each vector's mean and the wall are known; with ``pod``, the snapshot POD of the
+   fluctuations, one more reading of the fields it takes.
 
 Refused in one line (:class:`rspiv.errors.InvalidInputError`): no field could be used (with the
 first file's reason), a wall the mean profile does not show (:func:`rspiv.find_wall`'s
@@ -73,8 +74,6 @@ from typing import Any
 import numpy as np
 
 from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
-from rspiv.campaign.conditional import conditional_accumulator
-from rspiv.campaign.quadrant import quadrant_accumulator
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
 from rspiv.campaign.vorticity import vorticity_dataset, vorticity_profile
@@ -101,12 +100,10 @@ from rspiv.vector_reduction import (
     series_entries,
 )
 from rspiv.vector_structures import (
-    conditional_result,
-    map_rows_of,
-    quadrant_result,
-    second_pass,
+    STRUCTURES,
+    structure_options,
+    structures,
     two_point_columns,
-    two_point_result,
     write_structures,
 )
 from rspiv.vorticity import VorticityAccumulator
@@ -152,13 +149,13 @@ class VectorStatistics:
     vorticity : dict or None
         The vorticity statistics per row (with ``vorticity=``; their keys:
         :func:`rspiv.campaign.vorticity.vorticity_profile`).
-    two_point, quadrant, conditional : dict or None
-        The spectra and two-point correlations per row, the quadrant analysis and the
-        conditional averages (with ``two_point=``, ``quadrant=``, ``conditional=``; their
-        keys: :func:`rspiv.campaign.two_point.two_point_profile`,
-        :func:`rspiv.campaign.quadrant.quadrant_profile`,
-        :func:`rspiv.campaign.conditional.conditional_profile`;
-        :mod:`rspiv.vector_structures`).
+    two_point, quadrant, conditional, pod : dict or None
+        The spectra and two-point correlations per row, the quadrant analysis, the
+        conditional averages and the POD (with ``two_point=``, ``quadrant=``,
+        ``conditional=``, ``pod=``; their keys: :func:`rspiv.campaign.two_point.
+        two_point_profile`, :func:`rspiv.campaign.quadrant.quadrant_profile`,
+        :func:`rspiv.campaign.conditional.conditional_profile`,
+        :func:`rspiv.campaign.pod.pod_profile`; :mod:`rspiv.vector_structures`).
     seconds : float
         The reduction's wall time.
     """
@@ -181,6 +178,7 @@ class VectorStatistics:
     two_point: dict[str, Any] | None = None
     quadrant: dict[str, Any] | None = None
     conditional: dict[str, Any] | None = None
+    pod: dict[str, Any] | None = None
     seconds: float = 0.0
 
     def screened(self) -> dict[str, Any] | None:
@@ -227,6 +225,7 @@ class VectorStatistics:
             "conditional_events": None
             if self.conditional is None
             else self.conditional["events"].tolist(),
+            "pod_fraction": None if self.pod is None else self.pod["fraction"].tolist(),
             "flow_side": an.flow_side,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
@@ -286,6 +285,12 @@ class VectorStatistics:
                 f"conditional averages: {int(ev[:, 0].sum())} ejections, {int(ev[:, 1].sum())} "
                 f"sweeps at {ev.shape[0]} heights, {self.conditional['pairs']} fields"
             )
+        if self.pod is not None:
+            fr = self.pod["fraction"]
+            lines.append(
+                f"POD: {self.pod['pairs']} fields over {self.pod['vectors']} vectors, the first "
+                f"mode {100 * fr[0]:.1f} %, the first {fr.size} {100 * fr.sum():.1f} %"
+            )
         lines += [f"WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -312,8 +317,8 @@ class VectorStatistics:
         if self.vorticity is not None:
             ds = vorticity_dataset(self.vorticity, self.analysis.run)
             files["vorticity"] = write_netcdf(ds, out / "vorticity.nc")
-        run, extra = self.analysis.run, ("two_point", "quadrant", "conditional")
-        files.update(write_structures(out, run, {k: getattr(self, k) for k in extra}, figures))
+        run = self.analysis.run
+        files.update(write_structures(out, run, {k: getattr(self, k) for k in STRUCTURES}, figures))
         files["summary"] = atomic_write_text(
             out / "summary.json", json.dumps(self.summary(), indent=1, default=json_default)
         )
@@ -351,6 +356,9 @@ def vector_statistics(
     quadrant: bool | Sequence[float] = False,
     conditional: bool | Sequence[float] = False,
     conditional_hole: float = 1.0,
+    pod: bool | int = False,
+    pod_modes: int = 10,
+    pod_height: float = 0.0,
     window: tuple[int, int] | None = None,
     read_options: dict[str, Any] | None = None,
     out_dir: str | os.PathLike | None = None,
@@ -415,6 +423,10 @@ def vector_statistics(
         ``[statistics] conditional``), in the second pass: True (events at 0.15 and 0.4
         delta_99 from the wall), or the heights in delta_99; events with ``|u'v'| >=
         conditional_hole u_rms v_rms``.
+    pod, pod_modes, pod_height : bool or int, int, float
+        The snapshot POD (a campaign's ``[statistics] pod``, :func:`rspiv.vector_structures.
+        pod_pass`): True (at most 1000 fields, spread evenly) or the fields at most; the modes
+        kept; the domain up to ``pod_height`` delta_99 from the wall (0: the flow side).
     window : (w, h), optional
         The final window where the files do not say (else twice the grid's spacing, said).
     read_options : dict, optional
@@ -455,28 +467,8 @@ def vector_statistics(
         )
     if level not in ("auto", True, False):
         raise InvalidInputError(f"statistics: level {level!r}: auto, True or False")
-    tp_min = (0.9 if two_point is True else float(two_point)) if two_point is not False else None
-    if tp_min is not None and not 0 < tp_min <= 1:
-        raise InvalidInputError(f"statistics: two_point = {two_point}: True or a share in (0, 1]")
-    maps = None if two_point_maps is None else tuple(float(h) for h in two_point_maps)
-    if maps is not None and (tp_min is None or not maps or not all(h > 0 for h in maps)):
-        raise InvalidInputError(
-            f"statistics: two_point_maps {two_point_maps}: positive heights in delta_99, with "
-            "two_point"
-        )
-    cond = None if conditional is False else (0.15, 0.4) if conditional is True else conditional
-    if cond is not None and (not len(cond) or not all(float(h) > 0 for h in cond)):
-        raise InvalidInputError(f"statistics: conditional {conditional}: heights in delta_99")
-    if not (np.isfinite(conditional_hole) and conditional_hole >= 0):
-        raise InvalidInputError(f"statistics: conditional_hole = {conditional_hole}: >= 0")
-    holes = None if quadrant is False else (0.0, 1.0, 2.0, 4.0) if quadrant is True else quadrant
-    if holes is not None:
-        h = np.asarray(holes, np.float64).ravel()
-        if h.size == 0 or not np.all(np.isfinite(h)) or h[0] < 0 or np.any(np.diff(h) <= 0):
-            raise InvalidInputError(
-                f"statistics: quadrant holes {list(holes)} must be increasing numbers >= 0"
-            )
-        holes = tuple(float(x) for x in h)
+    so = structure_options(two_point, two_point_maps, quadrant, conditional, conditional_hole,
+                           pod, pod_modes, pod_height)  # fmt: skip
     entries = series_entries(files)
     opts = dict(read_options or {})
     # the first readable field fixes the series
@@ -541,9 +533,9 @@ def vector_statistics(
     }  # fmt: skip
     if levelled is not False:
         settings.update(pilot=pilot, wall=wall, stations=stations, min_count=min_count)
-    if tp_min is not None:
-        settings["two_point"] = tp_min
-    if maps is not None:  # the two-point sums move to the second pass
+    if so.two_point is not None:
+        settings["two_point"] = so.two_point
+    if so.maps is not None:  # the two-point sums move to the second pass
         settings["two_point_pass"] = 2
     ck_path = None if out_dir is None else pathlib.Path(out_dir) / "checkpoint.pkl"
     key = fingerprint(settings)
@@ -567,18 +559,17 @@ def vector_statistics(
         base = calibration.mapping.rotated(state["rotation"])
     transform = _transform(base, calibration is not None or state["rotation"] != 0.0, mapping)
     acc = state["acc"]
-    if state["done"] == 0 and (screen > 0 or tp_min is not None):
+    if state["done"] == 0 and (screen > 0 or so.two_point is not None):
         pilots, used = pilot_fields(entries, opts, red, transform, pilot)
         if screen > 0:
             state["bounds"] = _screen(pilots, used, float(screen), state["warnings"])
             if state["bounds"] is not None:
                 acc.screen = ScreenTally(acc.shape)
-        if tp_min is not None:
-            state["columns"] = two_point_columns(pilots, tp_min)
-            if maps is None:
-                acc.two_point = TwoPointAccumulator(acc.shape, state["columns"], tp_min)
-    second = holes is not None or maps is not None or cond is not None
-    n_all = len(entries) * (2 if second else 1)  # the second pass counts
+        if so.two_point is not None:
+            state["columns"] = two_point_columns(pilots, so.two_point)
+            if so.maps is None:
+                acc.two_point = TwoPointAccumulator(acc.shape, state["columns"], so.two_point)
+    n_all = len(entries) * (2 if so.second else 1)  # the second pass counts (not the POD's)
     for k in range(state["done"], len(entries)):
         e = entries[k]
         try:
@@ -645,53 +636,16 @@ def vector_statistics(
     vort = None
     if acc.vorticity is not None:
         vort = vorticity_profile(acc, an, min_count, pulse or 0.0, window[1])
-    parts: dict[str, Any] = {}  # the second pass's accumulators
-    if holes is not None:
-        parts["quadrant"] = quadrant_accumulator(acc, an, min_count, holes)
-    dx_px = abs(float(xs[1] - xs[0]))
-    if cond is not None:
-        rows, said = map_rows_of(an, cond, window[1], "conditional averages")
-        warnings += said
-        if rows is not None:
-            parts["conditional"] = conditional_accumulator(
-                acc, an, rows[0], rows[1], rows[2], dx_px, min_count, conditional_hole
-            )
-    if maps is not None:
-        rows, said = map_rows_of(an, maps, window[1], "two-point maps")
-        warnings += said
-        band, refs = rows[:2] if rows is not None else (None, ())
-        cols = state.get("columns")
-        parts["two_point"] = TwoPointAccumulator(acc.shape, cols, tp_min, band, refs)
-    if parts:
 
-        def save() -> None:
-            if ck_path is not None:
-                save_checkpoint(ck_path, key, entries, state)
+    def save() -> None:
+        if ck_path is not None:
+            save_checkpoint(ck_path, key, entries, state)
 
-        parts, lost = second_pass(
-            parts, entries, opts, red, transform, state["bounds"], state, save,
-            checkpoint_every, progress,
-        )  # fmt: skip
-        save()
-        if lost:
-            warnings.append(
-                f"{len(lost)} field(s) read in the first pass failed in the second and are not "
-                f"in its analyses ({', '.join(sorted(parts))}: their fields are about the means "
-                f"of all {acc.n_fields}); the first {lost[0]}"
-            )
-    tp_prof = qd_prof = cd_prof = None
-    tp = parts.get("two_point", acc.two_point)
-    if tp is not None:
-        tp_prof, said = two_point_result(tp, an, window, dx_px)
-        warnings += said
-    if "conditional" in parts:
-        cd_prof, said = conditional_result(
-            parts["conditional"], acc, an, dx_px, window, min_count
-        )
-        warnings += said
-    if "quadrant" in parts:
-        qd_prof, said = quadrant_result(parts["quadrant"], acc, an, min_count, window)
-        warnings += said
+    passes = {"entries": entries, "options": opts, "reducer": red, "transform": transform,
+              "bounds": state["bounds"], "state": state, "save": save,
+              "every": checkpoint_every, "progress": progress}  # fmt: skip
+    found, said = structures(so, acc, an, window, xs, min_count, passes)
+    warnings += said
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)
     if an.result is None:
@@ -700,7 +654,7 @@ def vector_statistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
         (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking, vort,
-        tp_prof, qd_prof, cd_prof, time.perf_counter() - t_start,
+        *(found[k] for k in STRUCTURES), time.perf_counter() - t_start,
     )  # fmt: skip
 
 

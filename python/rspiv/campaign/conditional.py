@@ -31,13 +31,14 @@ units, their standard errors ``u_se``, ``v_se`` (8 batch means of contiguous pai
 reference and kind; ``y`` the distance from the wall and ``dx`` the streamwise offset
 (downstream positive), ``y_ref`` the reference heights. A report figure.
 
-Said in one line (log, file attribute, report): a pair whose field file is missing (left out);
-a reference height and kind without events (none outside the hole) or with fewer than
-:data:`MIN_EVENTS` (their noise), a hole a short campaign cannot reach (the quadrant analysis's bound), and averages that do not decay away from their
-events: where the mean ``u'`` at :data:`FAR` of the map's half width or farther exceeds
-:data:`FAR_SHARE` of the events' own (``far_ratio``), the fluctuations are of the whole field
-(OpenPIV's ``test14``, whose speed drifts by 35 % over its 33 pairs: 1.00-1.01), not local
-structures (the demo's layer: -0.04 to -0.01).
+Said in one line (log, file attribute, report): a pair whose field file is missing (left out); a
+reference height and kind without events (none outside the hole) or with fewer than
+:data:`MIN_EVENTS` (their noise), a hole a short campaign cannot reach (the quadrant analysis's
+bound), and averages that do not decay away from their events: where the mean ``u'`` at
+:data:`FAR` of the map's half width or farther exceeds :data:`FAR_SHARE` of the events' own
+(``far_ratio``), the fluctuations are of the whole field (OpenPIV's ``test14``, whose speed
+drifts by 35 % over its 33 pairs: 1.00-1.01), not local structures (the demo's layer: -0.04 to
+-0.01).
 """
 
 from __future__ import annotations

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import pathlib
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -56,7 +57,11 @@ from rspiv.pod import PodBuilder
 __all__ = [
     "BLOCK_BYTES",
     "decompose",
+    "decompose_with",
+    "domain_of",
     "flow_domain",
+    "pod_dataset",
+    "pod_profile",
     "report_section",
     "select_snapshots",
     "write_outputs",
@@ -88,9 +93,28 @@ def decompose(
     ``builder``: the inner products by blocks of rows, :meth:`~rspiv.pod.PodBuilder.solve`,
     then the modes (module docstring)."""
     shape = builder.shape
+
+    def read(i: int, rows: slice | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return read_field(paths[i], shape, run, rows, screen=screen)
+
+    decompose_with(builder, read, n_modes, n_eff, block_bytes)
+
+
+def decompose_with(
+    builder: PodBuilder,
+    read: Callable[[int, slice | None], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    n_modes: int,
+    n_eff: float | None = None,
+    block_bytes: int = BLOCK_BYTES,
+) -> None:
+    """:func:`decompose` of the builder's ``n`` snapshots read by ``read(i, rows)``: snapshot
+    ``i``'s ``(u, v, valid)`` over the rows ``rows`` (a slice; None: every row), in the
+    accumulator's units and axes. Each snapshot is read once per block of rows and once more
+    for the modes, once in all when the domain fits one block."""
+    shape = builder.shape
     rows = np.flatnonzero(builder.domain.any(axis=1))
     r_lo, r_hi = int(rows[0]), int(rows[-1]) + 1
-    n = len(paths)
+    n = builder.n
     per = max(1, int(block_bytes // max(n * shape[1] * 16, 1)))
     blocks = [slice(r, min(r + per, r_hi)) for r in range(r_lo, r_hi, per)]
     held = None
@@ -99,8 +123,8 @@ def decompose(
         u = np.empty((n, m, shape[1]), np.float32)
         v = np.empty_like(u)
         ok = np.empty(u.shape, np.uint8)
-        for i, path in enumerate(paths):
-            u[i], v[i], ok[i] = read_field(path, shape, run, blk, screen=screen)
+        for i in range(n):
+            u[i], v[i], ok[i] = read(i, blk)
         builder.add_rows(blk, u, v, ok)
         if len(blocks) == 1:
             held = (u, v, ok)
@@ -114,40 +138,104 @@ def decompose(
             fu[r_lo:r_hi], fv[r_lo:r_hi], fok[r_lo:r_hi] = u[i], v[i], ok[i]
             builder.add_snapshot(i, fu, fv, fok)
         return
-    for i, path in enumerate(paths):
-        u, v, ok = read_field(path, shape, run, screen=screen)
+    for i in range(n):
+        u, v, ok = read(i, None)
         builder.add_snapshot(i, u, v, ok)
 
 
 def flow_domain(camp: Any, res: Any, an: Any, acc: Any, height: float, key: str) -> np.ndarray:
-    """The vectors a decomposition of the run's fields takes (module docstring, Domain): on
-    the flow side, outside the rows the wall shapes, with at least ``[statistics] min_count``
-    valid samples, up to ``height`` delta_99 from the wall when it is positive (``key`` names
-    the setting in the refusal).
+    """The vectors a decomposition of the run's fields takes (:func:`domain_of` with the run's
+    final window and ``[statistics] min_count``)."""
+    st = camp.config.statistics
+    return domain_of(an, acc, res.context.piv.final_window[1], st.min_count, height, key)
+
+
+def domain_of(
+    an: Any, acc: Any, window_height: float, min_count: int, height: float, key: str
+) -> np.ndarray:
+    """The vectors a decomposition of a run's (or a series') fields takes (module docstring,
+    Domain): on the flow side, outside the rows the wall shapes (``NEAR_WALL_HEIGHTS`` times
+    ``window_height`` px), with at least ``min_count`` (and 2) valid samples, up to ``height``
+    delta_99 from the wall when it is positive (``key`` names the setting in the refusal).
 
     Raises
     ------
     InvalidInputError
-        ``height`` set without the run's boundary-layer fit; no vector left.
+        ``height`` set without the boundary-layer fit; no vector left.
     """
     from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
 
     p = an.profile
     dist = np.asarray(p["dist_px"], np.float64)
-    near = dist < NEAR_WALL_HEIGHTS * res.context.piv.final_window[1]
+    near = dist < NEAR_WALL_HEIGHTS * window_height
     rows_in = (dist > 0) & ~near
     res_bl = an.result
     if height > 0:
         if res_bl is None or not p.get("si") or not np.isfinite(res_bl.delta99):
             raise InvalidInputError(
-                f"{key} = {height:g} delta_99 needs the run's boundary-layer fit "
-                "(a calibration and [flow] dt), which it has not"
+                f"{key} = {height:g} delta_99 needs the boundary-layer fit (a scale and a "
+                "pulse separation: a campaign's calibration and [flow] dt), which it has not"
             )
         rows_in &= dist * p["m_per_px"] <= height * res_bl.delta99
-    domain = (acc.count >= max(camp.config.statistics.min_count, 2)) & rows_in[:, None]
+    domain = (acc.count >= max(min_count, 2)) & rows_in[:, None]
     if not domain.any():
         raise InvalidInputError(f"no vector off the wall has enough valid samples ({key})")
     return domain
+
+
+def pod_profile(
+    r: Any, an: Any, domain: np.ndarray, x_px: np.ndarray, ids: list, seconds: float
+) -> tuple[dict[str, Any], list[str]]:
+    """The POD result ``r`` (:meth:`rspiv.pod.PodBuilder.result`) of the snapshots ``ids`` over
+    ``domain`` in the analysis' units (module docstring's variables; rows by distance from the
+    wall), and what must be said of it (samples filled, no mode separated)."""
+    p = an.profile
+    dist = np.asarray(p["dist_px"], np.float64)
+    si = bool(p.get("si"))
+    m = p["m_per_px"] if si else 1.0
+    keep = np.flatnonzero(domain.any(axis=1))
+    keep = keep[np.argsort(dist[keep])]
+    k = float(p.get("k", 1.0))
+    prof: dict[str, Any] = {
+        "y": dist[keep] * m,
+        "dist_px": dist[keep],
+        "rows": keep,
+        "x": np.asarray(x_px, np.float64) * m,
+        "energy": r.energy * k * k,
+        "total": r.total * k * k,
+        "fraction": r.fraction,
+        "cumulative": r.cumulative,
+        "north": r.north * k * k,
+        "separated": r.separated,
+        "phi_u": r.modes_u[:, keep],
+        "phi_v": r.modes_v[:, keep],
+        "coefficient": r.coefficients * k,
+        "pair_ids": np.asarray(ids),
+        "gaps": r.gaps,
+        "n_eff": r.n_eff,
+        "vectors": int(domain.sum()),
+        "k": k,  # the velocity unit's factor from px per pair (1 without SI units)
+        "si": si,
+        "pairs": len(ids),
+        "seconds": seconds,
+    }
+    res_bl = an.result
+    if res_bl is not None and si:
+        prof["y_plus"] = prof["y"] / (res_bl.nu / res_bl.u_tau)
+        prof["delta_99"] = float(res_bl.delta99)
+    said = []
+    if r.gaps > 0.05:
+        said.append(
+            f"{100 * r.gaps:.1f} % of the domain's samples were rejected vectors filled with "
+            "their mean: the energies read low by about as much"
+        )
+    if not r.separated.any():
+        said.append(
+            f"no mode kept is separated from its neighbours (North's rule with {r.n_eff:.0f} "
+            "independent snapshots): the spectrum is flat within its sampling error and no "
+            "mode's shape is determined by these snapshots"
+        )
+    return prof, said
 
 
 def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] | None:
@@ -161,10 +249,6 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         raise InvalidInputError("the accumulator holds no pair ids to read the fields of")
     t0 = time.perf_counter()
     p = an.profile
-    dist = np.asarray(p["dist_px"], np.float64)
-    si = bool(p.get("si"))
-    m = p["m_per_px"] if si else 1.0
-    res_bl = an.result
     domain = flow_domain(camp, res, an, acc, st.pod_height, "pod_height")
     writer = camp.field_writer()
     chosen = select_snapshots(acc.pair_ids, st.pod_snapshots)
@@ -184,38 +268,9 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     screen = res.context.screens().get(run.name)
     decompose(builder, [paths[i] for i in ids], run.name, st.pod_modes, n_eff, screen=screen)
     r = builder.result(ids)
-    keep = np.flatnonzero(domain.any(axis=1))
-    keep = keep[np.argsort(dist[keep])]
-    k = float(p.get("k", 1.0))
-    x = grid_x(paths[ids[0]])
-    sep = r.separated
-    prof: dict[str, Any] = {
-        "y": dist[keep] * m,
-        "dist_px": dist[keep],
-        "rows": keep,
-        "x": x * m,
-        "energy": r.energy * k * k,
-        "total": r.total * k * k,
-        "fraction": r.fraction,
-        "cumulative": r.cumulative,
-        "north": r.north * k * k,
-        "separated": sep,
-        "phi_u": r.modes_u[:, keep],
-        "phi_v": r.modes_v[:, keep],
-        "coefficient": r.coefficients * k,
-        "pair_ids": np.asarray(ids),
-        "gaps": r.gaps,
-        "n_eff": r.n_eff,
-        "vectors": int(domain.sum()),
-        "k": k,  # the velocity unit's factor from px per pair (1 without SI units)
-        "si": si,
-        "pairs": len(ids),
-        "missing": missing,
-        "seconds": time.perf_counter() - t0,
-    }
-    if res_bl is not None and si:
-        prof["y_plus"] = prof["y"] / (res_bl.nu / res_bl.u_tau)
-        prof["delta_99"] = float(res_bl.delta99)
+    prof, found = pod_profile(r, an, domain, grid_x(paths[ids[0]]), ids, 0.0)
+    prof["missing"] = missing
+    prof["seconds"] = time.perf_counter() - t0
     camp.say(
         f"{run.label}: POD of {len(ids)} pairs' fields over {prof['vectors']} vectors: the first "
         f"mode holds {100 * r.fraction[0]:.1f} %, the first {r.n_modes} "
@@ -227,21 +282,12 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
             f"{len(missing)} of {len(chosen)} pairs chosen have no field file (first: pair "
             f"{missing[0]}): the POD holds {len(ids)} snapshots"
         )
-    if r.gaps > 0.05:
-        said.append(
-            f"{100 * r.gaps:.1f} % of the domain's samples were rejected vectors filled with "
-            "their mean: the energies read low by about as much"
-        )
-    if not sep.any():
-        said.append(
-            f"no mode kept is separated from its neighbours (North's rule with {r.n_eff:.0f} "
-            "independent snapshots): the spectrum is flat within its sampling error and no "
-            "mode's shape is determined by these snapshots"
-        )
-    return finish_pass(camp, res, run, prof, said, "pod", "POD", _dataset)
+    said += found
+    return finish_pass(camp, res, run, prof, said, "pod", "POD", pod_dataset)
 
 
-def _dataset(prof: dict, run: RunSpec) -> Any:
+def pod_dataset(prof: dict, run: RunSpec) -> Any:
+    """``pod_<run>.nc`` of ``prof`` (:func:`pod_profile`; module docstring's variables)."""
     import xarray as xr
 
     length = "m" if prof["si"] else "pix"

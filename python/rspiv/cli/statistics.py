@@ -17,8 +17,10 @@ atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` 
 ``--quadrant`` ``quadrant.nc`` (the quadrant analysis of u'v', a second pass over the files;
 :mod:`rspiv.vector_structures`), with ``--conditional 0.15,0.4`` ``conditional.nc`` (the
 conditional averages of u', v' about ejections and sweeps at those heights in delta_99, in the
-second pass) and, with ``--figures``, the profiles against the DNS, the spectra, the quadrant
-shares and the conditional averages. A stopped run started again with the same files
+second pass), with ``--pod [N]`` ``pod.nc`` (the snapshot POD of at most N fields, 1000, spread
+over the series; ``--pod-modes``, ``--pod-height``) and, with ``--figures``, the profiles
+against the DNS, the spectra, the quadrant shares, the conditional averages and the POD's
+energies and modes. A stopped run started again with the same files
 and options resumes from ``OUT/checkpoint.pkl``. Warnings go to stderr as well; a series
 without a usable field or a wall rspiv cannot see is refused in one line (exit 2).
 """
@@ -99,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
             quadrant=_numbers(args.quadrant, "--quadrant", "hole sizes, e.g. 0,1,2,4") or False,
             conditional=_numbers(args.conditional, "--conditional", _HEIGHTS) or False,
             conditional_hole=args.conditional_hole,
-            window=_window(args.window),
+            pod=False if args.pod is None else args.pod, pod_modes=args.pod_modes,
+            pod_height=args.pod_height, window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
             out_dir=args.output, progress=bar,
         )  # fmt: skip
@@ -157,6 +160,11 @@ def register(sub) -> None:
                    "at these heights in delta_99 (0.15,0.4), a second pass")  # fmt: skip
     p.add_argument("--conditional-hole", type=float, default=1.0,
                    help="events with |u'v'| >= this times u_rms v_rms (1.0)")  # fmt: skip
+    p.add_argument("--pod", nargs="?", const=1000, default=None, type=int, metavar="N",
+                   help="snapshot POD of at most N fields spread over the series (1000)")
+    p.add_argument("--pod-modes", type=int, default=10, help="with --pod: modes kept (10)")
+    p.add_argument("--pod-height", type=float, default=0.0,
+                   help="with --pod: the domain's top in delta_99 (0: the flow side)")
     p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
     p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
     p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
