@@ -18,6 +18,12 @@ real FFT of u and v summed (transforms and their products), and a second reading
 whose fluctuations about the first pass's means are sorted into quadrants (``np.bincount`` per
 row and quadrant).
 
+With ``--pod`` it also times the statistics with the snapshot POD (``pod=True``: every field
+decomposed, 10 modes; the screen off, as the floor has none), beside numpy's floor: the first
+pass's means, a second reading of every file into one matrix of fluctuations (float64, the flow
+side off the wall), its inner products ``X X^T``, ``np.linalg.eigh`` and the 10 leading modes
+``X^T a``.
+
 With ``--tool insight`` the same fields are TSI Insight ``.vec`` text files (mm, m/s; 8.5 MB
 each) and the floor is numpy's ``loadtxt`` of each file with the same sums.
 
@@ -25,6 +31,7 @@ Usage::
 
     python benches/bench_vector_statistics.py [--fields 200] [--workdir /tmp/rspiv-vstat]
                                               [--tool davis|insight] [--structures]
+                                              [--pod]
 
 Prints a Markdown table (fields per second, the ratio to the floor, peak memory) for
 ``benches/RESULTS.md``.
@@ -134,12 +141,37 @@ def _floor_structures(files: list[pathlib.Path], tool: str) -> float:
     return time.perf_counter() - t0
 
 
+def _floor_pod(files: list[pathlib.Path], tool: str, rows: np.ndarray) -> float:
+    """numpy's floor for the snapshot POD over the grid rows ``rows`` (module docstring)."""
+    read = _read_davis if tool == "davis" else _read_text
+    t0 = time.perf_counter()
+    n = mu = mv = None
+    for f in files:
+        u, v, ok = read(f)
+        if n is None:
+            n, mu, mv = np.zeros(u.shape), np.zeros(u.shape), np.zeros(u.shape)
+        n += ok
+        mu += np.where(ok, u - mu, 0.0) / np.maximum(n, 1)
+        mv += np.where(ok, v - mv, 0.0) / np.maximum(n, 1)
+    x = np.empty((len(files), 2 * rows.size * mu.shape[1]))
+    for i, f in enumerate(files):
+        u, v, ok = read(f)
+        du = np.where(ok, u - mu, 0.0)[rows].ravel()
+        dv = np.where(ok, v - mv, 0.0)[rows].ravel()
+        x[i] = np.concatenate([du, dv])
+    lam, a = np.linalg.eigh(x @ x.T / len(files))
+    modes = x.T @ a[:, ::-1][:, :10]
+    assert modes.shape[1] == min(10, len(files)) and lam[-1] > 0
+    return time.perf_counter() - t0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fields", type=int, default=200)
     ap.add_argument("--workdir", default="/tmp/rspiv-vstat")
     ap.add_argument("--tool", choices=("davis", "insight"), default="davis")
     ap.add_argument("--structures", action="store_true", help="also two-point and quadrant")
+    ap.add_argument("--pod", action="store_true", help="also the snapshot POD")
     args = ap.parse_args()
     from rspiv.synth.tbl import TBLFlow
     from rspiv.vector_statistics import vector_statistics
@@ -180,6 +212,23 @@ def main() -> int:
             f"| {both / floor2:.2f} |"
         )
         print(f"two-point rows {st.two_point['y'].size}, quadrant rows {st.quadrant['y'].size}")
+    if args.pod:
+        t0 = time.perf_counter()
+        pr = vector_statistics(files, nu=TBLFlow().nu, pod=True, screen=0)
+        with_pod = time.perf_counter() - t0
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        floor3 = _floor_pod(files, args.tool, np.unique(pr.pod["rows"]))
+        n = len(files)
+        print(
+            f"| {reader} + numpy, means + a second reading into X, X X^T, eigh, 10 modes "
+            f"(floor) | {floor3:.2f} | {n / floor3:.1f} | 1 |"
+        )
+        print(
+            f"| rspiv.vector_statistics, pod (10 modes), screen off | {with_pod:.2f} | "
+            f"{n / with_pod:.1f} | {with_pod / floor3:.2f} |"
+        )
+        print(f"POD over {pr.pod['vectors']} vectors, {pr.pod['pairs']} fields: the first mode "
+              f"{100 * pr.pod['fraction'][0]:.2f} %")  # fmt: skip
     print(f"peak RSS {peak:.0f} MB")
     return 0
 
