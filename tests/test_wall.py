@@ -218,3 +218,24 @@ def test_the_joint_fit_on_rows_16_px_apart(window):
     assert np.max(np.abs(near)) < (0.06 if window == 0 else 0.25)
     with pytest.raises(InvalidInputError, match="fit must be"):
         mirror_shift_positions(prof, fit="spline")
+
+
+def test_the_joint_fits_basis_is_scipys_and_rspiv_leaves_scipy_interpolate_alone():
+    """``rspiv.wall.bspline_basis`` is scipy's ``BSpline.design_matrix`` (to rounding), written
+    in rspiv because importing ``scipy.interpolate`` made a 47 MP campaign's pair loop hold
+    1 GB more (``benches/RESULTS.md``): ``import rspiv`` must not import it."""
+    import subprocess
+    import sys
+
+    from rspiv.wall import _distance_knots, bspline_basis
+    from scipy.interpolate import BSpline
+
+    rng = np.random.default_rng(0)
+    for reach in (5.3, 40.7, 700.2):
+        t = _distance_knots(reach)
+        x = np.r_[0.0, rng.uniform(0, reach, 300), reach, t[5], t[9]]
+        got = bspline_basis(x, t)
+        np.testing.assert_allclose(got, BSpline.design_matrix(x, t, 3).toarray(), atol=1e-14)
+        np.testing.assert_allclose(got.sum(axis=1), 1.0, atol=1e-14)
+    code = "import sys, rspiv; sys.exit('scipy.interpolate' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

@@ -32,9 +32,11 @@ DaVis buffer, in its own order):
    0.000 to -0.001 levelled so, -0.094 with bilinear sampling: with rows 16 px apart a tilt
    that small mixes little). A wall that rises more than half a row across the field is said;
    ``level=True`` rotates the fields anyway. On rows 16 px apart :func:`rspiv.find_wall`'s
-   joint fit places the wall within 0.10 px along the tilted wall above and reads its tilt as
-   0.2975 degree (resampling the profile about its mirror, as before, erred by -1.4 to +2.0 px
-   with the wall's place between rows, -1.1 px on a level wall, and read 0.41 degree).
+   joint fit places the wall within 0.10 px along the tilted wall above (10 fields, 4 rows of
+   reflection in the band) and reads its tilt as 0.2975 degree; levelled from 30 pilot fields
+   whose band holds 2 rows of reflection, 0.337 degree (resampling the profile about its
+   mirror erred by -1.4 to +2.0 px with the wall's place between rows, -1.1 px on a level
+   wall, and read 0.404 and 0.415 degree).
 4. Units: the magnification from the calibration, else the files' scale (DaVis) or
    ``mm_per_px``; the pulse separation from the files (DaVis) or ``dt``. Without both the
    statistics are in px per pair and no wall units are derived (said).
