@@ -127,6 +127,29 @@ class SeriesReducer:
             return vf.u, vf.v, valid
         return screen_work.apply(bounds, vf.u, vf.v, valid, tally, pair_id)
 
+    def again(
+        self,
+        entry: Any,
+        options: dict[str, Any],
+        transform: Callable[[VectorFile], VectorFile],
+        bounds: Any,
+        pair_id: int,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(u, v, valid)`` of a field read again after the first pass (the second pass, the
+        POD): read, checked, corrected by ``transform`` and screened by ``bounds`` as the
+        statistics took it (:meth:`vectors`, nothing counted).
+
+        Raises
+        ------
+        RspivError
+            The file no longer reads, or the field no longer joins the series (:meth:`check`).
+        """
+        vf = read_entry(entry, options)
+        why = self.check(vf)
+        if why:
+            raise InvalidInputError(why)
+        return self.vectors(transform(vf), bounds, None, pair_id)
+
     @classmethod
     def add(cls, acc: FieldAccumulator, vf: VectorFile, pair_id: int, bounds: Any = None) -> None:
         """Add a field's valid vectors, those the screen ``bounds`` leaves out excepted (counted

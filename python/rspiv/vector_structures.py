@@ -80,7 +80,7 @@ from rspiv.outputs import write_netcdf
 from rspiv.pod import PodBuilder
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vector_files import VectorFile
-from rspiv.vector_reduction import SeriesReducer, entry_name, read_entry
+from rspiv.vector_reduction import SeriesReducer, entry_name
 
 __all__ = [
     "STRUCTURES",
@@ -321,11 +321,7 @@ def second_pass(
         name = entry_name(e)
         if name not in skipped:
             try:
-                vf = read_entry(e, options)
-                why = reducer.check(vf)
-                if why:
-                    raise InvalidInputError(why)
-                u, v, valid = reducer.vectors(transform(vf), bounds, None, k)
+                u, v, valid = reducer.again(e, options, transform, bounds, k)
                 if q is not None:
                     q.add(u, v, valid, pair_id=k, batch=k * q.batches // n)
                 if tp is not None:
@@ -439,11 +435,7 @@ def pod_pass(
     def read(i: int, rows: slice | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rows = slice(None) if rows is None else rows
         try:
-            vf = read_entry(entries[ids[i]], passes["options"])
-            why = red.check(vf)
-            if why:
-                raise InvalidInputError(why)
-            u, v, valid = red.vectors(transform(vf), bounds, None, ids[i])
+            u, v, valid = red.again(entries[ids[i]], passes["options"], transform, bounds, ids[i])
             return u[rows], v[rows], valid[rows]
         except RspivError as exc:
             name = f"{entry_name(entries[ids[i]])}: {exc}"
