@@ -183,7 +183,7 @@ def test_method_two_corrects_a_series_seen_through_a_lens(lens_series):
     said = [w for w in raw.warnings if "bows by" in w and "calibration" in w]
     assert said, raw.warnings
     # the lens bows the object's straight wall (y 1150 px) by +10.5 px over the stations (the
-    # quadratic term of a parabola through them); read +9.8 (+8.5 before the joint fit)
+    # quadratic term of a parabola through them); read +9.8 (+8.4 before the joint fit)
     xo = np.linspace(-100.0, 2316.0, 500)
     img = cal.mapping.forward(np.column_stack([xo, np.full_like(xo, 1150.0)]))
     xs = raw.analysis.wall.x_px[raw.analysis.wall.valid]
