@@ -16,7 +16,7 @@ the wall their nodes lie on opposite sides (at distances ``k - t`` and ``k + 1 -
 ``k + t`` and ``k - 1 + t`` below): the interpolation errors of a curved profile cancel to second
 order only, and the fixed point keeps an error periodic in the wall's place between rows (zero
 at a row and half-way). On rows 16 px apart (another tool's 32 px windows at 50 % overlap) it
-reaches +-1.0 px.
+reaches +-1.2 px.
 
 Joint fit (the default, ``fit="joint"``). The resampled estimate then starts a fit of the model
 itself: one smooth profile ``f(|y - w|)`` of the distance from the wall (a cubic B-spline with
@@ -41,7 +41,7 @@ A wall tilted by 0.3 degree, read from 10 exact fields on rows 16 px apart: 0.40
 resampled, 0.2975 joint (stations within 0.10 px of the wall, 2.4 px before). Noise on the
 samples scatters the joint fit a little more (sd 0.40 against 0.28 px with 0.4 % of the free
 stream's displacement on every sample of rows 16 px apart) about a bias 7 times smaller. It
-costs 2-11 ms per station.
+costs 2-17 ms per station.
 
 Sampling. The profile must be sampled finely enough for the near-wall shape. With the resampling
 alone and 32 x 8 px windows at 50 % overlap (a vector row every 4 px) the mirror position locked
