@@ -222,8 +222,8 @@ def test_the_joint_fit_on_rows_16_px_apart(window):
 
 def test_the_joint_fits_basis_is_scipys_and_rspiv_leaves_scipy_interpolate_alone():
     """``rspiv.wall.bspline_basis`` is scipy's ``BSpline.design_matrix`` (to rounding), written
-    in rspiv because importing ``scipy.interpolate`` made a 47 MP campaign's pair loop hold
-    1 GB more (``benches/RESULTS.md``): ``import rspiv`` must not import it."""
+    in rspiv so that ``import rspiv`` stays without ``scipy.interpolate`` (first blamed for a
+    47 MP campaign loop's higher peak, which later came without it: ``benches/RESULTS.md``)."""
     import subprocess
     import sys
 

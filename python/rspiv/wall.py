@@ -316,9 +316,10 @@ def bspline_basis(x: np.ndarray, t: np.ndarray, k: int = 3) -> np.ndarray:
     knots repeated ``k + 1`` times) at the points ``x`` (inside ``[t[0], t[-1]]``), by Cox-de
     Boor's recursion: an array ``(len(x), len(t) - k - 1)`` whose rows sum to 1.
 
-    Written here rather than taken from ``scipy.interpolate``: importing that package made a
-    47 MP campaign's pair loop hold 1 GB more (2080 -> 3080 MB peak RSS, ``python
-    benches/bench_campaign.py --scales 1.0 --pairs 4 --no-peer --methods II``)."""
+    Written here rather than taken from ``scipy.interpolate``, which ``import rspiv`` does not
+    load. That package was first blamed for a 47 MP campaign loop's peak of 3.1 GB instead of
+    2.1 GB; the higher peak also came without it and varied with the machine's state
+    (``benches/RESULTS.md``, thirty-third session)."""
     x = np.asarray(x, np.float64)[:, None]
     t = np.asarray(t, np.float64)
     # degree 0: the interval holding x; the right end belongs to the last non-empty interval
