@@ -660,6 +660,14 @@ def test_progress_lines_when_not_on_a_terminal():
     assert lines[0] == "[rspiv] hello"
     assert lines[1].startswith("[rspiv] pairs: 1/3")
     assert "3/3 (1 skipped)" in lines[-1] and lines[-1].endswith("done")
+    buf = io.StringIO()
+    with Progress(1, "fields", stream=buf, interval=0.0) as p:
+        p.advance()
+        p.extend(2)  # work found while running
+        p.advance(2)
+    lines = buf.getvalue().splitlines()
+    assert lines[0].startswith("[rspiv] fields: 1/1")
+    assert lines[-1].startswith("[rspiv] fields: 3/3") and lines[-1].endswith("done")
     quiet = io.StringIO()
     with Progress(2, stream=quiet, enabled=False) as p:
         p.advance(2)

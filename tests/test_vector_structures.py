@@ -280,7 +280,7 @@ def test_too_few_columns_and_bad_options_are_refused(tmp_path):
             vector_statistics(str(tmp_path / "*.txt"), nu=NU, **bad)
 
 
-def test_a_planted_mode_is_the_pods_first_and_its_sums_are_numpys(tmp_path):
+def test_a_planted_mode_is_the_pods_first_and_its_sums_are_numpys(tmp_path, capsys):
     """The POD of a series (``pod=``, ``rspiv statistics --pod``). Ground truth: a mode planted
     in 30 exact fields, ``a_s phi`` with ``phi_u = cos(2 pi x / 1108 px) exp(-((y - 900 px) /
     150 px)^2)`` and ``a_s`` 10 px standard normal: the first mode is ``phi`` (normalised over
@@ -299,7 +299,11 @@ def test_a_planted_mode_is_the_pods_first_and_its_sums_are_numpys(tmp_path):
         tr, x, y, u, v = exact_field(s)
         phi = np.cos(2 * np.pi * x / 1108.0) * np.exp(-(((y - 900.0) / 150.0) ** 2))
         write_vc7(tmp_path / f"B{s:05d}.vc7", u + amp[s] * phi, v, 1 / tr.magnification, tr.dt)
-    r = vector_statistics(tmp_path, nu=NU, screen=0, pod=True, pod_modes=5)
+    calls = []
+    r = vector_statistics(tmp_path, nu=NU, screen=0, pod=True, pod_modes=5,
+                          progress=lambda d, t: calls.append((d, t)))  # fmt: skip
+    # the progress: the 30 fields, then the POD's 30 reads (one block of rows) counted on
+    assert calls == [(k, 30) for k in range(1, 31)] + [(k, 60) for k in range(31, 61)]
     p = r.pod
     assert p["pairs"] == 30 and p["gaps"] == 0 and p["fraction"].size == 5
     assert not any("POD" in w for w in r.warnings), r.warnings
@@ -331,6 +335,7 @@ def test_a_planted_mode_is_the_pods_first_and_its_sums_are_numpys(tmp_path):
     out = tmp_path / "out"
     assert main(["statistics", str(tmp_path), "--nu", repr(NU), "-o", str(out), "--screen",
                  "0", "--pod", "20", "--pod-modes", "4", "--figures"]) == 0  # fmt: skip
+    assert "[rspiv] fields: 50/50" in capsys.readouterr().err  # 30 fields, 20 POD reads
     with xr.open_dataset(out / "pod.nc", engine="h5netcdf") as ds:
         assert ds.attrs["pairs"] == 20 and ds["phi_u"].shape[0] == 4 and "y_plus" in ds
     assert (out / "pod.png").stat().st_size > 10_000

@@ -132,6 +132,12 @@ class Progress:
             self._line()
             self._last = now
 
+    def extend(self, n: int) -> None:
+        """Add ``n`` items to the total (work found to be needed while running)."""
+        self.total += int(n)
+        if self._bar is not None:
+            self._bar.update(self._task, total=self.total)
+
     def log(self, message: str) -> None:
         """Print a message (above the bar on a terminal)."""
         if not self.enabled:

@@ -440,6 +440,8 @@ def vector_statistics(
         a finished run started again with other units, ``nu``, ``wall_y`` or ``u_inf`` is
         analysed again from its checkpoint without reading a file.
     progress : callable(done, total), optional
+        Called after each field of each pass; ``total`` counts the second pass's fields when
+        one is asked, and grows by the POD's reads once its domain is known.
 
     Returns
     -------

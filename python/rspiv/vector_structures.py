@@ -415,7 +415,8 @@ def pod_pass(
     pass, about the series' means. A field that fails now is taken as its mean (no
     fluctuation) and said. Returns the profile (:func:`rspiv.campaign.pod.pod_profile`) and
     what must be said, or None and why not (no domain). Not checkpointed: a stopped run
-    decomposes again (its passes resume)."""
+    decomposes again (its passes resume). ``passes["progress"]`` counts the reads after the
+    passes' fields (its total grows by them)."""
     t0 = time.perf_counter()
     try:
         domain = domain_of(an, acc, window[1], min_count, so.pod_height, "pod_height")
@@ -446,9 +447,12 @@ def pod_pass(
 
     with np.errstate(invalid="ignore", divide="ignore"):
         n_eff = min(len(ids), float(np.median(acc.n_eff("uu")[domain])))
+    # the reads continue the count of the passes before (progress's total grows by them)
+    counted, before = passes["progress"], len(entries) * (2 if so.second else 1)
+    progress = None if counted is None else (lambda i, m: counted(before + i, before + m))
     # a series' grid is small (a 47 MP camera's: 183,000 vectors): blocks of 1 GB read most
     # series' snapshots once
-    decompose_with(builder, read, so.pod_modes, n_eff, block_bytes=1 << 30)
+    decompose_with(builder, read, so.pod_modes, n_eff, block_bytes=1 << 30, progress=progress)
     prof, said = pod_profile(builder.result(ids), an, domain, x_px, ids,
                              time.perf_counter() - t0)  # fmt: skip
     if lost:

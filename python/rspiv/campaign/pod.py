@@ -106,17 +106,28 @@ def decompose_with(
     n_modes: int,
     n_eff: float | None = None,
     block_bytes: int = BLOCK_BYTES,
+    progress: Callable[[int, int], None] | None = None,
 ) -> None:
     """:func:`decompose` of the builder's ``n`` snapshots read by ``read(i, rows)``: snapshot
     ``i``'s ``(u, v, valid)`` over the rows ``rows`` (a slice; None: every row), in the
     accumulator's units and axes. Each snapshot is read once per block of rows and once more
-    for the modes, once in all when the domain fits one block."""
+    for the modes, once in all when the domain fits one block. ``progress(done, total)``
+    after each read of the rows (the total known once the blocks are)."""
     shape = builder.shape
     rows = np.flatnonzero(builder.domain.any(axis=1))
     r_lo, r_hi = int(rows[0]), int(rows[-1]) + 1
     n = builder.n
     per = max(1, int(block_bytes // max(n * shape[1] * 16, 1)))
     blocks = [slice(r, min(r + per, r_hi)) for r in range(r_lo, r_hi, per)]
+    reads = n * len(blocks) + (n if len(blocks) > 1 else 0)
+    done = 0
+
+    def count() -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, reads)
+
     held = None
     for blk in blocks:
         m = blk.stop - blk.start
@@ -125,6 +136,7 @@ def decompose_with(
         ok = np.empty(u.shape, np.uint8)
         for i in range(n):
             u[i], v[i], ok[i] = read(i, blk)
+            count()
         builder.add_rows(blk, u, v, ok)
         if len(blocks) == 1:
             held = (u, v, ok)
@@ -140,6 +152,7 @@ def decompose_with(
         return
     for i in range(n):
         u, v, ok = read(i, None)
+        count()
         builder.add_snapshot(i, u, v, ok)
 
 

@@ -70,14 +70,19 @@ def _numbers(text: str | None, option: str, what: str) -> tuple[float, ...] | No
 
 class _Bar:
     """The reduction's progress (:class:`rspiv.progress.Progress` on stderr), opened at the
-    first field it reports (a resumed run counts the fields still to do)."""
+    first field it reports (a resumed run counts the fields still to do); a larger total
+    (the POD's reads, known once its domain is) extends it."""
 
     def __init__(self) -> None:
         self.bar: Progress | None = None
+        self.total = 0
 
     def __call__(self, done: int, total: int) -> None:
         if self.bar is None:
             self.bar = Progress(total - done + 1, "fields").__enter__()
+        elif total > self.total:
+            self.bar.extend(total - self.total)
+        self.total = max(self.total, total)
         self.bar.advance()
 
     def close(self) -> None:
