@@ -221,8 +221,64 @@ def test_pivlab_exports_read_at_the_windows_centres(tmp_path):
     np.testing.assert_array_equal(second.valid, r.valid)
     with pytest.raises(InvalidInputError, match="frame 2 out of range"):
         read_vectors(tmp_path / "cmd.mat", frame=2)
-    with pytest.raises(InvalidInputError, match="calibrated PIVlab export"):
-        read_vectors(_pivlab_gui(tmp_path / "cal.mat", u, v, calxy=0.001))
+
+
+def test_a_calibrated_pivlab_export_is_read_back_in_px_up_to_its_offset(tmp_path):
+    """A PIVlab export calibrated as PIVlab does it (``calibrate.compute_calibration`` and
+    ``apply_xy``: x right, y up, offsets set; ``mat_file_save``: ``u * calu``): u and v are the
+    px of the uncalibrated export, the spacing exact, the positions the recording's px plus a
+    constant (the offset and the frame's height are not in the file); what needs the
+    recording's px refuses it."""
+    from rspiv import compare_fields, vector_statistics
+
+    u, v = _values()
+    gx, gy = _grid()
+    px, py = gx + 1.5, gy + 1.5  # PIVlab's positions in px (1-based, i + w/2)
+    calxy, dt, height = 2.5e-5, 1e-3, 1024  # m/px, s, px
+    calu, calv = calxy / dt, -calxy / dt  # y increases upward: calv negative
+    cell = np.empty((1, 1), dtype=object)
+
+    def c(a):
+        out = cell.copy()
+        out[0, 0] = a
+        return out
+
+    def export(path, cu, cv, units, **extra):
+        scipy.io.savemat(path, {
+            "x": c(px * calxy - 0.0123), "y": c((height - py) * calxy - 0.0071),
+            "u_original": c(u * cu), "v_original": c(v * cv), "typevector_original": c(
+                np.ones(u.shape)), "calxy": calxy, "calu": cu, "calv": cv, "units": units,
+            **extra,
+        })  # fmt: skip
+        return path
+
+    r = read_vectors(export(tmp_path / "cal.mat", calu, calv, "[m] respectively [m/s]"))
+    np.testing.assert_allclose(r.u, u, rtol=1e-12)
+    np.testing.assert_allclose(r.v, v, rtol=1e-12)  # down the image, as in px
+    dx, dy = r.x - gx, r.y - gy
+    np.testing.assert_allclose(dx, dx[0, 0], atol=1e-9)  # the recording's px up to a constant
+    np.testing.assert_allclose(dy, dy[0, 0], atol=1e-9)
+    assert r.spacing == pytest.approx((16.0, 16.0), abs=1e-9)
+    assert r.dt == pytest.approx(dt, rel=1e-12) and r.mm_per_px == pytest.approx(0.025)
+    assert not r.origin_known and any("calibrated export" in n for n in r.notes)
+    # displacements only (PIVlab's time step 0): calu = calxy, no pulse separation
+    d = read_vectors(export(tmp_path / "d.mat", calxy, -calxy, "[m] respectively [m/frame]"))
+    np.testing.assert_allclose(d.u, u, rtol=1e-12)
+    assert np.isnan(d.dt) and d.mm_per_px == pytest.approx(0.025)
+    # the unknown origin survives rspiv's own file of it
+    r.to_xarray().to_netcdf(tmp_path / "r.nc", engine="h5netcdf")
+    assert not read_vectors(tmp_path / "r.nc").origin_known
+    # refused: what needs the recording's px, an older PIVlab's calibration, a mixed one
+    with pytest.raises(InvalidInputError, match="up to its calibration's offset"):
+        compare_fields(r, read_vectors(_pivlab_gui(tmp_path / "px.mat", u, v)))
+    with pytest.raises(InvalidInputError, match="wall_y needs them"):
+        vector_statistics([str(tmp_path / "cal.mat")], nu=1e-6, wall="bottom", wall_y=100.0)
+    with pytest.raises(InvalidInputError, match="older PIVlab"):
+        scipy.io.savemat(tmp_path / "old.mat", {"x": c(px), "y": c(py), "u": c(u), "v": c(v),
+                                                 "calxy": calxy, "caluv": calu})  # fmt: skip
+        read_vectors(tmp_path / "old.mat")
+    with pytest.raises(InvalidInputError, match="cannot undo"):
+        read_vectors(export(tmp_path / "mixed.mat", calu, 2 * calv, "[m] respectively [m/s]"))
 
 
 def test_real_files_of_openpiv_and_a_pivlab_session():

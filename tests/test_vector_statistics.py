@@ -152,6 +152,42 @@ def test_insight_files_of_the_same_fields_give_the_same_wall_units(level, tmp_pa
     assert tsi.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
 
 
+def test_a_calibrated_pivlab_series_gives_the_same_wall_units(level, tmp_path):
+    """PIVlab's calibrated MAT exports (m and m/s, y up, offsets set, as PIVlab's
+    ``compute_calibration`` and ``apply_xy`` make them): read back in px with the files'
+    scale and dt, the same statistics as the DaVis files of the same fields, the positions'
+    unknown offset changing nothing measured from the wall."""
+    import scipy.io
+
+    folder, files, truth = level
+    mm = 1 / truth.magnification
+    calxy = mm * 1e-3
+    calu, calv = calxy / truth.dt, -calxy / truth.dt
+    for s in range(30):
+        _, x, y, u, v = exact_field(s)
+        cells = {}
+        for k, a in (("x", (x + 1.5) * calxy - 0.031), ("y", (4000 - (y + 1.5)) * calxy + 0.002),
+                     ("u_original", u * calu), ("v_original", v * calv),
+                     ("typevector_original", np.ones(u.shape))):  # fmt: skip
+            cells[k] = np.empty((1, 1), dtype=object)
+            cells[k][0, 0] = a
+        scipy.io.savemat(tmp_path / f"PIVlab_{s:04d}.mat", {
+            **cells, "calxy": calxy, "calu": calu, "calv": calv,
+            "units": "[m] respectively [m/s]"})  # fmt: skip
+    davis = vector_statistics(files[:30], nu=NU)
+    lab = vector_statistics(tmp_path, nu=NU, window=(32, 32))
+    assert lab.tool == "PIVlab" and lab.used == 30
+    assert lab.dt == pytest.approx(truth.dt, rel=1e-9)
+    assert lab.mm_per_px == pytest.approx(mm, rel=1e-12)
+    assert any("offset" in w for w in lab.warnings)  # the positions' caveat said
+    a, b = davis.accumulator, lab.accumulator
+    np.testing.assert_allclose(b.mean_u, a.mean_u, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(b.m2_uu, a.m2_uu, rtol=1e-5, atol=1e-5)
+    assert lab.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
+    # the DaVis files hold float32, the MAT files float64: measured 4e-6
+    assert lab.result.delta99 == pytest.approx(davis.result.delta99, rel=1e-5)
+
+
 @pytest.fixture(scope="module")
 def lens_series(tmp_path_factory):
     shape = (1322, 2216)

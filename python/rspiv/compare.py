@@ -382,6 +382,12 @@ def compare_with_differences(
 ) -> tuple[FieldComparison, _Diff]:
     """:func:`compare_fields` of two :class:`VectorFile`, and the vectors it compared (for
     :func:`rspiv.compare_series.compare_series`, which sums them over the pairs)."""
+    for f in (ref, fld):
+        if not f.origin_known:  # a calibrated PIVlab export: vectors would pair wrongly
+            raise InvalidInputError(
+                f"compare: {f.path}: its positions are the recording's px only up to its "
+                "calibration's offset (a calibrated export): export it in px to compare"
+            )
     d = _differences(ref, fld)
     x, y, du, dv = d.x, d.y, d.du, d.dv
     n = du.size

@@ -37,8 +37,14 @@ in px over the pair, u right and v down. Each reader states how it gets there:
   counts pixels from 1: ``x - 3/2`` in rspiv's frame (``piv_FFTmulti``'s ``xtable``). u and v
   are px per pair along the image's axes. Typevector 1 valid, 0 masked, 2 interpolated by the
   post-processing (``typevector_filtered`` of the GUI's export, ``typevector_filt`` of
-  ``PIVlab_commandline``: when present it decides validity). A calibrated export
-  (``calxy`` or ``caluv`` not 1) is refused: export it in px.
+  ``PIVlab_commandline``: when present it decides validity). A calibrated export (``calxy``
+  m/px, ``calu``/``calv`` m/s or m per px per pair, their signs the axes' directions) is read
+  back in px: ``u / calu``, ``v / calv``, the scale ``calxy`` and ``dt = calxy / |calu|``
+  (none when ``units`` says m/frame). Its positions are PIVlab's ``(x or width - x) * calxy -
+  offset``, and the file holds neither the offset nor the width: they are read as ``+-x /
+  calxy``, the recording's px up to a constant (``origin_known`` False), so that what needs
+  the recording's px (a camera calibration, a mapping, ``wall_y``, a comparison) is refused.
+  Exports of PIVlab before ``calu``/``calv`` (``caluv`` not 1) are refused.
 - **TSI Insight** ``.vec`` files (a Tecplot-style header: ``TITLE=``, ``VARIABLES=``, ``CHC``;
   told from OpenPIV's ``.vec`` by that header): y up from the header's origin, positions half a
   pixel past the windows' centres, the header's units, dt and scale; choice codes 1-3 valid, 4
@@ -122,6 +128,10 @@ class VectorFile:
         ``"image"`` (the raw recording's px: OpenPIV, PIVlab, an uncorrected rspiv run),
         ``"object"`` (px of a distortion-corrected frame: rspiv's Method I or II), or ``""``
         when the file does not say (DaVis, which may have dewarped the images itself).
+    origin_known : bool
+        False when the positions are the recording's px only up to a constant per axis (a
+        calibrated PIVlab export: its offset is not in the file); spacing and displacements
+        are exact.
     """
 
     x: np.ndarray
@@ -140,6 +150,7 @@ class VectorFile:
     window: tuple[int, int] | None = None
     notes: tuple[str, ...] = ()
     frame: str = ""
+    origin_known: bool = True
 
     @property
     def spacing(self) -> tuple[float, float]:
@@ -164,6 +175,8 @@ class VectorFile:
             if arr is not None:
                 data[name] = (dims, arr, {} if name == "peak_ratio" else pix)
         attrs = {"tool": self.tool, "source": self.path, "frame": self.frame}
+        if not self.origin_known:
+            attrs["origin"] = "unknown"
         if self.window is not None:
             attrs["window"] = f"{self.window[0]} {self.window[1]}"
         for key, val in (("dt_s", self.dt), ("mm_per_px", self.mm_per_px)):
@@ -374,8 +387,10 @@ def _parse_mat(p: pathlib.Path) -> dict[str, Any]:
     return read_mat(p)  # not scipy's reader: a damaged file crashed it (rspiv.matfile)
 
 
-def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> tuple[float, float]:
-    """The signs PIVlab gave u and v in px (``calu``/``calv`` of +-1); refuses a calibration."""
+def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> dict[str, float]:
+    """PIVlab's units: ``su``, ``sv`` (``calu``/``calv``: +-1 in px, else the calibration's
+    factors, their signs the axes' directions), ``calxy`` (m/px, 1 in px), ``dt`` (s, NaN in
+    px or displacements only); refuses a calibration it cannot undo."""
 
     def scalar(key: str) -> float | None:
         if key not in var:
@@ -388,14 +403,26 @@ def _pivlab_units(p: pathlib.Path, var: dict[str, Any]) -> tuple[float, float]:
 
     calxy, caluv = scalar("calxy"), scalar("caluv")
     calu, calv = scalar("calu"), scalar("calv")
-    if (calxy is not None and calxy != 1.0) or (caluv is not None and caluv != 1.0):
-        raise _fail(p, f"a calibrated PIVlab export (calxy {calxy}, caluv {caluv}): export in px")
-    signs = []
-    for key, c in (("calu", calu), ("calv", calv)):
-        if c is not None and abs(c) != 1.0:
-            raise _fail(p, f"a calibrated PIVlab export ({key} = {c:g}): export it in px")
-        signs.append(1.0 if c is None else c)
-    return signs[0], signs[1]
+    if caluv is not None and caluv != 1.0 and (calu is None or calv is None):
+        raise _fail(p, f"a calibrated export of an older PIVlab (calxy {calxy}, caluv {caluv}, "
+                       "no calu/calv): export it in px")  # fmt: skip
+    calxy = 1.0 if calxy is None else calxy
+    su, sv = (1.0 if c is None else c for c in (calu, calv))
+    if calxy == 1.0 and abs(su) == 1.0 and abs(sv) == 1.0:
+        return {"su": su, "sv": sv, "calxy": 1.0, "dt": float("nan")}
+    if not (np.isfinite(calxy) and calxy > 0 and np.isfinite(su) and np.isfinite(sv)
+            and su != 0 and abs(abs(su) / abs(sv) - 1.0) < 1e-9):  # fmt: skip
+        raise _fail(p, f"a PIVlab calibration rspiv cannot undo (calxy {calxy:g}, calu {su:g}, "
+                       f"calv {sv:g})")  # fmt: skip
+    units = var.get("units", "")
+    if isinstance(units, np.ndarray) and units.dtype.kind in "ui":  # v7.3: UTF-16 codes
+        units = "".join(chr(int(c)) for c in units.ravel(order="F"))
+    units = _text(units)
+    # PIVlab writes "[m] respectively [m/s]" or "[m/frame]"; without it, |calu| = calxy is a
+    # displacement (a pulse separation of 1 s is not PIV's)
+    per_frame = "m/frame" in units or ("m/s" not in units and abs(abs(su) / calxy - 1) < 1e-9)
+    dt = float("nan") if per_frame else calxy / abs(su)
+    return {"su": su, "sv": sv, "calxy": calxy, "dt": dt}
 
 
 def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
@@ -403,7 +430,8 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
         var = _mat_variables(p)
     except OSError as exc:
         raise _fail(p, f"cannot read: {exc}") from None
-    su, sv = _pivlab_units(p, var)
+    cal = _pivlab_units(p, var)
+    su, sv, calxy = cal["su"], cal["sv"], cal["calxy"]
     session = var.get("resultslist")
 
     def cell(*names: str) -> np.ndarray | None:
@@ -438,7 +466,9 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
     shapes = {a.shape for a in (x, y, u, v) + tuple(b for b in (tv, tf) if b is not None)}
     if len(shapes) != 1 or x.ndim != 2:
         raise _fail(p, f"x, y, u, v and the typevectors differ in shape: {sorted(shapes)}")
-    u, v = u * su, v * sv  # calu/calv of -1 turned the axis
+    u, v = u / su, v / sv  # calu/calv: the calibration, its sign the axis' direction
+    if calxy != 1.0:  # PIVlab's px up to its offset (and the width where an axis turned)
+        x, y = np.sign(su) * x / calxy, np.sign(sv) * y / calxy
     x, y = x - 1.5, y - 1.5  # 1-based, and half a pixel past the window's centre
     if y.shape[0] > 1 and y[1, 0] < y[0, 0]:
         raise _fail(p, "y decreases down the rows: not PIVlab's pixel coordinates")
@@ -447,7 +477,12 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
     computed = (tv != 0) & np.isfinite(u) & np.isfinite(v)
     notes = ["positions read as PIVlab's: 1-based, half a pixel past the window's centre"]
     if sv < 0 or su < 0:
-        notes.append("calu/calv of -1: the axis turned back")
+        notes.append("calu/calv negative: the axis turned back")
+    if calxy != 1.0:
+        notes.append(
+            f"a calibrated export read back in px ({calxy * 1e6:.6g} um/px): positions up to "
+            "PIVlab's offset, not the recording's px"
+        )
     valid = computed & np.isin(tv, (1, 3))  # 3: PIVlab's valid vector from the second peak
     post = np.zeros_like(valid)
     if tf is not None:
@@ -460,6 +495,8 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
         x=x, y=y, u=np.where(computed, u, np.nan), v=np.where(computed, v, np.nan),
         valid=valid, postprocessed=post, peak_ratio=None, sigma_u=None, sigma_v=None,
         tool="PIVlab", path=str(p), notes=tuple(notes), frame="image",
+        dt=cal["dt"], mm_per_px=float("nan") if calxy == 1.0 else calxy * 1e3,
+        origin_known=calxy == 1.0,
     )  # fmt: skip
 
 
@@ -487,7 +524,7 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
             units = {k: _text(h[k].attrs.get("units", "pix")) for k in ("u", "v") if k in arr}
             attrs = {
                 k: _text(h.attrs.get(k, ""))
-                for k in ("method", "run", "piv_settings", "frame", "tool", "window")
+                for k in ("method", "run", "piv_settings", "frame", "tool", "window", "origin")
             }
             # the pulse separation and scale: a campaign's field files (dt_s, m_per_px) and a
             # VectorFile written by to_xarray (dt_s, mm_per_px)
@@ -554,7 +591,7 @@ def _rspiv_netcdf(p: pathlib.Path) -> VectorFile:
         valid=chc == 1, postprocessed=chc == 0, peak_ratio=opt("peak_ratio"),
         sigma_u=opt("sigma_u"), sigma_v=opt("sigma_v"), tool=tool or "rspiv", path=str(p),
         window=window if window and len(window) == 2 else None, frame=frame, dt=dt,
-        mm_per_px=mm,
+        mm_per_px=mm, origin_known=attrs["origin"].strip() != "unknown",
     )  # fmt: skip
 
 

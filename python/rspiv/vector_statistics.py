@@ -487,6 +487,15 @@ def vector_statistics(
         raise InvalidInputError(
             f"statistics: no field could be read ({next(iter(skipped.values()))})"
         )
+    if not first.origin_known:  # positions up to a constant: the recording's px unknown
+        given = [k for k, v in (("a calibration", calibration), ("wall_y", wall_y))
+                 if v is not None]
+        if given:
+            raise InvalidInputError(
+                f"statistics: {entry_name(entries[start])}: its positions are the recording's px "
+                f"only up to its calibration's offset (a calibrated export): {given[0]} needs "
+                "them; export the fields in px"
+            )
     # what the reader assumed or left out (a 3C field's w, a file without validity flags, the
     # file's rounded positions): said once, of the first file
     warnings: list[str] = [f"as read ({entry_name(entries[start])}): {n}" for n in first.notes]
@@ -522,8 +531,9 @@ def vector_statistics(
     if frame == "image":
         warnings.append(
             "fields of the raw frames, not corrected: the lens distortion is in these statistics "
-            "(give the camera's calibration)"
-        )
+            + ("(give the camera's calibration)" if first.origin_known else
+               "(export the fields in px to give the camera's calibration)")
+        )  # fmt: skip
     xs, ys = first.x[0].copy(), first.y[:, 0].copy()
     gx, gy = np.meshgrid(xs, ys)
     red = SeriesReducer(first, scale, pulse)
