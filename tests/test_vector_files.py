@@ -279,6 +279,13 @@ def test_a_calibrated_pivlab_export_is_read_back_in_px_up_to_its_offset(tmp_path
         read_vectors(tmp_path / "old.mat")
     with pytest.raises(InvalidInputError, match="cannot undo"):
         read_vectors(export(tmp_path / "mixed.mat", calu, 2 * calv, "[m] respectively [m/s]"))
+    # a v7.3 file's units are UTF-16 codes (h5py reads MATLAB's char as uint16)
+    from rspiv.vector_files import _pivlab_units
+
+    codes = np.array([ord(ch) for ch in "[m] respectively [m/frame]"], np.uint16)[:, None]
+    got = _pivlab_units(tmp_path / "h.mat", {"calxy": np.array([[calxy]]), "calu": np.array(
+        [[calu]]), "calv": np.array([[calv]]), "units": codes})  # fmt: skip
+    assert np.isnan(got["dt"]) and got["calxy"] == calxy
 
 
 def test_real_files_of_openpiv_and_a_pivlab_session():

@@ -43,7 +43,7 @@ in px over the pair, u right and v down. Each reader states how it gets there:
   (none when ``units`` says m/frame). Its positions are PIVlab's ``(x or width - x) * calxy -
   offset``, and the file holds neither the offset nor the width: they are read as ``+-x /
   calxy``, the recording's px up to a constant (``origin_known`` False), so that what needs
-  the recording's px (a camera calibration, a mapping, ``wall_y``, a comparison) is refused.
+  the recording's px (a camera calibration, ``wall_y``, a comparison) is refused.
   Exports of PIVlab before ``calu``/``calv`` (``caluv`` not 1) are refused.
 - **TSI Insight** ``.vec`` files (a Tecplot-style header: ``TITLE=``, ``VARIABLES=``, ``CHC``;
   told from OpenPIV's ``.vec`` by that header): y up from the header's origin, positions half a
