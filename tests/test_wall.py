@@ -239,3 +239,23 @@ def test_the_joint_fits_basis_is_scipys_and_rspiv_leaves_scipy_interpolate_alone
         np.testing.assert_allclose(got.sum(axis=1), 1.0, atol=1e-14)
     code = "import sys, rspiv; sys.exit('scipy.interpolate' in sys.modules)"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+
+def test_the_wall_moves_with_the_positions_and_nothing_else():
+    """Positions known up to a constant (a calibrated PIVlab export read back in px, ``-((H -
+    y) c - offset) / c``: equally spaced to rounding): the wall found is the same plus that
+    constant. The band's far edge, ``y[j] - half``, rounded past its row for about a third of
+    such calibrations and the row was lost: pivpy's urban-canopy series read "3 of 11
+    stations" as "2 of 18"."""
+    x = np.arange(12) * 160.0 + 7.5
+    y = np.arange(0.0, 640.0, 16.0) + 7.5
+    wall = 420.3 + 0.02 * x
+    u = _mirrored(y, x, wall) + np.random.default_rng(1).normal(0.0, 0.3, (y.size, x.size))
+    ref = find_wall(u, y=y, x=x).position_px
+    rng = np.random.default_rng(0)
+    for calxy, offset in rng.uniform((1e-6, -0.05), (1e-4, 0.05), (30, 2)):
+        yc = -(((4000 - (y + 1.5)) * calxy - offset) / calxy) - 1.5
+        shift = float(np.mean(yc - y))
+        got = find_wall(u, y=yc, x=x).position_px - shift
+        np.testing.assert_allclose(got, ref, atol=1e-6)

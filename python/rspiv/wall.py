@@ -566,7 +566,9 @@ def _find_wall(
         j, _ = _wall_row(u)
         flow_side = "above" if j > (len(yy) - 1) / 2 else "below"
     if band is not None:
-        keep = (yy >= min(band)) & (yy <= max(band))
+        # a row at the band's edge stays in whatever the positions' offset rounds it to
+        tol = 1e-6 * (abs(float(yy[1] - yy[0])) if len(yy) > 1 else 1.0)
+        keep = (yy >= min(band) - tol) & (yy <= max(band) + tol)
         u, yy = u[keep], yy[keep]
     if len(yy) < 5:
         msg = f"find_wall: {len(yy)} rows in the band; need at least 5"
