@@ -279,6 +279,17 @@ def test_a_calibrated_pivlab_export_is_read_back_in_px_up_to_its_offset(tmp_path
         read_vectors(tmp_path / "old.mat")
     with pytest.raises(InvalidInputError, match="cannot undo"):
         read_vectors(export(tmp_path / "mixed.mat", calu, 2 * calv, "[m] respectively [m/s]"))
+    # a session (resultslist) holds px whatever its calibration, which gives dt and the scale
+    session = np.empty((5, 1), dtype=object)
+    for k, a in enumerate((px, py, u, v, np.ones(u.shape))):
+        session[k, 0] = a
+    scipy.io.savemat(tmp_path / "session.mat", {"resultslist": session, "calxy": calxy,
+                                                "calu": calu, "calv": calv})  # fmt: skip
+    sr = read_vectors(tmp_path / "session.mat")
+    np.testing.assert_array_equal(sr.u, u)
+    np.testing.assert_array_equal(sr.v, v)
+    np.testing.assert_array_equal(sr.x, gx)
+    assert sr.origin_known and sr.dt == pytest.approx(dt) and sr.mm_per_px == pytest.approx(0.025)
     # a v7.3 file's units are UTF-16 codes (h5py reads MATLAB's char as uint16)
     from rspiv.vector_files import _pivlab_units
 

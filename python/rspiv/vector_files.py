@@ -44,7 +44,8 @@ in px over the pair, u right and v down. Each reader states how it gets there:
   offset``, and the file holds neither the offset nor the width: they are read as ``+-x /
   calxy``, the recording's px up to a constant (``origin_known`` False), so that what needs
   the recording's px (a camera calibration, ``wall_y``, a comparison) is refused.
-  Exports of PIVlab before ``calu``/``calv`` (``caluv`` not 1) are refused.
+  Exports of PIVlab before ``calu``/``calv`` (``caluv`` not 1) are refused. A session file
+  (``resultslist``) holds px whatever its calibration, which then gives the scale and dt.
 - **TSI Insight** ``.vec`` files (a Tecplot-style header: ``TITLE=``, ``VARIABLES=``, ``CHC``;
   told from OpenPIV's ``.vec`` by that header): y up from the header's origin, positions half a
   pixel past the windows' centres, the header's units, dt and scale; choice codes 1-3 valid, 4
@@ -430,9 +431,19 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
         var = _mat_variables(p)
     except OSError as exc:
         raise _fail(p, f"cannot read: {exc}") from None
-    cal = _pivlab_units(p, var)
-    su, sv, calxy = cal["su"], cal["sv"], cal["calxy"]
     session = var.get("resultslist")
+    # a session's results are px whatever its calibration (which PIVlab applies on export):
+    # the calibration gives the scale and dt only
+    in_px = session is not None and not any(k in var for k in ("x", "u_original", "u"))
+    try:
+        cal = _pivlab_units(p, var)
+    except InvalidInputError:
+        if not in_px:
+            raise
+        cal = {"su": 1.0, "sv": 1.0, "calxy": 1.0, "dt": float("nan")}
+    calxy = cal["calxy"]
+    su, sv = (1.0, 1.0) if in_px else (cal["su"], cal["sv"])
+    scaled = calxy != 1.0 and not in_px  # positions in m: px up to PIVlab's offset
 
     def cell(*names: str) -> np.ndarray | None:
         for name in names:
@@ -467,7 +478,7 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
     if len(shapes) != 1 or x.ndim != 2:
         raise _fail(p, f"x, y, u, v and the typevectors differ in shape: {sorted(shapes)}")
     u, v = u / su, v / sv  # calu/calv: the calibration, its sign the axis' direction
-    if calxy != 1.0:  # PIVlab's px up to its offset (and the width where an axis turned)
+    if scaled:  # PIVlab's px up to its offset (and the width where an axis turned)
         x, y = np.sign(su) * x / calxy, np.sign(sv) * y / calxy
     x, y = x - 1.5, y - 1.5  # 1-based, and half a pixel past the window's centre
     if y.shape[0] > 1 and y[1, 0] < y[0, 0]:
@@ -478,11 +489,13 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
     notes = ["positions read as PIVlab's: 1-based, half a pixel past the window's centre"]
     if sv < 0 or su < 0:
         notes.append("calu/calv negative: the axis turned back")
-    if calxy != 1.0:
+    if scaled:
         notes.append(
             f"a calibrated export read back in px ({calxy * 1e6:.6g} um/px): positions up to "
             "PIVlab's offset, not the recording's px"
         )
+    elif calxy != 1.0:
+        notes.append(f"a session in px; its calibration gives {calxy * 1e6:.6g} um/px")
     valid = computed & np.isin(tv, (1, 3))  # 3: PIVlab's valid vector from the second peak
     post = np.zeros_like(valid)
     if tf is not None:
@@ -496,7 +509,7 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
         valid=valid, postprocessed=post, peak_ratio=None, sigma_u=None, sigma_v=None,
         tool="PIVlab", path=str(p), notes=tuple(notes), frame="image",
         dt=cal["dt"], mm_per_px=float("nan") if calxy == 1.0 else calxy * 1e3,
-        origin_known=calxy == 1.0,
+        origin_known=not scaled,
     )  # fmt: skip
 
 
