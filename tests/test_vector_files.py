@@ -271,7 +271,7 @@ def test_a_calibrated_pivlab_export_is_read_back_in_px_up_to_its_offset(tmp_path
     # refused: what needs the recording's px, an older PIVlab's calibration, a mixed one
     with pytest.raises(InvalidInputError, match="up to its calibration's offset"):
         compare_fields(r, read_vectors(_pivlab_gui(tmp_path / "px.mat", u, v)))
-    with pytest.raises(InvalidInputError, match="wall_y needs them"):
+    with pytest.raises(InvalidInputError, match="wall_y in px needs them"):
         vector_statistics([str(tmp_path / "cal.mat")], nu=1e-6, wall="bottom", wall_y=100.0)
     with pytest.raises(InvalidInputError, match="older PIVlab"):
         scipy.io.savemat(tmp_path / "old.mat", {"x": c(px), "y": c(py), "u": c(u), "v": c(v),

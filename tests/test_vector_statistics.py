@@ -186,6 +186,15 @@ def test_a_calibrated_pivlab_series_gives_the_same_wall_units(level, tmp_path):
     assert lab.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
     # the DaVis files hold float32, the MAT files float64: measured 4e-6
     assert lab.result.delta99 == pytest.approx(davis.result.delta99, rel=1e-5)
+    # a wall given where the calibration puts it (m, the files' y) is the DaVis files' row
+    w = float(davis.analysis.wall.line(np.mean(davis.x)))
+    w_file = (4000 - (w + 1.5)) * calxy + 0.002
+    davis = vector_statistics(files[:30], nu=NU, wall="bottom", wall_y=w)
+    lab = vector_statistics(tmp_path, nu=NU, window=(32, 32), wall="bottom", wall_y=w_file,
+                            wall_y_units="file")  # fmt: skip
+    assert lab.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
+    with pytest.raises(InvalidInputError, match="gives its positions in px"):
+        vector_statistics(files[:3], nu=NU, wall="bottom", wall_y=0.01, wall_y_units="file")
 
 
 @pytest.fixture(scope="module")

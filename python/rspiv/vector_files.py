@@ -132,7 +132,7 @@ class VectorFile:
     origin_known : bool
         False when the positions are the recording's px only up to a constant per axis (a
         calibrated PIVlab export: its offset is not in the file); spacing and displacements
-        are exact.
+        are exact. ``y_from_file`` ``(a, b)``: then ``y = a y_file + b`` of the file's own y.
     """
 
     x: np.ndarray
@@ -152,6 +152,7 @@ class VectorFile:
     notes: tuple[str, ...] = ()
     frame: str = ""
     origin_known: bool = True
+    y_from_file: tuple[float, float] | None = None
 
     @property
     def spacing(self) -> tuple[float, float]:
@@ -509,7 +510,7 @@ def _pivlab(p: pathlib.Path, frame: int) -> VectorFile:
         valid=valid, postprocessed=post, peak_ratio=None, sigma_u=None, sigma_v=None,
         tool="PIVlab", path=str(p), notes=tuple(notes), frame="image",
         dt=cal["dt"], mm_per_px=float("nan") if calxy == 1.0 else calxy * 1e3,
-        origin_known=not scaled,
+        origin_known=not scaled, y_from_file=(float(np.sign(sv)) / calxy, -1.5) if scaled else None,
     )  # fmt: skip
 
 

@@ -347,6 +347,7 @@ def vector_statistics(
     pilot: int = 50,
     wall: str = "auto",
     wall_y: float | None = None,
+    wall_y_units: str = "px",
     stations: int = 16,
     min_count: int = 10,
     u_inf: float | None = None,
@@ -395,6 +396,10 @@ def vector_statistics(
         The wall's row, px of the fields' frame (object px when corrected), where the fields
         do not show its reflection (masked, out of view); ``wall`` must then be ``"bottom"``
         or ``"top"``. Nothing is levelled and no wall is checked: the row is the user's word.
+    wall_y_units : {"px", "file"}
+        ``"file"``: ``wall_y`` in the files' own position units, for files whose positions
+        are the recording's px only up to a constant (a calibrated PIVlab export, in m: its
+        ``VectorFile.y_from_file``).
     stations, min_count, u_inf, noise_correction
         As a campaign's ``[wall] stations``, ``[statistics] min_count``, ``[flow] u_inf``
         and ``[statistics] noise_correction`` (the tool's uncertainties, where it wrote them).
@@ -487,14 +492,25 @@ def vector_statistics(
         raise InvalidInputError(
             f"statistics: no field could be read ({next(iter(skipped.values()))})"
         )
+    if wall_y_units not in ("px", "file"):
+        raise InvalidInputError(f"statistics: wall_y_units {wall_y_units!r}: px or file")
+    if wall_y is not None and wall_y_units == "file":  # to the positions as read
+        if first.y_from_file is None:
+            raise InvalidInputError(
+                f"statistics: wall_y in the files' units: {entry_name(entries[start])} gives its "
+                "positions in px (give wall_y in px)"
+            )
+        a, b = first.y_from_file
+        wall_y = a * float(wall_y) + b
     if not first.origin_known:  # positions up to a constant: the recording's px unknown
-        given = [k for k, v in (("a calibration", calibration), ("wall_y", wall_y))
-                 if v is not None]
+        given = [k for k, v in (("a calibration", calibration),
+                                ("wall_y in px", wall_y if wall_y_units == "px" else None))
+                 if v is not None]  # fmt: skip
         if given:
             raise InvalidInputError(
                 f"statistics: {entry_name(entries[start])}: its positions are the recording's px "
                 f"only up to its calibration's offset (a calibrated export): {given[0]} needs "
-                "them; export the fields in px"
+                "them; export the fields in px (or give wall_y in the files' units)"
             )
     # what the reader assumed or left out (a 3C field's w, a file without validity flags, the
     # file's rounded positions): said once, of the first file

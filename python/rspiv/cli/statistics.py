@@ -99,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         r = vector_statistics(
             args.files, nu=args.nu, dt=args.dt, mm_per_px=args.mm_per_px, calibration=cal,
             mapping=args.mapping, level=level, pilot=args.pilot, wall=args.wall,
-            wall_y=args.wall_y, stations=args.stations, min_count=args.min_count,
+            wall_y=args.wall_y, wall_y_units=args.wall_y_units, stations=args.stations,
+            min_count=args.min_count,
             u_inf=args.u_inf, noise_correction=args.noise_correction, screen=args.screen,
             vorticity=args.vorticity or False, two_point=_two_point(args.two_point),
             two_point_maps=_numbers(args.two_point_maps, "--two-point-maps", _HEIGHTS),
@@ -143,6 +144,9 @@ def register(sub) -> None:
                    help="where the wall is: bottom (flow above it), top, auto")  # fmt: skip
     p.add_argument("--wall-y", type=float, default=None,
                    help="the wall's row, px, its reflection unseen (with --wall)")  # fmt: skip
+    p.add_argument("--wall-y-units", default="px", choices=("px", "file"),
+                   help="--wall-y in px, or in the files' own units (a calibrated PIVlab "
+                        "export's m)")  # fmt: skip
     p.add_argument("--stations", type=int, default=16, help="wall stations along x (16)")
     p.add_argument("--min-count", type=int, default=10, help="fields a vector needs (10)")
     p.add_argument("--u-inf", type=float, default=None, help="free-stream velocity, m/s")
