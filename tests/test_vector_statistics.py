@@ -195,6 +195,8 @@ def test_a_calibrated_pivlab_series_gives_the_same_wall_units(level, tmp_path):
     assert lab.result.u_tau == pytest.approx(davis.result.u_tau, rel=1e-5)
     with pytest.raises(InvalidInputError, match="gives its positions in px"):
         vector_statistics(files[:3], nu=NU, wall="bottom", wall_y=0.01, wall_y_units="file")
+    with pytest.raises(InvalidInputError, match="wall_y_units 'mm': px or file"):
+        vector_statistics(files[:3], nu=NU, wall="bottom", wall_y=0.01, wall_y_units="mm")
 
 
 @pytest.fixture(scope="module")

@@ -469,6 +469,8 @@ def vector_statistics(
         raise InvalidInputError(
             f"statistics: wall_y = {wall_y} needs wall='bottom' or 'top' (where the flow is)"
         )
+    if wall_y_units not in ("px", "file"):
+        raise InvalidInputError(f"statistics: wall_y_units {wall_y_units!r}: px or file")
     scheme = "least_squares" if vorticity is True else (vorticity or None)
     if scheme is not None and scheme not in SCHEMES:
         raise InvalidInputError(
@@ -492,8 +494,6 @@ def vector_statistics(
         raise InvalidInputError(
             f"statistics: no field could be read ({next(iter(skipped.values()))})"
         )
-    if wall_y_units not in ("px", "file"):
-        raise InvalidInputError(f"statistics: wall_y_units {wall_y_units!r}: px or file")
     if wall_y is not None and wall_y_units == "file":  # to the positions as read
         if first.y_from_file is None:
             raise InvalidInputError(
@@ -510,7 +510,8 @@ def vector_statistics(
             raise InvalidInputError(
                 f"statistics: {entry_name(entries[start])}: its positions are the recording's px "
                 f"only up to its calibration's offset (a calibrated export): {given[0]} needs "
-                "them; export the fields in px (or give wall_y in the files' units)"
+                "them; export the fields in px"
+                + (" (or give wall_y in the files' units)" if given[0] == "wall_y in px" else "")
             )
     # what the reader assumed or left out (a 3C field's w, a file without validity flags, the
     # file's rounded positions): said once, of the first file
