@@ -432,7 +432,8 @@ def test_the_vortex_population_equals_the_cores_of_the_fields(processed):
 
 def test_the_lamb_oseen_fits_are_those_of_the_written_fields(processed):
     """Every listed core carries the Lamb-Oseen fit of the written field's fluctuations about
-    the run's means (rspiv.vortices.fit_oseen on the cores the file lists, in the flow's
+    the mean of the run's other pairs, n / (n - 1) times those about the run's means with n the
+    vector's pairs (rspiv.vortices.fit_oseen on the cores the file lists, in the flow's
     frame): the same share explained, the same cores kept, the same radius and circulation in
     SI units; the per-row counts and means are those of the table's kept fits, and the report
     says what was kept. (The synthetic layer's swirling regions are not resolved Lamb-Oseen
@@ -453,6 +454,8 @@ def test_the_lamb_oseen_fits_are_those_of_the_written_fields(processed):
     usable = (acc.count >= max(camp.config.statistics.min_count, 2)) & (dist > 0)[:, None]
     usable &= va.swirl_count > 1
     mu, mv = np.where(usable, acc.mean_u, np.nan), np.where(usable, acc.mean_v, np.nan)
+    n = acc.count.astype(np.float64)
+    loo = np.where(usable, n / np.maximum(n - 1, 1), np.nan)  # about the other pairs' mean
     with xr.open_dataset(res.out_dir / f"vortices_{run}.nc", engine="h5netcdf") as ds:
         t = {k: ds[k].values for k in ds.data_vars if k.startswith("core_")}
         count, oseen_count = ds["count"].values, ds["oseen_count"].values
@@ -468,7 +471,7 @@ def test_the_lamb_oseen_fits_are_those_of_the_written_fields(processed):
         at = t["core_pair"] == sorted(acc.pair_ids)[k]
         cores = {"x": t["core_x"][at] / m, "y": rows[at], "sign": t["core_sign"][at],
                  "radius": t["core_radius"][at] / m}  # fmt: skip
-        f = fit_oseen(u[k] - mu, v[k] - mv, cores, va.dx, va.dy, valid=ok[k], x=x,
+        f = fit_oseen((u[k] - mu) * loo, (v[k] - mv) * loo, cores, va.dx, va.dy, valid=ok[k], x=x,
                       y=np.arange(acc.shape[0], dtype=float), orient=orient)  # fmt: skip
         fit[at], okf[at] = f["fit"], f["ok"]
         kept = f["ok"]

@@ -21,11 +21,14 @@ GRID = 16
 
 
 def exact_field(
-    seed: int, *, angle: float = 0.0, wall_y0: float | None = None, camera=None, scale=SCALE
-):
+    seed: int, *, angle: float = 0.0, wall_y0: float | None = None, camera=None, scale=SCALE,
+    **scene,
+):  # fmt: skip
     """(truth, x, y, u, v) of one field at the DaVis grid (positions in the recorded frame) of
-    the synthetic sensor at ``scale`` (1.0: 8864 x 5288 px)."""
-    tr = tbl_scene(scale, seed=seed, lens=None, wall_angle_deg=angle, wall_y0_px=wall_y0)
+    the synthetic sensor at ``scale`` (1.0: 8864 x 5288 px); ``scene``: more of
+    :func:`rspiv.synth.tbl.tbl_scene`'s keywords (planted vortices)."""
+    tr = tbl_scene(scale, seed=seed, lens=None, wall_angle_deg=angle, wall_y0_px=wall_y0,
+                   **scene)  # fmt: skip
     h, w = tr.shape
     xs = (np.arange(w // GRID) + 0.5) * GRID - 0.5
     ys = (np.arange(h // GRID) + 0.5) * GRID - 0.5

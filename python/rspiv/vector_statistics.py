@@ -43,9 +43,10 @@ DaVis buffer, in its own order):
 5. With ``two_point``, ``quadrant`` and ``conditional``, the boundary layer's structure as a
    campaign gives it (:mod:`rspiv.vector_structures`): the streamwise spectra and two-point
    correlations per row, summed beside the statistics (with their maps, in the second pass),
-   and the quadrant analysis and the conditional averages, a second pass over the files once
-   each vector's mean and the wall are known; with ``pod``, the snapshot POD of the
-   fluctuations, one more reading of the fields it takes.
+   and the quadrant analysis, the conditional averages and the vortex population
+   (``vortices``), a second pass over the files once each vector's mean and the wall are
+   known; with ``pod``, the snapshot POD of the fluctuations, one more reading of the fields
+   it takes.
 
 Refused in one line (:class:`rspiv.errors.InvalidInputError`): no field could be used (with the
 first file's reason), a wall the mean profile does not show (:func:`rspiv.find_wall`'s
@@ -53,9 +54,10 @@ refusal), fewer than 8 profile points beyond it, fewer than 8 contiguous columns
 two-point sums. Warned (``warnings``, the CLI's stderr, ``summary.json``): fields skipped,
 uncorrected raw-frame fields (the lens distortion is in the statistics), a final window
 assumed, a wall tilted and not levelled, a scale that disagrees with the calibration, the
-boundary-layer analysis' own warning, and the two-point, quadrant and conditional analyses'
-(rows that entered few fields, ``u'v'`` unresolved, no events, maps or heights the rows cannot
-hold, fields lost between the passes).
+boundary-layer analysis' own warning, and the two-point, quadrant, conditional and vortex
+analyses' (rows that entered few fields, ``u'v'`` unresolved, no events, maps or heights the
+rows cannot hold, no wall units to bound the vortices' rows, no Lamb-Oseen fit kept, fields
+lost between the passes).
 
 Units and frames: positions px of the fields' frame (object px when corrected), x right, y
 down; the accumulator holds px per pair, pixel axes; the outputs are SI (m, m/s) with y the
@@ -103,8 +105,10 @@ from rspiv.vector_reduction import (
 )
 from rspiv.vector_structures import (
     STRUCTURES,
+    report_lines,
     structure_options,
     structures,
+    summary_entries,
     two_point_columns,
     write_structures,
 )
@@ -151,13 +155,14 @@ class VectorStatistics:
     vorticity : dict or None
         The vorticity statistics per row (with ``vorticity=``; their keys:
         :func:`rspiv.campaign.vorticity.vorticity_profile`).
-    two_point, quadrant, conditional, pod : dict or None
+    two_point, quadrant, conditional, pod, vortices : dict or None
         The spectra and two-point correlations per row, the quadrant analysis, the
-        conditional averages and the POD (with ``two_point=``, ``quadrant=``,
-        ``conditional=``, ``pod=``; their keys: :func:`rspiv.campaign.two_point.
-        two_point_profile`, :func:`rspiv.campaign.quadrant.quadrant_profile`,
-        :func:`rspiv.campaign.conditional.conditional_profile`,
-        :func:`rspiv.campaign.pod.pod_profile`; :mod:`rspiv.vector_structures`).
+        conditional averages, the POD and the vortex population (with ``two_point=``,
+        ``quadrant=``, ``conditional=``, ``pod=``, ``vortices=``; their keys:
+        :func:`rspiv.campaign.two_point.two_point_profile`, :func:`rspiv.campaign.quadrant.
+        quadrant_profile`, :func:`rspiv.campaign.conditional.conditional_profile`,
+        :func:`rspiv.campaign.pod.pod_profile`, :meth:`rspiv.campaign.vortices.VortexSearch.
+        profile`; :mod:`rspiv.vector_structures`).
     seconds : float
         The reduction's wall time.
     """
@@ -181,6 +186,7 @@ class VectorStatistics:
     quadrant: dict[str, Any] | None = None
     conditional: dict[str, Any] | None = None
     pod: dict[str, Any] | None = None
+    vortices: dict[str, Any] | None = None
     seconds: float = 0.0
 
     def screened(self) -> dict[str, Any] | None:
@@ -222,12 +228,7 @@ class VectorStatistics:
             "screened": self.screened(),
             "peak_locking": self.locking,
             "vorticity_rows": None if self.vorticity is None else int(self.vorticity["y"].size),
-            "two_point_rows": None if self.two_point is None else int(self.two_point["y"].size),
-            "quadrant_rows": None if self.quadrant is None else int(self.quadrant["y"].size),
-            "conditional_events": None
-            if self.conditional is None
-            else self.conditional["events"].tolist(),
-            "pod_fraction": None if self.pod is None else self.pod["fraction"].tolist(),
+            **summary_entries({k: getattr(self, k) for k in STRUCTURES}),
             "flow_side": an.flow_side,
             "seconds": self.seconds,
             "warnings": list(self.warnings),
@@ -273,33 +274,14 @@ class VectorStatistics:
             )
         elif self.analysis.error:
             lines.append(f"no wall units: {self.analysis.error}")
-        tp, qd = self.two_point, self.quadrant
-        if tp is not None:
-            c0, c1 = tp["columns"]
-            lines.append(
-                f"two-point: {tp['y'].size} rows, columns {c0}-{c1 - 1}, {tp['pairs']} fields"
-            )
-        if qd is not None:
-            lines.append(f"quadrant: {qd['y'].size} rows, {qd['pairs']} fields")
-        if self.conditional is not None:
-            ev = self.conditional["events"]
-            lines.append(
-                f"conditional averages: {int(ev[:, 0].sum())} ejections, {int(ev[:, 1].sum())} "
-                f"sweeps at {ev.shape[0]} heights, {self.conditional['pairs']} fields"
-            )
-        if self.pod is not None:
-            fr = self.pod["fraction"]
-            lines.append(
-                f"POD: {self.pod['pairs']} fields over {self.pod['vectors']} vectors, the first "
-                f"mode {100 * fr[0]:.1f} %, the first {fr.size} {100 * fr.sum():.1f} %"
-            )
+        lines += report_lines({k: getattr(self, k) for k in STRUCTURES})
         lines += [f"WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
 
     def write(self, out_dir: str | os.PathLike, figures: bool = False) -> dict[str, pathlib.Path]:
         """Write ``statistics.nc``, ``profile.nc``, ``profile.csv``, ``summary.json``, with
-        ``vorticity=`` ``vorticity.nc``, with ``two_point=``, ``quadrant=`` and
-        ``conditional=`` ``two_point.nc``, ``quadrant.nc`` and ``conditional.nc`` (and with
+        ``vorticity=`` ``vorticity.nc``, with ``two_point=``, ``quadrant=``, ``conditional=``,
+        ``pod=`` and ``vortices=`` their ``<name>.nc`` (and with
         ``figures`` the profiles in wall units against the DNS and the figures of
         :func:`rspiv.vector_structures.write_structures`) atomically to ``out_dir``; returns
         name -> path."""
@@ -362,6 +344,10 @@ def vector_statistics(
     pod: bool | int = False,
     pod_modes: int = 10,
     pod_height: float = 0.0,
+    vortices: bool | float = False,
+    vortex_min_diameter: float = 1.0,
+    vortex_fits: bool = True,
+    vortex_fit_shear: bool = False,
     window: tuple[int, int] | None = None,
     read_options: dict[str, Any] | None = None,
     out_dir: str | os.PathLike | None = None,
@@ -434,6 +420,12 @@ def vector_statistics(
         The snapshot POD (a campaign's ``[statistics] pod``, :func:`rspiv.vector_structures.
         pod_pass`): True (at most 1000 fields, spread evenly) or the fields at most; the modes
         kept; the domain up to ``pod_height`` delta_99 from the wall (0: the flow side).
+    vortices, vortex_min_diameter, vortex_fits, vortex_fit_shear : bool or float, float, bool
+        The vortex population (a campaign's ``[statistics] vortices``, ``vortex_threshold``
+        (``vortices``: True for 1.5, or the threshold), ``vortex_min_diameter``,
+        ``vortex_fits`` and ``vortex_fit_shear``; :mod:`rspiv.vector_structures`), in the
+        second pass; it implies ``vorticity`` (least squares) for the thresholds, and needs
+        wall units.
     window : (w, h), optional
         The final window where the files do not say (else twice the grid's spacing, said).
     read_options : dict, optional
@@ -472,6 +464,8 @@ def vector_statistics(
     if wall_y_units not in ("px", "file"):
         raise InvalidInputError(f"statistics: wall_y_units {wall_y_units!r}: px or file")
     scheme = "least_squares" if vorticity is True else (vorticity or None)
+    if vortices is not False and scheme is None:  # the thresholds are the swirl's rms
+        scheme = "least_squares"
     if scheme is not None and scheme not in SCHEMES:
         raise InvalidInputError(
             f"statistics: vorticity {vorticity!r}: True or one of {sorted(SCHEMES)}"
@@ -479,7 +473,8 @@ def vector_statistics(
     if level not in ("auto", True, False):
         raise InvalidInputError(f"statistics: level {level!r}: auto, True or False")
     so = structure_options(two_point, two_point_maps, quadrant, conditional, conditional_hole,
-                           pod, pod_modes, pod_height)  # fmt: skip
+                           pod, pod_modes, pod_height, vortices, vortex_min_diameter,
+                           vortex_fits, vortex_fit_shear)  # fmt: skip
     entries = series_entries(files)
     opts = dict(read_options or {})
     # the first readable field fixes the series
@@ -675,7 +670,7 @@ def vector_statistics(
     passes = {"entries": entries, "options": opts, "reducer": red, "transform": transform,
               "bounds": state["bounds"], "state": state, "save": save,
               "every": checkpoint_every, "progress": progress}  # fmt: skip
-    found, said = structures(so, acc, an, window, xs, min_count, passes)
+    found, said = structures(so, acc, an, window, xs, min_count, passes, pulse or 0.0)
     warnings += said
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)

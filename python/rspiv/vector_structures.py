@@ -33,7 +33,7 @@ boundary layer's structure, computed as a campaign computes them and written to 
   ejections (Q2) and sweeps (Q4) with ``|u'v'| >= hole u_rms v_rms`` at reference rows placed at
   heights in delta_99, over the rows from the wall's 2.5 window heights to twice the highest
   height and offsets as far either way; ``conditional.nc``), in the same second pass. Not
-  about vortex cores: a series' vortex pass is a campaign's alone.
+  about vortex cores (a campaign's alone).
 - **POD** (:mod:`rspiv.campaign.pod`: the snapshot POD of the fluctuations about each vector's
   mean over the series, its domain, sampling error and warnings; ``pod.nc``), at the end
   (:func:`pod_pass`): at most ``pod`` of the fields the statistics took, spread evenly over
@@ -42,6 +42,14 @@ boundary layer's structure, computed as a campaign computes them and written to 
   in 30 exact fields comes out as the first mode (correlation 0.9965, its energy +0.7 %), and
   the decomposition is :func:`rspiv.pod.pod`'s of the same fields in memory to 1e-5. The POD
   is not checkpointed: a stopped run decomposes again (its passes resume).
+- **Vortices** (:mod:`rspiv.campaign.vortices`: every field's vortex cores, connected vectors
+  whose signed swirling strength exceeds ``vortices`` (1.5) times its rms at their height, and
+  a Lamb-Oseen vortex fitted to the fluctuations about each; their population by height,
+  prograde and retrograde apart; ``vortices.nc``), in the second pass. The thresholds come
+  from the first pass's vorticity statistics (``vorticity=``, implied), the rows searched from
+  the wall and delta_99, so wall units are needed (else left out and said). Vortices planted on
+  exact fields come back at their centres with their core radius and circulation
+  (``tests/test_vector_structures.py``).
 
 With a calibration (Method II) or levelling, every field is resampled between its nodes
 (:func:`rspiv.vector_sampling.sample_at`, Keys' cubic), which smooths it a little: on the
@@ -75,6 +83,7 @@ from rspiv.campaign.pod import decompose_with, domain_of, pod_dataset, pod_profi
 from rspiv.campaign.pod import select_snapshots as spread
 from rspiv.campaign.quadrant import quadrant_accumulator, quadrant_dataset, quadrant_profile
 from rspiv.campaign.two_point import map_rows, two_point_dataset, two_point_profile
+from rspiv.campaign.vortices import VortexOptions, VortexSearch, vortex_dataset
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outputs import write_netcdf
 from rspiv.pod import PodBuilder
@@ -93,13 +102,16 @@ __all__ = [
     "structure_options",
     "structures",
     "two_point_columns",
+    "report_lines",
+    "summary_entries",
     "two_point_result",
+    "vortex_result",
     "write_structures",
 ]
 
 #: The analyses of this module, as :class:`rspiv.vector_statistics.VectorStatistics` holds
 #: them and :func:`write_structures` writes them (``<name>.nc``).
-STRUCTURES = ("two_point", "quadrant", "conditional", "pod")
+STRUCTURES = ("two_point", "quadrant", "conditional", "pod", "vortices")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,6 +131,8 @@ class StructureOptions:
     pod : int or None
         The POD's snapshots at most (spread evenly over the fields); ``pod_modes`` kept,
         ``pod_height`` the domain's top in delta_99 (0: the whole flow side).
+    vortices : VortexOptions or None
+        The vortex population's threshold, smallest core and Lamb-Oseen fits.
     """
 
     two_point: float | None = None
@@ -129,11 +143,14 @@ class StructureOptions:
     pod: int | None = None
     pod_modes: int = 10
     pod_height: float = 0.0
+    vortices: VortexOptions | None = None
 
     @property
     def second(self) -> bool:
         """Whether a second pass over the files is needed (the POD's excepted)."""
-        return self.holes is not None or self.maps is not None or self.conditional is not None
+        return any(
+            a is not None for a in (self.holes, self.maps, self.conditional, self.vortices)
+        )
 
 
 def structure_options(
@@ -145,6 +162,10 @@ def structure_options(
     pod: bool | int = False,
     pod_modes: int = 10,
     pod_height: float = 0.0,
+    vortices: bool | float = False,
+    vortex_min_diameter: float = 1.0,
+    vortex_fits: bool = True,
+    vortex_fit_shear: bool = False,
 ) -> StructureOptions:
     """:func:`rspiv.vector_statistics`'s keywords of the same names, checked.
 
@@ -182,10 +203,20 @@ def structure_options(
         raise InvalidInputError(
             f"statistics: pod_modes = {pod_modes} (1-200), pod_height = {pod_height} (>= 0)"
         )
+    vx = None
+    if vortices is not False:
+        vx = VortexOptions(1.5 if vortices is True else float(vortices),
+                           float(vortex_min_diameter), bool(vortex_fits), bool(vortex_fit_shear))
+        if not (np.isfinite(vx.threshold) and vx.threshold > 0 and np.isfinite(vx.min_diameter)
+                and vx.min_diameter > 0):  # fmt: skip
+            raise InvalidInputError(
+                f"statistics: vortices = {vortices} (True or a threshold > 0, the swirl's rms "
+                f"times), vortex_min_diameter = {vortex_min_diameter} (> 0, final windows)"
+            )
     return StructureOptions(
         tp_min, maps, holes, None if cond is None else tuple(float(c) for c in cond),
         float(conditional_hole), None if snaps is None else int(snaps), int(pod_modes),
-        float(pod_height),
+        float(pod_height), vx,
     )  # fmt: skip
 
 
@@ -280,6 +311,11 @@ def _key(parts: dict[str, Any], n: int) -> str:
     tp = parts.get("two_point")
     if tp is not None:
         h.update(repr((tp.shape, tp.columns, tp.min_valid, tp.band, tp.refs)).encode())
+    vx = parts.get("vortices")
+    if vx is not None:  # its thresholds, rows, means and options
+        for a in (vx.thr, vx.usable, vx.mean_u, vx.mean_v, vx.x):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(repr((vx.options, vx.prograde, vx.min_vectors)).encode())
     h.update(f"{sorted(parts)},{n}".encode())
     return h.hexdigest()[:16]
 
@@ -300,7 +336,8 @@ def second_pass(
     excepted): every field read, checked, corrected and screened as in the first pass, and
     added to the empty accumulators ``parts`` (``"quadrant"``: a
     :class:`rspiv.quadrant.QuadrantAccumulator`, ``"two_point"``: a
-    :class:`rspiv.two_point.TwoPointAccumulator` with its maps). Returns the filled
+    :class:`rspiv.two_point.TwoPointAccumulator` with its maps, ``"conditional"``, and
+    ``"vortices"``: a :class:`rspiv.campaign.vortices.VortexSearch`). Returns the filled
     accumulators and the names of the fields that read in the first pass and not now.
 
     ``state`` is the statistics' checkpoint state: its ``second`` holds the pass's sums and is
@@ -315,6 +352,7 @@ def second_pass(
         state["second"] = part
     parts = part["parts"]
     q, tp, cond = parts.get("quadrant"), parts.get("two_point"), parts.get("conditional")
+    vx = parts.get("vortices")
     skipped = state["skipped"]
     for k in range(part["done"], n):
         e = entries[k]
@@ -328,6 +366,8 @@ def second_pass(
                     tp.add(u, v, valid, pair_id=k)
                 if cond is not None:
                     cond.add(u, v, valid, pair_id=k, batch=k * cond.batches // n)
+                if vx is not None:
+                    vx.add_field(u, v, valid, pair_id=k)
             except RspivError as exc:
                 part["lost"].append(f"{name}: {exc}")
         part["done"] = k + 1
@@ -346,9 +386,11 @@ def structures(
     x_px: np.ndarray,
     min_count: int,
     passes: dict[str, Any],
+    dt: float = 0.0,
 ) -> tuple[dict[str, dict[str, Any] | None], list[str]]:
     """The structure analyses ``so`` of a series whose statistics ``acc`` and wall and units
-    ``an`` are known, on a grid of columns ``x_px``: the second pass (:func:`second_pass`) and
+    ``an`` (``dt`` the pulse separation, s; 0 unknown) are known, on a grid of columns
+    ``x_px``: the second pass (:func:`second_pass`) and
     the POD (:func:`pod_pass`) as asked, and their profiles (:data:`STRUCTURES` -> profile or
     None) with what must be said. ``passes`` holds :func:`second_pass`'s arguments after
     ``parts`` (``entries``, ``options``, ``reducer``, ``transform``, ``bounds``, ``state``,
@@ -371,6 +413,12 @@ def structures(
         band, refs = rows[:2] if rows is not None else (None, ())
         cols = passes["state"].get("columns")
         parts["two_point"] = TwoPointAccumulator(acc.shape, cols, so.two_point, band, refs)
+    if so.vortices is not None:
+        try:
+            parts["vortices"] = VortexSearch(acc, an, min_count, window, x_px, so.vortices,
+                                             events=False)  # fmt: skip
+        except InvalidInputError as exc:
+            warnings.append(f"no vortex population: {exc}")
     if parts:
         parts, lost = second_pass(parts, **passes)
         if passes["save"] is not None:
@@ -394,10 +442,31 @@ def structures(
     if "quadrant" in parts:
         out["quadrant"], said = quadrant_result(parts["quadrant"], acc, an, min_count, window)
         warnings += said
+    if "vortices" in parts:
+        out["vortices"], said = vortex_result(parts["vortices"], an, dt)
+        warnings += said
     if so.pod is not None:
         out["pod"], said = pod_pass(so, acc, an, window, x_px, min_count, passes)
         warnings += said
     return out, warnings
+
+
+def vortex_result(
+    vx: VortexSearch, an: Any, dt: float
+) -> tuple[dict[str, Any] | None, list[str]]:
+    """The vortex population of the filled search ``vx`` (:meth:`rspiv.campaign.vortices.
+    VortexSearch.profile`) and what must be said of it, or None when no field entered."""
+    if vx.part["acc"].n_fields == 0:
+        return None, ["no vortex population: no field entered the second pass"]
+    prof, said = vx.profile([vx.part], dt, an)
+    if vx.options.fits and prof["total"] and not prof["fits_kept"]:
+        said.append(
+            f"no core's Lamb-Oseen fit of {prof['total']} was kept: the swirling regions are "
+            "not resolved Lamb-Oseen vortices"
+        )
+    if said:
+        prof["warning"] = "vortices: " + "; ".join(said)
+    return prof, ([prof["warning"]] if said else [])
 
 
 def pod_pass(
@@ -493,15 +562,62 @@ def conditional_result(
     return prof, ([prof["warning"]] if said else [])
 
 
+def summary_entries(found: dict[str, dict[str, Any] | None]) -> dict[str, Any]:
+    """The structure analyses' figures for ``summary.json`` (None where not made)."""
+    tp, qd, cond, pod, vx = (found.get(k) for k in STRUCTURES)
+    return {
+        "two_point_rows": None if tp is None else int(tp["y"].size),
+        "quadrant_rows": None if qd is None else int(qd["y"].size),
+        "conditional_events": None if cond is None else cond["events"].tolist(),
+        "pod_fraction": None if pod is None else pod["fraction"].tolist(),
+        "vortex_cores": None if vx is None else [int(n) for n in vx["count"].sum(axis=0)],
+        "vortex_fits_kept": None if vx is None else vx.get("fits_kept"),
+    }
+
+
+def report_lines(found: dict[str, dict[str, Any] | None]) -> list[str]:
+    """The structure analyses' lines for the terminal."""
+    tp, qd, cond, pod, vx = (found.get(k) for k in STRUCTURES)
+    lines = []
+    if tp is not None:
+        c0, c1 = tp["columns"]
+        lines.append(f"two-point: {tp['y'].size} rows, columns {c0}-{c1 - 1}, {tp['pairs']} fields")
+    if qd is not None:
+        lines.append(f"quadrant: {qd['y'].size} rows, {qd['pairs']} fields")
+    if cond is not None:
+        ev = cond["events"]
+        lines.append(
+            f"conditional averages: {int(ev[:, 0].sum())} ejections, {int(ev[:, 1].sum())} "
+            f"sweeps at {ev.shape[0]} heights, {cond['pairs']} fields"
+        )
+    if pod is not None:
+        fr = pod["fraction"]
+        lines.append(
+            f"POD: {pod['pairs']} fields over {pod['vectors']} vectors, the first mode "
+            f"{100 * fr[0]:.1f} %, the first {fr.size} {100 * fr.sum():.1f} %"
+        )
+    if vx is not None:
+        n = vx["count"].sum(axis=0)
+        kept = f", {vx['fits_kept']} Lamb-Oseen fits kept" if "fits_kept" in vx else ""
+        lines.append(
+            f"vortices: {int(n[0])} prograde and {int(n[1])} retrograde cores in "
+            f"{vx['y'].size} rows, {vx['pairs']} fields{kept}"
+        )
+    return lines
+
+
 def write_structures(out: Any, run: Any, profiles: dict[str, Any], figures: bool) -> dict:
-    """``two_point.nc``, ``quadrant.nc``, ``conditional.nc`` and ``pod.nc`` of ``profiles``
+    """``two_point.nc``, ``quadrant.nc``, ``conditional.nc``, ``pod.nc`` and ``vortices.nc`` of
+    ``profiles``
     (name -> the profile or None; their warnings as the files' ``warning`` attribute) in the
     folder ``out``, and with ``figures`` their figures in wall units (``two_point.png``,
-    ``two_point_maps.png``, ``quadrant.png``, ``conditional.png``, ``pod.png``); returns name
+    ``two_point_maps.png``, ``quadrant.png``, ``conditional.png``, ``pod.png``,
+    ``vortices.png``); returns name
     -> path."""
     files: dict[str, Any] = {}
     datasets = {"two_point": two_point_dataset, "quadrant": quadrant_dataset,
-                "conditional": conditional_dataset, "pod": pod_dataset}  # fmt: skip
+                "conditional": conditional_dataset, "pod": pod_dataset,
+                "vortices": vortex_dataset}  # fmt: skip
     for stem, dataset in datasets.items():
         prof = profiles.get(stem)
         if prof is None:
@@ -518,9 +634,11 @@ def write_structures(out: Any, run: Any, profiles: dict[str, Any], figures: bool
                 plot_two_point,
                 plot_two_point_maps,
             )
+            from rspiv.plots.vortices import plot_vortices  # deferred: matplotlib
 
             draw = {"two_point": plot_two_point, "quadrant": plot_quadrant,
-                    "conditional": plot_conditional, "pod": plot_pod}  # fmt: skip
+                    "conditional": plot_conditional, "pod": plot_pod,
+                    "vortices": plot_vortices}  # fmt: skip
             plots = [(stem, draw[stem])]
             if stem == "two_point" and "R_uu_map" in prof:
                 plots.append(("two_point_maps", plot_two_point_maps))

@@ -18,11 +18,15 @@ atomically: ``statistics.nc`` (per vector, SI, y from the wall), ``profile.nc`` 
 :mod:`rspiv.vector_structures`), with ``--conditional 0.15,0.4`` ``conditional.nc`` (the
 conditional averages of u', v' about ejections and sweeps at those heights in delta_99, in the
 second pass), with ``--pod [N]`` ``pod.nc`` (the snapshot POD of at most N fields, 1000, spread
-over the series; ``--pod-modes``, ``--pod-height``) and, with ``--figures``, the profiles
-against the DNS, the spectra, the quadrant shares, the conditional averages and the POD's
-energies and modes. A stopped run started again with the same files
-and options resumes from ``OUT/checkpoint.pkl``. Warnings go to stderr as well; a series
-without a usable field or a wall rspiv cannot see is refused in one line (exit 2).
+over the series; ``--pod-modes``, ``--pod-height``), with ``--vortices [THRESHOLD]``
+``vortices.nc`` (every field's vortex cores beyond THRESHOLD (1.5) times the swirl's rms at
+their height, with a Lamb-Oseen fit each, and their population by height, in the second pass;
+``--vortex-min-diameter``, ``--no-vortex-fits``, ``--vortex-fit-shear``) and, with
+``--figures``, the profiles against the DNS, the spectra, the quadrant shares, the conditional
+averages, the POD's energies and modes and the vortex population. A stopped run started
+again with the same files and options resumes from ``OUT/checkpoint.pkl``. Warnings go to
+stderr as well; a series without a usable field or a wall rspiv cannot see is refused in one
+line (exit 2).
 """
 
 from __future__ import annotations
@@ -108,7 +112,10 @@ def run(args: argparse.Namespace) -> int:
             conditional=_numbers(args.conditional, "--conditional", _HEIGHTS) or False,
             conditional_hole=args.conditional_hole,
             pod=False if args.pod is None else args.pod, pod_modes=args.pod_modes,
-            pod_height=args.pod_height, window=_window(args.window),
+            pod_height=args.pod_height,
+            vortices=False if args.vortices is None else args.vortices,
+            vortex_min_diameter=args.vortex_min_diameter, vortex_fits=not args.no_vortex_fits,
+            vortex_fit_shear=args.vortex_fit_shear, window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
             out_dir=args.output, progress=bar,
         )  # fmt: skip
@@ -174,6 +181,16 @@ def register(sub) -> None:
     p.add_argument("--pod-modes", type=int, default=10, help="with --pod: modes kept (10)")
     p.add_argument("--pod-height", type=float, default=0.0,
                    help="with --pod: the domain's top in delta_99 (0: the flow side)")
+    p.add_argument("--vortices", nargs="?", const=1.5, default=None, type=float,
+                   metavar="THRESHOLD", help="vortex cores beyond THRESHOLD times the swirl's "
+                   "rms at their height (1.5) and their population, a second pass")  # fmt: skip
+    p.add_argument("--vortex-min-diameter", type=float, default=1.0,
+                   help="with --vortices: cores smaller than a disc this many final windows "
+                   "wide dropped (1.0)")  # fmt: skip
+    p.add_argument("--no-vortex-fits", action="store_true",
+                   help="with --vortices: no Lamb-Oseen fit of each core")  # fmt: skip
+    p.add_argument("--vortex-fit-shear", action="store_true",
+                   help="with --vortices: each Lamb-Oseen vortex in a uniform shear")  # fmt: skip
     p.add_argument("--window", default=None, help="final window WxH px (not in the files)")
     p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
     p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
