@@ -187,3 +187,37 @@ def test_without_wall_units_the_population_is_left_out_and_said(tmp_path):
     assert r.result is None and r.vortices is None and r.vorticity is not None
     said = [w for w in r.warnings if w.startswith("no vortex population")]
     assert len(said) == 1 and "delta_99" in said[0], r.warnings
+
+
+def test_conditional_averages_about_the_cores_in_the_same_pass(series):
+    """With ``conditional`` and ``vortices`` the averages are taken about the cores too, found
+    in the same pass: at each reference row the prograde and retrograde events are the
+    table's cores centred on that row, one per vector; about the prograde cores, which turn
+    clockwise in the flow's frame (x downstream, y away from the wall), u' is positive above
+    the core and negative below it, and v' negative downstream of it and positive upstream."""
+    _, files, _, _, r = series
+    c = vector_statistics(files, nu=r.result.nu, vortices=True, vortex_fits=False, screen=0,
+                          conditional=(0.2, 0.4))  # fmt: skip
+    cond, vx = c.conditional, c.vortices
+    assert list(cond["kinds"]) == ["Q2", "Q4", "prograde", "retrograde"]
+    m = _px(c)
+    t = vx["cores"]
+    dist = c.analysis.profile["dist_px"]
+    order = np.argsort(dist)
+    rows = np.rint(np.interp(t["y"] / m, dist[order], np.arange(dist.size)[order]))
+    cols = np.rint(np.interp(t["x"] / m, c.x, np.arange(c.x.size)))
+    for j, ref in enumerate(cond["ref_rows"]):
+        for kind, prograde in ((2, True), (3, False)):
+            on = (rows == ref) & ((t["sign"] == vx["prograde_sign"]) == prograde)
+            unique = {(int(p), int(q)) for p, q in zip(t["pair"][on], cols[on], strict=True)}
+            assert cond["events"][j, kind] == len(unique) > 0, (j, kind)
+    # the prograde cores' rotation about the reference (dx = 0), a row above and below
+    u, v = cond["u"][:, 2], cond["v"][:, 2]  # (ref, y, dx)
+    y, dx = cond["y"], cond["dx"]
+    mid = int(np.argmin(np.abs(dx)))
+    for j, y_ref in enumerate(cond["y_ref"]):
+        i = int(np.argmin(np.abs(y - y_ref)))
+        assert abs(y[i] - y_ref) < 1e-9 * y_ref
+        assert u[j, i + 1, mid] > 0 > u[j, i - 1, mid], j  # y grows away from the wall
+        assert v[j, i, mid - 1] > 0 > v[j, i, mid + 1], j
+    assert "prograde and" in c.report() and "retrograde cores at 2 heights" in c.report()

@@ -32,8 +32,9 @@ boundary layer's structure, computed as a campaign computes them and written to 
 - **Conditional averages** (:mod:`rspiv.campaign.conditional`: u', v' averaged about the
   ejections (Q2) and sweeps (Q4) with ``|u'v'| >= hole u_rms v_rms`` at reference rows placed at
   heights in delta_99, over the rows from the wall's 2.5 window heights to twice the highest
-  height and offsets as far either way; ``conditional.nc``), in the same second pass. Not
-  about vortex cores (a campaign's alone).
+  height and offsets as far either way; ``conditional.nc``), in the same second pass; and
+  about vortex cores too with ``vortices`` (prograde and retrograde beside Q2 and Q4: the
+  cores a field's vortex search found just before in the same pass).
 - **POD** (:mod:`rspiv.campaign.pod`: the snapshot POD of the fluctuations about each vector's
   mean over the series, its domain, sampling error and warnings; ``pod.nc``), at the end
   (:func:`pod_pass`): at most ``pod`` of the fields the statistics took, spread evenly over
@@ -78,12 +79,14 @@ from rspiv.campaign.conditional import (
     conditional_accumulator,
     conditional_dataset,
     conditional_profile,
+    core_events,
 )
 from rspiv.campaign.pod import decompose_with, domain_of, pod_dataset, pod_profile
 from rspiv.campaign.pod import select_snapshots as spread
 from rspiv.campaign.quadrant import quadrant_accumulator, quadrant_dataset, quadrant_profile
 from rspiv.campaign.two_point import map_rows, two_point_dataset, two_point_profile
 from rspiv.campaign.vortices import VortexOptions, VortexSearch, vortex_dataset
+from rspiv.conditional import KINDS, VORTEX_KINDS
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outputs import write_netcdf
 from rspiv.pod import PodBuilder
@@ -353,6 +356,7 @@ def second_pass(
     parts = part["parts"]
     q, tp, cond = parts.get("quadrant"), parts.get("two_point"), parts.get("conditional")
     vx = parts.get("vortices")
+    about_cores = cond is not None and VORTEX_KINDS[0] in cond.kinds
     skipped = state["skipped"]
     for k in range(part["done"], n):
         e = entries[k]
@@ -364,10 +368,14 @@ def second_pass(
                     q.add(u, v, valid, pair_id=k, batch=k * q.batches // n)
                 if tp is not None:
                     tp.add(u, v, valid, pair_id=k)
-                if cond is not None:
-                    cond.add(u, v, valid, pair_id=k, batch=k * cond.batches // n)
                 if vx is not None:
                     vx.add_field(u, v, valid, pair_id=k)
+                if cond is not None:
+                    events = None
+                    if about_cores:  # the field's cores, found just now
+                        found = vx.part["events"].pop(k, None)
+                        events = core_events(found, cond.ref_rows, cond.shape[1])
+                    cond.add(u, v, valid, pair_id=k, batch=k * cond.batches // n, events=events)
             except RspivError as exc:
                 part["lost"].append(f"{name}: {exc}")
         part["done"] = k + 1
@@ -400,12 +408,19 @@ def structures(
     parts: dict[str, Any] = {}  # the second pass's accumulators
     if so.holes is not None:
         parts["quadrant"] = quadrant_accumulator(acc, an, min_count, so.holes)
+    if so.vortices is not None:
+        try:  # its cores' events serve the conditional averages about them (then dropped)
+            parts["vortices"] = VortexSearch(acc, an, min_count, window, x_px, so.vortices,
+                                             events=so.conditional is not None)  # fmt: skip
+        except InvalidInputError as exc:
+            warnings.append(f"no vortex population: {exc}")
     if so.conditional is not None:
         rows, said = map_rows_of(an, so.conditional, window[1], "conditional averages")
         warnings += said
+        kinds = KINDS + VORTEX_KINDS if "vortices" in parts else KINDS
         if rows is not None:
             parts["conditional"] = conditional_accumulator(
-                acc, an, rows[0], rows[1], rows[2], dx_px, min_count, so.conditional_hole
+                acc, an, rows[0], rows[1], rows[2], dx_px, min_count, so.conditional_hole, kinds
             )
     if so.maps is not None:
         rows, said = map_rows_of(an, so.maps, window[1], "two-point maps")
@@ -413,12 +428,6 @@ def structures(
         band, refs = rows[:2] if rows is not None else (None, ())
         cols = passes["state"].get("columns")
         parts["two_point"] = TwoPointAccumulator(acc.shape, cols, so.two_point, band, refs)
-    if so.vortices is not None:
-        try:
-            parts["vortices"] = VortexSearch(acc, an, min_count, window, x_px, so.vortices,
-                                             events=False)  # fmt: skip
-        except InvalidInputError as exc:
-            warnings.append(f"no vortex population: {exc}")
     if parts:
         parts, lost = second_pass(parts, **passes)
         if passes["save"] is not None:
@@ -586,9 +595,11 @@ def report_lines(found: dict[str, dict[str, Any] | None]) -> list[str]:
         lines.append(f"quadrant: {qd['y'].size} rows, {qd['pairs']} fields")
     if cond is not None:
         ev = cond["events"]
+        cores = (f", {int(ev[:, 2].sum())} prograde and {int(ev[:, 3].sum())} retrograde cores"
+                 if ev.shape[1] > 2 else "")  # fmt: skip
         lines.append(
             f"conditional averages: {int(ev[:, 0].sum())} ejections, {int(ev[:, 1].sum())} "
-            f"sweeps at {ev.shape[0]} heights, {cond['pairs']} fields"
+            f"sweeps{cores} at {ev.shape[0]} heights, {cond['pairs']} fields"
         )
     if pod is not None:
         fr = pod["fraction"]

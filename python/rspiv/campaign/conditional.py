@@ -62,6 +62,7 @@ __all__ = [
     "conditional_accumulator",
     "conditional_dataset",
     "conditional_profile",
+    "core_events",
     "report_section",
     "write_outputs",
 ]
@@ -110,6 +111,22 @@ def conditional_accumulator(
             hole=hole,
             kinds=kinds,
         )
+
+
+def core_events(found: tuple | None, refs: Any, nx: int) -> dict[str, np.ndarray]:
+    """A field's vortex cores as :class:`~rspiv.conditional.ConditionalAccumulator` events:
+    ``found`` its cores' ``(rows, columns, prograde)`` (a vortex search's ``core_events``;
+    None: no core), for each of :data:`~rspiv.conditional.VORTEX_KINDS` a boolean array
+    ``(len(refs), nx)`` True at the columns of the cores centred on each reference row."""
+    events = {k: np.zeros((len(refs), nx), bool) for k in VORTEX_KINDS}
+    if found is None:
+        return events
+    rows, cols, pro = found
+    for j, ref in enumerate(refs):
+        at = rows == ref
+        events["prograde"][j, cols[at & pro]] = True
+        events["retrograde"][j, cols[at & ~pro]] = True
+    return events
 
 
 def conditional_profile(
@@ -261,17 +278,11 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
         acc, an, band, refs, heights, dx_px, st.min_count, st.conditional_hole, kinds
     )
     n_pairs = len(ids)
-    none = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
 
     def add(part: ConditionalAccumulator, i: int, pid: int, u, v, valid) -> None:
         events = None
         if vort is not None:  # the pair's cores centred on a reference row
-            rows, cols, pro = vort["core_events"].get(pid, none)
-            events = {k: np.zeros((len(refs), acc.shape[1]), bool) for k in VORTEX_KINDS}
-            for j, ref in enumerate(refs):
-                at = rows == ref
-                events["prograde"][j, cols[at & pro]] = True
-                events["retrograde"][j, cols[at & ~pro]] = True
+            events = core_events(vort["core_events"].get(pid), refs, acc.shape[1])
         part.add(u, v, valid, pair_id=pid, batch=i * q.batches // n_pairs, events=events)
 
     parts, missing = each_field(

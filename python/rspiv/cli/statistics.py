@@ -20,7 +20,8 @@ conditional averages of u', v' about ejections and sweeps at those heights in de
 second pass), with ``--pod [N]`` ``pod.nc`` (the snapshot POD of at most N fields, 1000, spread
 over the series; ``--pod-modes``, ``--pod-height``), with ``--vortices [THRESHOLD]``
 ``vortices.nc`` (every field's vortex cores beyond THRESHOLD (1.5) times the swirl's rms at
-their height, with a Lamb-Oseen fit each, and their population by height, in the second pass;
+their height, with a Lamb-Oseen fit each, and their population by height, in the second pass,
+where ``--conditional`` averages about them too;
 ``--vortex-min-diameter``, ``--no-vortex-fits``, ``--vortex-fit-shear``) and, with
 ``--figures``, the profiles against the DNS, the spectra, the quadrant shares, the conditional
 averages, the POD's energies and modes and the vortex population. A stopped run started
