@@ -147,14 +147,16 @@ def test_the_cores_are_those_of_the_fields_at_thresholds_from_their_swirl(series
 
 
 def test_the_command_writes_the_population_and_refuses_bad_options(series, tmp_path):
-    """``rspiv statistics --vortices --figures`` writes ``vortices.nc`` (the library's
-    population) and ``vortices.png``, counts the cores in ``summary.json`` and the terminal's
-    report; bad thresholds and diameters are refused in one line (exit 2)."""
+    """``rspiv statistics --vortices --report`` writes ``vortices.nc`` (the library's
+    population) and ``vortices.png``, counts the cores in ``summary.json``, the terminal's
+    report and ``report/report.md`` (with the boundary layer's figures and the population's,
+    copied beside it, and the HTML); bad thresholds and diameters are refused in one line
+    (exit 2)."""
     folder, _, _, _, r = series
     out = tmp_path / "out"
     nu = repr(r.result.nu)
     assert main(["statistics", str(folder), "--nu", nu, "-o", str(out), "--vortices",
-                 "--screen", "0", "--figures"]) == 0  # fmt: skip
+                 "--screen", "0", "--report"]) == 0  # fmt: skip
     with xr.open_dataset(out / "vortices.nc", engine="h5netcdf") as ds:
         np.testing.assert_array_equal(ds["count"].values, r.vortices["count"])
         np.testing.assert_allclose(ds["core_oseen_radius"].values,
@@ -166,6 +168,15 @@ def test_the_command_writes_the_population_and_refuses_bad_options(series, tmp_p
     assert summ["vortex_cores"] == [int(n) for n in r.vortices["count"].sum(axis=0)]
     assert summ["vortex_fits_kept"] == int(r.vortices["oseen_count"].sum())
     assert "Lamb-Oseen fits kept" in r.report() and "prograde and" in r.report()
+    md = (out / "report" / "report.md").read_text()
+    n = r.vortices["count"].sum(axis=0)
+    assert f"# rspiv statistics of {N} DaVis fields" in md
+    assert f"vortices: {n[0]} prograde and {n[1]} retrograde cores" in md
+    assert f"u_tau = {r.result.u_tau:.4g} +/- " in md and "| Re_tau | " in md
+    for png in ("mean_velocity", "reynolds_stresses", "vortices"):
+        assert f"](figures/{png}.png)" in md
+        assert (out / "report" / "figures" / f"{png}.png").stat().st_size > 10_000
+    assert "<h2>Vortex population</h2>" in (out / "report" / "report.html").read_text()
     for bad in (["--vortices", "0"], ["--vortices", "--vortex-min-diameter", "-1"]):
         assert main(["statistics", str(folder), "--nu", nu, "-o", str(tmp_path / "x"),
                      *bad]) == 2  # fmt: skip
@@ -187,6 +198,11 @@ def test_without_wall_units_the_population_is_left_out_and_said(tmp_path):
     assert r.result is None and r.vortices is None and r.vorticity is not None
     said = [w for w in r.warnings if w.startswith("no vortex population")]
     assert len(said) == 1 and "delta_99" in said[0], r.warnings
+    # the report says so, and why the boundary layer has no section of figures
+    files = r.write(tmp_path / "out", report=True)
+    md = files["report_markdown"].read_text()
+    assert "## Warnings" in md and said[0] in md and "## Vortex population" not in md
+    assert "## Boundary layer\n\nNo wall units: " in md and "](figures/" not in md
 
 
 def test_conditional_averages_about_the_cores_in_the_same_pass(series):

@@ -103,6 +103,7 @@ from rspiv.vector_reduction import (
     save_checkpoint,
     series_entries,
 )
+from rspiv.vector_report import write_series_report
 from rspiv.vector_structures import (
     STRUCTURES,
     report_lines,
@@ -278,13 +279,17 @@ class VectorStatistics:
         lines += [f"WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
 
-    def write(self, out_dir: str | os.PathLike, figures: bool = False) -> dict[str, pathlib.Path]:
+    def write(
+        self, out_dir: str | os.PathLike, figures: bool = False, report: bool = False
+    ) -> dict[str, pathlib.Path]:
         """Write ``statistics.nc``, ``profile.nc``, ``profile.csv``, ``summary.json``, with
         ``vorticity=`` ``vorticity.nc``, with ``two_point=``, ``quadrant=``, ``conditional=``,
         ``pod=`` and ``vortices=`` their ``<name>.nc`` (and with
         ``figures`` the profiles in wall units against the DNS and the figures of
-        :func:`rspiv.vector_structures.write_structures`) atomically to ``out_dir``; returns
-        name -> path."""
+        :func:`rspiv.vector_structures.write_structures`) atomically to ``out_dir``; with
+        ``report`` (which draws the figures) ``report/report.md`` and ``report.html``
+        (:mod:`rspiv.vector_report`); returns name -> path."""
+        figures = figures or report
         out = pathlib.Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         files = {"statistics": write_netcdf(self.to_xarray(), out / "statistics.nc")}
@@ -306,6 +311,9 @@ class VectorStatistics:
         files["summary"] = atomic_write_text(
             out / "summary.json", json.dumps(self.summary(), indent=1, default=json_default)
         )
+        if report:
+            written = write_series_report(out / "report", self, files)
+            files.update({f"report_{k}": v for k, v in written.items()})
         return files
 
 

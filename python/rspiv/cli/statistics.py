@@ -24,7 +24,8 @@ their height, with a Lamb-Oseen fit each, and their population by height, in the
 where ``--conditional`` averages about them too;
 ``--vortex-min-diameter``, ``--no-vortex-fits``, ``--vortex-fit-shear``) and, with
 ``--figures``, the profiles against the DNS, the spectra, the quadrant shares, the conditional
-averages, the POD's energies and modes and the vortex population. A stopped run started
+averages, the POD's energies and modes and the vortex population; ``--report`` adds
+``OUT/report/report.md`` and ``report.html`` with all of them. A stopped run started
 again with the same files and options resumes from ``OUT/checkpoint.pkl``. Warnings go to
 stderr as well; a series without a usable field or a wall rspiv cannot see is refused in one
 line (exit 2).
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     print(r.report())
-    files = r.write(args.output, figures=args.figures)
+    files = r.write(args.output, figures=args.figures, report=args.report)
     print(f"written: {', '.join(str(p) for p in files.values())}")
     for w in r.warnings:
         print(f"rspiv statistics: warning: {w}", file=sys.stderr)
@@ -198,4 +199,7 @@ def register(sub) -> None:
     p.add_argument("--openpiv-dt", type=float, default=None, help="OpenPIV: s its u, v are per")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--figures", action="store_true", help="the profiles against the DNS (PNG)")
+    p.add_argument("--report", action="store_true",
+                   help="OUT/report/report.md and .html: what was read, the warnings, the "
+                   "boundary layer and each analysis with its figure (draws the figures)")
     p.set_defaults(func=run)
