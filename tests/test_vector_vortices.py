@@ -173,7 +173,7 @@ def test_the_command_writes_the_population_and_refuses_bad_options(series, tmp_p
     assert f"# rspiv statistics of {N} DaVis fields" in md
     assert f"vortices: {n[0]} prograde and {n[1]} retrograde cores" in md
     assert f"u_tau = {r.result.u_tau:.4g} +/- " in md and "| Re_tau | " in md
-    for png in ("mean_velocity", "reynolds_stresses", "vortices"):
+    for png in ("mean_velocity", "reynolds_stresses", "vorticity", "vortices"):
         assert f"](figures/{png}.png)" in md
         assert (out / "report" / "figures" / f"{png}.png").stat().st_size > 10_000
     assert "<h2>Vortex population</h2>" in (out / "report" / "report.html").read_text()

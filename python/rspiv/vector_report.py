@@ -44,6 +44,10 @@ CAPTIONS = {
         "across the window raise the stresses)"
     ),
     "higher_moments": MOMENTS_CAPTION,
+    "vorticity": (
+        "The vorticity's rms and the mean shear against the DNS (the rms holds the measurement "
+        "noise, which the differences amplify, and lacks the scales the windows average away)"
+    ),
     "two_point": "Streamwise spectra and two-point correlations per row (wall units)",
     "two_point_maps": "Two-point correlation maps about the reference rows",
     "quadrant": "Quadrant analysis of u'v': the shares per quadrant and hole, the joint PDFs",
@@ -120,6 +124,13 @@ def write_series_report(
             )
         )
     sections.append(_boundary_layer(stats, figs))
+    vort = stats.vorticity
+    if vort is not None:
+        text = (f"Vorticity statistics in {vort['y'].size} rows by "
+                f"{vort['scheme'].replace('_', ' ')} differences of each field's valid vectors, "
+                "in the flow's frame.")  # fmt: skip
+        drawn = [(figs["vorticity"], CAPTIONS["vorticity"])] if "vorticity" in figs else []
+        sections.append(ReportSection("Vorticity", text=text, figures=drawn))
     found = {k: getattr(stats, k) for k in STRUCTURES}
     for name, (title, drawn) in _STRUCTURE_SECTIONS.items():
         prof = found.get(name)

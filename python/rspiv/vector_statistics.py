@@ -90,6 +90,7 @@ from rspiv.outlier_screen import HALF_WIDTH, ScreenTally, screen_bounds
 from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
 from rspiv.outputs import atomic_write_text, profile_dataset, write_netcdf, write_profile_csv
 from rspiv.peak_locking import LockingHistogram
+from rspiv.reference import dns_profile_for_re_tau
 from rspiv.stats import FieldAccumulator
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vector_files import VectorFile
@@ -306,6 +307,16 @@ class VectorStatistics:
         if self.vorticity is not None:
             ds = vorticity_dataset(self.vorticity, self.analysis.run)
             files["vorticity"] = write_netcdf(ds, out / "vorticity.nc")
+            if figures and "y_plus" in self.vorticity:
+                from rspiv.plots.vorticity import plot_vorticity  # deferred: matplotlib
+
+                dns = dns_profile_for_re_tau(self.vorticity["re_tau"])
+                try:
+                    files["figure_vorticity"] = plot_vorticity(
+                        out / "vorticity.png", self.vorticity, dns
+                    )
+                except InvalidInputError:
+                    pass  # too few rows in wall units to draw: the file holds them
         run = self.analysis.run
         files.update(write_structures(out, run, {k: getattr(self, k) for k in STRUCTURES}, figures))
         files["summary"] = atomic_write_text(
