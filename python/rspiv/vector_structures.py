@@ -369,7 +369,7 @@ def second_pass(
                 if tp is not None:
                     tp.add(u, v, valid, pair_id=k)
                 if vx is not None:
-                    vx.add_field(u, v, valid, pair_id=k)
+                    vx.add_field(u, v, valid, pair_id=k, i=k)
                 if cond is not None:
                     events = None
                     if about_cores:  # the field's cores, found just now
@@ -412,6 +412,7 @@ def structures(
         try:  # its cores' events serve the conditional averages about them (then dropped)
             parts["vortices"] = VortexSearch(acc, an, min_count, window, x_px, so.vortices,
                                              events=so.conditional is not None)  # fmt: skip
+            parts["vortices"].total = len(passes["entries"])  # the fields' batches
         except InvalidInputError as exc:
             warnings.append(f"no vortex population: {exc}")
     if so.conditional is not None:

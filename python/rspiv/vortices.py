@@ -38,6 +38,7 @@ __all__ = [
     "CORE_FIELDS",
     "OSEEN_FIELDS",
     "VortexAccumulator",
+    "batch_density_se",
     "find_vortices",
     "fit_oseen",
     "min_core_vectors",
@@ -332,58 +333,97 @@ class VortexAccumulator:
     prograde : float
         +1 or -1: the sign of a core rotating with the mean shear (a boundary layer's mean
         vorticity is negative in the flow's frame, so -1 there).
+    batches : int
+        Batches of contiguous fields whose counts are kept apart (the densities' standard
+        errors, :func:`batch_density_se`).
 
     Attributes
     ----------
     count, radius_sum, circulation_sum : ndarray, (2, rows)
         Per row (index 0 prograde, 1 retrograde): the cores, and the sums of their radii and
-        circulations.
+        circulations; ``radius_sq``, ``circulation_sq`` the sums of their squares.
     oseen_count, oseen_radius_sum, oseen_circulation_sum, oseen_u_sum : ndarray, (2, rows)
         The same over the cores whose Lamb-Oseen fit is ``ok`` (:func:`fit_oseen`), and the
-        sum of their convection velocities.
+        sum of their convection velocities; ``oseen_*_sq`` the sums of their squares.
+    count_batches : ndarray, (batches, 2, rows)
+        ``count`` per batch; ``fields_batches`` (batches,) the fields of each.
     n_fields : int
     """
 
     #: The per-row sums of :meth:`add` (the Lamb-Oseen ones over the fits that are ``ok``).
     SUMS = ("count", "radius_sum", "circulation_sum", "oseen_count", "oseen_radius_sum",
-            "oseen_circulation_sum", "oseen_u_sum")  # fmt: skip
+            "oseen_circulation_sum", "oseen_u_sum", "radius_sq", "circulation_sq",
+            "oseen_radius_sq", "oseen_circulation_sq", "oseen_u_sq")  # fmt: skip
 
-    def __init__(self, rows: int, prograde: float):
+    def __init__(self, rows: int, prograde: float, batches: int = 8):
         if prograde not in (1.0, -1.0):
             raise InvalidInputError(f"vortices: prograde must be +1 or -1, got {prograde}")
         self.rows = int(rows)
         self.prograde = float(prograde)
+        self.batches = int(batches)
         for name in self.SUMS:
             setattr(self, name, np.zeros((2, self.rows), np.int64 if "count" in name else float))
+        self.count_batches = np.zeros((self.batches, 2, self.rows), np.int64)
+        self.fields_batches = np.zeros(self.batches, np.int64)
         self.n_fields = 0
 
-    def add(self, cores: dict[str, np.ndarray], row: np.ndarray, oseen=None) -> None:
+    def add(self, cores: dict[str, np.ndarray], row: np.ndarray, oseen=None, batch: int = 0):
         """Add one field's ``cores`` (:func:`find_vortices`), ``row`` the grid row of each
         centroid (an int per core; outside ``0 .. rows-1`` not counted), and their Lamb-Oseen
         fits (:func:`fit_oseen`; ``u`` the convection to sum, in the caller's units), if
-        given."""
+        given; ``batch`` the field's batch of contiguous fields (``0 .. batches-1``)."""
+        b = int(batch)
+        if not 0 <= b < self.batches:
+            raise InvalidInputError(f"vortices: batch {batch} outside 0..{self.batches - 1}")
         row = np.asarray(row, np.int64)
         inside = (row >= 0) & (row < self.rows)
         kind = np.where(cores["sign"] == self.prograde, 0, 1)
         sums = [("count", None), ("radius_sum", cores["radius"]),
-                ("circulation_sum", cores["circulation"])]  # fmt: skip
+                ("circulation_sum", cores["circulation"]), ("radius_sq", cores["radius"] ** 2),
+                ("circulation_sq", cores["circulation"] ** 2)]  # fmt: skip
         if oseen is not None:
-            sums += [("oseen_count", None), ("oseen_radius_sum", oseen["radius"]),
-                     ("oseen_circulation_sum", oseen["circulation"]),
-                     ("oseen_u_sum", oseen["u"])]  # fmt: skip
+            for k in ("radius", "circulation", "u"):
+                sums += [(f"oseen_{k}_sum", oseen[k]), (f"oseen_{k}_sq", oseen[k] ** 2)]
+            sums.append(("oseen_count", None))
         for name, values in sums:
             at = inside & (oseen["ok"] if name.startswith("oseen") else True)
             np.add.at(getattr(self, name), (kind[at], row[at]), 1 if values is None else values[at])
+        np.add.at(self.count_batches[b], (kind[inside], row[inside]), 1)
+        self.fields_batches[b] += 1
         self.n_fields += 1
 
     def merge(self, other: VortexAccumulator) -> VortexAccumulator:
-        """Add ``other``'s counts (the same rows and orientation); returns self."""
-        if (self.rows, self.prograde) != (other.rows, other.prograde):
+        """Add ``other``'s counts (the same rows, orientation and batches); returns self."""
+        if (self.rows, self.prograde, self.batches) != (other.rows, other.prograde,
+                                                         other.batches):  # fmt: skip
             raise InvalidInputError("vortices: cannot merge counts of other grids")
-        for name in self.SUMS:
+        for name in (*self.SUMS, "count_batches", "fields_batches"):
             setattr(self, name, getattr(self, name) + getattr(other, name))
         self.n_fields += other.n_fields
         return self
 
     def empty_copy(self) -> VortexAccumulator:
-        return VortexAccumulator(self.rows, self.prograde)
+        return VortexAccumulator(self.rows, self.prograde, self.batches)
+
+
+def batch_density_se(count_batches: np.ndarray, fields_batches: np.ndarray,
+                     area: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The standard error of a density ``count / (fields area)`` from the batches' own
+    densities: ``count_batches`` ``(batches, ...)`` cores per batch, ``fields_batches``
+    ``(batches,)`` its fields, ``area`` broadcast against one batch's counts. Batches of
+    contiguous fields keep the correlation of successive fields inside a batch, so the error
+    holds it (a time-resolved recording's cores seen again in the next field). NaN with fewer
+    than 2 batches of fields."""
+    used = np.asarray(fields_batches) > 0
+    n_b = int(used.sum())
+    if n_b < 2:
+        return np.full(np.shape(count_batches)[1:], np.nan)
+    shape = (-1,) + (1,) * (np.ndim(count_batches) - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dens = count_batches[used] / (np.asarray(fields_batches)[used].reshape(shape) * area)
+        # the batches weighted by their fields, as the overall density is
+        w = (np.asarray(fields_batches)[used] / np.sum(np.asarray(fields_batches)[used]))
+        w = w.reshape(shape)
+        mean = np.sum(w * dens, axis=0)
+        var = np.sum(w * (dens - mean) ** 2, axis=0) * n_b / (n_b - 1)
+        return np.sqrt(var / n_b)

@@ -20,7 +20,9 @@ Output ``vortices_<run>.nc``: per row (``y`` from the wall, ``y_plus``) and ``ki
 retrograde): ``count``, ``density`` (cores per m^2 of the row's strip per pair, 1/px^2 without a
 calibration; cores are counted at the row nearest their centroid), ``density_delta2`` (times
 delta_99^2), ``radius`` and ``circulation`` (means of the cores; m and m^2/s, with ``_plus`` in
-wall units), ``threshold`` (1/s); and every core (dim ``core``, at most ``MAX_CORES``): ``pair``,
+wall units), each with its standard error ``_se`` (the density's from 8 batches of contiguous
+pairs, which keeps the correlation of successive pairs; the means' from their cores' spread),
+``threshold`` (1/s); and every core (dim ``core``, at most ``MAX_CORES``): ``pair``,
 ``x``, ``y``, ``sign``, ``radius``, ``circulation``, ``peak``. A report figure.
 
 Lamb-Oseen fits (``[statistics] vortex_fits``, on by default: about 0.2 ms a core in
@@ -77,6 +79,7 @@ from rspiv.vortices import (
     CORE_FIELDS,
     OSEEN_FIELDS,
     VortexAccumulator,
+    batch_density_se,
     find_vortices,
     fit_oseen,
     min_core_vectors,
@@ -95,6 +98,8 @@ __all__ = [
 
 #: The most cores ``vortices_<run>.nc`` lists one by one (the counts hold every core).
 MAX_CORES = 2_000_000
+#: Batches of contiguous pairs for the densities' standard errors.
+BATCHES = 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,30 +195,34 @@ class VortexSearch:
         # of the other fields, which holds none of this field's vortex (usable: n >= 2)
         n = np.asarray(acc.count, np.float64)
         self.loo = np.where(usable & (n > 1), n / np.maximum(n - 1.0, 1.0), np.nan)
+        self.total = 0  # the fields the pass will add (their batches), set by the caller
         self.part = self.new_part()
 
     def new_part(self, w: int = 0) -> dict[str, Any]:
         """An empty part: the counts, the cores found (``(pair id, cores)``) and each pair's
         core events."""
-        return {"acc": VortexAccumulator(self.shape[0], self.prograde), "cores": [], "n": 0,
-                "events": {}}  # fmt: skip
+        return {"acc": VortexAccumulator(self.shape[0], self.prograde, BATCHES), "cores": [],
+                "n": 0, "events": {}}  # fmt: skip
 
-    def add_field(self, u: np.ndarray, v: np.ndarray, valid: np.ndarray, pair_id: int) -> None:
-        """Find one field's cores (px per pair, pixel axes) into ``self.part``."""
-        self.add(self.part, 0, pair_id, u, v, valid)
+    def add_field(self, u: np.ndarray, v: np.ndarray, valid: np.ndarray, pair_id: int,
+                  i: int = 0) -> None:  # fmt: skip
+        """Find one field's cores (px per pair, pixel axes) into ``self.part``; ``i`` the
+        field's place among the ``total``."""
+        self.add(self.part, i, pair_id, u, v, valid)
 
     def add(self, part: dict, i: int, pid: int, u, v, valid) -> None:
         """Find one field's cores into ``part`` (:func:`rspiv.campaign.fields.each_field`'s
-        ``add``; ``i`` unused)."""
+        ``add``; ``i`` the field's place among the ``total``: its batch)."""
+        batch = min(i * BATCHES // self.total, BATCHES - 1) if self.total > 0 else 0
         w, s = VorticityAccumulator.fields(u, v, valid, self.dx, self.dy, self.scheme)
         o = self.orient
         cores = find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy, x=self.x,
                               y=self.row_index, min_vectors=self.min_vectors)  # fmt: skip
         rows = np.rint(cores["y"]).astype(np.int64)
         if self.options.fits:
-            cores = self._with_fits(cores, rows, u, v, valid, part["acc"])
+            cores = self._with_fits(cores, rows, u, v, valid, part["acc"], batch)
         else:
-            part["acc"].add(cores, rows)
+            part["acc"].add(cores, rows, batch=batch)
         if self.events:  # each core at the vector nearest its centroid, for averages about it
             cols = np.rint(np.interp(cores["x"], self.x, np.arange(self.x.size))).astype(np.int64)
             part["events"][pid] = (rows, cols, cores["sign"] == self.prograde)
@@ -221,7 +230,8 @@ class VortexSearch:
             part["cores"].append((pid, cores))
             part["n"] += cores["x"].size
 
-    def _with_fits(self, cores: dict, rows, u, v, valid, counts: VortexAccumulator) -> dict:
+    def _with_fits(self, cores: dict, rows, u, v, valid, counts: VortexAccumulator,
+                   batch: int) -> dict:  # fmt: skip
         """The cores with their Lamb-Oseen fits (``oseen_*``), counted."""
         # a Lamb-Oseen vortex (in a uniform shear, if asked) fitted to the fluctuations about
         # each core, about the other fields' mean (the mean shear removed, none of this
@@ -240,7 +250,7 @@ class VortexSearch:
         fits["v"] = self.sign_y * (fits["v"] + np.where(ok, v[at] - dv[at], self.mean_v[at]))
         fits["shear"] = self.sign_x * self.sign_y * fits["shear"]  # dU/dy, flow's frame, 1/pair
         fits["ok"] &= np.isfinite(fits["u"])
-        counts.add(cores, rows, fits)
+        counts.add(cores, rows, fits, batch=batch)
         return {**cores, **{f"oseen_{k}": val for k, val in fits.items()}}
 
     def profile(self, parts: list[dict], dt: float, an: Any) -> tuple[dict[str, Any], list[str]]:
@@ -248,7 +258,7 @@ class VortexSearch:
         :meth:`add_field`'s), per row and kind, in the run's units (``dt`` the pulse
         separation, s, 0 unknown; ``an`` gives the wall units), and what must be said (the
         core table cut)."""
-        counts = VortexAccumulator(self.shape[0], self.prograde)
+        counts = VortexAccumulator(self.shape[0], self.prograde, BATCHES)
         for part in parts:
             counts.merge(part["acc"])
         p = {**self.profile_units, "dist_px": self.dist}
@@ -261,6 +271,7 @@ class VortexSearch:
         keep = keep[np.argsort(self.dist[keep])]
         strip = self.usable.sum(1)[keep] * self.dx * self.dy * m * m  # each row's searched area
         n = max(counts.n_fields, 1)
+        cb = counts.count_batches[:, :, keep].transpose(0, 2, 1)  # (batch, y, kind)
         with np.errstate(invalid="ignore", divide="ignore"):
             c = counts.count[:, keep].T.astype(np.float64)  # (y, kind)
             fitted = counts.oseen_count[:, keep].T.astype(np.float64)
@@ -295,10 +306,29 @@ class VortexSearch:
                 "total": int(counts.count.sum()),
                 "prograde_total": int(counts.count[0].sum()),
                 "fits_kept": int(counts.oseen_count.sum()),
+                # one standard error: the density's from the batches of contiguous pairs, the
+                # means' from their cores' spread
+                "density_se": batch_density_se(cb, counts.fields_batches, strip[:, None]),
+                "count_batches": cb,  # (batch, y, kind)
+                "fields_batches": counts.fields_batches.copy(),
             }
+            for name, scale, n_of in (("radius", m, c), ("circulation", circ, c),
+                                      ("oseen_radius", m, fitted),
+                                      ("oseen_circulation", circ, fitted),
+                                      ("oseen_u", m * per_s, fitted)):  # fmt: skip
+                sq = getattr(counts, f"{name}_sq")[:, keep].T * scale**2
+                mean = prof[name]
+                var = np.maximum(sq / n_of - mean**2, 0.0) * n_of / (n_of - 1)
+                prof[f"{name}_se"] = np.where(n_of > 1, np.sqrt(var / n_of), np.nan)
         r = an.result
         if r is not None and si and dt > 0:
             prof["y_plus"] = prof["y"] * r.u_tau / r.nu
+            for name, to_plus in (("radius", r.u_tau / r.nu), ("circulation", 1.0 / r.nu),
+                                  ("oseen_radius", r.u_tau / r.nu),
+                                  ("oseen_circulation", 1.0 / r.nu),
+                                  ("oseen_u", 1.0 / r.u_tau)):  # fmt: skip
+                prof[f"{name}_plus_se"] = prof[f"{name}_se"] * to_plus
+            prof["density_delta2_se"] = prof["density_se"] * r.delta99**2
             prof["radius_plus"] = prof["radius"] * r.u_tau / r.nu
             prof["circulation_plus"] = prof["circulation"] / r.nu
             prof["oseen_radius_plus"] = prof["oseen_radius"] * r.u_tau / r.nu
@@ -341,6 +371,7 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     options = VortexOptions(st.vortex_threshold, st.vortex_min_diameter, st.vortex_fits,
                             st.vortex_fit_shear)  # fmt: skip
     search = VortexSearch(acc, an, st.min_count, res.context.piv.final_window, x, options)
+    search.total = len(ids)  # the pairs in id order: each_field's i, their batches
     screen = res.context.screens().get(run.name)
     parts, missing = each_field(paths, acc.shape, run.name, search.new_part, search.add,
                                 screen=screen)  # fmt: skip
@@ -409,6 +440,10 @@ def vortex_dataset(prof: dict, run: Any) -> Any:
                          "long_name": "mean circulation inside the threshold"})  # fmt: skip
     ds["threshold"] = ("y", prof["threshold"], {"units": rate,
                        "long_name": "|Lambda_ci| of a core's vectors at least"})  # fmt: skip
+    for k in ("density", "radius", "circulation"):  # one standard error
+        ds[f"{k}_se"] = (dims, prof[f"{k}_se"], {"units": ds[k].attrs["units"],
+                         "long_name": f"standard error of {k}" + (
+                             " (batches of contiguous pairs)" if k == "density" else "")})
     for k in ("pair", "x", "y", "sign", "radius", "circulation", "peak"):
         ds[f"core_{k}"] = ("core", t[k])
     if "oseen_count" in prof:
@@ -417,8 +452,9 @@ def vortex_dataset(prof: dict, run: Any) -> Any:
         ds["y_plus"] = ("y", prof["y_plus"], {"units": "1"})
         for k in ("radius_plus", "circulation_plus", "density_delta2", "oseen_radius_plus",
                   "oseen_circulation_plus", "oseen_u_plus"):  # fmt: skip
-            if k in prof:
-                ds[k] = (dims, prof[k], {"units": "1"})
+            for name in (k, f"{k}_se"):
+                if name in prof:
+                    ds[name] = (dims, prof[name], {"units": "1"})
         ds.attrs["delta_99"] = prof["delta_99"]
     ds.attrs.update(
         {
@@ -448,6 +484,9 @@ def _oseen_variables(ds: Any, prof: dict, dims: tuple, length: str, circ: str) -
                                "mean Lamb-Oseen circulation of the fits kept"})  # fmt: skip
     ds["oseen_u"] = (dims, prof["oseen_u"], {"units": vel, "long_name":
                      "mean convection velocity downstream of the fits kept"})  # fmt: skip
+    for k in ("oseen_radius", "oseen_circulation", "oseen_u"):
+        ds[f"{k}_se"] = (dims, prof[f"{k}_se"], {"units": ds[k].attrs["units"],
+                         "long_name": f"standard error of {k}"})  # fmt: skip
     for k in OSEEN_FIELDS:
         ds[f"core_oseen_{k}"] = ("core", t[f"oseen_{k}"])
     ds["core_oseen_shear"].attrs.update({"units": "s-1" if prof["per_s"] else "1", "long_name":
