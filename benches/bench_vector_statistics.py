@@ -24,6 +24,13 @@ pass's means, a second reading of every file into one matrix of fluctuations (fl
 side off the wall), its inner products ``X X^T``, ``np.linalg.eigh`` and the 10 leading modes
 ``X^T a``.
 
+With ``--vortices`` it also times the vortex population (``vortices=True``: the second pass
+that finds every field's cores at 1.5 times the swirl's rms per row, with and without their
+Lamb-Oseen fits; the screen off), beside numpy's floor: a first reading whose swirling strength
+(central differences of u and v, numpy) gives each row's rms, and a second reading whose cores
+``|swirl| >= 1.5 rms`` are labelled by ``scipy.ndimage.label`` with their centroids; and
+beside rspiv with the vorticity statistics alone (the first pass the population needs).
+
 With ``--tool insight`` the same fields are TSI Insight ``.vec`` text files (mm, m/s; 8.5 MB
 each) and the floor is numpy's ``loadtxt`` of each file with the same sums.
 
@@ -31,7 +38,7 @@ Usage::
 
     python benches/bench_vector_statistics.py [--fields 200] [--workdir /tmp/rspiv-vstat]
                                               [--tool davis|insight] [--structures]
-                                              [--pod]
+                                              [--pod] [--vortices]
 
 Prints a Markdown table (fields per second, the ratio to the floor, peak memory) for
 ``benches/RESULTS.md``.
@@ -165,6 +172,42 @@ def _floor_pod(files: list[pathlib.Path], tool: str, rows: np.ndarray) -> float:
     return time.perf_counter() - t0
 
 
+def _swirl(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Signed swirling strength by central differences (grid steps of 1; the sign of the
+    vorticity): the imaginary part of the velocity gradient's eigenvalues."""
+    dudx, dudy = np.gradient(u, axis=1), np.gradient(u, axis=0)
+    dvdx, dvdy = np.gradient(v, axis=1), np.gradient(v, axis=0)
+    tr, det = dudx + dvdy, dudx * dvdy - dudy * dvdx
+    disc = det - 0.25 * tr * tr
+    return np.sqrt(np.maximum(disc, 0.0)) * np.sign(dvdx - dudy)
+
+
+def _floor_vortices(files: list[pathlib.Path], tool: str) -> tuple[float, int]:
+    """numpy's and scipy's floor for the vortex population (module docstring); returns the
+    seconds and the cores."""
+    from scipy import ndimage
+
+    read = _read_davis if tool == "davis" else _read_text
+    t0 = time.perf_counter()
+    sq = n = None
+    for f in files:
+        u, v, ok = read(f)
+        s = np.where(ok, _swirl(u, v), 0.0)
+        sq = s * s if sq is None else sq + s * s
+        n = ok.astype(float) if n is None else n + ok
+    rms = np.sqrt(sq.sum(axis=1) / np.maximum(n.sum(axis=1), 1))[:, None]
+    cores = 0
+    for f in files:
+        u, v, ok = read(f)
+        s = np.where(ok, _swirl(u, v), 0.0)
+        for sign in (1.0, -1.0):
+            lab, k = ndimage.label(sign * s >= 1.5 * rms)
+            if k:
+                ndimage.center_of_mass(np.abs(s), lab, np.arange(1, k + 1))
+            cores += k
+    return time.perf_counter() - t0, cores
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fields", type=int, default=200)
@@ -172,6 +215,7 @@ def main() -> int:
     ap.add_argument("--tool", choices=("davis", "insight"), default="davis")
     ap.add_argument("--structures", action="store_true", help="also two-point and quadrant")
     ap.add_argument("--pod", action="store_true", help="also the snapshot POD")
+    ap.add_argument("--vortices", action="store_true", help="also the vortex population")
     args = ap.parse_args()
     from rspiv.synth.tbl import TBLFlow
     from rspiv.vector_statistics import vector_statistics
@@ -229,6 +273,29 @@ def main() -> int:
         )
         print(f"POD over {pr.pod['vectors']} vectors, {pr.pod['pairs']} fields: the first mode "
               f"{100 * pr.pod['fraction'][0]:.2f} %")  # fmt: skip
+    if args.vortices:
+        n = len(files)
+        floor4, found = _floor_vortices(files, args.tool)
+        times = {}
+        for name, kw in (("vorticity", {"vorticity": True}),
+                         ("vortices, no fits", {"vortices": True, "vortex_fits": False}),
+                         ("vortices with Lamb-Oseen fits", {"vortices": True})):  # fmt: skip
+            t0 = time.perf_counter()
+            vr = vector_statistics(files, nu=TBLFlow().nu, screen=0, **kw)
+            times[name] = time.perf_counter() - t0
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(
+            f"| {reader} + numpy swirl + a second reading labelled by scipy.ndimage (floor) | "
+            f"{floor4:.2f} | {n / floor4:.1f} | 1 |"
+        )
+        for name, t in times.items():
+            print(f"| rspiv.vector_statistics, {name}, screen off | {t:.2f} | {n / t:.1f} "
+                  f"| {t / floor4:.2f} |")  # fmt: skip
+        cores = int(vr.vortices["count"].sum())
+        fits = times["vortices with Lamb-Oseen fits"] - times["vortices, no fits"]
+        print(f"floor: {found} cores; rspiv: {cores} cores in {vr.vortices['y'].size} rows "
+              f"(delta_99), {vr.vortices['fits_kept']} fits kept; the fits "
+              f"{1e3 * fits / max(cores, 1):.2f} ms a core")  # fmt: skip
     print(f"peak RSS {peak:.0f} MB")
     return 0
 

@@ -120,29 +120,33 @@ def find_vortices(
     with np.errstate(invalid="ignore"):
         strong = np.isfinite(s) & (mag >= thr)
     out: dict[str, list[np.ndarray]] = {k: [] for k in CORE_FIELDS}
-    rows, cols = np.indices(s.shape)
+    wz = np.where(np.isfinite(w), w, 0.0)
     for sign in (1.0, -1.0):
         labels, n = ndimage.label(strong & (np.sign(s) == sign), structure=_EIGHT)
         if n == 0:
             continue
-        idx = np.arange(1, n + 1)
-        count = ndimage.sum_labels(np.ones(s.shape), labels, idx)
-        keep = idx[count >= min_vectors]
+        # the labelled vectors only, summed per label by bincount (in the grid's order)
+        at = np.flatnonzero(labels)
+        lab = labels.ravel()[at]
+        count = np.bincount(lab, minlength=n + 1)[1:].astype(np.float64)
+        keep = np.flatnonzero(count >= min_vectors) + 1
         if keep.size == 0:
             continue
-        weight = np.where(labels > 0, mag, 0.0)
-        wsum = ndimage.sum_labels(weight, labels, keep)
-        ci = ndimage.sum_labels(weight * rows, labels, keep) / wsum
-        cj = ndimage.sum_labels(weight * cols, labels, keep) / wsum
+        m_at = mag.ravel()[at]
+        i_at, j_at = np.divmod(at, s.shape[1])
+        wsum = np.bincount(lab, m_at, n + 1)[keep]
+        ci = np.bincount(lab, m_at * i_at, n + 1)[keep] / wsum
+        cj = np.bincount(lab, m_at * j_at, n + 1)[keep] / wsum
+        peak = np.zeros(n + 1)
+        np.maximum.at(peak, lab, m_at)
         nvec = count[keep - 1]
         out["x"].append(np.interp(cj, np.arange(xs.size), xs))
         out["y"].append(np.interp(ci, np.arange(ys.size), ys))
         out["sign"].append(np.full(keep.size, sign))
         out["vectors"].append(nvec)
         out["radius"].append(np.sqrt(nvec * abs(dx * dy) / np.pi))
-        wz = np.where(np.isfinite(w), w, 0.0)
-        out["circulation"].append(ndimage.sum_labels(wz, labels, keep) * abs(dx * dy))
-        out["peak"].append(ndimage.maximum(mag, labels, keep))
+        out["circulation"].append(np.bincount(lab, wz.ravel()[at], n + 1)[keep] * abs(dx * dy))
+        out["peak"].append(peak[keep])
     return {
         k: (np.concatenate(v) if v else np.zeros(0)).astype(np.float64) for k, v in out.items()
     }
