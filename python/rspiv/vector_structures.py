@@ -50,7 +50,7 @@ boundary layer's structure, computed as a campaign computes them and written to 
   from the first pass's vorticity statistics (``vorticity=``, implied), the rows searched from
   the wall and delta_99, so wall units are needed (else left out and said). Vortices planted on
   exact fields come back at their centres with their core radius and circulation
-  (``tests/test_vector_structures.py``).
+  (``tests/test_vector_vortices.py``).
 
 With a calibration (Method II) or levelling, every field is resampled between its nodes
 (:func:`rspiv.vector_sampling.sample_at`, Keys' cubic), which smooths it a little: on the
@@ -408,21 +408,23 @@ def structures(
     parts: dict[str, Any] = {}  # the second pass's accumulators
     if so.holes is not None:
         parts["quadrant"] = quadrant_accumulator(acc, an, min_count, so.holes)
+    cond_rows = None
+    if so.conditional is not None:
+        cond_rows, said = map_rows_of(an, so.conditional, window[1], "conditional averages")
+        warnings += said
     if so.vortices is not None:
         try:  # its cores' events serve the conditional averages about them (then dropped)
             parts["vortices"] = VortexSearch(acc, an, min_count, window, x_px, so.vortices,
-                                             events=so.conditional is not None)  # fmt: skip
-            parts["vortices"].total = len(passes["entries"])  # the fields' batches
+                                             total=len(passes["entries"]),
+                                             events=cond_rows is not None)  # fmt: skip
         except InvalidInputError as exc:
             warnings.append(f"no vortex population: {exc}")
-    if so.conditional is not None:
-        rows, said = map_rows_of(an, so.conditional, window[1], "conditional averages")
-        warnings += said
+    if cond_rows is not None:
+        band, refs, heights = cond_rows
         kinds = KINDS + VORTEX_KINDS if "vortices" in parts else KINDS
-        if rows is not None:
-            parts["conditional"] = conditional_accumulator(
-                acc, an, rows[0], rows[1], rows[2], dx_px, min_count, so.conditional_hole, kinds
-            )
+        parts["conditional"] = conditional_accumulator(
+            acc, an, band, refs, heights, dx_px, min_count, so.conditional_hole, kinds
+        )
     if so.maps is not None:
         rows, said = map_rows_of(an, so.maps, window[1], "two-point maps")
         warnings += said

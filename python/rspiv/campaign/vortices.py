@@ -131,6 +131,9 @@ class VortexSearch:
     x : ndarray
         The columns' positions, px.
     options : VortexOptions
+    total : int
+        The fields the pass will add (``i`` of :meth:`add` places each in one of
+        :data:`BATCHES` batches of contiguous fields); 0: one batch.
     events : bool
         Keep each pair's cores as events (``core_events``: row, column, prograde), for a
         campaign's conditional averages about them.
@@ -148,7 +151,8 @@ class VortexSearch:
     """
 
     def __init__(self, acc: Any, an: Any, min_count: int, window: tuple[int, int],
-                 x: np.ndarray, options: VortexOptions, events: bool = True):  # fmt: skip
+                 x: np.ndarray, options: VortexOptions, total: int = 0,
+                 events: bool = True):  # fmt: skip
         from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS  # deferred: analysis imports us
 
         va = getattr(acc, "vorticity", None)
@@ -195,7 +199,7 @@ class VortexSearch:
         # of the other fields, which holds none of this field's vortex (usable: n >= 2)
         n = np.asarray(acc.count, np.float64)
         self.loo = np.where(usable & (n > 1), n / np.maximum(n - 1.0, 1.0), np.nan)
-        self.total = 0  # the fields the pass will add (their batches), set by the caller
+        self.total = int(total)
         self.part = self.new_part()
 
     def new_part(self, w: int = 0) -> dict[str, Any]:
@@ -327,14 +331,10 @@ class VortexSearch:
                                   ("oseen_radius", r.u_tau / r.nu),
                                   ("oseen_circulation", 1.0 / r.nu),
                                   ("oseen_u", 1.0 / r.u_tau)):  # fmt: skip
+                prof[f"{name}_plus"] = prof[name] * to_plus
                 prof[f"{name}_plus_se"] = prof[f"{name}_se"] * to_plus
-            prof["density_delta2_se"] = prof["density_se"] * r.delta99**2
-            prof["radius_plus"] = prof["radius"] * r.u_tau / r.nu
-            prof["circulation_plus"] = prof["circulation"] / r.nu
-            prof["oseen_radius_plus"] = prof["oseen_radius"] * r.u_tau / r.nu
-            prof["oseen_circulation_plus"] = prof["oseen_circulation"] / r.nu
-            prof["oseen_u_plus"] = prof["oseen_u"] / r.u_tau
             prof["density_delta2"] = prof["density"] * r.delta99**2
+            prof["density_delta2_se"] = prof["density_se"] * r.delta99**2
             prof["delta_99"] = float(r.delta99)
         if not self.options.fits:  # no Lamb-Oseen fit was made
             prof = {k: val for k, val in prof.items()
@@ -370,8 +370,8 @@ def write_outputs(camp: Any, res: Any, run: RunSpec, an: Any) -> dict[str, Any] 
     ids, paths, x = run_field_files(camp, run.name, acc.pair_ids)
     options = VortexOptions(st.vortex_threshold, st.vortex_min_diameter, st.vortex_fits,
                             st.vortex_fit_shear)  # fmt: skip
-    search = VortexSearch(acc, an, st.min_count, res.context.piv.final_window, x, options)
-    search.total = len(ids)  # the pairs in id order: each_field's i, their batches
+    search = VortexSearch(acc, an, st.min_count, res.context.piv.final_window, x, options,
+                          total=len(ids))  # fmt: skip
     screen = res.context.screens().get(run.name)
     parts, missing = each_field(paths, acc.shape, run.name, search.new_part, search.add,
                                 screen=screen)  # fmt: skip
