@@ -506,7 +506,8 @@ def report_section(camp: Any, res: Any) -> Any:
         f"height, at least {prof['min_vectors']} vectors: a disc as wide as "
         f"{camp.config.statistics.vortex_min_diameter:g} final window): {total[0]} "
         f"prograde (turning with the mean shear) and {total[1]} retrograde. Densities are per "
-        "delta_99^2 and pair; the measurement noise makes cores too and raises the threshold."
+        "delta_99^2 and pair (error bars: one standard error from 8 batches of contiguous "
+        "pairs); the measurement noise makes cores too and raises the threshold."
         + (_oseen_sentence(prof, camp.config.statistics.vortex_fit_shear)
            if "oseen_count" in prof else "")
     )
