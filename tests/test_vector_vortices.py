@@ -52,6 +52,26 @@ def _px(r):
     return r.mm_per_px * 1e-3
 
 
+def _planted_fits(r, planted) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The kept Lamb-Oseen fit nearest each planted vortex ``(field, x, distance from the
+    wall, circulation, r_c)`` (px), asserted within its core radius: their distances from the
+    centres, core radii (px), circulations (px^2 per pair) and places in the core table."""
+    t = r.vortices["cores"]
+    m = _px(r)
+    kept = t["oseen_ok"]
+    fx, fd, fp = t["oseen_x"][kept] / m, t["oseen_y"][kept] / m, t["pair"][kept]
+    at, seps = [], []
+    for k, xc, dc, _, rc in planted:
+        on = np.flatnonzero(fp == k)
+        sep = np.hypot(fx[on] - xc, fd[on] - dc)
+        assert sep.size and sep.min() <= rc, f"field {int(k)}: planted vortex not kept"
+        at.append(on[np.argmin(sep)])
+        seps.append(sep.min())
+    radius = t["oseen_radius"][kept][at] / m
+    gamma = t["oseen_circulation"][kept][at] / (m * m / r.dt)
+    return np.array(seps), radius, gamma, np.flatnonzero(kept)[at]
+
+
 def test_planted_vortices_come_back_at_their_centres_radius_and_circulation(series):
     """Every planted vortex is found, and its Lamb-Oseen fit kept within a core radius of its
     centre; the medians of the fits on them: core radius within 5 % of the planted one,
@@ -63,28 +83,17 @@ def test_planted_vortices_come_back_at_their_centres_radius_and_circulation(seri
     _, _, planted, _, r = series
     vx = r.vortices
     t = vx["cores"]
-    m = _px(r)
-    kept = t["oseen_ok"]
-    fx, fd, fp = t["oseen_x"][kept] / m, t["oseen_y"][kept] / m, t["pair"][kept]
-    found = []
-    for k, xc, dc, _, rc in planted:
-        on = np.flatnonzero(fp == k)
-        sep = np.hypot(fx[on] - xc, fd[on] - dc)
-        assert sep.size and sep.min() <= rc, f"field {int(k)}: planted vortex not kept"
-        found.append((on[np.argmin(sep)], sep.min()))
-    at = np.array([j for j, _ in found])
-    radius = t["oseen_radius"][kept][at] / m
-    gamma = t["oseen_circulation"][kept][at] / (m * m / r.dt)  # px^2 per pair
+    seps, radius, gamma, at = _planted_fits(r, planted)
     expected = planted[0, 3]
-    print(f"centres {np.median([s for _, s in found]):.1f} px off; r_c "
+    print(f"centres {np.median(seps):.1f} px off; r_c "
           f"{np.median(radius) / RC - 1:+.3f}, Gamma {np.median(gamma) / expected - 1:+.3f}")
     assert abs(np.median(radius) / RC - 1) < 0.05
     assert abs(np.median(gamma) / expected - 1) < 0.05
     assert np.all(np.sign(gamma) == np.sign(planted[0, 3]))
-    assert np.all(t["sign"][kept][at] == vx["prograde_sign"])
+    assert np.all(t["sign"][at] == vx["prograde_sign"])
     # the counts per row and kind hold every core of the table, the planted ones prograde
     assert vx["count"].sum() == t["x"].size and vx["pairs"] == N
-    assert vx["oseen_count"].sum() == kept.sum() and "y_plus" in vx and "radius_plus" in vx
+    assert vx["oseen_count"].sum() == t["oseen_ok"].sum() and "y_plus" in vx and "radius_plus" in vx
 
 
 def _swirl(u, v, dx, dy):
@@ -295,17 +304,7 @@ def test_vortices_of_raw_frame_fields_corrected_by_method_two(tmp_path):
         planted += [(s, xc, tr.wall_distance(xc, yc), g, rc) for xc, yc, g, rc in tr.vortices]
     r = vector_statistics(files, nu=tr.flow.nu, calibration=cal, vortices=True)
     assert r.frame == "object" and r.warnings == [], r.warnings
-    t = r.vortices["cores"]
-    m = _px(r)
-    kept = t["oseen_ok"]
-    fx, fd, fp = t["oseen_x"][kept] / m, t["oseen_y"][kept] / m, t["pair"][kept]
-    at = []
-    for k, xc, dc, _, rc in planted:
-        on = np.flatnonzero(fp == k)
-        sep = np.hypot(fx[on] - xc, fd[on] - dc)
-        assert sep.size and sep.min() <= rc, f"field {k}: planted vortex not kept"
-        at.append(on[np.argmin(sep)])
-    radius = np.median(t["oseen_radius"][kept][at] / m)
-    gamma = np.median(t["oseen_circulation"][kept][at] / (m * m / r.dt))
+    _, radii, gammas, _ = _planted_fits(r, planted)
+    radius, gamma = np.median(radii), np.median(gammas)
     print(f"r_c {radius / RC - 1:+.3f}, Gamma {gamma / planted[0][3] - 1:+.3f}")
     assert abs(radius / RC - 1) < 0.10 and abs(gamma / planted[0][3] - 1) < 0.10
