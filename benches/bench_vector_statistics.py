@@ -9,7 +9,10 @@ vectors), written once; each is a copy of its own (DaVis' buffer is cached per f
 of one file would not be read again). rspiv's figure covers everything its reduction does: the
 reading, the screen's bounds from 20 fields and the screen, the accumulator (moments to order
 8, the lag-1 chains, the uncertainties' sums), the wall and the boundary-layer analysis; a
-second run with the screen off shows the screen's cost (its pilot reads 20 fields more).
+second run with the screen off shows the screen's cost (its pilot reads 20 fields more). rspiv
+runs as it does by default (from 64 fields, one process per core reads the files ahead,
+:mod:`rspiv.vector_readahead`); a third run reads them in the calling process (``readers=0``),
+as the vortex case's last row does.
 
 With ``--structures`` it also times the statistics with the streamwise spectra and two-point
 correlations and the quadrant analysis (``two_point=True, quadrant=True``: a second pass over
@@ -218,6 +221,7 @@ def main() -> int:
     ap.add_argument("--vortices", action="store_true", help="also the vortex population")
     args = ap.parse_args()
     from rspiv.synth.tbl import TBLFlow
+    from rspiv.vector_readahead import auto_readers
     from rspiv.vector_statistics import vector_statistics
 
     files = _write(pathlib.Path(args.workdir), args.fields, args.tool)
@@ -226,16 +230,24 @@ def main() -> int:
     r = vector_statistics(files, nu=TBLFlow().nu)
     rs = time.perf_counter() - t0
     t0 = time.perf_counter()
+    vector_statistics(files, nu=TBLFlow().nu, readers=0)
+    here = time.perf_counter() - t0
+    t0 = time.perf_counter()
     vector_statistics(files, nu=TBLFlow().nu, screen=0)
     bare = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     ny, nx = r.accumulator.shape
-    print(f"{len(files)} {r.tool} fields of {nx} x {ny} vectors; u_tau {r.result.u_tau:.4f} m/s")
+    print(f"{len(files)} {r.tool} fields of {nx} x {ny} vectors; u_tau {r.result.u_tau:.4f} m/s; "
+          f"{auto_readers(len(files))} reader processes unless readers=0")  # fmt: skip
     print("| | s | fields/s | ratio |")
     print("|---|---|---|---|")
     reader = "lvpyio" if args.tool == "davis" else "np.loadtxt"
     print(f"| {reader} + numpy mean/cov (floor) | {floor:.2f} | {len(files) / floor:.1f} | 1 |")
     print(f"| rspiv.vector_statistics | {rs:.2f} | {len(files) / rs:.1f} | {rs / floor:.2f} |")
+    print(
+        f"| rspiv, the files read in the calling process (readers=0) | {here:.2f} | "
+        f"{len(files) / here:.1f} | {here / floor:.2f} |"
+    )
     print(
         f"| rspiv, screen off (no pilot) | {bare:.2f} | {len(files) / bare:.1f} "
         f"| {bare / floor:.2f} |"
@@ -279,7 +291,9 @@ def main() -> int:
         times = {}
         for name, kw in (("vorticity", {"vorticity": True}),
                          ("vortices, no fits", {"vortices": True, "vortex_fits": False}),
-                         ("vortices with Lamb-Oseen fits", {"vortices": True})):  # fmt: skip
+                         ("vortices with Lamb-Oseen fits", {"vortices": True}),
+                         ("vortices with fits, readers=0", {"vortices": True, "readers": 0})
+                         ):  # fmt: skip
             t0 = time.perf_counter()
             vr = vector_statistics(files, nu=TBLFlow().nu, screen=0, **kw)
             times[name] = time.perf_counter() - t0
@@ -296,7 +310,7 @@ def main() -> int:
         print(f"floor: {found} cores; rspiv: {cores} cores in {vr.vortices['y'].size} rows "
               f"(delta_99), {vr.vortices['fits_kept']} fits kept; the fits "
               f"{1e3 * fits / max(cores, 1):.2f} ms a core")  # fmt: skip
-    print(f"peak RSS {peak:.0f} MB")
+    print(f"peak RSS {peak:.0f} MB (this process; each reader process holds about 140 MB more)")
     return 0
 
 

@@ -129,22 +129,22 @@ class SeriesReducer:
 
     def again(
         self,
-        entry: Any,
-        options: dict[str, Any],
+        reads: Any,
+        pair_id: int,
         transform: Callable[[VectorFile], VectorFile],
         bounds: Any,
-        pair_id: int,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(u, v, valid)`` of a field read again after the first pass (the second pass, the
-        POD): read, checked, corrected by ``transform`` and screened by ``bounds`` as the
-        statistics took it (:meth:`vectors`, nothing counted).
+        """``(u, v, valid)`` of entry ``pair_id`` read again after the first pass (the second
+        pass, the POD) by ``reads`` (a :class:`rspiv.vector_readahead.ReadAhead`), checked,
+        corrected by ``transform`` and screened by ``bounds`` as the statistics took it
+        (:meth:`vectors`, nothing counted).
 
         Raises
         ------
         RspivError
             The file no longer reads, or the field no longer joins the series (:meth:`check`).
         """
-        vf = read_entry(entry, options)
+        vf = reads.get(pair_id)
         why = self.check(vf)
         if why:
             raise InvalidInputError(why)
@@ -167,22 +167,22 @@ class SeriesReducer:
 
 
 def pilot_fields(
-    entries: list[Any],
-    options: dict[str, Any],
+    reads: Any,
     reducer: SeriesReducer,
     transform: Callable[[VectorFile], VectorFile],
     pilot: int,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], list[int]]:
     """``(u, v, valid)`` of up to ``pilot`` (at most 20, at least 3) fields spread evenly over
     the series, as the statistics will see them (``transform`` applied; ``valid`` the tool's
-    accepted and finite vectors), and their indices; fields that cannot join are passed
-    over."""
-    n = len(entries)
+    accepted and finite vectors), and their indices; fields that cannot join are passed over.
+    ``reads`` (a :class:`rspiv.vector_readahead.ReadAhead`) reads the series' entries."""
+    n = len(reads.entries)
     picks = sorted({int(round(t)) for t in np.linspace(0, n - 1, min(n, max(min(pilot, 20), 3)))})
     got, used = [], []
+    reads.along(picks)
     for k in picks:
         try:
-            vf = read_entry(entries[k], options)
+            vf = reads.get(k)
             if not reducer.check(vf):
                 vf = transform(vf)
                 got.append((vf.u, vf.v, vf.valid & np.isfinite(vf.u) & np.isfinite(vf.v)))

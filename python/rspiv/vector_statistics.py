@@ -48,6 +48,10 @@ DaVis buffer, in its own order):
    known; with ``pod``, the snapshot POD of the fluctuations, one more reading of the fields
    it takes.
 
+Every pass reads its files ahead of the sums in reader processes (``readers``, one per core
+from 64 fields; :mod:`rspiv.vector_readahead`): the figures are those of the files read in
+turn, bit for bit, and a file that crashes its reading library is skipped and named.
+
 Refused in one line (:class:`rspiv.errors.InvalidInputError`): no field could be used (with the
 first file's reason), a wall the mean profile does not show (:func:`rspiv.find_wall`'s
 refusal), fewer than 8 profile points beyond it, fewer than 8 contiguous columns for the
@@ -77,15 +81,13 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.analysis import analyse_run, find_run_wall, run_statistics_dataset, wall_dict
+from rspiv.campaign.analysis import analyse_run, run_statistics_dataset, wall_dict
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
 from rspiv.campaign.vorticity import vorticity_dataset, vorticity_profile
 from rspiv.campaign_config import FlowConfig, StatisticsConfig, WallConfig
-from rspiv.correction import correct_vectors
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError, RspivError
-from rspiv.mapping import fit_mapping
 from rspiv.outlier_screen import HALF_WIDTH, ScreenTally, screen_bounds
 from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
 from rspiv.outputs import atomic_write_text, profile_dataset, write_netcdf, write_profile_csv
@@ -93,7 +95,8 @@ from rspiv.peak_locking import LockingHistogram
 from rspiv.reference import dns_profile_for_re_tau
 from rspiv.stats import FieldAccumulator
 from rspiv.two_point import TwoPointAccumulator
-from rspiv.vector_files import VectorFile
+from rspiv.vector_levelling import field_transform, identity_mapping, levelling, wall_bow, wall_rise
+from rspiv.vector_readahead import ReadAhead, auto_readers
 from rspiv.vector_reduction import (
     SeriesReducer,
     entry_name,
@@ -328,14 +331,6 @@ class VectorStatistics:
         return files
 
 
-def _identity(x: np.ndarray, y: np.ndarray) -> Any:
-    """The identity mapping over the grid's extent (a P3 fitted to points mapped onto
-    themselves): rotated, it levels a field without a calibration."""
-    gx, gy = np.meshgrid(np.linspace(x[0], x[-1], 7), np.linspace(y[0], y[-1], 7))
-    pts = np.column_stack([gx.ravel(), gy.ravel()])
-    return fit_mapping(pts, pts, "p3")
-
-
 def vector_statistics(
     files: Any,
     *,
@@ -372,6 +367,7 @@ def vector_statistics(
     out_dir: str | os.PathLike | None = None,
     checkpoint_every: int = 500,
     progress: Callable[[int, int], None] | None = None,
+    readers: int | None = None,
 ) -> VectorStatistics:
     """Reduce a series of vector files to statistics and a boundary layer in wall units
     (module docstring).
@@ -458,6 +454,10 @@ def vector_statistics(
     progress : callable(done, total), optional
         Called after each field of each pass; ``total`` counts the second pass's fields when
         one is asked, and grows by the POD's reads once its domain is known.
+    readers : int, optional
+        Processes that read the files ahead of their use (:mod:`rspiv.vector_readahead`; the
+        sums are the same, bit for bit); 0 reads in this process. None: one per core for a
+        series of 64 fields or more, else 0.
 
     Returns
     -------
@@ -489,6 +489,9 @@ def vector_statistics(
         raise InvalidInputError(
             f"statistics: vorticity {vorticity!r}: True or one of {sorted(SCHEMES)}"
         )
+    if readers is not None and (isinstance(readers, bool) or not isinstance(readers, int)
+                                or readers < 0):
+        raise InvalidInputError(f"statistics: readers = {readers!r}: a whole number >= 0")
     if level not in ("auto", True, False):
         raise InvalidInputError(f"statistics: level {level!r}: auto, True or False")
     so = structure_options(two_point, two_point_maps, quadrant, conditional, conditional_hole,
@@ -587,49 +590,54 @@ def vector_statistics(
     state = load_checkpoint(ck_path, key, entries)
     base = calibration.mapping if calibration is not None else None
     pilot_said: list[str] = []  # what the pilots say, kept with the checkpoint
-    if state is None:
-        rotation, base = _levelling(
-            entries, start, first, red, opts, base, calibration, mapping, levelled, pilot,
-            (gx, gy), (wall, stations, min_count), pilot_said,
-        )  # fmt: skip
-        state = {"done": 0, "acc": FieldAccumulator(first.u.shape), "skipped": skipped,
-                 "rotation": rotation, "warnings": pilot_said, "bounds": None}  # fmt: skip
-        state["acc"].locking = LockingHistogram()
-        if scheme is not None:
-            dx, dy = float(xs[1] - xs[0]), float(ys[1] - ys[0])
-            state["acc"].vorticity = VorticityAccumulator(first.u.shape, dx, dy, scheme)
-    elif calibration is None and state["rotation"] != 0.0:
-        base = _identity(xs, ys).rotated(state["rotation"])
-    elif calibration is not None:
-        base = calibration.mapping.rotated(state["rotation"])
-    transform = _transform(base, calibration is not None or state["rotation"] != 0.0, mapping)
-    acc = state["acc"]
-    if state["done"] == 0 and (screen > 0 or so.two_point is not None):
-        pilots, used = pilot_fields(entries, opts, red, transform, pilot)
-        if screen > 0:
-            state["bounds"] = _screen(pilots, used, float(screen), state["warnings"])
-            if state["bounds"] is not None:
-                acc.screen = ScreenTally(acc.shape)
-        if so.two_point is not None:
-            state["columns"] = two_point_columns(pilots, so.two_point)
-            if so.maps is None:
-                acc.two_point = TwoPointAccumulator(acc.shape, state["columns"], so.two_point)
-    n_all = len(entries) * (2 if so.second else 1)  # the second pass counts (not the POD's)
-    for k in range(state["done"], len(entries)):
-        e = entries[k]
-        try:
-            vf = first if k == start else read_entry(e, opts)
-            why = red.check(vf)
-            if why:
-                raise InvalidInputError(why)
-            red.add(acc, transform(vf), k, state["bounds"])
-        except RspivError as exc:
-            state["skipped"][entry_name(e)] = str(exc)
-        state["done"] = k + 1
-        if progress is not None:
-            progress(k + 1, n_all)
-        if ck_path is not None and (k + 1) % max(int(checkpoint_every), 1) == 0:
-            save_checkpoint(ck_path, key, entries, state)
+    n_readers = auto_readers(len(entries)) if readers is None else int(readers)
+    reads = ReadAhead(entries, opts, n_readers)
+    with reads:  # its processes end with the first pass (the second pass starts them again)
+        if state is None:
+            rotation, base = levelling(
+                reads, start, first, red, base, calibration, mapping, levelled, pilot,
+                (gx, gy), (wall, stations, min_count), pilot_said,
+            )  # fmt: skip
+            state = {"done": 0, "acc": FieldAccumulator(first.u.shape), "skipped": skipped,
+                     "rotation": rotation, "warnings": pilot_said, "bounds": None}  # fmt: skip
+            state["acc"].locking = LockingHistogram()
+            if scheme is not None:
+                dx, dy = float(xs[1] - xs[0]), float(ys[1] - ys[0])
+                state["acc"].vorticity = VorticityAccumulator(first.u.shape, dx, dy, scheme)
+        elif calibration is None and state["rotation"] != 0.0:
+            base = identity_mapping(xs, ys).rotated(state["rotation"])
+        elif calibration is not None:
+            base = calibration.mapping.rotated(state["rotation"])
+        on = calibration is not None or state["rotation"] != 0.0
+        transform = field_transform(base, on, mapping)
+        acc = state["acc"]
+        if state["done"] == 0 and (screen > 0 or so.two_point is not None):
+            pilots, used = pilot_fields(reads, red, transform, pilot)
+            if screen > 0:
+                state["bounds"] = _screen(pilots, used, float(screen), state["warnings"])
+                if state["bounds"] is not None:
+                    acc.screen = ScreenTally(acc.shape)
+            if so.two_point is not None:
+                state["columns"] = two_point_columns(pilots, so.two_point)
+                if so.maps is None:
+                    acc.two_point = TwoPointAccumulator(acc.shape, state["columns"], so.two_point)
+        n_all = len(entries) * (2 if so.second else 1)  # the second pass counts (not the POD's)
+        reads.along([k for k in range(state["done"], len(entries)) if k != start])
+        for k in range(state["done"], len(entries)):
+            e = entries[k]
+            try:
+                vf = first if k == start else reads.get(k)
+                why = red.check(vf)
+                if why:
+                    raise InvalidInputError(why)
+                red.add(acc, transform(vf), k, state["bounds"])
+            except RspivError as exc:
+                state["skipped"][entry_name(e)] = str(exc)
+            state["done"] = k + 1
+            if progress is not None:
+                progress(k + 1, n_all)
+            if ck_path is not None and (k + 1) % max(int(checkpoint_every), 1) == 0:
+                save_checkpoint(ck_path, key, entries, state)
     if acc.n_fields == 0:
         raise InvalidInputError(
             f"statistics: no field could be used ({next(iter(state['skipped'].values()))})"
@@ -648,14 +656,14 @@ def vector_statistics(
     run = RunSpec("vectors", f"{first.tool} fields", "II" if calibration is not None else "none")
     mag = None if scale is None else 1.0 / scale
     an = analyse_run(run, acc, gx, gy, cfg, mag, pulse or 0.0, window, wall_y)
-    rise, row = _rise(an.wall, gx, gy) if an.wall is not None else (0.0, 1.0)
+    rise, row = wall_rise(an.wall, gx, gy) if an.wall is not None else (0.0, 1.0)
     if state["rotation"] == 0.0 and rise > 0.5 * row:
         warnings.append(
             f"the wall rises {rise:.2f} px across the field (angle {an.wall.angle_deg:.4f} deg) "
             f"and was not levelled: each row's profile mixes wall distances over {rise:.2f} px "
             "(a calibration levels it; level=True rotates the fields)"
         )
-    sag = _bow(an.wall) if an.wall is not None else 0.0
+    sag = wall_bow(an.wall) if an.wall is not None else 0.0
     if abs(sag) > max(0.25 * row, 1.0):
         hint = (
             "is the calibration this camera's?"
@@ -686,76 +694,23 @@ def vector_statistics(
         if ck_path is not None:
             save_checkpoint(ck_path, key, entries, state)
 
-    passes = {"entries": entries, "options": opts, "reducer": red, "transform": transform,
+    passes = {"entries": entries, "reads": reads, "reducer": red, "transform": transform,
               "bounds": state["bounds"], "state": state, "save": save,
               "every": checkpoint_every, "progress": progress}  # fmt: skip
-    found, said = structures(so, acc, an, window, xs, min_count, passes, pulse or 0.0)
+    with reads:
+        found, said = structures(so, acc, an, window, xs, min_count, passes, pulse or 0.0)
     warnings += said
     if an.result is not None and an.result.warning:
         warnings.append(an.result.warning)
     if an.result is None:
         warnings.append(f"no wall units: {an.error}")
+    warnings += reads.notes
     return VectorStatistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
         (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking, vort,
         *(found[k] for k in STRUCTURES), time.perf_counter() - t_start,
     )  # fmt: skip
-
-
-def _transform(mapping_obj: Any, on: bool, mode: str) -> Callable[[VectorFile], VectorFile]:
-    """The per-field resampling: Method II through ``mapping_obj`` (a calibration's mapping,
-    possibly rotated, or a rotated identity), or nothing."""
-    if not on or mapping_obj is None:
-        return lambda vf: vf
-
-    def apply(vf: VectorFile) -> VectorFile:
-        if vf.frame == "object":  # an already corrected field, levelled only (identity)
-            vf = dataclasses.replace(vf, frame="image")
-        return correct_vectors(vf, mapping_obj, mapping=mode)
-
-    return apply
-
-
-def _levelling(
-    entries,
-    start,
-    first,
-    red,
-    opts,
-    base,
-    calibration,
-    mode,
-    level,
-    pilot,
-    grid,
-    wall_opts,
-    warnings,
-) -> tuple[float, Any]:
-    """The rotation (degrees) that levels the wall, from the first ``pilot`` fields (step 3),
-    and the mapping to resample every field through (None: none)."""
-    if level is False or (level == "auto" and calibration is None):
-        return 0.0, base
-    gx, gy = grid
-    side, stations, min_count = wall_opts
-    pre = _transform(base, calibration is not None, mode)
-    acc = FieldAccumulator(first.u.shape)
-    for k in range(start, min(len(entries), start + max(int(pilot), 1))):
-        try:
-            vf = first if k == start else read_entry(entries[k], opts)
-            if not red.check(vf):
-                red.add(acc, pre(vf), k)
-        except RspivError:
-            continue  # the main pass names it
-    w, _ = find_run_wall(acc, gx, gy, stations, side, min(min_count, acc.n_fields))
-    theta = float(w.rotation_deg)
-    if calibration is not None:
-        return theta, base.rotated(theta)
-    warnings.append(
-        f"the fields were rotated by {theta:.4f} deg to level the wall, interpolated between "
-        "their nodes: it lowers the stresses a little (level=False keeps the nodes)"
-    )
-    return theta, _identity(gx[0], gy[:, 0]).rotated(theta)
 
 
 def _screen(pilots: list, used: list[int], sigmas: float, warnings: list[str]) -> Any:
@@ -769,22 +724,3 @@ def _screen(pilots: list, used: list[int], sigmas: float, warnings: list[str]) -
         return None
     us, vs, oks = zip(*pilots, strict=True)
     return screen_bounds(us, vs, oks, sigmas=sigmas, half_width=HALF_WIDTH, pairs=used)
-
-
-def _rise(w: Any, gx: np.ndarray, gy: np.ndarray) -> tuple[float, float]:
-    """How far (px) the wall ``w`` rises across the field, and the rows' spacing (px)."""
-    rise = abs(np.tan(np.deg2rad(w.angle_deg))) * float(np.ptp(gx))
-    return rise, abs(float(gy[1, 0] - gy[0, 0]))
-
-
-def _bow(w: Any) -> float:
-    """The wall's bow, px: the quadratic term of a parabola through its stations, from the
-    middle of the field to its ends (0 with fewer than 4 stations)."""
-    ok = np.isfinite(w.position_px)
-    x = np.asarray(w.x_px, dtype=np.float64)[ok]
-    if x.size < 4 or np.ptp(x) <= 0:
-        return 0.0
-    xc = (x - 0.5 * (x.min() + x.max())) / (0.5 * np.ptp(x))
-    return float(np.polyfit(xc, np.asarray(w.position_px)[ok], 2)[0])
-
-

@@ -326,7 +326,7 @@ def _key(parts: dict[str, Any], n: int) -> str:
 def second_pass(
     parts: dict[str, Any],
     entries: list[Any],
-    options: dict[str, Any],
+    reads: Any,
     reducer: SeriesReducer,
     transform: Callable[[VectorFile], VectorFile],
     bounds: Any,
@@ -336,7 +336,8 @@ def second_pass(
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[dict[str, Any], list[str]]:
     """The second pass over ``entries`` (module docstring; those in ``state["skipped"]``
-    excepted): every field read, checked, corrected and screened as in the first pass, and
+    excepted): every field read (by ``reads``, a :class:`rspiv.vector_readahead.ReadAhead`,
+    ahead of its use), checked, corrected and screened as in the first pass, and
     added to the empty accumulators ``parts`` (``"quadrant"``: a
     :class:`rspiv.quadrant.QuadrantAccumulator`, ``"two_point"``: a
     :class:`rspiv.two_point.TwoPointAccumulator` with its maps, ``"conditional"``, and
@@ -358,12 +359,13 @@ def second_pass(
     vx = parts.get("vortices")
     about_cores = cond is not None and VORTEX_KINDS[0] in cond.kinds
     skipped = state["skipped"]
+    reads.along([k for k in range(part["done"], n) if entry_name(entries[k]) not in skipped])
     for k in range(part["done"], n):
         e = entries[k]
         name = entry_name(e)
         if name not in skipped:
             try:
-                u, v, valid = reducer.again(e, options, transform, bounds, k)
+                u, v, valid = reducer.again(reads, k, transform, bounds)
                 if q is not None:
                     q.add(u, v, valid, pair_id=k, batch=k * q.batches // n)
                 if tp is not None:
@@ -514,10 +516,12 @@ def pod_pass(
     lost: list[str] = []
     red, transform, bounds = passes["reducer"], passes["transform"], passes["bounds"]
 
+    reads = passes["reads"].along(ids)  # each sweep over the snapshots read ahead
+
     def read(i: int, rows: slice | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rows = slice(None) if rows is None else rows
         try:
-            u, v, valid = red.again(entries[ids[i]], passes["options"], transform, bounds, ids[i])
+            u, v, valid = red.again(reads, ids[i], transform, bounds)
             return u[rows], v[rows], valid[rows]
         except RspivError as exc:
             name = f"{entry_name(entries[ids[i]])}: {exc}"

@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
             vortex_min_diameter=args.vortex_min_diameter, vortex_fits=not args.no_vortex_fits,
             vortex_fit_shear=args.vortex_fit_shear, window=_window(args.window),
             read_options={k: v for k, v in read.items() if v not in (False, None)},
-            out_dir=args.output, progress=bar,
+            out_dir=args.output, progress=bar, readers=args.readers,
         )  # fmt: skip
     finally:
         bar.close()
@@ -197,6 +197,9 @@ def register(sub) -> None:
     p.add_argument("--y-up", action="store_true", help="OpenPIV text: y and v point up")
     p.add_argument("--openpiv-scale", type=float, default=None, help="OpenPIV: units per px")
     p.add_argument("--openpiv-dt", type=float, default=None, help="OpenPIV: s its u, v are per")
+    p.add_argument("--readers", type=int, default=None, metavar="N",
+                   help="processes reading the files ahead (default: one per core from 64 "
+                   "fields; 0: none)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--figures", action="store_true", help="the profiles against the DNS (PNG)")
     p.add_argument("--report", action="store_true",
