@@ -142,6 +142,15 @@ def test_cli_corrects_a_batch_and_reads_it_back(mapping, tmp_path, capsys):
         correct_vectors(back, cal)
     assert main([*args, "--skip-existing"]) == 0
     assert "0 fields corrected" in capsys.readouterr().out
+    # read ahead by reader processes: the same files, bit for bit
+    ahead = tmp_path / "ahead"
+    assert main([*args[:-1], str(ahead), "--readers", "2"]) == 0
+    for f in ("B00000.nc", "B00001.nc"):
+        a, b = read_vectors(out / f), read_vectors(ahead / f)
+        for name in ("x", "y", "u", "v", "valid"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert main([*args[:-1], str(ahead), "--readers", "-1"]) == 2
+    assert "--readers -1" in capsys.readouterr().err
     assert main([*args[:-4], str(tmp_path / "missing.txt"), *args[-4:]]) == 2
     assert "missing.txt: no such file" in capsys.readouterr().err
     # a field of a larger sensor than the calibration's: refused, not extrapolated
