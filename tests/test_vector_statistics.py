@@ -318,6 +318,25 @@ def test_bad_fields_skipped_and_bad_series_refused(level, tmp_path, capsys):
     assert len(err) == 1 and "broken.vc7" in err[0]
 
 
+def test_a_davis_set_file_stands_for_its_folder(level, tmp_path, capsys):
+    _, files, _ = level
+    folder = tmp_path / "PIV_MP(2x32x32_50%ov)"  # as DaVis names a vector set
+    folder.mkdir()
+    for f in files[:12]:
+        (folder / f.name).symlink_to(f)
+    (tmp_path / "PIV_MP(2x32x32_50%ov).set").write_text("SetType=Vector\n")
+    r = vector_statistics(tmp_path / "PIV_MP(2x32x32_50%ov).set", nu=NU, screen=0)
+    direct = vector_statistics(files[:12], nu=NU, screen=0)
+    assert r.used == 12
+    np.testing.assert_array_equal(r.to_xarray()["uu"].values, direct.to_xarray()["uu"].values)
+    (tmp_path / "alone.set").write_text("SetType=Vector\n")
+    with pytest.raises(InvalidInputError, match=r"alone.set: a DaVis set whose folder alone/"):
+        vector_statistics(tmp_path / "alone.set", nu=NU)
+    assert main(["statistics", str(tmp_path / "alone.set"), "--nu", "1e-6", "-o",
+                 str(tmp_path / "o")]) == 2  # fmt: skip
+    assert "is not beside it" in capsys.readouterr().err
+
+
 def test_random_vectors_the_tool_kept_are_screened(level, tmp_path):
     folder, files, truth = level
     rng = np.random.default_rng(3)

@@ -52,8 +52,9 @@ _CHECKPOINT = ("rspiv-vector-statistics", 1)
 def series_entries(files: Any) -> list[Any]:
     """The fields to read, in order: paths, (path, frame) tuples; a folder, a glob or a file of
     several fields expanded (:func:`rspiv.vector_files.vector_series`, each file of a folder
-    or glob by its own fields). A file that cannot be opened stays one entry, named when the
-    reduction skips it."""
+    or glob by its own fields). A DaVis set's ``.set`` file stands for the folder of its name
+    beside it, where DaVis keeps the set's buffers. A file that cannot be opened stays one
+    entry, named when the reduction skips it."""
     if isinstance(files, (str, os.PathLike)):
         files = [files]
     out: list[Any] = []
@@ -61,6 +62,7 @@ def series_entries(files: Any) -> list[Any]:
         if isinstance(item, tuple):
             out.append((str(item[0]), int(item[1])))
             continue
+        item = _davis_set(item)
         try:
             series = vector_series(str(item))
         except InvalidInputError:
@@ -72,6 +74,25 @@ def series_entries(files: Any) -> list[Any]:
     if not out:
         raise InvalidInputError("statistics: no vector file given")
     return out
+
+
+def _davis_set(item: Any) -> Any:
+    """The folder a DaVis ``X.set`` stands for (``X/`` beside it), else ``item``.
+
+    Raises
+    ------
+    InvalidInputError
+        A ``.set`` file without its folder (copied alone from the project).
+    """
+    p = pathlib.Path(item)
+    if p.suffix.lower() != ".set":
+        return item
+    folder = p.with_suffix("")
+    if not folder.is_dir():
+        raise InvalidInputError(
+            f"{item}: a DaVis set whose folder {folder.name}/ (its buffers) is not beside it"
+        )
+    return str(folder)
 
 
 def _frames(path: str) -> list[Any]:
