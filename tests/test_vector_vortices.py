@@ -23,7 +23,7 @@ from lens_cases import strong_lens
 from rspiv.calibration import calibrate_points
 from rspiv.cli import main
 from rspiv.vector_statistics import vector_statistics
-from rspiv.vortices import find_vortices
+from rspiv.vortices import OSEEN_CROWDED, find_vortices
 from rspiv.vorticity import VorticityAccumulator
 from vector_series_cases import exact_field, write_vc7
 
@@ -94,6 +94,17 @@ def test_planted_vortices_come_back_at_their_centres_radius_and_circulation(seri
     # the counts per row and kind hold every core of the table, the planted ones prograde
     assert vx["count"].sum() == t["x"].size and vx["pairs"] == N
     assert vx["oseen_count"].sum() == t["oseen_ok"].sum() and "y_plus" in vx and "radius_plus" in vx
+    # kept fits near another kept fit of their field: counted from the core table
+    crowded = t["oseen_ok"] & (t["oseen_neighbour"] < OSEEN_CROWDED)
+    assert vx["fits_crowded"] == crowded.sum() < 0.05 * vx["fits_kept"]
+    assert np.isnan(t["oseen_neighbour"][~t["oseen_ok"]]).all()
+    for pid in np.unique(t["pair"]):  # the nearest other kept fit, in their mean r_c
+        k = np.flatnonzero((t["pair"] == pid) & t["oseen_ok"])
+        if k.size > 1:
+            x, y, rc = t["oseen_x"][k], t["oseen_y"][k], t["oseen_radius"][k]
+            d = np.hypot(x[:, None] - x, y[:, None] - y) / (0.5 * (rc[:, None] + rc))
+            np.fill_diagonal(d, np.inf)
+            np.testing.assert_allclose(t["oseen_neighbour"][k], d.min(axis=1), rtol=1e-9)
 
 
 def _swirl(u, v, dx, dy):
