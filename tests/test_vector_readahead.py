@@ -195,3 +195,12 @@ def test_readers_that_cannot_start_leave_the_reading_here(series, monkeypatch):
     said = [w for w in r.warnings if "reader processes ended as they started" in w]
     assert said == ["the reader processes ended as they started (exit code 3, twice): the "
                     "files were read in this process"]  # fmt: skip
+
+
+def test_no_interpreter_to_run_the_readers(series, monkeypatch):
+    _, files, nu = series
+    monkeypatch.setattr(ra.sys, "executable", "/nonexistent/python3")
+    r = vector_statistics(files, nu=nu, readers=2)
+    assert r.used == N and not r.skipped
+    said = [w for w in r.warnings if "reader processes could not start" in w]
+    assert len(said) == 1 and "the files were read in this process" in said[0]

@@ -262,10 +262,10 @@ class ReadAhead:
             if not self._wanted or self._wanted[0][1] != k:
                 self._restart(self._at[k])
             self._fill()
-            serial = self._wanted[0][0]
+            serial = self._wanted[0][0] if self._wanted else -1
             while serial not in self.results and self.readers:
                 for r in list(self._slots):
-                    if r.dead:
+                    if r.dead and r in self._slots:  # (a reader given up is not revived)
                         self._revive(r)
                 if serial not in self.results and self.readers:
                     self.cond.wait(_POLL_S)
@@ -308,19 +308,42 @@ class ReadAhead:
 
     def _fill(self) -> None:
         while len(self._wanted) < self.depth and self._next < len(self.order):
+            reader = self._reader()
+            if reader is None:  # given up: read in the calling process
+                return
             k = self.order[self._next]
             self._next += 1
             serial = next(self._serials)
             self._wanted.append((serial, k))
             self.live.add(serial)
             self._kind[serial] = k
-            self._reader().ask(serial, self.entries[k], self.options)
+            reader.ask(serial, self.entries[k], self.options)
 
-    def _reader(self) -> _Reader:
+    def _reader(self) -> _Reader | None:
+        """The reader to ask next (started when fewer are running than asked for), or None
+        when a reader process could not be started (then none is used from now on)."""
         if len(self._slots) < self.readers:
-            self._slots.append(_Reader(self))
-            return self._slots[-1]
-        return min(self._slots, key=lambda r: len(r.asked))
+            r = self._start()
+            if r is not None:
+                self._slots.append(r)
+            return r
+        return min(self._slots, key=lambda r: len(r.asked)) if self._slots else None
+
+    def _start(self) -> _Reader | None:
+        try:
+            return _Reader(self)
+        except OSError as exc:  # no interpreter to run, too many processes
+            self._give_up(f"the reader processes could not start ({exc})")
+            return None
+
+    def _give_up(self, why: str) -> None:
+        """Read in the calling process from now on, and say why."""
+        self.notes.append(f"{why}: the files were read in this process")
+        self.readers = 0
+        for other in self._slots:
+            other.close(join=False)
+        self._slots = []
+        self._restart(len(self.order))
 
     def _revive(self, r: _Reader) -> None:
         """Replace the dead reader ``r``: the field it was reading is read again by its
@@ -331,17 +354,13 @@ class ReadAhead:
         if not r.ready:  # not a file's doing: it died before it could read one
             self._fruitless += 1
             if self._fruitless >= 2:
-                self.notes.append(
-                    f"the reader processes ended as they started (exit code {rc}, twice): "
-                    "the files were read in this process"
-                )
-                self.readers = 0
-                for other in self._slots:
-                    other.close(join=False)
-                self._slots = []
-                self._restart(len(self.order))
+                self._give_up(f"the reader processes ended as they started (exit code {rc}, "
+                              "twice)")  # fmt: skip
                 return
-        self._slots[self._slots.index(r)] = new = _Reader(self)
+        new = self._start()
+        if new is None:
+            return
+        self._slots[self._slots.index(r)] = new
         if asked and r.ready:
             first = asked[0]
             k = self._kind.get(first, -1)
