@@ -27,7 +27,7 @@ calling process, bit for bit (``tests/test_vector_readahead.py``).
   calling process (its threads, its ``__main__``) is copied or imported again. They end with
   :meth:`ReadAhead.close` (a context manager).
 
-Fields are handed over pickled through a pipe (about 8 MB for 183,000 vectors), which costs
+Fields are handed over pickled through a pipe (about 6 MB for 183,000 vectors), which costs
 the calling process a copy per field.
 """
 
