@@ -285,6 +285,25 @@ def test_a_neighbour_closer_than_four_core_radii_is_said(sense):
     assert np.isnan(_cores_and_fits(u, v)[1]["neighbour"]).all()
 
 
+def test_one_vortex_split_into_two_cores_is_kept_once():
+    """One exact vortex given as two cores of its sense 0.6 r_c apart (a threshold that splits
+    its swirl, as on pivpy's real urban-canopy fields, where two kept fits of one sense lay
+    0.89 mean core radii apart): both fits find the vortex, and only the better one is kept,
+    exact. (Two resolved vortices 3 r_c apart stay two: the neighbour test above.)"""
+    x0, y0, gamma, rc = 141.3, 88.6, -260.0, 9.0
+    u, v = _lamb_oseen([(x0, y0, gamma, rc)])
+    split = {"x": np.array([x0 - 0.3 * rc, x0 + 0.3 * rc]), "y": np.array([y0, y0 + 1.0]),
+             "sign": np.array([-1.0, -1.0]), "radius": np.array([6.0, 5.0])}  # fmt: skip
+    f = fit_oseen(u, v, split, H, H)
+    assert f["ok"].sum() == 1 and np.isnan(f["neighbour"]).all()
+    k = int(np.flatnonzero(f["ok"])[0])
+    np.testing.assert_allclose([f["x"][k], f["y"][k], f["radius"][k], f["circulation"][k]],
+                               [x0, y0, rc, gamma], rtol=1e-6, atol=1e-6)  # fmt: skip
+    other = 1 - k
+    assert np.isnan([f[n][other] for n in ("x", "y", "radius", "circulation", "u")]).all()
+    assert f["fit"][other] <= f["fit"][k]  # the one explaining less is dropped, its fit said
+
+
 def test_cores_of_noise_are_not_fitted():
     """Cores the noise alone makes (white noise of 0.1 px, threshold 1.5 rms): no fit kept."""
     rng = np.random.default_rng(2)

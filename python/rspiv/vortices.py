@@ -277,7 +277,9 @@ def fit_oseen(
         does not determine a vortex), and ``ok``: a fit of the core's sense of rotation,
         centred within two core radii of the centroid, with ``r_c`` between a third of a grid
         step and the patch's radius and ``fit >= OSEEN_MIN_FIT``. Values of a core that is not
-        ``ok`` are NaN. ``neighbour``: the distance (px) from a kept fit's centre to the
+        ``ok`` are NaN. Two fits of one sense closer than their mean core radius are one
+        vortex split into two cores by the threshold: only the one with the higher ``fit`` is
+        kept. ``neighbour``: the distance (px) from a kept fit's centre to the
         nearest other kept fit's, in their mean core radius ``(r_c + r_c') / 2`` (NaN without
         another); below :data:`OSEEN_CROWDED` the neighbour biases the fit (a single-vortex
         model).
@@ -335,6 +337,7 @@ def fit_oseen(
     )  # fmt: skip
     for k in OSEEN_FIELDS[:-1]:
         out[k] = fits[{"x": "col", "y": "row"}.get(k, k)]
+    _one_per_vortex(out, out["x"] * dx, out["y"] * dy)
     out["neighbour"] = fit_neighbours(out["x"] * dx, out["y"] * dy, out["radius"], out["ok"])
     out["x"] = np.interp(out["x"], np.arange(nx), xs)  # NaN stays NaN
     out["y"] = np.interp(out["y"], np.arange(ny), ys)
@@ -349,16 +352,43 @@ def fit_neighbours(x: np.ndarray, y: np.ndarray, r: np.ndarray, ok: np.ndarray) 
     k = np.flatnonzero(ok)
     if k.size < 2:
         return out
-    x, y, r = x[k], y[k], r[k]
     near = np.empty(k.size)
-    for a in range(0, k.size, 512):
-        b = min(a + 512, k.size)
+    for a, d in _apart(x[k], y[k], r[k]):
+        near[a : a + len(d)] = d.min(axis=1)
+    out[k] = near
+    return out
+
+
+def _apart(x: np.ndarray, y: np.ndarray, r: np.ndarray):
+    """``(a, d)`` by blocks of 512 points from ``a``: their distances to every point in their
+    mean core radius (inf to themselves)."""
+    for a in range(0, x.size, 512):
+        b = min(a + 512, x.size)
         d = np.hypot(x[a:b, None] - x[None], y[a:b, None] - y[None])
         d /= 0.5 * (r[a:b, None] + r[None])
         d[np.arange(b - a), np.arange(a, b)] = np.inf  # not itself
-        near[a:b] = d.min(axis=1)
-    out[k] = near
-    return out
+        yield a, d
+
+
+def _one_per_vortex(out: dict[str, np.ndarray], x: np.ndarray, y: np.ndarray) -> None:
+    """Two kept fits of one sense closer than their mean core radius are one vortex whose swirl
+    the threshold split into two cores (two resolved vortices of like sense merge into one
+    core from about 2.5 r_c apart): the one explaining less of its patch is no longer kept,
+    its values NaN, as for any fit not kept (``x``, ``y`` px, in place in ``out``)."""
+    k = np.flatnonzero(out["ok"])
+    if k.size < 2:
+        return
+    sense = np.sign(out["circulation"][k])
+    pairs = []
+    for a, d in _apart(x[k], y[k], out["radius"][k]):
+        i, j = np.nonzero((d < 1.0) & (sense[a : a + len(d), None] == sense[None]))
+        pairs += [(k[i0 + a], k[j0]) for i0, j0 in zip(i, j, strict=True) if i0 + a < j0]
+    for i, j in pairs:  # rare: a few per field
+        if out["ok"][i] and out["ok"][j]:
+            worse = i if out["fit"][i] < out["fit"][j] else j
+            out["ok"][worse] = False
+            for name in ("x", "y", "radius", "circulation", "u", "v", "shear"):
+                out[name][worse] = np.nan
 
 
 class VortexAccumulator:
