@@ -319,6 +319,8 @@ def seeding(
     and ``searched`` (pixels), as ``(rows, cols)`` arrays, with the frame's ``signal`` and the
     ``block`` (``piv_core::seeding``)."""
 
+OSEEN_JOINT_MAX: int
+
 OSEEN_MIN_FIT: float
 
 OSEEN_MIN_VECTORS: int
@@ -348,6 +350,28 @@ def oseen_fit(
     of the patch's variance about its background explained) and ``ok``. ValueError
     (InvalidInputError) for arrays of other shapes or lengths, a spacing or reach not > 0,
     ``orient`` not +-1 or ``max_evals`` of 0."""
+
+def oseen_fit_joint(
+    u: npt.NDArray[np.float64],
+    v: npt.NDArray[np.float64],
+    valid: npt.NDArray[np.bool_],
+    cores: npt.NDArray[np.float64],
+    fits: npt.NDArray[np.float64],
+    group: npt.NDArray[np.int64],
+    dx: float,
+    dy: float,
+    reach: float,
+    orient: float,
+    max_evals: int,
+    shear: bool,
+) -> dict[str, npt.NDArray[np.generic]]:
+    """The groups of kept single fits (``group`` >= 0, at most ``OSEEN_JOINT_MAX`` each) fitted
+    jointly, one background per group (``piv_core::vortex_joint``): ``cores`` (n, 4) the cores'
+    ``col``, ``row`` (grid steps), ``radius`` (px), ``sign``; ``fits`` (n, 8) :func:`oseen_fit`'s
+    ``col``, ``row``, ``radius``, ``circulation``, ``u``, ``v``, ``shear``, ``fit`` (NaN where
+    not kept). Returns those arrays with the joint fits in place where a group's was kept, and
+    ``joint`` (bool) there. ValueError (InvalidInputError) as :func:`oseen_fit`, and for
+    ``cores``, ``fits`` and ``group`` of other lengths."""
 
 def particle_diameter(
     frame_a: npt.NDArray[np.generic],

@@ -38,6 +38,7 @@ __all__ = [
     "CORE_FIELDS",
     "OSEEN_CROWDED",
     "OSEEN_FIELDS",
+    "OSEEN_JOINT_MAX",
     "VortexAccumulator",
     "batch_density_se",
     "find_vortices",
@@ -155,14 +156,24 @@ def find_vortices(
 
 
 #: The per-core arrays :func:`fit_oseen` returns.
-OSEEN_FIELDS = ("x", "y", "radius", "circulation", "u", "v", "shear", "fit", "ok", "neighbour")
+OSEEN_FIELDS = (
+    "x", "y", "radius", "circulation", "u", "v", "shear", "fit", "ok", "neighbour", "joint",
+)  # fmt: skip
 
-#: A kept fit closer than this to another kept fit of its field (centre to centre, in their
-#: mean core radius: :func:`fit_oseen`'s ``neighbour``) is biased by it: a single-vortex fit
-#: takes the neighbour's uniform part into its convection, not its gradient. Measured on
+#: The kernel's per-core arrays, in the order of ``_rspiv.oseen_fit_joint``'s ``fits``.
+_KERNEL_FIELDS = ("x", "y", "radius", "circulation", "u", "v", "shear", "fit")
+
+#: Groups of more kept fits than this, each within :data:`OSEEN_CROWDED` of another, are left
+#: to their single fits (defined by the kernel, ``piv_core::vortex_joint``).
+OSEEN_JOINT_MAX = _rspiv.OSEEN_JOINT_MAX
+
+#: A kept single fit closer than this to another kept fit of its field (centre to centre, in
+#: their mean core radius: :func:`fit_oseen`'s ``neighbour``) is biased by it: a single-vortex
+#: fit takes the neighbour's uniform part into its convection, not its gradient. Measured on
 #: pairs of exact Lamb-Oseen vortices of one r_c (``tests/test_vortices.py``, six directions):
 #: from 4 core radii apart r_c and the circulation within 0.8 % of the truth, at 3 up to 16 %
 #: off (like sense) and 9 % (opposite sense); two of like sense 2.5 r_c apart are one core.
+#: Such fits are fitted again together (:func:`fit_oseen`'s ``joint``).
 OSEEN_CROWDED = 4.0
 
 #: A fit is kept (``ok``) when it explains at least this share of the patch's velocity
@@ -216,6 +227,7 @@ def fit_oseen(
     orient: float = 1.0,
     iterations: int = 100,
     shear: bool = False,
+    joint: bool = True,
 ) -> dict[str, np.ndarray]:
     """A Lamb-Oseen vortex fitted to the vectors about each core of :func:`find_vortices`.
 
@@ -263,6 +275,8 @@ def fit_oseen(
         Levenberg-Marquardt steps tried (model evaluations) per core at most (>= 1).
     shear : bool
         Fit the background shear with the vortex (above).
+    joint : bool
+        Fit neighbouring vortices together (below).
 
     Returns
     -------
@@ -281,8 +295,16 @@ def fit_oseen(
         vortex split into two cores by the threshold: only the one with the higher ``fit`` is
         kept. ``neighbour``: the distance (px) from a kept fit's centre to the
         nearest other kept fit's, in their mean core radius ``(r_c + r_c') / 2`` (NaN without
-        another); below :data:`OSEEN_CROWDED` the neighbour biases the fit (a single-vortex
-        model).
+        another); below :data:`OSEEN_CROWDED` the neighbour biases a single-vortex fit.
+        ``joint``: the fit was made with its neighbours (with ``joint``): the kept fits
+        closer than :data:`OSEEN_CROWDED` to another are grouped (chained, at most
+        :data:`OSEEN_JOINT_MAX` a group) and each group's vortices fitted at once to the
+        union of their patches, with one convection (and shear), from their single fits
+        (``piv_core::vortex_joint``). Where the joint fit is kept (every vortex turning with
+        its core, within two core radii of its centroid, no two of one sense closer than
+        their mean core radius, the group's ``fit >= OSEEN_MIN_FIT``) it replaces the single
+        ones, ``fit`` being the group's and ``u``, ``v`` the convection at each centre;
+        otherwise the single fits stand, ``joint`` False.
 
     Raises
     ------
@@ -326,18 +348,29 @@ def fit_oseen(
         raise InvalidInputError(f"oseen: the cores' {', '.join(need)} differ in length")
     out = {k: np.full(n, np.nan) for k in OSEEN_FIELDS}
     out["ok"] = np.zeros(n, bool)
+    out["joint"] = np.zeros(n, bool)
     if n == 0:
         return out
     # centroids in grid steps; the fit itself is the kernel's (piv_core::vortex_fit)
+    fits_at = np.column_stack([np.interp(cols[0], xs, np.arange(nx)),
+                               np.interp(cols[1], ys, np.arange(ny))])  # fmt: skip
     fits = _rspiv.oseen_fit(
-        uu, vv, ok_vec,
-        np.interp(cols[0], xs, np.arange(nx)), np.interp(cols[1], ys, np.arange(ny)),
-        cols[3], cols[2], float(dx), float(dy), float(reach), float(orient), int(iterations),
-        bool(shear),
+        uu, vv, ok_vec, fits_at[:, 0].copy(), fits_at[:, 1].copy(), cols[3], cols[2],
+        float(dx), float(dy), float(reach), float(orient), int(iterations), bool(shear),
     )  # fmt: skip
-    for k in OSEEN_FIELDS[:-1]:
+    for k in (*_KERNEL_FIELDS, "ok"):
         out[k] = fits[{"x": "col", "y": "row"}.get(k, k)]
     _one_per_vortex(out, out["x"] * dx, out["y"] * dy)
+    group = _crowds(out["x"] * dx, out["y"] * dy, out["radius"], out["ok"]) if joint else None
+    if group is not None and np.any(group >= 0):
+        centroids = np.column_stack([fits_at, cols[3], cols[2]])
+        got = _rspiv.oseen_fit_joint(
+            uu, vv, ok_vec, centroids, np.column_stack([out[k] for k in _KERNEL_FIELDS]),
+            group, float(dx), float(dy), float(reach), float(orient), int(iterations),
+            bool(shear),
+        )  # fmt: skip
+        for k in (*_KERNEL_FIELDS, "joint"):
+            out[k] = got[{"x": "col", "y": "row"}.get(k, k)]
     out["neighbour"] = fit_neighbours(out["x"] * dx, out["y"] * dy, out["radius"], out["ok"])
     out["x"] = np.interp(out["x"], np.arange(nx), xs)  # NaN stays NaN
     out["y"] = np.interp(out["y"], np.arange(ny), ys)
@@ -368,6 +401,33 @@ def _apart(x: np.ndarray, y: np.ndarray, r: np.ndarray):
         d /= 0.5 * (r[a:b, None] + r[None])
         d[np.arange(b - a), np.arange(a, b)] = np.inf  # not itself
         yield a, d
+
+
+def _crowds(x: np.ndarray, y: np.ndarray, r: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Each kept fit's group (-1: none): the kept fits chained by distances under
+    :data:`OSEEN_CROWDED` mean core radii (centres ``x``, ``y`` and ``r`` px), groups of two
+    or more labelled from 0."""
+    k = np.flatnonzero(ok)
+    label = np.full(ok.size, -1, np.int64)
+    if k.size < 2:
+        return label
+    root = np.arange(k.size)
+
+    def find(a: int) -> int:
+        while root[a] != a:
+            root[a] = root[root[a]]
+            a = root[a]
+        return a
+
+    for a, d in _apart(x[k], y[k], r[k]):
+        i, j = np.nonzero(d < OSEEN_CROWDED)
+        for i0, j0 in zip(i + a, j, strict=True):  # a few per field
+            if i0 < j0:
+                root[find(i0)] = find(j0)
+    top = np.array([find(a) for a in range(k.size)])
+    _, which, size = np.unique(top, return_inverse=True, return_counts=True)
+    label[k] = np.where(size[which] > 1, which, -1)
+    return label
 
 
 def _one_per_vortex(out: dict[str, np.ndarray], x: np.ndarray, y: np.ndarray) -> None:

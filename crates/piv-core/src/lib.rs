@@ -23,6 +23,7 @@
 //!   them (the seeding density);
 //! - [`synth::render_particles`]: synthetic particle images;
 //! - [`vortex_fit`]: Lamb-Oseen vortices fitted to the vectors about vortex cores.
+//! - [`vortex_joint`]: neighbouring Lamb-Oseen vortices fitted together.
 
 pub mod condition;
 pub mod correlate;
@@ -39,6 +40,7 @@ pub mod seeding;
 pub mod synth;
 pub mod validate;
 pub mod vortex_fit;
+pub mod vortex_joint;
 pub mod weighting;
 
 pub use condition::{condition, conditioned, conditioned_into, Conditioning};

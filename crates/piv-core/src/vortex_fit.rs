@@ -98,7 +98,7 @@ impl OseenFit {
 
 /// `(1 - exp(-s)) / s`, its derivative in `s` and `exp(-s)` (series where `s` is small).
 #[inline]
-fn decay(s: f64) -> (f64, f64, f64) {
+pub(crate) fn decay(s: f64) -> (f64, f64, f64) {
     let e = (-s).exp();
     if s < 1e-4 {
         (1.0 - s / 2.0 + s * s / 6.0, -0.5 + s / 3.0 - s * s / 8.0, e)
@@ -282,7 +282,7 @@ fn median(v: &mut [f64]) -> f64 {
     0.5 * (lo + hi)
 }
 
-fn check(
+pub(crate) fn check(
     u: &ArrayView2<f64>,
     v: &ArrayView2<f64>,
     valid: &ArrayView2<bool>,

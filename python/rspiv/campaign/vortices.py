@@ -79,6 +79,7 @@ from rspiv.vortices import (
     CORE_FIELDS,
     OSEEN_CROWDED,
     OSEEN_FIELDS,
+    OSEEN_JOINT_MAX,
     VortexAccumulator,
     batch_density_se,
     find_vortices,
@@ -229,7 +230,9 @@ class VortexSearch:
             cores = self._with_fits(cores, rows, u, v, valid, part["acc"], batch)
             inside = (rows >= 0) & (rows < self.shape[0])  # as the counts take them
             near = inside & cores["oseen_ok"] & (cores["oseen_neighbour"] < OSEEN_CROWDED)
-            part["crowded"] = part.get("crowded", 0) + int(np.count_nonzero(near))
+            joint = inside & cores["oseen_joint"]  # fitted with its neighbours
+            part["crowded"] = part.get("crowded", 0) + int(np.count_nonzero(near & ~joint))
+            part["joint"] = part.get("joint", 0) + int(np.count_nonzero(joint))
         else:
             part["acc"].add(cores, rows, batch=batch)
         if self.events:  # each core at the vector nearest its centroid, for averages about it
@@ -261,6 +264,7 @@ class VortexSearch:
         kept = fits["ok"] & np.isfinite(fits["u"])
         if not np.array_equal(kept, fits["ok"]):  # the neighbours among the fits still kept
             fits["ok"] = kept
+            fits["joint"] &= kept
             fits["neighbour"] = fit_neighbours(fits["x"], fits["y"] * self.dy, fits["radius"],
                                                kept)  # fmt: skip
         counts.add(cores, rows, fits, batch=batch)
@@ -319,8 +323,10 @@ class VortexSearch:
                 "total": int(counts.count.sum()),
                 "prograde_total": int(counts.count[0].sum()),
                 "fits_kept": int(counts.oseen_count.sum()),
-                # kept fits closer than OSEEN_CROWDED to another in their field: biased by it
+                # kept fits closer than OSEEN_CROWDED to another in their field and not
+                # fitted with it (biased by it), and those fitted with their neighbours
                 "fits_crowded": sum(int(part.get("crowded", 0)) for part in parts),
+                "fits_joint": sum(int(part.get("joint", 0)) for part in parts),
                 # one standard error: the density's from the batches of contiguous pairs, the
                 # means' from their cores' spread
                 "density_se": batch_density_se(cb, counts.fields_batches, strip[:, None]),
@@ -349,14 +355,17 @@ class VortexSearch:
             prof["delta_99"] = float(r.delta99)
         if not self.options.fits:  # no Lamb-Oseen fit was made
             prof = {k: val for k, val in prof.items()
-                    if not k.startswith("oseen_") and k not in ("fits_kept", "fits_crowded")}
+                    if not k.startswith("oseen_")
+                    and k not in ("fits_kept", "fits_crowded", "fits_joint")}
         said = []
         crowded, kept = prof.get("fits_crowded", 0), prof.get("fits_kept", 0)
         if kept and crowded >= 0.05 * kept:
             said.append(
                 f"{crowded} of the {kept} Lamb-Oseen fits kept lie within {OSEEN_CROWDED:g} core "
-                "radii of another in their field, where a single-vortex fit is biased by its "
-                "neighbour (at 3 core radii up to 16 %; core_oseen_neighbour in the core table)"
+                "radii of another in their field and could not be fitted with it (the joint fit "
+                f"not kept, or more than {OSEEN_JOINT_MAX} close together): a single-vortex fit "
+                "is biased by its neighbour there (at 3 core radii up to 16 %; "
+                "core_oseen_neighbour and core_oseen_joint in the core table)"
             )
         if table["x"].size < prof["total"]:
             said.append(
@@ -481,7 +490,7 @@ def vortex_dataset(prof: dict, run: Any) -> Any:
             "pairs": prof["pairs"],
             "min_vectors": prof["min_vectors"],
             "prograde_sign": prof["prograde_sign"],
-            **({"fits_kept": prof["fits_kept"], "fits_crowded": prof["fits_crowded"]}
+            **({k: prof[k] for k in ("fits_kept", "fits_crowded", "fits_joint")}
                if "fits_kept" in prof else {}),
             "description": "rspiv vortex cores (rspiv.vortices): connected vectors of signed "
             "swirling strength beyond the row's threshold; the flow's frame (x downstream, y "
@@ -510,7 +519,9 @@ def _oseen_variables(ds: Any, prof: dict, dims: tuple, length: str, circ: str) -
     for k in OSEEN_FIELDS:
         ds[f"core_oseen_{k}"] = ("core", t[f"oseen_{k}"])
     ds["core_oseen_neighbour"].attrs.update({"units": "1", "long_name": "distance to the "
-        f"nearest other kept fit in their mean core radius (below {OSEEN_CROWDED:g}: biased)"})
+        f"nearest other kept fit in their mean core radius (below {OSEEN_CROWDED:g}: biased "
+        "unless fitted jointly)"})
+    ds["core_oseen_joint"].attrs["long_name"] = "fitted together with its neighbours"
     ds["core_oseen_shear"].attrs.update({"units": "s-1" if prof["per_s"] else "1", "long_name":
                                          "background dU/dy of the fit, without the mean's"})
 
