@@ -286,17 +286,25 @@ def _position_offset(du, dv, grads, small) -> tuple[np.ndarray, np.ndarray, floa
     bias[:n, 0] = 1.0
     bias[n:, 1] = 1.0
     a = np.column_stack([c for _, c in cols] + [bias])
-    coef, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
-    if rank < a.shape[1]:
+    # the normal equations (a few columns, 2n rows: lstsq's SVD of the whole matrix took
+    # longer than the rest of a pair's comparison); rank as lstsq's default rcond decides it.
+    # Products over the 2n rows by einsum, not BLAS: BLAS threads spinning between calls took
+    # a core from the reader processes of a series (rspiv.compare_series)
+    ata = np.einsum("ij,ik->jk", a, a)
+    sing = np.sqrt(np.maximum(np.linalg.eigvalsh(ata), 0.0))
+    if sing.min() <= sing.max() * np.finfo(float).eps * max(a.shape):
         return offset, err, 0.0
-    resid = b - a @ coef
-    var = float(resid @ resid) / max(2 * n - a.shape[1], 1)
-    cov = var * np.linalg.inv(a.T @ a)
+    inv = np.linalg.inv(ata)
+    coef = inv @ np.einsum("ij,i->j", a, b)
+    resid = b - np.einsum("ij,j->i", a, coef)
+    rr = float(np.einsum("i,i->", resid, resid))
+    var = rr / max(2 * n - a.shape[1], 1)
+    cov = var * inv
     for m, (k, _) in enumerate(cols):
         offset[k] = coef[m]
         err[k] = np.sqrt(cov[m, m])
-    centred = b - bias @ np.array([du[ok].mean(), dv[ok].mean()])
-    explained = 1.0 - float(resid @ resid) / max(float(centred @ centred), 1e-300)
+    centred = b - np.concatenate([np.full(n, du[ok].mean()), np.full(n, dv[ok].mean())])
+    explained = 1.0 - rr / max(float(np.einsum("i,i->", centred, centred)), 1e-300)
     return offset, err, explained
 
 
@@ -324,11 +332,13 @@ def _slope(f: np.ndarray, r: np.ndarray) -> tuple[float, float]:
     not), and their correlation; NaN where r does not vary."""
     if r.size < 3 or np.std(r) == 0:
         return float("nan"), float("nan")
-    rc = r - r.mean()
-    slope = float(np.dot(f - f.mean(), rc) / np.dot(rc, rc))
+    # numpy's pairwise sums, not BLAS's threaded dot (_position_offset)
+    rc, fc = r - r.mean(), f - f.mean()
+    frc, rrc = float((fc * rc).sum()), float((rc * rc).sum())
+    slope = frc / rrc
     if np.std(f) == 0:
         return slope, float("nan")
-    return slope, float(np.corrcoef(f, r)[0, 1])
+    return slope, frc / float(np.sqrt((fc * fc).sum() * rrc))
 
 
 def _z_std(d: np.ndarray, sf: np.ndarray, sr: np.ndarray | None, small: np.ndarray) -> float:
@@ -405,17 +415,19 @@ def compare_with_differences(
     mag = np.hypot(du, dv)
     rms = _rms(du, dv)
     apart = mag > threshold
-    order = np.argsort(mag)[::-1][: min(10, int(apart.sum()))]
+    top = min(10, int(apart.sum()))  # the largest, without sorting every vector
+    at_top = np.argpartition(mag, mag.size - top)[mag.size - top :] if top else np.zeros(0, int)
+    order = at_top[np.argsort(mag[at_top], kind="stable")[::-1]]
     worst = tuple((float(x[i]), float(y[i]), float(du[i]), float(dv[i])) for i in order)
     su, cu = _slope(d.fu, d.ru)
     sv, cv = _slope(d.fv, d.rv)
-    rows = []
-    for yy in np.unique(y):
-        sel = y == yy
-        rows.append(
-            (float(yy), int(sel.sum()), float(du[sel].mean()), float(dv[sel].mean()),
-             _rms(du[sel], dv[sel]))
-        )  # fmt: skip
+    ys, at = np.unique(y, return_inverse=True)  # per row: one pass of sums, not a mask a row
+    cnt = np.bincount(at, minlength=ys.size)
+    sums = [np.bincount(at, w, minlength=ys.size) for w in (du, dv, du**2 + dv**2)]
+    rows = [
+        (float(yy), int(c), float(su / c), float(sv / c), float(np.sqrt(sq / c)))
+        for yy, c, su, sv, sq in zip(ys, cnt, *sums, strict=True)
+    ]
     small = ~apart
     warnings: list[str] = []
     median = float(np.median(mag))

@@ -15,6 +15,10 @@ set for both, so that differences are the tools', not the sampling's):
   not, so the error is not divided by their number); ``n_pairs`` counts the pairs that gave
   the row a vector.
 
+Series of files (lists of paths or ``(path, frame)`` tuples) are read ahead by reader
+processes (``readers``; :mod:`rspiv.vector_readahead`), half of them for each series: the
+figures are those of the files read in turn, bit for bit.
+
 A boundary-layer user reads the rows as profiles: where the two tools' mean velocity or
 Reynolds stresses part towards the wall, and by how much against the error of the mean. Every
 pair's one-line summary (``pairs``) and any pair whose comparison warned (a convention, a
@@ -23,10 +27,11 @@ coverage) are kept; a warning in most of the pairs is said once for the series.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -119,12 +124,59 @@ def _load(item: Any, name: str, read: dict[str, Any]) -> VectorFile:
     return as_vectors(item, name)
 
 
+def _is_entry(item: Any) -> bool:
+    """A path, or a ``(path, frame)`` tuple: what a reader process can read."""
+    return isinstance(item, (str, os.PathLike)) or (
+        isinstance(item, tuple) and len(item) == 2 and isinstance(item[0], (str, os.PathLike))
+    )
+
+
+def _pairs(
+    references: Iterable[Any], fields: Iterable[Any], opts: dict[str, Any],
+    readers: int | None, stack: contextlib.ExitStack,
+) -> Iterator[tuple[Any, Any]]:  # fmt: skip
+    """The pairs' ``(reference, field)`` items in turn, or ``(ReadAhead, k)`` twins when both
+    series are lists of files of equal length and reader processes are to read them."""
+    if isinstance(references, (list, tuple)) and isinstance(fields, (list, tuple)):
+        if len(references) == len(fields) and all(map(_is_entry, [*references, *fields])):
+            from rspiv.vector_readahead import ReadAhead, auto_readers  # deferred: processes
+
+            n = auto_readers(len(references)) if readers is None else readers
+            if n > 0:
+                per = max(n // 2, 1)
+                ref_reads = stack.enter_context(ReadAhead(list(references), opts, per))
+                fld_reads = stack.enter_context(ReadAhead(list(fields), {}, per))
+                for k in range(len(references)):
+                    yield (ref_reads, k), (fld_reads, k)
+                return
+    refs, flds = iter(references), iter(fields)
+    k = 0
+    while True:
+        r_item, f_item = next(refs, None), next(flds, None)
+        if r_item is None and f_item is None:
+            return
+        if r_item is None or f_item is None:
+            raise InvalidInputError(
+                f"compare: {k} pairs of one series and more of the other: give the same pairs"
+            )
+        yield r_item, f_item
+        k += 1
+
+
+def _read(item: Any, name: str, read: dict[str, Any]) -> VectorFile:
+    """One field: read ahead (``(ReadAhead, k)``) or as :func:`_load` reads it."""
+    if isinstance(item, tuple) and len(item) == 2 and hasattr(item[0], "get"):
+        return item[0].get(item[1])
+    return _load(item, name, read)
+
+
 def compare_series(
     references: Iterable[Any],
     fields: Iterable[Any],
     *,
     threshold: float = 0.5,
     reference_options: dict[str, Any] | None = None,
+    readers: int | None = None,
 ) -> SeriesComparison:
     """Compare a series of fields with a reference series, pair by pair (module docstring).
 
@@ -138,6 +190,10 @@ def compare_series(
         px: vectors farther apart count as disagreeing.
     reference_options : dict, optional
         Keywords for reading the references (``y_up``, ``scale``, ``dt``, ``frame``).
+    readers : int, optional
+        Reader processes reading two lists of files ahead, half for each series (module
+        docstring; 0: none). Default: :func:`rspiv.vector_readahead.auto_readers`' choice (one
+        per core from 64 pairs).
 
     Returns
     -------
@@ -151,9 +207,17 @@ def compare_series(
     """
     if not (np.isfinite(threshold) and threshold > 0):
         raise InvalidInputError(f"compare: threshold {threshold} px must be positive")
-    refs = iter(references)
-    flds = iter(fields)
+    if readers is not None and (isinstance(readers, bool) or not isinstance(readers, int)
+                                or readers < 0):  # fmt: skip
+        raise InvalidInputError(f"compare: readers {readers!r} must be a whole number >= 0")
     opts = dict(reference_options or {})
+    with contextlib.ExitStack() as stack:
+        return _compare(_pairs(references, fields, opts, readers, stack), opts, threshold)
+
+
+def _compare(pairs_in: Iterator[tuple[Any, Any]], opts: dict[str, Any],
+             threshold: float) -> SeriesComparison:  # fmt: skip
+    """:func:`compare_series`' sums over the pairs ``pairs_in`` gives."""
     grid = None
     sums: dict[str, np.ndarray] = {}
     count = None
@@ -162,17 +226,9 @@ def compare_series(
     pooled = np.zeros(5)  # n, sum du, sum dv, sum du^2, sum dv^2
     hist = np.zeros(_BINS + 1, dtype=np.int64)  # |d| in bins of _BIN px, the last beyond
     k = 0
-    while True:
-        r_item = next(refs, None)
-        f_item = next(flds, None)
-        if r_item is None and f_item is None:
-            break
-        if r_item is None or f_item is None:
-            raise InvalidInputError(
-                f"compare: {k} pairs of one series and more of the other: give the same pairs"
-            )
-        ref = _load(r_item, f"reference {k}", opts)
-        fld = _load(f_item, f"field {k}", {})
+    for r_item, f_item in pairs_in:
+        ref = _read(r_item, f"reference {k}", opts)
+        fld = _read(f_item, f"field {k}", {})
         if grid is None:
             grid = (ref.x, ref.y)
             sums = {s: np.zeros(ref.u.shape) for s in _SUMS}
@@ -204,10 +260,10 @@ def compare_series(
         mu = np.bincount(rows_of, d.du, minlength=nrow)[given] / n_row[given]
         mv = np.bincount(rows_of, d.dv, minlength=nrow)[given] / n_row[given]
         rows_acc[0, given] += 1  # Welford's update of each row's mean and M2, du then dv
-        for k, x in ((1, mu), (3, mv)):
-            delta = x - rows_acc[k, given]
-            rows_acc[k, given] += delta / rows_acc[0, given]
-            rows_acc[k + 1, given] += delta * (x - rows_acc[k, given])
+        for at, x in ((1, mu), (3, mv)):  # not k: the pairs' count
+            delta = x - rows_acc[at, given]
+            rows_acc[at, given] += delta / rows_acc[0, given]
+            rows_acc[at + 1, given] += delta * (x - rows_acc[at, given])
         pooled += [d.du.size, d.du.sum(), d.dv.sum(), (d.du**2).sum(), (d.dv**2).sum()]
         hist += np.bincount(
             np.minimum((np.hypot(d.du, d.dv) / _BIN).astype(np.int64), _BINS), minlength=_BINS + 1

@@ -73,6 +73,12 @@ def sample_at(
         & (np.abs(fy - iy) * abs(dy) < _SAME_POSITION)
         & (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
     )  # fmt: skip
+    ixc = np.clip(ix, 0, nx - 1)
+    iyc = np.clip(iy, 0, ny - 1)
+    node_ok = on_node & good[iyc, ixc]
+    if on_node.all():  # every point on a node (two tools on one grid): nothing to interpolate
+        return [np.full(xs.shape, np.nan) if a is None else np.where(node_ok, a[iyc, ixc], np.nan)
+                for a in arrays]  # fmt: skip
     i0 = np.clip(np.floor(fx).astype(np.int64), 0, max(nx - 2, 0))
     j0 = np.clip(np.floor(fy).astype(np.int64), 0, max(ny - 2, 0))
     tx = fx - i0
@@ -81,9 +87,6 @@ def sample_at(
     i1 = np.minimum(i0 + 1, nx - 1)
     j1 = np.minimum(j0 + 1, ny - 1)
     four = inside & good[j0, i0] & good[j0, i1] & good[j1, i0] & good[j1, i1]
-    ixc = np.clip(ix, 0, nx - 1)
-    iyc = np.clip(iy, 0, ny - 1)
-    node_ok = on_node & good[iyc, ixc]
     # the 4 x 4 nodes (i0 - 1 .. i0 + 2, j0 - 1 .. j0 + 2) where all lie on the grid and are
     # valid; their weights per axis
     taps = np.arange(-1, 3)

@@ -15,7 +15,8 @@ Two series of the same pairs (a glob, quoted, a folder, or a file of several pai
 PIVlab session: ``rspiv compare "davis/*.vc7" OUT/fields/uncorrected``) are compared pair by
 pair, in sorted order, and their statistics row by row (:mod:`rspiv.compare_series`: mean
 velocity and Reynolds stresses of both tools over the pairs both measured, the mean difference
-with its error).
+with its error). Their files are read ahead by reader processes (``--readers N``, 0: none; one
+per core from 64 pairs by default; :mod:`rspiv.vector_readahead`); the figures are the same.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ def _run_series(args: argparse.Namespace, refs: list[str], flds: list[str]) -> i
             f"{len(refs)} reference files and {len(flds)} fields: give the same pairs"
         )
     opts = {"frame": args.frame, "y_up": args.y_up, "scale": args.scale, "dt": args.dt}
-    c = compare_series(refs, flds, threshold=args.threshold, reference_options=opts)
+    c = compare_series(refs, flds, threshold=args.threshold, reference_options=opts,
+                       readers=args.readers)  # fmt: skip
     print(f"{_name(refs[0])} ... against {_name(flds[0])} ...")
     print(c.report(rows=args.rows))
     return _written(args, c)
@@ -117,6 +119,9 @@ def register(sub) -> None:
     p.add_argument("--mapping", default="full", choices=("full", "positions"),
                    help="with --calibration: the displacement mapping (full)")  # fmt: skip
     p.add_argument("--rows", action="store_true", help="print the differences row by row")
+    p.add_argument("--readers", type=int, default=None, metavar="N",
+                   help="two series: processes reading the files ahead (default: one per core "
+                   "from 64 pairs; 0: none)")
     p.add_argument("--json", default=None, help="write the figures as JSON")
     p.add_argument(
         "--figure", default=None,
