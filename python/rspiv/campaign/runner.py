@@ -23,6 +23,7 @@ from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writabl
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
 from rspiv.io import camera_recording, frame_count, recording_rate
+from rspiv.memory import numpy_huge_pages
 from rspiv.phantom import PhantomRecording
 from rspiv.photron import PhotronRecording, photron_header
 from rspiv.progress import Progress
@@ -424,11 +425,12 @@ class Campaign:
         run, prepare it and load the checkpoint, let the executor process the pairs still to
         do, then analyse (or write the shard) and close the run log."""
         executor = LocalExecutor() if executor is None else executor
-        st = self.open_run(getattr(executor, "t_start", None))
-        with Progress(len(st.sel), "pairs", enabled=self.show_progress) as prog:
-            self.begin_run(st, prog)
-            skipped, failed = executor.execute(self, st, prog)
-        return self.finish_run(st, skipped, failed=failed)
+        with numpy_huge_pages(False):  # about 1 GB less at 47 MP (rspiv.memory)
+            st = self.open_run(getattr(executor, "t_start", None))
+            with Progress(len(st.sel), "pairs", enabled=self.show_progress) as prog:
+                self.begin_run(st, prog)
+                skipped, failed = executor.execute(self, st, prog)
+            return self.finish_run(st, skipped, failed=failed)
 
     # ------------------------------------------------------------------ outputs
     def analyse(

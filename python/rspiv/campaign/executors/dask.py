@@ -70,6 +70,7 @@ from rspiv.campaign.runner import Campaign
 from rspiv.campaign.spec import STAGES, PairContext, PairSpec
 from rspiv.campaign.state import CampaignResult, RunState
 from rspiv.errors import InvalidInputError
+from rspiv.memory import numpy_huge_pages
 from rspiv.outputs import atomic_write_bytes
 from rspiv.stats import FieldAccumulator
 
@@ -136,8 +137,17 @@ def process_chunk(
     Pure: reads the frames and writes nothing but, with ``fields``, each pair's field files
     (:mod:`rspiv.campaign.fields`: atomic, and the same again when a task is retried). Bad
     data is skipped (as in :meth:`Campaign.run`); an exception raised by one pair (or by the
-    writing of its fields) marks that pair failed and the chunk goes on.
+    writing of its fields) marks that pair failed and the chunk goes on. numpy's huge pages
+    are off while it runs, as in a local run (:mod:`rspiv.memory`).
     """
+    with numpy_huge_pages(False):
+        return _process_chunk(context, pairs, fields)
+
+
+def _process_chunk(
+    context: PairContext, pairs: Sequence[PairSpec], fields: FieldWriter | None
+) -> ChunkResult:
+    """:func:`process_chunk`'s work."""
     # one parsed context (mapping, mask) per worker process and campaign
     context = _CONTEXTS.setdefault(context.fingerprint(), context)
     # the same carried sums as the client's (ensemble band, two-point, vorticity): a chunk's
