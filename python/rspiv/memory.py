@@ -10,8 +10,9 @@ default (three runs; 7.2-9.3 pairs/min) and at 2076-2077 MB without its huge pag
 9.0-9.7 pairs/min) (``benches/RESULTS.md``, thirty-sixth session). The thirty-third session
 found the extra resident memory to be anonymous huge pages kept between pairs.
 
-:class:`rspiv.campaign.runner.Campaign.run` and the Dask executor's tasks therefore turn numpy's
-request off for their duration and restore it after: the setting is the process's, so a caller
+:meth:`rspiv.campaign.runner.Campaign.run` (and :meth:`~rspiv.campaign.runner.Campaign.prepare`
+when called on its own) and the Dask executor's tasks therefore turn numpy's request off for
+their duration and restore it after: the setting is the process's, so a caller
 that runs a campaign from its own program gets its setting back. A user who set numpy's own
 environment variable ``NUMPY_MADVISE_HUGEPAGE`` keeps what it says.
 """

@@ -181,8 +181,9 @@ class Campaign:
     def prepare(self, pairs: list[PairSpec] | None = None) -> PairContext:
         """Calibrate, find the wall angle on the pilot pairs, and freeze the context
         (:func:`rspiv.campaign.prepare.prepare_context`; reuses ``OUT/context.json`` when it
-        was written for the same configuration)."""
-        return prepare_context(self, pairs)
+        was written for the same configuration); numpy's huge pages off, as in :meth:`run`."""
+        with numpy_huge_pages(False):
+            return prepare_context(self, pairs)
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_path(self) -> pathlib.Path:
