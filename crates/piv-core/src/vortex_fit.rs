@@ -470,12 +470,12 @@ fn fit_one(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use ndarray::Array2;
 
     /// The closed-form vortex on a grid (pixel frame, v down).
-    fn field(
+    pub(crate) fn field(
         ny: usize,
         nx: usize,
         d: f64,
