@@ -152,6 +152,7 @@ def test_the_cores_are_those_of_the_fields_at_thresholds_from_their_swirl(series
         np.testing.assert_allclose(t["x"][at : at + n] / m, c["x"], atol=1e-6)
         np.testing.assert_allclose(t["radius"][at : at + n] / m, c["radius"], rtol=1e-6)
         assert np.array_equal(t["sign"][at : at + n], c["sign"])
+        assert np.array_equal(t["region"][at : at + n], c["region"])
         at += n
     assert at == t["x"].size > N
 
@@ -167,7 +168,7 @@ def test_the_cores_are_those_of_the_fields_at_thresholds_from_their_swirl(series
     again = vector_statistics(files, **opts, out_dir=out, checkpoint_every=5,
                               progress=lambda d, t: seen.append(d))  # fmt: skip
     assert seen[0] == N + 6  # after the 5 second-pass fields of the last checkpoint
-    for k in ("pair", "x", "y", "radius", "circulation", "peak"):
+    for k in ("pair", "x", "y", "radius", "circulation", "peak", "region"):
         np.testing.assert_array_equal(again.vortices["cores"][k], t[k])
     np.testing.assert_array_equal(again.vortices["count"], vx["count"])
 

@@ -17,6 +17,18 @@ threshold, of one sign, holding at least ``min_vectors`` vectors. For each core:
     peak swirl keeps about 60 % of it).
 ``peak``
     The largest ``|Lambda_ci|`` of the core (1/pair).
+``region``
+    The thresholded region the core is part of (numbered from 1 in each field). Two vortices
+    of one sense closer than about three core radii make one region, and a core of both would
+    read as one vortex of twice the circulation. With ``split``, a region whose swirl has two
+    or more maxima, each over a saddle that falls to ``split`` (:data:`SPLIT_SADDLE`) of the
+    lower maximum or below and each part holding ``min_vectors``, is split into one core per
+    maximum, the cores sharing its number (the swirl taken against its row's threshold, which
+    follows the swirl's level with height). Each vector goes to the maximum it climbs to
+    (steepest ascent through its eight neighbours in the region), and parts whose maxima do
+    not stand clear of their saddle are joined again, the highest saddles first (a watershed
+    merged by persistence). A PIV field's noise splits regions too: :func:`confirm_splits`
+    keeps a split only where the parts fit as vortices.
 
 The threshold is usually a multiple (1.5 in Wu & Christensen) of the root mean square of
 ``Lambda_ci`` at the core's height: the wall-normal variation of the swirl's level would
@@ -24,23 +36,36 @@ otherwise fill the buffer layer with cores and leave the outer layer empty.
 :class:`VortexAccumulator` counts the cores of many fields by their centroid's row, prograde
 (rotating with the mean shear) and retrograde apart. Noise makes cores as well: the
 ``min_vectors`` rule (:func:`min_core_vectors`: a campaign keeps cores at least as wide as
-its final window) and the rms threshold keep most of them out, not all.
+its final window) and the rms threshold keep most of them out, not all. The Lamb-Oseen fits
+of the cores are :mod:`rspiv.vortex_fits`' (their names are kept here too).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from rspiv import _rspiv
 from rspiv.errors import InvalidInputError
+from rspiv.vortex_fits import (
+    OSEEN_CROWDED,
+    OSEEN_FIELDS,
+    OSEEN_JOINT_MAX,
+    OSEEN_MIN_FIT,
+    fit_neighbours,
+    fit_oseen,
+    oseen_velocity,
+)
 
+# the Lamb-Oseen fits live in rspiv.vortex_fits; their names are kept here too
 __all__ = [
     "CORE_FIELDS",
     "OSEEN_CROWDED",
     "OSEEN_FIELDS",
     "OSEEN_JOINT_MAX",
+    "OSEEN_MIN_FIT",
+    "SPLIT_SADDLE",
     "VortexAccumulator",
     "batch_density_se",
+    "confirm_splits",
     "find_vortices",
     "fit_neighbours",
     "fit_oseen",
@@ -49,7 +74,16 @@ __all__ = [
 ]
 
 #: The per-core arrays :func:`find_vortices` returns.
-CORE_FIELDS = ("x", "y", "sign", "vectors", "radius", "circulation", "peak")
+CORE_FIELDS = ("x", "y", "sign", "vectors", "radius", "circulation", "peak", "region")
+
+#: A thresholded region is split into one core per swirl maximum where the swirl between two
+#: maxima falls to this share of the lower one or below (:func:`find_vortices`' ``split``).
+#: Two exact Lamb-Oseen vortices of one sense and one r_c make one region up to about 2.9 r_c
+#: apart (at the tests' threshold), with two swirl maxima from 1.8 r_c apart; the swirl between
+#: them falls to 0.85 of the maxima at 1.8 r_c, 0.66-0.71 at 2.0 and 0.46 at 2.2. A single fit
+#: of such a region takes both for one vortex of twice the circulation that explains 91-97 %
+#: of its patch (``tests/test_vortices.py``).
+SPLIT_SADDLE = 0.75
 
 _EIGHT = np.ones((3, 3), bool)
 
@@ -75,6 +109,7 @@ def find_vortices(
     x=None,
     y=None,
     min_vectors: int = 3,
+    split: float | None = None,
 ) -> dict[str, np.ndarray]:
     """The vortex cores of one field (module docstring).
 
@@ -93,6 +128,11 @@ def find_vortices(
         The columns' and rows' coordinates (px); default ``dx * j`` and ``dy * i``.
     min_vectors : int
         Cores of fewer vectors are dropped.
+    split : float or None
+        A region is split at saddles of its swirl at most this share of the lower maximum
+        (module docstring: ``region``; 0 < split < 1, usually :data:`SPLIT_SADDLE`); None
+        keeps each region one core. The noise of a PIV field splits regions too: a split is
+        confirmed by fitting the parts (:func:`confirm_splits`).
 
     Returns
     -------
@@ -115,6 +155,8 @@ def find_vortices(
         raise InvalidInputError("vortices: the threshold must be > 0")
     if min_vectors < 1:
         raise InvalidInputError(f"vortices: min_vectors must be >= 1, got {min_vectors}")
+    if split is not None and not 0.0 < split < 1.0:
+        raise InvalidInputError(f"vortices: split must lie between 0 and 1, got {split}")
     xs = dx * np.arange(s.shape[1]) if x is None else np.asarray(x, np.float64)
     ys = dy * np.arange(s.shape[0]) if y is None else np.asarray(y, np.float64)
     if xs.shape != (s.shape[1],) or ys.shape != (s.shape[0],):
@@ -124,10 +166,20 @@ def find_vortices(
         strong = np.isfinite(s) & (mag >= thr)
     out: dict[str, list[np.ndarray]] = {k: [] for k in CORE_FIELDS}
     wz = np.where(np.isfinite(w), w, 0.0)
+    regions = 0  # the regions numbered before this sign's
+    # the swirl against its row's threshold: where the threshold follows the swirl's rms with
+    # height, a maximum of |swirl| alone sits at the edge of a region nearest the wall
+    with np.errstate(invalid="ignore", divide="ignore"):
+        level = np.where(strong, mag / thr, 0.0)
     for sign in (1.0, -1.0):
         labels, n = ndimage.label(strong & (np.sign(s) == sign), structure=_EIGHT)
         if n == 0:
             continue
+        region = np.arange(n + 1) + regions  # each label's region (label 0: none)
+        regions += n
+        if split is not None:
+            labels, region = _split_regions(labels, region, level, split, min_vectors)
+            n = region.size - 1
         # the labelled vectors only, summed per label by bincount (in the grid's order)
         at = np.flatnonzero(labels)
         lab = labels.ravel()[at]
@@ -150,305 +202,163 @@ def find_vortices(
         out["radius"].append(np.sqrt(nvec * abs(dx * dy) / np.pi))
         out["circulation"].append(np.bincount(lab, wz.ravel()[at], n + 1)[keep] * abs(dx * dy))
         out["peak"].append(peak[keep])
+        out["region"].append(region[keep])
     return {
         k: (np.concatenate(v) if v else np.zeros(0)).astype(np.float64) for k, v in out.items()
     }
 
 
-#: The per-core arrays :func:`fit_oseen` returns.
-OSEEN_FIELDS = (
-    "x", "y", "radius", "circulation", "u", "v", "shear", "fit", "ok", "neighbour", "joint",
-)  # fmt: skip
+def _split_regions(
+    labels: np.ndarray, region: np.ndarray, mag: np.ndarray, split: float, min_vectors: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each region of ``labels`` (8-neighbour, 1..n; ``region`` each label's region number)
+    split at its swirl's saddles (:func:`find_vortices`' ``region``): the new labels and each
+    new label's region number. Vectorised but for the merging of the parts, in a loop over
+    the pairs of touching parts (a few per region)."""
+    ny, nx = labels.shape
+    at = np.flatnonzero(labels)
+    lab = labels.ravel()[at]
+    m = mag.ravel()[at]
+    # each labelled vector's place in `at` on the grid with a border (-1: none); the labels are
+    # one sign's 8-neighbour regions, so a labelled neighbour is in the same region
+    i, j = np.divmod(at, nx)
+    wb = nx + 2
+    here = (i + 1) * wb + j + 1
+    pos = np.full((ny + 2) * wb, -1, np.int64)
+    pos[here] = np.arange(at.size)
+    # steepest ascent: each vector's highest neighbour (itself at a maximum)
+    up = np.arange(at.size)
+    best = m.copy()
+    for di, dj in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+        q = pos[here + di * wb + dj]
+        val = np.where(q >= 0, m[q], -np.inf)
+        higher = val > best
+        up[higher] = q[higher]
+        best[higher] = val[higher]
+    while True:  # each vector's maximum, by pointer doubling
+        nxt = up[up]
+        if np.array_equal(nxt, up):
+            break
+        up = nxt
+    tops, part = np.unique(up, return_inverse=True)
+    if tops.size == region.size - 1:  # one maximum per region: nothing to split
+        return labels, region
+    peak = m[tops]
+    size = np.bincount(part, minlength=tops.size)
+    # the saddle of each pair of touching parts: the highest min(|swirl|) across their border
+    keys, sad = [], []
+    for di, dj in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        q = pos[here + di * wb + dj]
+        a = np.flatnonzero(q >= 0)
+        b = q[a]
+        cross = part[a] != part[b]
+        a, b = a[cross], b[cross]
+        keys.append(np.minimum(part[a], part[b]) * tops.size + np.maximum(part[a], part[b]))
+        sad.append(np.minimum(m[a], m[b]))
+    key, saddle = np.concatenate(keys), np.concatenate(sad)
+    root = np.arange(tops.size)
+    if key.size:
+        order = np.lexsort((-saddle, key))
+        key, saddle = key[order], saddle[order]
+        first = np.r_[True, key[1:] != key[:-1]]
+        key, saddle = key[first], saddle[first]
+        pa, pb = np.divmod(key, tops.size)
 
-#: The kernel's per-core arrays, in the order of ``_rspiv.oseen_fit_joint``'s ``fits``.
-_KERNEL_FIELDS = ("x", "y", "radius", "circulation", "u", "v", "shear", "fit")
+        def find(x: int) -> int:
+            while root[x] != x:
+                root[x] = root[root[x]]
+                x = root[x]
+            return x
 
-#: Groups of more kept fits than this, each within :data:`OSEEN_CROWDED` of another, are left
-#: to their single fits (defined by the kernel, ``piv_core::vortex_joint``).
-OSEEN_JOINT_MAX = _rspiv.OSEEN_JOINT_MAX
-
-#: A kept single fit closer than this to another kept fit of its field (centre to centre, in
-#: their mean core radius: :func:`fit_oseen`'s ``neighbour``) is biased by it: a single-vortex
-#: fit takes the neighbour's uniform part into its convection, not its gradient. Measured on
-#: pairs of exact Lamb-Oseen vortices of one r_c (``tests/test_vortices.py``, six directions):
-#: from 4 core radii apart r_c and the circulation within 0.8 % of the truth, at 3 up to 16 %
-#: off (like sense) and 9 % (opposite sense); two of like sense 2.5 r_c apart are one core.
-#: Such fits are fitted again together (:func:`fit_oseen`'s ``joint``).
-OSEEN_CROWDED = 4.0
-
-#: A fit is kept (``ok``) when it explains at least this share of the patch's velocity
-#: variance about its own convection (a vortex through the PIV: 0.997; OpenPIV's ``test10``
-#: vortex: 0.87-0.92; vortices planted on turbulence: 0.7-0.9; cores of noise: median 0.2).
-#: Defined by the kernel (``piv_core::vortex_fit``).
-OSEEN_MIN_FIT = _rspiv.OSEEN_MIN_FIT
-
-
-def oseen_velocity(x, y, xc, yc, circulation, radius, uc=0.0, vc=0.0, shear=0.0):
-    """The Lamb-Oseen vortex's velocity at ``(x, y)`` in a right-handed frame (y up).
-
-    ``u_theta(r) = Gamma / (2 pi r) (1 - exp(-r^2 / r_c^2))`` about ``(xc, yc)``, counter-
-    clockwise for ``circulation`` (Gamma) > 0, plus the uniform ``(uc, vc)`` and a background
-    shear ``shear (y - yc)`` in ``u`` (``dU/dy``, y up; :func:`fit_oseen`): its vorticity is
-    ``Gamma / (pi r_c^2) exp(-r^2 / r_c^2)`` (a Gaussian of standard deviation ``r_c / sqrt(2)``
-    per axis) and its azimuthal velocity peaks at ``r = 1.121 r_c``. Arguments broadcast; a
-    core radius that is not a number > 0 is refused (:class:`~rspiv.errors.InvalidInputError`).
-    """
-    rc = np.asarray(radius, np.float64)
-    if not np.all(rc > 0):
-        raise InvalidInputError(f"oseen: the core radius must be > 0, got {radius!r}")
-    ddx = np.asarray(x, np.float64) - xc
-    ddy = np.asarray(y, np.float64) - yc
-    rc2 = rc**2
-    g = np.asarray(circulation, np.float64) * _decay((ddx * ddx + ddy * ddy) / rc2)[0]
-    g = g / (2.0 * np.pi * rc2)
-    return uc + (shear - g) * ddy, vc + g * ddx
+        # the highest saddles first: a part joins its neighbour unless both maxima stand
+        # clear of the saddle and both parts are cores on their own
+        for k in np.argsort(-saddle, kind="stable"):
+            ra, rb = find(int(pa[k])), find(int(pb[k]))
+            if ra == rb:
+                continue
+            apart = saddle[k] <= split * min(peak[ra], peak[rb])
+            if apart and size[ra] >= min_vectors and size[rb] >= min_vectors:
+                continue
+            hi, lo = (ra, rb) if peak[ra] >= peak[rb] else (rb, ra)
+            root[lo] = hi
+            size[hi] += size[lo]
+        while not np.array_equal(root[root], root):  # every part to its root
+            root = root[root]
+    kept, new = np.unique(root, return_inverse=True)
+    out = np.zeros(ny * nx, np.int64)
+    out[at] = new[part] + 1
+    # each new label's region: that of any of its vectors
+    reg = np.zeros(kept.size + 1, np.int64)
+    reg[new[part] + 1] = region[lab]
+    return out.reshape(ny, nx), reg
 
 
-def _decay(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(1 - exp(-s)) / s`` and its derivative in ``s`` (series where ``s`` is small)."""
-    small = s < 1e-4
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f = np.where(small, 1.0 - s / 2.0 + s * s / 6.0, -np.expm1(-s) / s)
-        df = np.where(small, -0.5 + s / 3.0 - s * s / 8.0, (np.exp(-s) * (s + 1.0) - 1.0) / (s * s))
-    return f, df
+def confirm_splits(
+    u, v, cores: dict[str, np.ndarray], parts: dict[str, np.ndarray], dx: float, dy: float,
+    **fit: object,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The cores of a field with the regions that hold two vortices or more split, and their
+    Lamb-Oseen fits.
 
-
-def fit_oseen(
-    u,
-    v,
-    cores: dict[str, np.ndarray],
-    dx: float,
-    dy: float,
-    *,
-    valid=None,
-    x=None,
-    y=None,
-    reach: float = 2.5,
-    orient: float = 1.0,
-    iterations: int = 100,
-    shear: bool = False,
-    joint: bool = True,
-) -> dict[str, np.ndarray]:
-    """A Lamb-Oseen vortex fitted to the vectors about each core of :func:`find_vortices`.
-
-    The thresholded core's radius and circulation depend on the threshold (a Lamb-Oseen vortex
-    at a quarter of its peak swirl keeps about 60 % of its circulation); the fit gives the
-    vortex's own core radius ``r_c``, its whole circulation, its centre and its convection
-    (Carlier & Stanislas 2005, J. Fluid Mech. 535). The model is :func:`oseen_velocity` with
-    six parameters per core, fitted by Levenberg-Marquardt (``dewarp_core::lm``) to the valid
-    vectors within ``reach`` times the core's radius of its centroid (at least two grid steps),
-    cores in parallel in Rust (``piv_core::vortex_fit``). A fit drifting to a core wider than
-    twice its patch, or centred twice as far as a kept fit may be, is abandoned early.
-
-    With ``shear``, a seventh parameter adds a uniform background shear ``dU/dy`` about the
-    centre, as Stanislas, Perret & Foucaut (2008, J. Fluid Mech. 602) fit the vortices of a
-    boundary layer: without it, a vortex in a shear is fitted with a core too small and too
-    weak yet looks right (a vortex in a shear of 5 % of its peak vorticity: ``r_c`` 9 % and
-    ``Gamma`` 18 % low at a fit of 0.98, `piv_core::vortex_fit`'s tests), and a shear alone is
-    not taken for a vortex (``fit`` is then measured about the fitted background). Where there
-    is no uniform shear the seventh parameter costs accuracy (600 random vortices with noise:
-    median error of ``r_c`` 5.8 % against 3.2 % without it, ``benches/bench_oseen.py``).
-
-    Frame: ``u``, ``v`` in rspiv's pixel frame (v positive downward, rows down, px per pair);
-    the fit is made in the image's y-up frame (:mod:`rspiv.derivatives`), and ``orient``
-    (+1 or -1) turns its circulation into the frame of the ``omega`` the cores were found in
-    (a campaign's flow frame), as for the vorticity.
+    A region of swirl can hold two vortices of one sense (closer than about three core
+    radii: one core, whose single fit takes both for one vortex of twice the circulation),
+    but the noise of a PIV field also makes maxima over saddles: split by the swirl alone, the
+    demo's PIV fields counted 25-30 % more cores than their exact fields. So a region is split
+    only where its one fit is kept and its parts' joint fit, started from the parts
+    (:func:`fit_oseen`), is kept too: each
+    part a vortex of its own sense within two core radii of its centroid, holding at least
+    half its part's circulation inside the threshold (one vortex given as two parts fits as
+    itself and a vortex of the noise of a few per cent of its circulation), no two of one
+    sense closer than their mean core radius, and the group explaining ``OSEEN_MIN_FIT`` of
+    its patch.
 
     Parameters
     ----------
     u, v : array_like, (ny, nx)
-        The field (or its fluctuations; a shear across the patch is in the model only with
-        ``shear``).
-    cores : dict
-        :func:`find_vortices`' result for this grid (``x``, ``y``, ``sign``, ``radius``).
+        The field, as for :func:`fit_oseen`.
+    cores, parts : dict
+        :func:`find_vortices` of the field without and with ``split`` (the same swirl,
+        threshold and grid).
     dx, dy : float
         Grid spacing, px.
-    valid : array_like of bool, optional
-        The vectors that enter (default: the finite ones).
-    x, y : array_like, optional
-        The coordinates given to :func:`find_vortices` (default ``dx * j``, ``dy * i``).
-    reach : float
-        The patch's radius in core radii.
-    orient : float
-        +1 or -1, as above.
-    iterations : int
-        Levenberg-Marquardt steps tried (model evaluations) per core at most (>= 1).
-    shear : bool
-        Fit the background shear with the vortex (above).
-    joint : bool
-        Fit neighbouring vortices together (below).
+    **fit
+        :func:`fit_oseen`'s keywords (``valid``, ``x``, ``y``, ``orient``, ...).
 
     Returns
     -------
-    dict
-        Per core (:data:`OSEEN_FIELDS`): ``x``, ``y`` the fitted centre (the coordinates of
-        ``x``, ``y``), ``radius`` the core radius ``r_c`` (px), ``circulation`` (px^2 per
-        pair, in ``orient``'s frame), ``u``, ``v`` the convection (px per pair, pixel frame),
-        ``shear`` the background's ``du/dy`` (pixel frame, rows down: 1/pair; NaN without
-        ``shear``), ``fit`` the share of the patch's velocity variance about the convection
-        (and the fitted shear) it explains
-        (NaN for a core not fitted: fewer than 7 valid vectors in its patch, or a patch that
-        does not determine a vortex), and ``ok``: a fit of the core's sense of rotation,
-        centred within two core radii of the centroid, with ``r_c`` between a third of a grid
-        step and the patch's radius and ``fit >= OSEEN_MIN_FIT``. Values of a core that is not
-        ``ok`` are NaN. Two fits of one sense closer than their mean core radius are one
-        vortex split into two cores by the threshold: only the one with the higher ``fit`` is
-        kept. ``neighbour``: the distance (px) from a kept fit's centre to the
-        nearest other kept fit's, in their mean core radius ``(r_c + r_c') / 2`` (NaN without
-        another); below :data:`OSEEN_CROWDED` the neighbour biases a single-vortex fit.
-        ``joint``: the fit was made with its neighbours (with ``joint``): the kept fits
-        closer than :data:`OSEEN_CROWDED` to another are grouped (chained, at most
-        :data:`OSEEN_JOINT_MAX` a group) and each group's vortices fitted at once to the
-        union of their patches, with one convection (and shear), from their single fits
-        (``piv_core::vortex_joint``). Where the joint fit is kept (every vortex turning with
-        its core, within two core radii of its centroid, no two of one sense closer than
-        their mean core radius, the group's ``fit >= OSEEN_MIN_FIT``) it replaces the single
-        ones, ``fit`` being the group's and ``u``, ``v`` the convection at each centre;
-        otherwise the single fits stand, ``joint`` False.
-
-    Raises
-    ------
-    InvalidInputError
-        Fields or ``valid`` of other shapes, a spacing or reach not > 0, ``orient`` not +-1,
-        ``iterations`` under 1, or cores without their ``x``, ``y``, ``sign`` and ``radius`` of
-        one length.
+    cores, fits : dict
+        The cores (``cores``' but for the regions whose split is confirmed, which are
+        ``parts``', each part a core; positive cores first, then by region) and
+        :func:`fit_oseen` of them.
     """
-    uu = np.asarray(u, np.float64)
-    vv = np.asarray(v, np.float64)
-    if uu.ndim != 2 or vv.shape != uu.shape:
-        raise InvalidInputError(f"oseen: u {uu.shape} and v {vv.shape} must be 2-D alike")
-    if not (dx > 0 and dy > 0 and reach > 0):
-        raise InvalidInputError(f"oseen: dx, dy and reach must be > 0, got {dx}, {dy}, {reach}")
-    if orient not in (1.0, -1.0):
-        raise InvalidInputError(f"oseen: orient must be +1 or -1, got {orient}")
-    if int(iterations) < 1:
-        raise InvalidInputError(f"oseen: iterations must be >= 1, got {iterations}")
-    ny, nx = uu.shape
-    ok_vec = np.isfinite(uu) & np.isfinite(vv)
-    if valid is not None:
-        valid = np.asarray(valid, bool)
-        if valid.shape != uu.shape:
-            raise InvalidInputError(
-                f"oseen: valid {valid.shape} must have the field's shape {uu.shape}"
-            )
-        ok_vec &= valid
-    xs = dx * np.arange(nx) if x is None else np.asarray(x, np.float64)
-    ys = dy * np.arange(ny) if y is None else np.asarray(y, np.float64)
-    if xs.shape != (nx,) or ys.shape != (ny,):
-        raise InvalidInputError("oseen: x and y must give the columns' and rows' coordinates")
-    need = ("x", "y", "sign", "radius")
-    try:
-        cols = [np.asarray(cores[k], np.float64).ravel() for k in need]
-    except (KeyError, TypeError, ValueError):
-        raise InvalidInputError(
-            f"oseen: cores must be find_vortices' dict of numbers ({', '.join(need)})"
-        ) from None
-    n = cols[0].size
-    if any(c.size != n for c in cols):
-        raise InvalidInputError(f"oseen: the cores' {', '.join(need)} differ in length")
-    out = {k: np.full(n, np.nan) for k in OSEEN_FIELDS}
-    out["ok"] = np.zeros(n, bool)
-    out["joint"] = np.zeros(n, bool)
-    if n == 0:
-        return out
-    # centroids in grid steps; the fit itself is the kernel's (piv_core::vortex_fit)
-    fits_at = np.column_stack([np.interp(cols[0], xs, np.arange(nx)),
-                               np.interp(cols[1], ys, np.arange(ny))])  # fmt: skip
-    fits = _rspiv.oseen_fit(
-        uu, vv, ok_vec, fits_at[:, 0].copy(), fits_at[:, 1].copy(), cols[3], cols[2],
-        float(dx), float(dy), float(reach), float(orient), int(iterations), bool(shear),
-    )  # fmt: skip
-    for k in (*_KERNEL_FIELDS, "ok"):
-        out[k] = fits[{"x": "col", "y": "row"}.get(k, k)]
-    _one_per_vortex(out, out["x"] * dx, out["y"] * dy)
-    group = _crowds(out["x"] * dx, out["y"] * dy, out["radius"], out["ok"]) if joint else None
-    if group is not None and np.any(group >= 0):
-        centroids = np.column_stack([fits_at, cols[3], cols[2]])
-        got = _rspiv.oseen_fit_joint(
-            uu, vv, ok_vec, centroids, np.column_stack([out[k] for k in _KERNEL_FIELDS]),
-            group, float(dx), float(dy), float(reach), float(orient), int(iterations),
-            bool(shear),
-        )  # fmt: skip
-        for k in (*_KERNEL_FIELDS, "joint"):
-            out[k] = got[{"x": "col", "y": "row"}.get(k, k)]
-    out["neighbour"] = fit_neighbours(out["x"] * dx, out["y"] * dy, out["radius"], out["ok"])
-    out["x"] = np.interp(out["x"], np.arange(nx), xs)  # NaN stays NaN
-    out["y"] = np.interp(out["y"], np.arange(ny), ys)
-    return out
-
-
-def fit_neighbours(x: np.ndarray, y: np.ndarray, r: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Each kept fit's distance to the nearest other kept fit in their mean core radius
-    (:func:`fit_oseen`'s ``neighbour``: centres ``x``, ``y`` and core radii ``r`` px, ``ok``
-    the fits kept; NaN where not kept or alone), by blocks of 512 fits."""
-    out = np.full(ok.size, np.nan)
-    k = np.flatnonzero(ok)
-    if k.size < 2:
-        return out
-    near = np.empty(k.size)
-    for a, d in _apart(x[k], y[k], r[k]):
-        near[a : a + len(d)] = d.min(axis=1)
-    out[k] = near
-    return out
-
-
-def _apart(x: np.ndarray, y: np.ndarray, r: np.ndarray):
-    """``(a, d)`` by blocks of 512 points from ``a``: their distances to every point in their
-    mean core radius (inf to themselves)."""
-    for a in range(0, x.size, 512):
-        b = min(a + 512, x.size)
-        d = np.hypot(x[a:b, None] - x[None], y[a:b, None] - y[None])
-        d /= 0.5 * (r[a:b, None] + r[None])
-        d[np.arange(b - a), np.arange(a, b)] = np.inf  # not itself
-        yield a, d
-
-
-def _crowds(x: np.ndarray, y: np.ndarray, r: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Each kept fit's group (-1: none): the kept fits chained by distances under
-    :data:`OSEEN_CROWDED` mean core radii (centres ``x``, ``y`` and ``r`` px), groups of two
-    or more labelled from 0."""
-    k = np.flatnonzero(ok)
-    label = np.full(ok.size, -1, np.int64)
-    if k.size < 2:
-        return label
-    root = np.arange(k.size)
-
-    def find(a: int) -> int:
-        while root[a] != a:
-            root[a] = root[root[a]]
-            a = root[a]
-        return a
-
-    for a, d in _apart(x[k], y[k], r[k]):
-        i, j = np.nonzero(d < OSEEN_CROWDED)
-        for i0, j0 in zip(i + a, j, strict=True):  # a few per field
-            if i0 < j0:
-                root[find(i0)] = find(j0)
-    top = np.array([find(a) for a in range(k.size)])
-    _, which, size = np.unique(top, return_inverse=True, return_counts=True)
-    label[k] = np.where(size[which] > 1, which, -1)
-    return label
-
-
-def _one_per_vortex(out: dict[str, np.ndarray], x: np.ndarray, y: np.ndarray) -> None:
-    """Two kept fits of one sense closer than their mean core radius are one vortex whose swirl
-    the threshold split into two cores (two resolved vortices of like sense merge into one
-    core from about 2.5 r_c apart): the one explaining less of its patch is no longer kept,
-    its values NaN, as for any fit not kept (``x``, ``y`` px, in place in ``out``)."""
-    k = np.flatnonzero(out["ok"])
-    if k.size < 2:
-        return
-    sense = np.sign(out["circulation"][k])
-    pairs = []
-    for a, d in _apart(x[k], y[k], out["radius"][k]):
-        i, j = np.nonzero((d < 1.0) & (sense[a : a + len(d), None] == sense[None]))
-        pairs += [(k[i0 + a], k[j0]) for i0, j0 in zip(i, j, strict=True) if i0 + a < j0]
-    for i, j in pairs:  # rare: a few per field
-        if out["ok"][i] and out["ok"][j]:
-            worse = i if out["fit"][i] < out["fit"][j] else j
-            out["ok"][worse] = False
-            for name in ("x", "y", "radius", "circulation", "u", "v", "shear"):
-                out[name][worse] = np.nan
+    region = np.asarray(cores.get("region", ()), np.float64)
+    preg = np.asarray(parts.get("region", ()), np.float64)
+    if region.size != np.asarray(cores["x"]).size or preg.size != np.asarray(parts["x"]).size:
+        raise InvalidInputError("oseen: cores and parts must be find_vortices' of one field")
+    fits = fit_oseen(u, v, cores, dx, dy, **fit)
+    got, count = np.unique(preg, return_counts=True)
+    many = got[(count >= 2) & (count <= OSEEN_JOINT_MAX)]
+    # only a region whose one fit is kept can be two vortices fitted as one (two vortices of
+    # one sense 2-2.5 r_c apart: the one fit explains 91-97 % of its patch); most regions of
+    # noise are not kept, and trying them would cost as much as the fits themselves
+    many = many[np.isin(many, region[fits["ok"]])]
+    if many.size == 0:
+        return cores, fits
+    # the parts of these regions fitted on their own (their joint fits from the parts)
+    trial_at = np.flatnonzero(np.isin(preg, many))
+    trial = {k: np.asarray(val)[trial_at] for k, val in parts.items()}
+    tf = fit_oseen(u, v, trial, dx, dy, **fit)
+    held = tf["ok"] & tf["joint"]
+    confirmed = [r for r in many if held[trial["region"] == r].all()]
+    if not confirmed:
+        return cores, fits
+    whole = np.flatnonzero(~np.isin(region, confirmed))
+    split = np.flatnonzero(np.isin(preg, confirmed))
+    out = {k: np.concatenate([np.asarray(cores[k])[whole], np.asarray(parts[k])[split]])
+           for k in CORE_FIELDS}  # fmt: skip
+    order = np.lexsort((out["region"], -out["sign"]))
+    out = {k: val[order] for k, val in out.items()}
+    return out, fit_oseen(u, v, out, dx, dy, **fit)
 
 
 class VortexAccumulator:

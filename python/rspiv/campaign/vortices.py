@@ -23,7 +23,9 @@ delta_99^2), ``radius`` and ``circulation`` (means of the cores; m and m^2/s, wi
 wall units), each with its standard error ``_se`` (the density's from 8 batches of contiguous
 pairs, which keeps the correlation of successive pairs; the means' from their cores' spread),
 ``threshold`` (1/s); and every core (dim ``core``, at most ``MAX_CORES``): ``pair``,
-``x``, ``y``, ``sign``, ``radius``, ``circulation``, ``peak``. A report figure.
+``x``, ``y``, ``sign``, ``radius``, ``circulation``, ``peak``, ``region`` (the cores of one
+thresholded region split at its swirl's saddles share it: :func:`rspiv.vortices.find_vortices`).
+A report figure.
 
 Lamb-Oseen fits (``[statistics] vortex_fits``, on by default: about 0.2 ms a core in
 ``piv_core::vortex_fit``, 40 ms a pair's field on the demo's layer at scale 0.4, where the rest
@@ -80,11 +82,12 @@ from rspiv.vortices import (
     OSEEN_CROWDED,
     OSEEN_FIELDS,
     OSEEN_JOINT_MAX,
+    SPLIT_SADDLE,
     VortexAccumulator,
     batch_density_se,
+    confirm_splits,
     find_vortices,
     fit_neighbours,
-    fit_oseen,
     min_core_vectors,
 )
 from rspiv.vorticity import VorticityAccumulator
@@ -223,16 +226,22 @@ class VortexSearch:
         batch = min(i * BATCHES // self.total, BATCHES - 1) if self.total > 0 else 0
         w, s = VorticityAccumulator.fields(u, v, valid, self.dx, self.dy, self.scheme)
         o = self.orient
-        cores = find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy, x=self.x,
-                              y=self.row_index, min_vectors=self.min_vectors)  # fmt: skip
+        found = {"x": self.x, "y": self.row_index, "min_vectors": self.min_vectors}
+        cores = find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy, **found)
+        if self.options.fits:  # regions of two vortices split where their parts fit as such
+            parts = find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy, **found,
+                                  split=SPLIT_SADDLE)  # fmt: skip
+            cores = self._with_fits(cores, parts, u, v, valid, part["acc"], batch)
         rows = np.rint(cores["y"]).astype(np.int64)
         if self.options.fits:
-            cores = self._with_fits(cores, rows, u, v, valid, part["acc"], batch)
             inside = (rows >= 0) & (rows < self.shape[0])  # as the counts take them
             near = inside & cores["oseen_ok"] & (cores["oseen_neighbour"] < OSEEN_CROWDED)
             joint = inside & cores["oseen_joint"]  # fitted with its neighbours
             part["crowded"] = part.get("crowded", 0) + int(np.count_nonzero(near & ~joint))
             part["joint"] = part.get("joint", 0) + int(np.count_nonzero(joint))
+            _, which, count = np.unique(cores["region"], return_inverse=True, return_counts=True)
+            split = inside & (count[which] > 1)  # one of a region's vortices
+            part["split"] = part.get("split", 0) + int(np.count_nonzero(split))
         else:
             part["acc"].add(cores, rows, batch=batch)
         if self.events:  # each core at the vector nearest its centroid, for averages about it
@@ -242,16 +251,18 @@ class VortexSearch:
             part["cores"].append((pid, cores))
             part["n"] += cores["x"].size
 
-    def _with_fits(self, cores: dict, rows, u, v, valid, counts: VortexAccumulator,
+    def _with_fits(self, cores: dict, parts: dict, u, v, valid, counts: VortexAccumulator,
                    batch: int) -> dict:  # fmt: skip
-        """The cores with their Lamb-Oseen fits (``oseen_*``), counted."""
+        """The cores (those of ``parts`` where a region's split is confirmed) with their
+        Lamb-Oseen fits (``oseen_*``), counted."""
         # a Lamb-Oseen vortex (in a uniform shear, if asked) fitted to the fluctuations about
         # each core, about the other fields' mean (the mean shear removed, none of this
         # field's vortex); its convection is the fit's plus that mean there
         du, dv = (u - self.mean_u) * self.loo, (v - self.mean_v) * self.loo
-        fits = fit_oseen(du, dv, cores, self.dx, self.dy, valid=valid, x=self.x,
-                         y=self.row_index, orient=self.orient,
-                         shear=self.options.shear)  # fmt: skip
+        cores, fits = confirm_splits(du, dv, cores, parts, self.dx, self.dy, valid=valid,
+                                     x=self.x, y=self.row_index, orient=self.orient,
+                                     shear=self.options.shear)  # fmt: skip
+        rows = np.rint(cores["y"]).astype(np.int64)
         ny, nx = self.shape
         at_i = np.clip(np.rint(np.nan_to_num(fits["y"])).astype(np.int64), 0, ny - 1)
         at_j = np.clip(np.rint(np.interp(np.nan_to_num(fits["x"]), self.x, np.arange(nx)))
@@ -327,6 +338,8 @@ class VortexSearch:
                 # fitted with it (biased by it), and those fitted with their neighbours
                 "fits_crowded": sum(int(part.get("crowded", 0)) for part in parts),
                 "fits_joint": sum(int(part.get("joint", 0)) for part in parts),
+                # cores that were one region of swirl, split where its parts fit as vortices
+                "fits_split": sum(int(part.get("split", 0)) for part in parts),
                 # one standard error: the density's from the batches of contiguous pairs, the
                 # means' from their cores' spread
                 "density_se": batch_density_se(cb, counts.fields_batches, strip[:, None]),
@@ -356,7 +369,7 @@ class VortexSearch:
         if not self.options.fits:  # no Lamb-Oseen fit was made
             prof = {k: val for k, val in prof.items()
                     if not k.startswith("oseen_")
-                    and k not in ("fits_kept", "fits_crowded", "fits_joint")}
+                    and k not in ("fits_kept", "fits_crowded", "fits_joint", "fits_split")}
         said = []
         crowded, kept = prof.get("fits_crowded", 0), prof.get("fits_kept", 0)
         if kept and crowded >= 0.05 * kept:
@@ -421,7 +434,8 @@ def _core_table(found: list, dist: np.ndarray, p: dict, dt: float, fits: bool, l
     m = p["m_per_px"] if p.get("si") else 1.0
     per_s = 1.0 / dt if dt > 0 else 1.0
     names = CORE_FIELDS + (tuple(f"oseen_{k}" for k in OSEEN_FIELDS) if fits else ())
-    cols = {k: [c[k] for _, c in found] for k in names}
+    # (a core found before an array was added, kept in a checkpoint, has NaN there)
+    cols = {k: [c.get(k, np.full(c["x"].size, np.nan)) for _, c in found] for k in names}
     out = {k: np.concatenate(v)[:limit] if v else np.zeros(0) for k, v in cols.items()}
     pair = [np.full(c["x"].size, pid) for pid, c in found]
     out["pair"] = np.concatenate(pair)[:limit] if pair else np.zeros(0, np.int64)
@@ -471,8 +485,10 @@ def vortex_dataset(prof: dict, run: Any) -> Any:
         ds[f"{k}_se"] = (dims, prof[f"{k}_se"], {"units": ds[k].attrs["units"],
                          "long_name": f"standard error of {k}" + (
                              " (batches of contiguous pairs)" if k == "density" else "")})
-    for k in ("pair", "x", "y", "sign", "radius", "circulation", "peak"):
+    for k in ("pair", "x", "y", "sign", "radius", "circulation", "peak", "region"):
         ds[f"core_{k}"] = ("core", t[k])
+    ds["core_region"].attrs["long_name"] = ("the thresholded region of the pair's field the "
+                                            "core is part of (split at its swirl's saddles)")
     if "oseen_count" in prof:
         _oseen_variables(ds, prof, dims, length, circ)
     if "y_plus" in prof:
@@ -490,7 +506,7 @@ def vortex_dataset(prof: dict, run: Any) -> Any:
             "pairs": prof["pairs"],
             "min_vectors": prof["min_vectors"],
             "prograde_sign": prof["prograde_sign"],
-            **({k: prof[k] for k in ("fits_kept", "fits_crowded", "fits_joint")}
+            **({k: prof[k] for k in ("fits_kept", "fits_crowded", "fits_joint", "fits_split")}
                if "fits_kept" in prof else {}),
             "description": "rspiv vortex cores (rspiv.vortices): connected vectors of signed "
             "swirling strength beyond the row's threshold; the flow's frame (x downstream, y "
