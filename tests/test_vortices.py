@@ -433,6 +433,47 @@ def test_a_region_is_split_only_at_a_deep_saddle_and_where_its_parts_are_vortice
         confirm_splits(u, v, {"x": np.zeros(2), "region": np.zeros(1)}, c, H, H)
 
 
+def test_only_the_regions_asked_are_split():
+    """``find_vortices(..., split, regions=)`` splits the regions named and keeps the others
+    whole: the parts of a region equal those of splitting every region, bit for bit; and
+    :func:`confirm_splits` given a function of the regions worth splitting (those whose one
+    fit is kept) gives what it gives with every region split."""
+    rc, gamma = 7.0, 250.0
+    u, v = _lamb_oseen([(60.0, 60.0, gamma, rc), (74.0, 60.0, gamma, rc),
+                        (200.0, 60.0, -gamma, rc), (214.0, 60.0, -gamma, rc),
+                        (200.0, 140.0, gamma, rc), (60.0, 140.0, gamma, rc),
+                        (74.0, 140.0, gamma, rc)])  # fmt: skip
+    g = gradients(u, v, H, H)
+    sw = swirl_from_gradients(g, signed=True)
+    w = g["dvdx"] - g["dudy"]
+    thr = 0.25 * np.nanmax(np.abs(sw))
+    whole = find_vortices(sw, w, thr, H, H, min_vectors=3)
+    every = find_vortices(sw, w, thr, H, H, min_vectors=3, split=SPLIT_SADDLE)
+    assert whole["x"].size == 4 and every["x"].size == 7
+    for regs in ([1], [4], [1, 4], [], [1, 2, 3, 4]):
+        p = find_vortices(sw, w, thr, H, H, min_vectors=3, split=SPLIT_SADDLE, regions=regs)
+        for r in (1, 2, 3, 4):
+            mine = (every if r in regs else whole)["region"] == r
+            got = p["region"] == r
+            for k in whole:
+                np.testing.assert_array_equal(p[k][got], (every if r in regs else whole)[k][mine])
+    asked = []
+
+    def parts(regions):
+        asked.append(regions)
+        return find_vortices(sw, w, thr, H, H, min_vectors=3, split=SPLIT_SADDLE,
+                             regions=regions)  # fmt: skip
+
+    c1, f1 = confirm_splits(u, v, whole, parts, H, H)
+    c2, f2 = confirm_splits(u, v, whole, every, H, H)
+    assert len(asked) == 1 and list(asked[0]) == [1, 2, 3, 4]  # every one fit is kept
+    assert c1["x"].size == 7 and f1["ok"].all() and f1["joint"].sum() == 6  # one alone
+    for k in c2:
+        np.testing.assert_array_equal(c1[k], c2[k])
+    for k in f2:
+        np.testing.assert_array_equal(f1[k], f2[k])
+
+
 def test_one_vortex_split_into_two_cores_is_kept_once():
     """One exact vortex given as two cores of its sense 0.6 r_c apart (a threshold that splits
     its swirl, as on pivpy's real urban-canopy fields, where two kept fits of one sense lay

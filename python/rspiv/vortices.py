@@ -42,6 +42,8 @@ of the cores are :mod:`rspiv.vortex_fits`' (their names are kept here too).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from rspiv.errors import InvalidInputError
@@ -110,6 +112,7 @@ def find_vortices(
     y=None,
     min_vectors: int = 3,
     split: float | None = None,
+    regions=None,
 ) -> dict[str, np.ndarray]:
     """The vortex cores of one field (module docstring).
 
@@ -133,6 +136,9 @@ def find_vortices(
         (module docstring: ``region``; 0 < split < 1, usually :data:`SPLIT_SADDLE`); None
         keeps each region one core. The noise of a PIV field splits regions too: a split is
         confirmed by fitting the parts (:func:`confirm_splits`).
+    regions : array_like of int, optional
+        With ``split``, split only the regions of these numbers (``region``); the others stay
+        whole, after the split ones of their sign. Default: every region.
 
     Returns
     -------
@@ -166,7 +172,7 @@ def find_vortices(
         strong = np.isfinite(s) & (mag >= thr)
     out: dict[str, list[np.ndarray]] = {k: [] for k in CORE_FIELDS}
     wz = np.where(np.isfinite(w), w, 0.0)
-    regions = 0  # the regions numbered before this sign's
+    numbered = 0  # the regions numbered before this sign's
     # the swirl against its row's threshold: where the threshold follows the swirl's rms with
     # height, a maximum of |swirl| alone sits at the edge of a region nearest the wall
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -175,11 +181,20 @@ def find_vortices(
         labels, n = ndimage.label(strong & (np.sign(s) == sign), structure=_EIGHT)
         if n == 0:
             continue
-        region = np.arange(n + 1) + regions  # each label's region (label 0: none)
-        regions += n
-        if split is not None:
+        region = np.arange(n + 1) + numbered  # each label's region (label 0: none)
+        numbered += n
+        if split is not None and regions is None:
             labels, region = _split_regions(labels, region, level, split, min_vectors)
             n = region.size - 1
+        elif split is not None:  # these regions alone split, after the others
+            chosen = np.isin(region, np.asarray(regions, np.float64).ravel())
+            chosen[0] = False
+            if chosen.any():  # their labels left empty, their parts numbered after n
+                alone = np.where(chosen[labels], labels, 0)
+                cut, cut_region = _split_regions(alone, region, level, split, min_vectors)
+                labels = np.where(alone > 0, cut + n, labels)
+                region = np.concatenate([region, cut_region[1:]])
+                n = region.size - 1
         # the labelled vectors only, summed per label by bincount (in the grid's order)
         at = np.flatnonzero(labels)
         lab = labels.ravel()[at]
@@ -294,8 +309,7 @@ def _split_regions(
 
 
 def confirm_splits(
-    u, v, cores: dict[str, np.ndarray], parts: dict[str, np.ndarray], dx: float, dy: float,
-    **fit: object,
+    u, v, cores: dict[str, np.ndarray], parts: Any, dx: float, dy: float, **fit: Any
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """The cores of a field with the regions that hold two vortices or more split, and their
     Lamb-Oseen fits.
@@ -316,9 +330,12 @@ def confirm_splits(
     ----------
     u, v : array_like, (ny, nx)
         The field, as for :func:`fit_oseen`.
-    cores, parts : dict
-        :func:`find_vortices` of the field without and with ``split`` (the same swirl,
-        threshold and grid).
+    cores : dict
+        :func:`find_vortices` of the field without ``split``.
+    parts : dict or callable
+        :func:`find_vortices` of it with ``split`` (the same swirl, threshold and grid), or a
+        function of the regions worth splitting (those whose one fit is kept) that gives it
+        (``find_vortices(..., split=SPLIT_SADDLE, regions=...)``: no other region is split).
     dx, dy : float
         Grid spacing, px.
     **fit
@@ -332,16 +349,23 @@ def confirm_splits(
         :func:`fit_oseen` of them.
     """
     region = np.asarray(cores.get("region", ()), np.float64)
-    preg = np.asarray(parts.get("region", ()), np.float64)
-    if region.size != np.asarray(cores["x"]).size or preg.size != np.asarray(parts["x"]).size:
+    if region.size != np.asarray(cores["x"]).size:
         raise InvalidInputError("oseen: cores and parts must be find_vortices' of one field")
     fits = fit_oseen(u, v, cores, dx, dy, **fit)
-    got, count = np.unique(preg, return_counts=True)
-    many = got[(count >= 2) & (count <= OSEEN_JOINT_MAX)]
     # only a region whose one fit is kept can be two vortices fitted as one (two vortices of
     # one sense 2-2.5 r_c apart: the one fit explains 91-97 % of its patch); most regions of
     # noise are not kept, and trying them would cost as much as the fits themselves
-    many = many[np.isin(many, region[fits["ok"]])]
+    kept = np.unique(region[fits["ok"]])
+    if kept.size == 0:
+        return cores, fits
+    if callable(parts):
+        parts = parts(kept)
+    preg = np.asarray(parts.get("region", ()), np.float64)
+    if preg.size != np.asarray(parts["x"]).size:
+        raise InvalidInputError("oseen: cores and parts must be find_vortices' of one field")
+    got, count = np.unique(preg, return_counts=True)
+    many = got[(count >= 2) & (count <= OSEEN_JOINT_MAX)]
+    many = many[np.isin(many, kept)]
     if many.size == 0:
         return cores, fits
     # the parts of these regions fitted on their own (their joint fits from the parts)

@@ -229,8 +229,11 @@ class VortexSearch:
         found = {"x": self.x, "y": self.row_index, "min_vectors": self.min_vectors}
         cores = find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy, **found)
         if self.options.fits:  # regions of two vortices split where their parts fit as such
-            parts = find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy, **found,
-                                  split=SPLIT_SADDLE)  # fmt: skip
+
+            def parts(regions: np.ndarray) -> dict:
+                return find_vortices(s * o, w * o, self.thr[:, None], self.dx, self.dy,
+                                     **found, split=SPLIT_SADDLE, regions=regions)  # fmt: skip
+
             cores = self._with_fits(cores, parts, u, v, valid, part["acc"], batch)
         rows = np.rint(cores["y"]).astype(np.int64)
         if self.options.fits:
@@ -251,10 +254,10 @@ class VortexSearch:
             part["cores"].append((pid, cores))
             part["n"] += cores["x"].size
 
-    def _with_fits(self, cores: dict, parts: dict, u, v, valid, counts: VortexAccumulator,
+    def _with_fits(self, cores: dict, parts: Any, u, v, valid, counts: VortexAccumulator,
                    batch: int) -> dict:  # fmt: skip
-        """The cores (those of ``parts`` where a region's split is confirmed) with their
-        Lamb-Oseen fits (``oseen_*``), counted."""
+        """The cores (those of ``parts``, :func:`rspiv.vortices.confirm_splits`', where a
+        region's split is confirmed) with their Lamb-Oseen fits (``oseen_*``), counted."""
         # a Lamb-Oseen vortex (in a uniform shear, if asked) fitted to the fluctuations about
         # each core, about the other fields' mean (the mean shear removed, none of this
         # field's vortex); its convection is the fit's plus that mean there
