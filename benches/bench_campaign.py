@@ -75,6 +75,14 @@ def hwm_mb():
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024.0
     return float("nan")
+def huge_mb():  # anonymous transparent huge pages resident now
+    try:
+        for line in open("/proc/self/smaps_rollup"):
+            if line.startswith("AnonHugePages:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
 t0 = time.perf_counter()
 # one pilot pair for the wall's angle; two for the two-point maps' delta_99 (a profile)
 camp = Campaign(cfg, progress=False, out_dir=out, pilot_pairs=2 if cfg.statistics.two_point else 1)
@@ -98,6 +106,7 @@ _pair.process_pair = _timed
 t2 = time.perf_counter()
 res = camp.run()  # reuses the prepared context
 run_s = time.perf_counter() - t2
+huge_after = huge_mb()
 wall = time.perf_counter() - t0
 t = res.timings
 n = res.n_done
@@ -118,7 +127,7 @@ print(json.dumps({**rer,
     "stages_s": sum(t.get(k, 0.0) for k in STAGES),
     **{k: t.get(k, 0.0) / n for k in STAGES},
     "prepare_s": prepare_s, "analysis_s": t.get("analysis", 0.0),
-    "peak_rss_mb": hwm_mb(), "prepare_peak_mb": prepare_peak,
+    "peak_rss_mb": hwm_mb(), "prepare_peak_mb": prepare_peak, "huge_mb": huge_after,
 }))
 """
 
