@@ -101,6 +101,11 @@ def test_planted_vortices_come_back_at_their_centres_radius_and_circulation(seri
     assert not (joint & ~near).any()
     assert vx["fits_joint"] == joint.sum() and vx["fits_crowded"] == (near & ~joint).sum()
     assert vx["fits_crowded"] < 0.05 * vx["fits_kept"]
+    # the cores split from one region (confirm_splits): each a kept fit, fitted jointly
+    key = t["pair"] * 1_000_000 + t["region"]
+    _, which, count = np.unique(key, return_inverse=True, return_counts=True)
+    split = count[which] > 1
+    assert vx["fits_split"] == split.sum() and (t["oseen_ok"] & joint)[split].all()
     assert np.isnan(t["oseen_neighbour"][~t["oseen_ok"]]).all()
     for pid in np.unique(t["pair"]):  # the nearest other kept fit, in their mean r_c
         k = np.flatnonzero((t["pair"] == pid) & t["oseen_ok"])
