@@ -4,6 +4,7 @@ shares (open the run, prepare and resume, execute, analyse or write the shard, c
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import json
 import os
@@ -181,9 +182,15 @@ class Campaign:
     def prepare(self, pairs: list[PairSpec] | None = None) -> PairContext:
         """Calibrate, find the wall angle on the pilot pairs, and freeze the context
         (:func:`rspiv.campaign.prepare.prepare_context`; reuses ``OUT/context.json`` when it
-        was written for the same configuration); numpy's huge pages off, as in :meth:`run`."""
+        was written for the same configuration); numpy's huge pages off, as in :meth:`run`,
+        and what the preparation left in reference cycles collected."""
         with numpy_huge_pages(False):
-            return prepare_context(self, pairs)
+            ctx = prepare_context(self, pairs)
+        # the preparation leaves its target image, backgrounds, pilot pairs' frames and fields
+        # in reference cycles until Python's collector runs, which may be inside the pair loop:
+        # at 47 MP about 1 GB more at its peak (benches/RESULTS.md, thirty-seventh session)
+        gc.collect()
+        return ctx
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint_path(self) -> pathlib.Path:
