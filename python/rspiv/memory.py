@@ -15,6 +15,11 @@ when called on its own) and the Dask executor's tasks therefore turn numpy's req
 their duration and restore it after: the setting is the process's, so a caller
 that runs a campaign from its own program gets its setting back. A user who set numpy's own
 environment variable ``NUMPY_MADVISE_HUGEPAGE`` keeps what it says.
+
+The thirty-seventh session found another gigabyte of the same size: what the preparation left
+in reference cycles (its backgrounds, target and pilot fields) until Python's collector ran,
+now collected when :meth:`~rspiv.campaign.runner.Campaign.prepare` returns. The runs above may
+have seen it too; they were not repeated.
 """
 
 from __future__ import annotations
