@@ -19,6 +19,23 @@ get = getattr(_multiarray, "_get_madvise_hugepage", None)
 pytestmark = pytest.mark.skipif(get is None, reason="this numpy has no huge-page setting")
 
 
+def _small_campaign(tmp_path) -> CampaignConfig:
+    """Two sequential 128 x 192 pairs of a uniform 2 px shift, one 32 px pass, no wall."""
+    for k, f in enumerate(particle_sequence((128, 192), lambda x, y: (2.0 + 0 * y, 0 * y), 3,
+                                            seed=3)):  # fmt: skip
+        tifffile.imwrite(tmp_path / f"frame_{k:03d}.tif", f)
+    cfg = CampaignConfig()
+    cfg.images = ImagesConfig(glob=str(tmp_path / "frame_*.tif"), pairing="sequential")
+    cfg.correction.method = "none"
+    cfg.correction.compare_uncorrected = False
+    cfg.calibration.monte_carlo_samples = 0
+    cfg.wall.enabled = False
+    cfg.piv.passes = [(32, 32)]
+    cfg.output.dir = tmp_path / "out"
+    cfg.output.report = False
+    return cfg
+
+
 def test_the_setting_is_turned_and_restored(monkeypatch):
     monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
     before = get()
@@ -40,18 +57,7 @@ def test_a_campaigns_pairs_run_without_huge_pages(tmp_path, monkeypatch):
     """Every frame a campaign reads (preparation and pair loop) is read with numpy's huge
     pages off; the caller's setting is back after the run."""
     monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
-    for k, f in enumerate(particle_sequence((128, 192), lambda x, y: (2.0 + 0 * y, 0 * y), 3,
-                                            seed=3)):  # fmt: skip
-        tifffile.imwrite(tmp_path / f"frame_{k:03d}.tif", f)
-    cfg = CampaignConfig()
-    cfg.images = ImagesConfig(glob=str(tmp_path / "frame_*.tif"), pairing="sequential")
-    cfg.correction.method = "none"
-    cfg.correction.compare_uncorrected = False
-    cfg.calibration.monte_carlo_samples = 0
-    cfg.wall.enabled = False
-    cfg.piv.passes = [(32, 32)]
-    cfg.output.dir = tmp_path / "out"
-    cfg.output.report = False
+    cfg = _small_campaign(tmp_path)
     seen = []
     read = pair_work.read_frame
     monkeypatch.setattr(pair_work, "read_frame",
@@ -85,19 +91,8 @@ def test_the_preparation_leaves_no_frames_in_reference_cycles(tmp_path):
     no numpy memory)."""
     import tracemalloc
 
-    for k, f in enumerate(particle_sequence((128, 192), lambda x, y: (2.0 + 0 * y, 0 * y), 3,
-                                            seed=3)):  # fmt: skip
-        tifffile.imwrite(tmp_path / f"frame_{k:03d}.tif", f)
-    cfg = CampaignConfig()
-    cfg.images = ImagesConfig(glob=str(tmp_path / "frame_*.tif"), pairing="sequential")
-    cfg.correction.method = "none"
-    cfg.correction.compare_uncorrected = False
-    cfg.calibration.monte_carlo_samples = 0
-    cfg.wall.enabled = False
+    cfg = _small_campaign(tmp_path)
     cfg.preprocess.background = "min"
-    cfg.piv.passes = [(32, 32)]
-    cfg.output.dir = tmp_path / "out"
-    cfg.output.report = False
     camp = Campaign(cfg, progress=False, out_dir=tmp_path / "out")
     gc.collect()
     gc.disable()  # no automatic collection in between, as a long preparation may have none
