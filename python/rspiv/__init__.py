@@ -11,6 +11,7 @@ from rspiv.boundary_layer import BoundaryLayerResult, analyse_profile
 from rspiv.calibration import Calibration, calibrate, calibrate_points
 from rspiv.campaign import Campaign
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
+from rspiv.campaign_init import CampaignInit, init_campaign
 from rspiv.compare import FieldComparison, compare_fields
 from rspiv.compare_series import SeriesComparison, compare_series
 from rspiv.conditional import ConditionalAccumulator
@@ -67,3 +68,4 @@ __all__ += ["TemporalAccumulator", "SpodResult", "spod"]
 __all__ += ["VectorFile", "read_vectors", "FieldComparison", "compare_fields"]
 __all__ += ["SeriesComparison", "compare_series"]
 __all__ += ["VectorStatistics", "vector_statistics"]
+__all__ += ["CampaignInit", "init_campaign"]

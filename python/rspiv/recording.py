@@ -87,6 +87,7 @@ __all__ = [
     "median_displacement",
     "roi_mask",
     "spread",
+    "unlike_pairs",
 ]
 
 #: Particle images a window needs: Keane & Adrian (1992) give a valid detection probability
@@ -123,6 +124,20 @@ MIN_SNR, MAX_DIAMETER, MAX_SATURATED, MIN_LIT, MAX_BACKGROUND_SPREAD = 5.0, 6.0,
 
 #: The e^-2 diameter (px) the overlap correction takes where the diameter was not measured.
 DEFAULT_DIAMETER = 2.5
+#: Two successive pairs of frames paired sequentially (1-2, 2-3) whose median displacements
+#: differ by more than this factor (the larger over 1 px) are not a time-resolved recording's.
+SEQUENCE_MAX_RATIO = 3.0
+
+
+def unlike_pairs(ok0: bool, m0: float, ok1: bool, m1: float) -> bool:
+    """Whether frames paired 1-2 and 2-3 cannot be two pairs of a time-resolved recording: one
+    correlates and the other does not (``ok``), or both do and their median displacements
+    ``m`` (px) differ by more than :data:`SEQUENCE_MAX_RATIO`, the larger over 1 px. Frames A,
+    B, A, B ... of a double-frame camera so paired give a short interval and a long one
+    (PIVlab's ``Jet_0001A``, ``B``, ``Jet_0002A``: 0.47 and 11.9 px). Used to refuse sequential
+    pairing (``rspiv.campaign.prepare``) and to choose the pairing (:mod:`rspiv.campaign_init`)."""
+    lo, hi = sorted((m0, m1))
+    return ok0 != ok1 or (ok0 and hi > 1.0 and hi > SEQUENCE_MAX_RATIO * lo)
 
 
 def mean_diameter(diameter: Sequence[float]) -> float:

@@ -33,7 +33,7 @@ from rspiv.outputs import atomic_path, atomic_write_text
 from rspiv.particle_size import particle_diameter, warnings_for
 from rspiv.piv import piv
 from rspiv.preprocess import Background
-from rspiv.recording import check_recording, mean_diameter, roi_mask, spread
+from rspiv.recording import check_recording, mean_diameter, roi_mask, spread, unlike_pairs
 from rspiv.recording_drift import check_drift
 from rspiv.stats import FieldAccumulator
 
@@ -521,11 +521,6 @@ def _backgrounds(camp, pairs: list[PairSpec], pre, shape: tuple[int, int]) -> tu
     return est[0].value, est[1].value
 
 
-#: Sequential pairing is refused when the first two pairs' median displacements differ by more
-#: than this factor (and the larger is over 1 px): frames A, B, A, B ... of a double-frame camera.
-SEQUENCE_MAX_RATIO = 3.0
-
-
 def _check_sequence(camp, pairs: list[PairSpec], shape: tuple[int, int], window) -> None:
     """Refuse sequential pairing of a double-frame recording. Paired 1-2, 2-3, ..., the frames
     A, B, A, B ... of a double-frame camera give pairs of two intervals, a short one (A to B)
@@ -534,7 +529,8 @@ def _check_sequence(camp, pairs: list[PairSpec], shape: tuple[int, int], window)
     (median peak ratio 1.36), so they would enter the statistics. A time-resolved recording's
     successive pairs move alike and both correlate. The first two pairs, one pass of the first
     window on the raw frames; InvalidInputError in one line when one correlates and the other
-    does not, or their median displacements differ by more than :data:`SEQUENCE_MAX_RATIO`."""
+    does not, or their median displacements differ by more than
+    :data:`rspiv.recording.SEQUENCE_MAX_RATIO` (:func:`rspiv.recording.unlike_pairs`)."""
     seen = []
     cache = pair_work.FrameCache.for_pairs(pairs[:2])  # three frames read
     for p in pairs[:2]:
@@ -557,8 +553,7 @@ def _check_sequence(camp, pairs: list[PairSpec], shape: tuple[int, int], window)
     if len(seen) < 2:
         return
     (p0, ok0, m0, r0), (p1, ok1, m1, r1) = seen
-    lo, hi = sorted((m0, m1))
-    if ok0 != ok1 or (ok0 and hi > 1.0 and hi > SEQUENCE_MAX_RATIO * lo):
+    if unlike_pairs(ok0, m0, ok1, m1):
         raise InvalidInputError(
             f'[images] pairing = "sequential": pair {p0.pair_id} ({p0.describe()}) moves '
             f"{m0:.2f} px (median peak ratio {r0:.2f}), pair {p1.pair_id} ({p1.describe()}) "

@@ -24,6 +24,7 @@ _COMMANDS: list[str] = [
     "rspiv.cli.statistics",
     "rspiv.cli.dewarp",
     "rspiv.cli.wall",
+    "rspiv.cli.init",
     "rspiv.cli.process",
     "rspiv.cli.merge",
     "rspiv.cli.synth",
