@@ -181,6 +181,12 @@ def test_synthetic_campaign_from_its_frames(synthetic, capsys):
     summary = json.loads((d / "out_init" / "summary.json").read_text())
     got = summary["runs"]["method_II"]["u_tau"]
     assert got == pytest.approx(truth["u_tau"], rel=0.005)  # measured: -0.06 %
+    # held against the DNS with its final window in wall units (rspiv.reference_comparison)
+    ref = summary["runs"]["method_II"]["reference"]
+    w, h = cfg.piv.passes[-1]
+    lv_px = truth["viscous_length_px"]
+    assert ref["window_plus"] == pytest.approx([w / lv_px, h / lv_px], rel=0.01)
+    assert ref["bands"] and "Against the DNS" in (d / "out_init/report/report.md").read_text()
 
 
 def test_turned_camera(synthetic, tmp_path):

@@ -87,6 +87,14 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
 
     summ = json.loads((out / "summary.json").read_text())
     assert summ["u_tau"] == pytest.approx(res.u_tau, rel=1e-12) and summ["fields"] == 80
+    # against the DNS the layer is built from (its inner layer, its outer layer in outer
+    # scaling): every band agrees (measured: within 1.6 %)
+    ref = summ["reference"]
+    assert ref["reference"].startswith("DNS Re_theta=4061") and ref["differing"] == []
+    assert {b["band"] for b in ref["bands"]} >= {"log layer", "outer layer"}
+    assert max(abs(b["relative"]) for b in ref["bands"]) < 0.03
+    lv_px = res.nu / res.u_tau / (r.mm_per_px * 1e-3)
+    assert ref["window_plus"] == pytest.approx([32 / lv_px, 32 / lv_px], rel=1e-9)
 
 
 def test_openpiv_text_of_the_same_fields_sums_the_same(level, tmp_path):

@@ -36,6 +36,7 @@ from rspiv.pod import PodResult, pod
 from rspiv.quadrant import QuadrantAccumulator, gaussian_quadrant
 from rspiv.recording import RecordingCheck, check_recording
 from rspiv.reference import load_dns
+from rspiv.reference_comparison import ReferenceComparison, compare_reference
 from rspiv.repeatability import Repeatability, repeatability
 from rspiv.settings import PivSettings
 from rspiv.spod import SpodResult, spod
@@ -68,4 +69,4 @@ __all__ += ["TemporalAccumulator", "SpodResult", "spod"]
 __all__ += ["VectorFile", "read_vectors", "FieldComparison", "compare_fields"]
 __all__ += ["SeriesComparison", "compare_series"]
 __all__ += ["VectorStatistics", "vector_statistics"]
-__all__ += ["CampaignInit", "init_campaign"]
+__all__ += ["CampaignInit", "init_campaign", "ReferenceComparison", "compare_reference"]

@@ -24,6 +24,7 @@ from typing import Any
 
 from rspiv._rspiv import __version__
 from rspiv.errors import InvalidInputError
+from rspiv.reference_comparison import REPORT_TEXT
 from rspiv.report import (
     MOMENTS_CAPTION,
     ReportSection,
@@ -186,6 +187,10 @@ def _boundary_layer(stats: Any, figs: dict[str, pathlib.Path]) -> ReportSection:
         )
     except InvalidInputError as exc:
         text += f"\n\nNo uncertainty summary: {exc}."
+    ref = stats.reference()
+    if ref is not None:
+        text += "\n\n" + REPORT_TEXT + " " + "; ".join(ref.lines()[-2:]) + "."
+        tables.append(ReportTable(f"Against {ref.reference}", ref.table_rows()))
     drawn = [(figs[k], CAPTIONS[k]) for k in ("mean_velocity", "reynolds_stresses",
                                               "higher_moments") if k in figs]  # fmt: skip
     return ReportSection("Boundary layer", text=text, figures=drawn, tables=tables)

@@ -93,6 +93,7 @@ from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
 from rspiv.outputs import atomic_write_text, profile_dataset, write_netcdf, write_profile_csv
 from rspiv.peak_locking import LockingHistogram
 from rspiv.reference import dns_profile_for_re_tau
+from rspiv.reference_comparison import ReferenceComparison, compare_reference, viscous_window
 from rspiv.stats import FieldAccumulator
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vector_levelling import field_transform, identity_mapping, levelling, wall_bow, wall_rise
@@ -242,9 +243,24 @@ class VectorStatistics:
             out["wall"] = wall_dict(an.wall)
         if an.result is not None:
             out.update(an.result.summary())
+            if (ref := self.reference()) is not None:
+                out["reference"] = ref.to_dict()
         elif an.error:
             out["error"] = an.error
         return out
+
+    def reference(self) -> ReferenceComparison | None:
+        """The profile against the DNS station nearest its Re_tau, the window in wall units
+        (:func:`rspiv.reference_comparison.compare_reference`); None without wall units."""
+        r = self.result
+        if r is None or not self.mm_per_px:
+            return None
+        try:
+            return compare_reference(
+                r, window_plus=viscous_window(r, self.window, self.mm_per_px * 1e-3)
+            )
+        except InvalidInputError:
+            return None
 
     def report(self) -> str:
         """A few lines for the terminal."""
@@ -277,6 +293,8 @@ class VectorStatistics:
                 f" delta99 = {r.delta99 * 1e3:.2f} mm, Re_tau = {r.re_tau:.0f}, "
                 f"Re_theta = {r.re_theta:.0f}, H = {r.H:.3f}"
             )
+            if (ref := self.reference()) is not None:
+                lines.append(ref.verdict())
         elif self.analysis.error:
             lines.append(f"no wall units: {self.analysis.error}")
         lines += report_lines({k: getattr(self, k) for k in STRUCTURES})

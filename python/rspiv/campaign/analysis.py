@@ -32,6 +32,7 @@ from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
 from rspiv.campaign import quadrant as quadrant_work
+from rspiv.campaign import reference as reference_work
 from rspiv.campaign import screen as screen_work
 from rspiv.campaign import spod as spod_work
 from rspiv.campaign import temporal as temporal_work
@@ -482,6 +483,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
         camp.say(f"warning: {note}")
     res.pair_quality = pair_quality.write_outputs(camp, res, RunLog(out / "run_log.jsonl"))
     camp.info.pop("screen_warnings", None)
+    camp.info.pop(reference_work.INFO_KEY, None)
     summary.update(pair_quality.summary_entries(camp, res))
     for run in ctx.runs:
         acc = res.accumulators[run.name]
@@ -542,6 +544,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 camp.info.setdefault("screen_warnings", {})[run.name] = screened["warning"]
         if an.result is not None:
             rs.update(an.result.summary())
+            if (ref := reference_work.run_entry(camp, an, ctx.piv.final_window)) is not None:
+                rs["reference"] = ref
             if an.result.warning:
                 rs["profile_warning"] = an.result.warning
                 camp.say(f"warning: {run.label}: {an.result.warning}")
@@ -686,6 +690,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     extra = list(extra_sections)
+    if (sec := reference_work.report_section(camp)) is not None:
+        extra.append(sec)
     sec = pair_quality.report_section(camp, res, res.pair_quality)
     if sec is not None:
         extra.append(sec)

@@ -20,6 +20,7 @@ _COMMANDS: list[str] = [
     "rspiv.cli.check",
     "rspiv.cli.piv",
     "rspiv.cli.compare",
+    "rspiv.cli.compare_profile",
     "rspiv.cli.correct_vectors",
     "rspiv.cli.statistics",
     "rspiv.cli.dewarp",
