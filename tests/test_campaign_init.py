@@ -282,3 +282,24 @@ def test_written_file(tmp_path):
     with pytest.raises(rspiv.InvalidInputError, match="c.toml: exists"):
         found.write(path)
     assert found.write(path, force=True) == path
+
+
+def test_openpiv_recordings_as_a_user(tmp_path):
+    """OpenPIV's real recordings (in the openpiv package, not vendored): test2 is a double-frame
+    camera's six pairs whose flow runs along -x; processed, its mean profile's smooth minimum
+    mirrors itself along a line tilted 10 degrees, which is refused as a wall. test6's names
+    mark frames A and B that sort A, A, ..., B, B."""
+    openpiv = pytest.importorskip("openpiv")
+    data = pathlib.Path(openpiv.__file__).parent / "data"
+    found = init_campaign(data / "test2")
+    cfg = found.config
+    assert cfg.images.pairing == "pairs" and cfg.images.rotate == 180
+    assert cfg.piv.deformation == "symmetric" and cfg.piv.passes == [(48, 48), (48, 12)]
+    toml = found.write(tmp_path / "c.toml")
+    camp = Campaign.load(toml, progress=False)
+    camp.run()
+    summary = json.loads((tmp_path / "rspiv-out" / "summary.json").read_text())
+    err = summary["runs"]["uncorrected"]["error"]
+    assert "is tilted 10.0 degrees from the rows (at most 5)" in err and "extremum" in err
+    with pytest.raises(rspiv.InvalidInputError, match="test6.*mark frames A and B"):
+        init_campaign(data / "test6")

@@ -259,3 +259,21 @@ def test_the_wall_moves_with_the_positions_and_nothing_else():
         shift = float(np.mean(yc - y))
         got = find_wall(u, y=yc, x=x).position_px - shift
         np.testing.assert_allclose(got, ref, atol=1e-6)
+
+
+@pytest.mark.parametrize("angle", [4.0, -6.0, 10.0])
+def test_a_wall_far_from_level_is_refused_where_a_campaign_finds_it(angle):
+    """check_level: a wall found more than MAX_TILT_DEG off the rows is a flow's extremum or a
+    camera far from level, refused in one line; within it the wall is kept as found."""
+    from rspiv.wall import MAX_TILT_DEG, check_level
+
+    x = np.arange(16) * 60.0 + 30.0
+    y = np.arange(0.0, 1200.0, 4.0)
+    wall = 600.0 + (x - x.mean()) * np.tan(np.deg2rad(angle))
+    w = find_wall(_mirrored(y, x, wall), y=y, x=x)
+    assert w.angle_deg == pytest.approx(angle, abs=0.01)
+    if abs(angle) <= MAX_TILT_DEG:
+        assert check_level(w) is w
+    else:
+        with pytest.raises(InvalidInputError, match=rf"tilted {angle:.1f} degrees .*at most 5"):
+            check_level(w)

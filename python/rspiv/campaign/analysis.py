@@ -54,7 +54,7 @@ from rspiv.outputs import (
 from rspiv.profiles import profile_from_accumulator
 from rspiv.report import ReportSection, ReportTable, campaign_report
 from rspiv.stats import FieldAccumulator
-from rspiv.wall import find_wall
+from rspiv.wall import check_level, find_wall
 
 __all__ = [
     "analyse_result",
@@ -109,11 +109,12 @@ def find_run_wall(acc: FieldAccumulator, gx, gy, stations: int, side: str, min_c
     finds the band itself (centred on the row of smallest mean |u|, as wide as the field
     allows). ``flow_side`` is ``"above"`` (flow at smaller y: the wall near the bottom of the
     image) or ``"below"``: the wall finder's judgement for ``side="auto"``, else the configured
-    side (``"bottom"``: the wall at the bottom, the flow above it).
+    side (``"bottom"``: the wall at the bottom, the flow above it). A wall tilted more than
+    :data:`rspiv.wall.MAX_TILT_DEG` off the rows is refused (:func:`rspiv.wall.check_level`).
     """
     u = np.where(acc.count >= max(min(min_count, acc.n_fields), 1), acc.mean_u, np.nan)
     st = min(int(stations), u.shape[1])
-    wall = find_wall(u, y=gy[:, 0], x=gx[0], stations=st)
+    wall = check_level(find_wall(u, y=gy[:, 0], x=gx[0], stations=st))
     if side == "auto":
         flow_side = wall.flow_side
     else:
