@@ -231,13 +231,19 @@ def test_davis_double_frames(tmp_path):
     run.mkdir()
     frames = particle_sequence(SHAPE, (-4.0, 0.0), 2, seed=3)
     for k in range(2):
-        lv.write_buffer(lv.arrays_to_buffer([f.copy() for f in frames]), str(run / f"B{k:05d}.im7"))
+        buf = lv.arrays_to_buffer([f.copy() for f in frames])
+        for f, t in zip(buf, ("0 \u00b5s", "45 \u00b5s"), strict=True):
+            f.attributes["AcqTimeSeries"] = t  # as DaVis writes each frame's time
+        lv.write_buffer(buf, str(run / f"B{k:05d}.im7"))
     (tmp_path / "Run.set").write_text("DaVis set stand-in\n")
     for given in (run, tmp_path / "Run.set"):
         found = init_campaign(given)
         im = found.config.images
         assert im.double_frame is not None and im.pairing == "pairs" and im.rotate == 180
         assert found.notes[("images", "double_frame")] == "two images per file: frames A and B"
+        assert found.config.flow.dt == pytest.approx(45e-6, rel=1e-12)
+        assert "AcqTimeSeries" in found.notes[("flow", "dt")]
+        assert not any("[flow] dt" in s for s in found.said)
 
 
 def test_refusals(tmp_path):

@@ -148,3 +148,50 @@ def test_a_davis_buffer_is_checked_before_a_campaign(tmp_path, capsys):
     assert got["density"] == pytest.approx(want.density)
     assert got["passes"] == [list(s) for s in want.passes]
     assert abs(got["density"] / 0.02 - 1.0) < 0.1
+
+
+def _timed_im7(path, frames, times):
+    """A DaVis buffer whose frames carry acquisition times (``AcqTimeSeries``, as DaVis writes
+    them: a number and a unit)."""
+    buf = lv.arrays_to_buffer(list(frames))
+    for f, t in zip(buf, times, strict=True):
+        f.attributes["AcqTimeSeries"] = t
+    lv.write_buffer(buf, str(path))
+    return path
+
+
+def test_the_files_pulse_separation(tmp_path):
+    """The time between a double-frame buffer's frames (rspiv.io.davis_frame_dt) and a
+    campaign's [flow] dt held against it."""
+    from rspiv.campaign.runner import davis_timing
+    from rspiv.campaign_config import CampaignConfig
+    from rspiv.io import davis_frame_dt
+
+    a = np.zeros((16, 20), np.uint16)
+    p = _timed_im7(tmp_path / "t.im7", [a, a + 1], ["1000 \u00b5s", "1060 \u00b5s"])
+    assert davis_frame_dt(p) == pytest.approx(60e-6, rel=1e-12)
+    assert davis_frame_dt(_timed_im7(tmp_path / "ms.im7", [a, a], ["2 ms", "2.5 ms"])) == (
+        pytest.approx(0.5e-3, rel=1e-12)
+    )
+    # no times (lvpyio writes "no acquisition time series value"), one frame, the same time
+    assert davis_frame_dt(_write_im7(tmp_path / "plain.im7", [a, a + 1])) is None
+    assert davis_frame_dt(_write_im7(tmp_path / "one.im7", [a])) is None
+    assert davis_frame_dt(_timed_im7(tmp_path / "eq.im7", [a, a], ["5 us", "5 us"])) is None
+
+    class Camp:
+        def __init__(self, dt):
+            self.config = CampaignConfig()
+            self.config.flow.dt = dt
+            self.said = []
+
+        def say(self, text):
+            self.said.append(text)
+
+    right, wrong, none = Camp(60e-6), Camp(120e-6), Camp(0.0)
+    assert davis_timing(right, p) == {"file": str(p), "dt_s": pytest.approx(60e-6)}
+    assert not right.said
+    info = davis_timing(wrong, p)
+    assert "every velocity reads 0.5x its true value" in info["warning"]
+    assert wrong.said[0].startswith("WARNING: [flow] dt = 0.00012 s, but t.im7's frames")
+    assert "warning" not in davis_timing(none, p) and "[flow] dt = 6e-05 gives" in none.said[0]
+    assert davis_timing(right, tmp_path / "plain.im7") is None

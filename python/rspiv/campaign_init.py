@@ -31,8 +31,9 @@ A lab's first campaign on its own recording starts from a folder of frames and a
 - **the statistics' minimum count**: a recording of fewer than 20 pairs gets ``min_count`` of
   half its pairs (at least 2), so that its profile is not left empty.
 - **the pulse separation** of a camera recording paired sequentially: ``frame_gap`` frames at
-  the rate of its frames (:func:`rspiv.io.camera_recording`). Otherwise ``dt`` is taken as
-  given (``dt=``) or said: 0 leaves the outputs in px per pair.
+  the rate of its frames (:func:`rspiv.io.camera_recording`); of DaVis double-frame files:
+  their frames' acquisition times (:func:`rspiv.io.davis_frame_dt`). Otherwise ``dt`` is taken
+  as given (``dt=``) or said: 0 leaves the outputs in px per pair.
 - **the calibration** with a target: :func:`rspiv.calibrate` with ``model="auto"`` on the target
   turned as the frames are, refused as it refuses; the model it picks and its lattice are
   written. Without a target no correction is run (``[correction] method = "none"``).
@@ -68,7 +69,15 @@ from rspiv.campaign_config import (
     parse_campaign_config,
 )
 from rspiv.errors import InvalidInputError
-from rspiv.io import camera_recording, frame_count, read_image, recording_rate, turn_frame
+from rspiv.io import (
+    DAVIS_SUFFIXES,
+    camera_recording,
+    davis_frame_dt,
+    frame_count,
+    read_image,
+    recording_rate,
+    turn_frame,
+)
 from rspiv.outputs import atomic_write_text
 from rspiv.recording import (
     MIN_PARTICLES_PER_WINDOW,
@@ -482,12 +491,21 @@ def init_campaign(
 
     # the pulse separation and the viscosity
     rec = camera_recording(src.multiframe) if src.multiframe is not None else None
+    first_file = pathlib.Path(frames_at[0][0])
+    davis_dt = (
+        davis_frame_dt(first_file)
+        if src.double_frame is not None and first_file.suffix.lower() in DAVIS_SUFFIXES
+        else None
+    )
     if dt is not None:
         cfg.flow.dt = float(dt)
         notes[("flow", "dt")] = "given"
     elif rec is not None and rec.fps > 0 and src.pairing == "sequential":
         cfg.flow.dt = src.frame_gap / rec.fps
         notes[("flow", "dt")] = f"frame_gap {src.frame_gap} at {recording_rate(rec)}"
+    elif davis_dt is not None:
+        cfg.flow.dt = davis_dt
+        notes[("flow", "dt")] = f"{first_file.name}: its frames' acquisition times (AcqTimeSeries)"
     else:
         said.append(
             "[flow] dt: the pulse separation is not in the files; 0 leaves every output in px "

@@ -249,6 +249,32 @@ def davis_info(path: str | os.PathLike) -> dict[str, Any]:
     }
 
 
+#: The time units of a DaVis frame's acquisition time (``AcqTimeSeries``, e.g. ``"1050 µs"``).
+_DAVIS_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "\u00b5s": 1e-6, "\u03bcs": 1e-6, "ns": 1e-9}
+
+
+def davis_frame_dt(path: str | os.PathLike) -> float | None:
+    """The time (s) from frame 0 to frame 1 of a DaVis buffer, from its frames' acquisition
+    times (the ``AcqTimeSeries`` attribute of each frame, a number and a unit: ``"1050 µs"``;
+    PIVMat's ``getframedt`` reads the same attribute): the pulse separation of a double-frame
+    recording. None when the buffer has one frame or a time is absent, unreadable or not
+    later in frame 1. InvalidInputError in one line for a file lvpyio cannot read."""
+    p = pathlib.Path(path)
+    frames = list(_davis_buffer(p))
+    times = []
+    for f in frames[:2]:
+        text = str(dict(f.attributes).get("AcqTimeSeries", "")).strip().split()
+        if len(text) != 2 or text[1] not in _DAVIS_TIME_UNITS:
+            return None
+        try:
+            times.append(float(text[0]) * _DAVIS_TIME_UNITS[text[1]])
+        except ValueError:
+            return None
+    if len(times) < 2 or not times[1] > times[0]:
+        return None
+    return times[1] - times[0]
+
+
 def frame_count(path: str | os.PathLike) -> int:
     """Number of frames (images) a file holds: TIFF pages, DaVis images, a Photron or Phantom
     recording's frames, 1 for PNG/BMP/JPEG."""

@@ -602,6 +602,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     if camp.info.get("pilot"):
         summary["pilot"] = camp.info["pilot"]
     for key in (
+        "davis_timing",
         "particle_diameter_px",
         "particle_size_warnings",
         "recording",

@@ -23,7 +23,13 @@ from rspiv.campaign.spec import STAGES, PairContext, PairSpec, RunSpec, parse_sh
 from rspiv.campaign.state import CampaignResult, RunLog, RunState, check_writable
 from rspiv.campaign_config import CampaignConfig, load_campaign_config
 from rspiv.errors import InvalidInputError
-from rspiv.io import camera_recording, frame_count, recording_rate
+from rspiv.io import (
+    DAVIS_SUFFIXES,
+    camera_recording,
+    davis_frame_dt,
+    frame_count,
+    recording_rate,
+)
 from rspiv.memory import numpy_huge_pages
 from rspiv.phantom import PhantomRecording
 from rspiv.photron import PhotronRecording, photron_header
@@ -303,6 +309,11 @@ class Campaign:
             rec = exported_recording(self, pathlib.Path(im.glob).parent, ctx.image_shape)
         if rec is not None:  # a high-speed camera's own file: its figures and frame rate
             self.info["recording_file"] = recording_file(self, rec)
+        first = pathlib.Path(state.sel[0].a) if state.sel else None
+        if im.double_frame is not None and first and first.suffix.lower() in DAVIS_SUFFIXES:
+            timing = davis_timing(self, first)  # the files' own pulse separation
+            if timing is not None:
+                self.info["davis_timing"] = timing
         state.fields = self.field_writer()
         if state.fields is not None:
             first = ctx.runs[0].name
@@ -528,6 +539,33 @@ def recording_file(camp: Any, rec: PhotronRecording | PhantomRecording) -> dict[
         camp.say(
             f"at the recording's frame rate frame k + {im.frame_gap} comes {expected:g} s after "
             f"frame k: [flow] dt = {expected:g} gives velocities per second"
+        )
+    return info
+
+
+def davis_timing(camp: Any, path: pathlib.Path) -> dict[str, Any] | None:
+    """``summary.json``'s ``davis_timing``: the pulse separation a DaVis double-frame file
+    holds (its frames' acquisition times, :func:`rspiv.io.davis_frame_dt`), None when it holds
+    none. A ``[flow] dt`` more than 1 % away from it is said loudly (``warning``): it scales
+    every velocity."""
+    try:
+        files_dt = davis_frame_dt(path)
+    except InvalidInputError:
+        return None  # the pair loop names the file
+    if files_dt is None:
+        return None
+    dt = camp.config.flow.dt
+    info: dict[str, Any] = {"file": str(path), "dt_s": files_dt}
+    if dt > 0 and abs(dt / files_dt - 1) > 0.01:
+        info["warning"] = (
+            f"[flow] dt = {dt:g} s, but {path.name}'s frames were acquired {files_dt:g} s apart "
+            f"(DaVis' AcqTimeSeries): every velocity reads {files_dt / dt:.3g}x its true value"
+        )
+        camp.say(f"WARNING: {info['warning']}")
+    elif dt <= 0:
+        camp.say(
+            f"{path.name}: frames acquired {files_dt:g} s apart (DaVis' AcqTimeSeries): "
+            f"[flow] dt = {files_dt:g} gives velocities per second"
         )
     return info
 
