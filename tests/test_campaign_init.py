@@ -309,3 +309,14 @@ def test_openpiv_recordings_as_a_user(tmp_path):
     assert "is tilted 10.0 degrees from the rows (at most 5)" in err and "extremum" in err
     with pytest.raises(rspiv.InvalidInputError, match="test6.*mark frames A and B"):
         init_campaign(data / "test6")
+
+
+def test_slow_time_resolved_recording_gets_a_frame_gap_said(tmp_path):
+    found = init_campaign(_sequence(tmp_path / "slow", 1.5, 0.0))
+    assert found.config.images.pairing == "sequential" and found.config.images.frame_gap == 1
+    (line,) = [s for s in found.said if s.startswith("[images] frame_gap")]
+    first = found.config.piv.passes[0][0]
+    gap = int(line.split("frame_gap = ")[1].split()[0])
+    assert gap >= 2 and gap * 1.5 <= min(8.0, first / 4) + 0.1
+    # a recording that moves enough gets none
+    assert not any("frame_gap" in s for s in init_campaign(_sequence(tmp_path / "f", 9, 0)).said)

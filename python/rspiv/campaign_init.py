@@ -28,6 +28,8 @@ A lab's first campaign on its own recording starts from a folder of frames and a
   pass left the campaign no complete profile about the wall. Its warnings are said. Particle
   images under 2 px (peak locking) get ``[preprocess] smooth = 0.7`` (README: about half the
   locking at the same random error).
+- **frames that hardly move** between successive frames of a time-resolved recording: a
+  ``frame_gap`` that moves them :data:`GAP_TARGET_PX` is said, not written.
 - **the statistics' minimum count**: a recording of fewer than 20 pairs gets ``min_count`` of
   half its pairs (at least 2), so that its profile is not left empty.
 - **the pulse separation** of a camera recording paired sequentially: ``frame_gap`` frames at
@@ -114,6 +116,9 @@ MAX_OBLIQUE_DEG = 10.0
 MIN_ORIENT_PX = 0.5
 #: The smoothing written for particle images under 2 px (``[preprocess] smooth``, px).
 SMOOTH_SMALL_PARTICLES = 0.7
+#: A time-resolved recording moving less gets a ``frame_gap`` said that moves it this far
+#: (px, the 99th percentile), at most a quarter of the first window.
+GAP_TARGET_PX = 8.0
 #: The viscosity written when none is given (m^2/s: air near 20 C).
 DEFAULT_NU = 1.5e-5
 
@@ -531,8 +536,25 @@ def init_campaign(
             "[calibration]: no target given: the frames are not corrected for the lens, and "
             "the outputs stay in px (rspiv init --target TARGET --pitch-mm P)"
         )
+    if src.pairing == "sequential" and check.passes:
+        p99 = max(check.p99_displacement)
+        gap = _frame_gap(p99, cfg.piv.passes[0][0])
+        if gap > 1:
+            said.append(
+                f"[images] frame_gap: successive frames move {p99:.2f} px at most (99th "
+                f"percentile), where the random error is 0.05-0.1 px; frame_gap = {gap} moves "
+                f"them {gap * p99:.1f} px (the flow changes more between a pair's frames)"
+            )
     cfg.output.dir = pathlib.Path(output_dir)
     return CampaignInit(cfg, notes, said)
+
+
+def _frame_gap(p99: float, first: int) -> int:
+    """The frames between a pair's frames that bring the 99th percentile displacement ``p99``
+    (px per frame) to :data:`GAP_TARGET_PX`, or a quarter of the first window if smaller."""
+    if not p99 > 0:
+        return 1
+    return max(1, int(min(GAP_TARGET_PX, 0.25 * first) / p99))
 
 
 def _calibration(
