@@ -228,6 +228,17 @@ def test_the_command_on_a_campaign(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["drift"]["pairs"] == [0, 2, 3] and "first" in data
     assert not data["drift"]["warnings"]
+    # what the campaign will cost (rspiv.campaign.estimate): one PIV per run and pair
+    est = data["estimate"]
+    assert est["pairs"] == 4 and est["runs"] == ["P3 + rotation, Method II", "uncorrected"]
+    assert est["per_pair_s"] == pytest.approx(est["condition_s"] + 2 * est["piv_s"], rel=1e-9)
+    assert est["hours"] == pytest.approx(4 * est["per_pair_s"] / 3600, rel=1e-9)
+    a = tifffile.imread(sorted((d / "raw").glob("*.tif"))[0])
+    cols = (a.shape[1] - 32) // 16 + 1  # the 32 x 8 px last pass at half overlap
+    rows = (a.shape[0] - 8) // 4 + 1
+    assert est["vectors"] == pytest.approx(rows * cols, rel=0.02)
+    assert est["fields_gb"] == pytest.approx(4 * 2 * est["vectors"] * 17 / 1e9, rel=1e-9)
+    assert "the campaign (an estimate):" in text and "h on this machine" in text
 
 
 def test_a_band_of_thin_seeding_is_found():

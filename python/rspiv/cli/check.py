@@ -5,9 +5,10 @@ For a pair, prints what :func:`rspiv.check_recording` measured (particle images 
 window, their diameter, the sensor's saturation, noise and background, the displacement of a
 coarse pass) and the passes it recommends, then one ``warning:`` line per concern; ``--passes``
 checks the passes a campaign will use as well. For a campaign file, the same for its first pair
-with the campaign's passes, mask and region of interest, then
-:func:`rspiv.recording_drift.check_drift` over ``--samples`` pairs spread evenly over the run
-(seeding, background, brightness, displacement and the run's direction). ``--json FILE``
+with the campaign's passes, mask and region of interest, and what the campaign will cost on
+this machine (:mod:`rspiv.campaign.estimate`: time per pair and in all, field files on disk),
+then :func:`rspiv.recording_drift.check_drift` over ``--samples`` pairs spread evenly over the
+run (seeding, background, brightness, displacement and the run's direction). ``--json FILE``
 writes every figure. The exit status is 0 when the check ran (warnings included), 2 for input it
 cannot read.
 """
@@ -28,6 +29,7 @@ from rspiv.recording_drift import check_drift
 def _campaign(args) -> dict:
     """A campaign file's first pair and the drift over its run; the JSON-ready figures."""
     from rspiv.campaign import Campaign  # deferred: the campaign stack only for a campaign file
+    from rspiv.campaign.estimate import estimate_campaign, estimate_lines  # deferred: as above
     from rspiv.campaign.pair import read_checked_pair, read_frame  # deferred: as above
 
     if args.samples < 1:
@@ -47,9 +49,13 @@ def _campaign(args) -> dict:
         first = check_recording(a, b, mask=mask, passes=passes)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{pairs[0].describe()}: {exc}") from exc
-    del a, b
     print(f"first pair ({pairs[0].describe()}):")
     for line in first.lines():
+        print(f"  {line}")
+    cost = estimate_campaign(camp, a, b, mask)  # time and disk on this machine
+    del a, b
+    print("the campaign (an estimate):")
+    for line in estimate_lines(cost):
         print(f"  {line}")
     chosen = spread(pairs, args.samples)
     print("pairs spread over the run: " + ", ".join(str(p.pair_id) for p in chosen))
@@ -61,7 +67,7 @@ def _campaign(args) -> dict:
     )
     for line in drift.lines():
         print(f"  {line}")
-    return {"first": first.to_dict(), "drift": drift.to_dict()}
+    return {"first": first.to_dict(), "drift": drift.to_dict(), "estimate": cost}
 
 
 def _run(args) -> int:
