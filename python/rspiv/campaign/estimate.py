@@ -6,12 +6,13 @@ which only subtracts) and correlated once with the campaign's passes and mask, t
 machine with all its cores. The pair loop then costs about that PIV once per run (the main
 method, the extra methods and the uncorrected comparison) plus the conditioning. At 47 MP
 (``benches/bench_campaign.py``'s pairs, Method II alone) it read 0.83 + 5.81 = 6.6 s per pair
-where the pair loop took 6.9 s (``benches/RESULTS.md``, thirty-eighth session). Not counted: Method I's dewarping of both frames per pair, the
-preparation (calibration, Monte Carlo, backgrounds, pilot pairs: about a minute at 47 MP) and
-the second passes over the field files. With ``[output] fields`` every pair writes ``u``,
-``v``, ``valid`` and the two uncertainties per vector and run (17 bytes a vector, and the
-replacements of the rejected ones and the file's overhead: the demo's files hold 17.4 bytes a
-vector).
+where the pair loop took 6.9 s (``benches/RESULTS.md``, thirty-eighth session).
+
+Not counted: Method I's dewarping of both frames per pair, the preparation (calibration, Monte
+Carlo, backgrounds, pilot pairs: about a minute at 47 MP) and the second passes over the field
+files. With ``[output] fields`` every pair writes ``u``, ``v``, ``valid`` and the two
+uncertainties per vector and run (17 bytes a vector, and the replacements of the rejected ones
+and the file's overhead: the demo's files hold 17.4 bytes a vector).
 
 Times in s (hours for the whole run), sizes in GB (10^9 bytes).
 """
