@@ -164,6 +164,7 @@ def test_synthetic_campaign_from_its_frames(synthetic, capsys):
     im = cfg.images
     assert im.glob == str(d / "raw" / "*.tif") and im.pairing == "pairs" and im.rotate == 0
     assert cfg.calibration.model == "P3" and cfg.correction.method == "II"
+    assert cfg.calibration.pitch_sigma_mm == 0.0  # estimated from the fit, as calibrate does
     assert cfg.piv.passes[-1][0] == 4 * cfg.piv.passes[-1][1]
     assert cfg.flow.dt == truth["dt"] and cfg.flow.nu == truth["nu"]
     assert cfg.statistics.min_count == 2  # 4 pairs

@@ -347,6 +347,7 @@ def init_campaign(
     *,
     target: str | os.PathLike | None = None,
     pitch_mm: float | None = None,
+    pitch_sigma_mm: float | None = None,
     marker: str = "dot",
     dt: float | None = None,
     nu: float | None = None,
@@ -361,9 +362,11 @@ def init_campaign(
     images : str or path
         A folder, a glob (wildcards in the file name only), a DaVis ``.set``, a multi-frame
         TIFF or a camera recording.
-    target, pitch_mm, marker : optional
+    target, pitch_mm, pitch_sigma_mm, marker : optional
         The calibration target's image (turned as the frames are), its marker pitch (mm,
-        required with a target) and marker shape ("dot" | "cross").
+        required with a target), the pitch's one-sigma uncertainty (mm; default 0: estimated
+        from the fit's residuals beyond the image noise, as :func:`rspiv.calibrate` does) and
+        the marker shape ("dot" | "cross").
     dt : float, optional
         The pulse separation (s); a camera recording paired sequentially gives its own.
     nu : float, optional
@@ -389,6 +392,8 @@ def init_campaign(
     """
     if target is not None and (pitch_mm is None or not pitch_mm > 0):
         raise InvalidInputError(f"{target}: a target needs its marker pitch (--pitch-mm)")
+    if pitch_sigma_mm is not None and not pitch_sigma_mm >= 0:
+        raise InvalidInputError(f"pitch_sigma_mm must be >= 0 mm, got {pitch_sigma_mm}")
     if dt is not None and not dt > 0:
         raise InvalidInputError(f"dt must be > 0 s, got {dt}")
     if nu is not None and not nu > 0:
@@ -530,6 +535,11 @@ def init_campaign(
     cfg.correction.method = method
     if target is not None:
         cfg.calibration = _calibration(target, float(pitch_mm), marker, turn, a.shape, notes)
+        cfg.calibration.pitch_sigma_mm = float(pitch_sigma_mm or 0.0)
+        notes[("calibration", "pitch_sigma_mm")] = (
+            "given" if pitch_sigma_mm else "0: estimated from the fit's residuals beyond the "
+            "image noise"
+        )
     else:
         cfg.correction.compare_uncorrected = False
         said.append(

@@ -22,6 +22,7 @@ def _run(args) -> int:
         args.recording,
         target=args.target,
         pitch_mm=args.pitch_mm,
+        pitch_sigma_mm=args.pitch_sigma_mm,
         marker=args.marker,
         dt=args.dt,
         nu=args.nu,
@@ -54,6 +55,12 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", default="campaign.toml", help="campaign file to write")
     p.add_argument("--target", default=None, help="calibration target image")
     p.add_argument("--pitch-mm", type=float, default=None, help="the target's marker pitch, mm")
+    p.add_argument(
+        "--pitch-sigma-mm",
+        type=float,
+        default=None,
+        help="the pitch's one-sigma uncertainty, mm (default: estimated from the fit)",
+    )
     p.add_argument("--marker", default="dot", choices=("dot", "cross"), help="marker shape")
     p.add_argument("--dt", type=float, default=None, help="pulse separation, s")
     p.add_argument("--nu", type=float, default=None, help="kinematic viscosity, m^2/s")
