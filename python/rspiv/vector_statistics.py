@@ -253,7 +253,7 @@ class VectorStatistics:
         """The profile against the DNS station nearest its Re_tau, the window in wall units
         (:func:`rspiv.reference_comparison.compare_reference`); None without wall units."""
         r = self.result
-        if r is None or not self.mm_per_px:
+        if r is None or not np.isfinite(self.mm_per_px) or self.mm_per_px <= 0:
             return None
         try:
             return compare_reference(
