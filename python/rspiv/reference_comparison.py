@@ -1,8 +1,8 @@
 """A measured boundary-layer profile held against a reference, band by band, with its errors.
 
 The paper judges its corrections by holding the profiles in wall units against a DNS and an
-earlier experiment in the same tunnel (its Figs. 11-12: ``uu+`` from the distorted images "up
-to 12 % lower", its peak "slightly shifted"). :func:`compare_reference` says the same in
+earlier experiment in similar flow conditions (its mean-velocity and Reynolds-stress figures:
+``uu+`` from the distorted images "up to 12 % lower", its peak "slightly shifted"). :func:`compare_reference` says the same in
 figures:
 
 - **the reference**: by default the Schlatter & Örlü (2010) DNS station nearest in Re_tau
