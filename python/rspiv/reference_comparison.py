@@ -2,8 +2,8 @@
 
 The paper judges its corrections by holding the profiles in wall units against a DNS and an
 earlier experiment in similar flow conditions (its mean-velocity and Reynolds-stress figures:
-``uu+`` from the distorted images "up to 12 % lower", its peak "slightly shifted"). :func:`compare_reference` says the same in
-figures:
+``uu+`` from the distorted images "up to 12 % lower", its peak "slightly shifted").
+:func:`compare_reference` says the same in figures:
 
 - **the reference**: by default the Schlatter & Örlü (2010) DNS station nearest in Re_tau
   (:func:`rspiv.reference.dns_profile_for_re_tau`, taken as exact), or another campaign's

@@ -13,6 +13,7 @@ import argparse
 import sys
 
 from rspiv.campaign import Campaign, pair_quality
+from rspiv.campaign import reference as reference_work
 from rspiv.campaign.analysis import partial_correlation_note
 from rspiv.campaign.executors.dask import run_dask
 from rspiv.settings import parse_method
@@ -92,6 +93,10 @@ def _process(args: argparse.Namespace) -> int:
         print(f"warning: {line}", file=sys.stderr)
     for line in camp.info.get("screen_warnings", {}).values():
         print(f"warning: {line}", file=sys.stderr)
+    for key in ("recording_file", "davis_timing"):  # a [flow] dt against the files' own
+        if "warning" in (camp.info.get(key) or {}):
+            print(f"warning: {camp.info[key]['warning']}", file=sys.stderr)
+    against = camp.info.get(reference_work.INFO_KEY) or {}
     for a in res.analyses.values():
         if a.result is not None:
             s = a.result.summary()
@@ -99,6 +104,8 @@ def _process(args: argparse.Namespace) -> int:
                 f"  {a.run.label}: u_tau = {s['u_tau']:.4g} m/s, Re_tau = {s['re_tau']:.4g}, "
                 f"delta99 = {1e3 * s['delta99']:.4g} mm"
             )
+            if a.run.label in against:
+                print(f"    {against[a.run.label].verdict()}")
         elif a.error:
             print(f"  {a.run.label}: {a.error}")
     for name, path in res.files.items():
