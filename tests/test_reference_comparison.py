@@ -156,5 +156,9 @@ def test_a_csv_reference_and_the_command(tmp_path, capsys):
     assert main(["compare-profile", str(tmp_path / "none.csv")]) == 2
     assert "none.csv: no such file" in capsys.readouterr().err
     assert main(["compare-profile", str(meas), "--window-plus", "x"]) == 2
+    empty = tmp_path / "empty.csv"
+    empty.write_text("y_plus,U_plus\nnan,nan\n")
+    with pytest.raises(rspiv.InvalidInputError, match="empty.csv: fewer than two rows"):
+        compare_reference(meas, empty)
     with pytest.raises(rspiv.InvalidInputError, match="Re_tau is needed"):
         compare_reference({"y_plus": y, "U_plus": DNS.u_plus})

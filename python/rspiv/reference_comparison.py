@@ -204,7 +204,7 @@ def profile_table(source: Any) -> tuple[dict[str, np.ndarray], dict[str, float],
     if isinstance(source, Mapping):
         cols = {k: np.asarray(v, dtype=np.float64) for k, v in source.items()}
         if "y_plus" not in cols:
-            raise InvalidInputError("profile: a y_plus column is needed")
+            raise InvalidInputError("the given profile: a y_plus column is needed")
         return cols, {}, "the given profile"
     raise InvalidInputError(f"profile: cannot compare a {type(source).__name__}")
 
@@ -285,16 +285,24 @@ def compare_reference(
         One line: a profile or reference without y+ or any quantity, a DNS reference asked for
         without the measurement's Re_tau, no band with rows in both.
     """
-    cols, scal, _ = profile_table(profile)
+    cols, scal, mlabel = profile_table(profile)
     if reference is None:
         if not math.isfinite(scal.get("re_tau", math.nan)):
-            raise InvalidInputError("profile: its Re_tau is needed to choose the DNS station")
+            raise InvalidInputError(
+                f"{mlabel}: its Re_tau is needed to choose the DNS station (a '# re_tau = ' "
+                "header line), or give a reference"
+            )
         reference = dns_profile_for_re_tau(scal["re_tau"])
     rcols, rscal, label = profile_table(reference)
     y = np.asarray(cols["y_plus"], dtype=np.float64)
     near = np.asarray(cols.get("near_wall", np.zeros_like(y))) > 0.5
-    _, order = np.unique(np.asarray(rcols["y_plus"], dtype=np.float64), return_index=True)
-    yr = np.asarray(rcols["y_plus"], dtype=np.float64)[order]
+    ry = np.asarray(rcols["y_plus"], dtype=np.float64)
+    _, order = np.unique(np.where(np.isfinite(ry), ry, np.inf), return_index=True)
+    order = order[np.isfinite(ry[order])]
+    if order.size < 2 or not np.isfinite(y).any():
+        which = label if order.size < 2 else mlabel
+        raise InvalidInputError(f"{which}: fewer than two rows with a finite y_plus")
+    yr = ry[order]
     re_tau = scal.get("re_tau", math.nan)
     re_ref = rscal.get("re_tau", math.nan)
     known = [r for r in (re_tau, re_ref) if math.isfinite(r)]
