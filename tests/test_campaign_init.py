@@ -321,3 +321,46 @@ def test_slow_time_resolved_recording_gets_a_frame_gap_said(tmp_path):
     assert gap >= 2 and gap * 1.5 <= min(8.0, first / 4) + 0.1
     # a recording that moves enough gets none
     assert not any("frame_gap" in s for s in init_campaign(_sequence(tmp_path / "f", 9, 0)).said)
+
+
+def test_two_level_plate(synthetic, tmp_path, monkeypatch):
+    """A two-level plate: the level calibrated is written ([calibration] level, which the
+    campaign passes to rspiv.calibrate) and said unless given."""
+    from rspiv.synth import calibration_target
+
+    d, _ = synthetic
+    target = tmp_path / "two.tif"
+    plate = calibration_target(scale=0.15, seed=1, levels=2, fiducial="missing")
+    tifffile.imwrite(target, plate.image)
+    found = init_campaign(d / "raw", target=target, pitch_mm=2.9265)
+    assert found.config.calibration.level == 1
+    assert any(s.startswith("[calibration] level: a two-level plate; level 1") for s in found.said)
+    found = init_campaign(d / "raw", target=target, pitch_mm=2.9265, level=2)
+    assert found.config.calibration.level == 2
+    assert found.notes[("calibration", "level")] == "given"
+    assert not any("level" in s for s in found.said)
+    cfg = load_campaign_config(found.write(tmp_path / "c.toml"))
+    assert cfg.calibration.level == 2
+    # the campaign calibrates on that level
+    import rspiv.campaign.prepare as prepare
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def calibrate(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(prepare, "calibrate", calibrate)
+    with pytest.raises(Stop):
+        Campaign(cfg, progress=False, out_dir=tmp_path / "out").prepare()
+    assert seen["level"] == 2
+    # a single-level target: level 0 (the default) written
+    one = init_campaign(d / "raw", target=d / "target.tif", pitch_mm=2.9265)
+    assert one.config.calibration.level == 0
+    bad = (tmp_path / "c.toml").read_text().replace("level = 2", "level = 3")
+    (tmp_path / "bad.toml").write_text(bad)
+    with pytest.raises(rspiv.InvalidInputError, match=r"level: expected a value <= 2"):
+        load_campaign_config(tmp_path / "bad.toml")

@@ -14,6 +14,7 @@ A complete file (every key optional except where noted; defaults shown)::
     marker = "dot"               # "dot" | "cross"
     marker_size_px = 0.0         # 0: estimated from the image
     monte_carlo_samples = 10000  # 0: no Monte Carlo
+    level = 0                    # two-level plate: 1 (nearer) | 2; 0: the fiducial's, else 1
 
     [images]                     # exactly one of glob / pairs / multiframe / double_frame
     glob = "raw/*.tif"           # sorted; consecutive files form the pairs (1-2, 3-4, ...)
@@ -217,6 +218,7 @@ class CalibrationConfig:
     marker: str = "dot"
     marker_size_px: float = 0.0
     monte_carlo_samples: int = 10000
+    level: int = 0
 
 
 @dataclasses.dataclass
@@ -540,6 +542,7 @@ class CampaignConfig:
             "marker": c.marker,
             "marker_size_px": c.marker_size_px,
             "monte_carlo_samples": c.monte_carlo_samples,
+            "level": c.level,
         }
         if c.target is not None:
             cal = {"target": p(c.target), **cal}

@@ -349,6 +349,7 @@ def init_campaign(
     pitch_mm: float | None = None,
     pitch_sigma_mm: float | None = None,
     marker: str = "dot",
+    level: int | None = None,
     dt: float | None = None,
     nu: float | None = None,
     method: str | None = None,
@@ -367,6 +368,9 @@ def init_campaign(
         required with a target), the pitch's one-sigma uncertainty (mm; default 0: estimated
         from the fit's residuals beyond the image noise, as :func:`rspiv.calibrate` does) and
         the marker shape ("dot" | "cross").
+    level : {None, 1, 2}, optional
+        The level of a two-level plate to calibrate on (1 = the nearer); default the level
+        holding the fiducial, else 1, written and said: it must be the light sheet's plane.
     dt : float, optional
         The pulse separation (s); a camera recording paired sequentially gives its own.
     nu : float, optional
@@ -534,7 +538,9 @@ def init_campaign(
     # the calibration, on the target turned as the frames are
     cfg.correction.method = method
     if target is not None:
-        cfg.calibration = _calibration(target, float(pitch_mm), marker, turn, a.shape, notes)
+        cfg.calibration = _calibration(
+            target, float(pitch_mm), marker, level, turn, a.shape, notes, said
+        )
         cfg.calibration.pitch_sigma_mm = float(pitch_sigma_mm or 0.0)
         notes[("calibration", "pitch_sigma_mm")] = (
             "given" if pitch_sigma_mm else "0: estimated from the fit's residuals beyond the "
@@ -571,12 +577,15 @@ def _calibration(
     target: str | os.PathLike,
     pitch_mm: float,
     marker: str,
+    level: int | None,
     turn: int,
     shape: tuple[int, int],
     notes: dict[tuple[str, str], str],
+    said: list[str],
 ) -> CalibrationConfig:
     """The ``[calibration]`` section: the target calibrated as the campaign will (turned), the
-    model held-out error picks."""
+    model held-out error picks, and a two-level plate's level (written, and said unless
+    given)."""
     from rspiv.calibration import calibrate  # deferred: the calibration stack only with a target
 
     path = pathlib.Path(target).expanduser().resolve()
@@ -588,15 +597,21 @@ def _calibration(
             f"frames {want[1]} x {want[0]}"
         )
     try:
-        cal = calibrate(image, pitch_mm, model="auto", marker=marker)
+        cal = calibrate(image, pitch_mm, model="auto", marker=marker, level=level)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{path}: {exc}") from None
     notes[("calibration", "model")] = f"{cal.model_reason}; {cal.lattice_summary().split(';')[0]}"
     notes[("calibration", "pitch_mm")] = "given"
-    return CalibrationConfig(
-        target=path,
-        pitch_mm=pitch_mm,
-        model=cal.model.upper(),
-        marker=marker,
-    )
+    out = CalibrationConfig(target=path, pitch_mm=pitch_mm, model=cal.model.upper(), marker=marker)
+    la = cal.lattice or {}
+    if la.get("levels") == 2:
+        out.level = int(la["level"])
+        notes[("calibration", "level")] = "given" if level else "a two-level plate"
+        if not level:
+            said.append(
+                f"[calibration] level: a two-level plate; level {out.level} (1 = the nearer) "
+                "written, the one holding the fiducial or else the nearer: it must be the "
+                "light sheet's plane (rspiv init --level 1|2)"
+            )
+    return out
 

@@ -213,6 +213,7 @@ PARSERS: dict[str, dict[str, Any]] = {
         "marker": lambda c, w, v: _choice(c, w, v, ("dot", "cross")),
         "marker_size_px": lambda c, w, v: _number(c, w, v, minimum=0),
         "monte_carlo_samples": lambda c, w, v: _number(c, w, v, integer=True, minimum=0),
+        "level": lambda c, w, v: _number(c, w, v, integer=True, minimum=0, maximum=2),
     },
     "images": {
         "glob": lambda c, w, v: str(c.path(w, v, image=True, allow_empty=False)),

@@ -105,6 +105,7 @@ def prepare_context(camp: Any, pairs: list[PairSpec] | None = None) -> PairConte
             marker=cc.marker,
             pitch_sigma_mm=cc.pitch_sigma_mm if cc.pitch_sigma_mm > 0 else None,
             marker_size_px=cc.marker_size_px if cc.marker_size_px > 0 else None,
+            level=cc.level or None,
         )
         camp.say(f"calibration: {cal!r} ({time.perf_counter() - t0:.1f} s)")
         for warning in cal.warnings:

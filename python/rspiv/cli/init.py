@@ -24,6 +24,7 @@ def _run(args) -> int:
         pitch_mm=args.pitch_mm,
         pitch_sigma_mm=args.pitch_sigma_mm,
         marker=args.marker,
+        level=args.level,
         dt=args.dt,
         nu=args.nu,
         method=args.method,
@@ -62,6 +63,13 @@ def register(sub) -> None:
         help="the pitch's one-sigma uncertainty, mm (default: estimated from the fit)",
     )
     p.add_argument("--marker", default="dot", choices=("dot", "cross"), help="marker shape")
+    p.add_argument(
+        "--level",
+        type=int,
+        choices=(1, 2),
+        default=None,
+        help="a two-level plate's level in the light sheet (1 = the nearer)",
+    )
     p.add_argument("--dt", type=float, default=None, help="pulse separation, s")
     p.add_argument("--nu", type=float, default=None, help="kinematic viscosity, m^2/s")
     p.add_argument(
