@@ -177,6 +177,10 @@ def test_the_files_pulse_separation(tmp_path):
     assert davis_frame_dt(_write_im7(tmp_path / "plain.im7", [a, a + 1])) is None
     assert davis_frame_dt(_write_im7(tmp_path / "one.im7", [a])) is None
     assert davis_frame_dt(_timed_im7(tmp_path / "eq.im7", [a, a], ["5 us", "5 us"])) is None
+    cut = tmp_path / "cut.im7"
+    cut.write_bytes(p.read_bytes()[:200])
+    with pytest.raises(rspiv.InvalidInputError, match="cut.im7: cannot read the DaVis buffer"):
+        davis_frame_dt(cut)
 
     class Camp:
         def __init__(self, dt):

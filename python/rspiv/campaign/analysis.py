@@ -52,6 +52,7 @@ from rspiv.outputs import (
     write_profile_csv,
 )
 from rspiv.profiles import profile_from_accumulator
+from rspiv.reference_comparison import viscous_window
 from rspiv.report import ReportSection, ReportTable, campaign_report
 from rspiv.stats import FieldAccumulator
 from rspiv.wall import check_level, find_wall
@@ -680,9 +681,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         )
     r0 = res.analyses.get(main.name)
     if r0 is not None and r0.result is not None and camp.calibration is not None:
-        lv_px = r0.result.nu / r0.result.u_tau * 1e3 * camp.calibration.magnification
-        piv["final window x+"] = w / lv_px
-        piv["final window y+"] = h / lv_px
+        m_per_px = 1e-3 / camp.calibration.magnification
+        piv["final window x+"], piv["final window y+"] = viscous_window(r0.result, (w, h), m_per_px)
     if r0 is not None:
         # the measurement noise's share of the normal stresses (median over the profile)
         pr = r0.profile
