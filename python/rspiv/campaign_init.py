@@ -253,14 +253,13 @@ def _read(frame: tuple[str, int], shape: tuple[int, int] | None) -> np.ndarray:
     return a
 
 
-def _motion(a: np.ndarray, b: np.ndarray) -> tuple[bool, float, float, float]:
-    """``(correlates, median |displacement| px, median u, median v)`` of one coarse pass."""
+def _motion(a: np.ndarray, b: np.ndarray) -> tuple[bool, float]:
+    """``(correlates, median |displacement| px)`` of one coarse pass."""
     field, _ = coarse_pass(a, b, None, a.shape)
     good, _, correlates = _correlation_state(field)
     if not correlates:
-        return False, math.nan, math.nan, math.nan
-    u, v = field.u[good], field.v[good]
-    return True, float(np.median(np.hypot(u, v))), float(np.median(u)), float(np.median(v))
+        return False, math.nan
+    return True, float(np.median(np.hypot(field.u[good], field.v[good])))
 
 
 def frame_marks(names: list[str]) -> str | None:
@@ -288,8 +287,8 @@ def choose_pairing(
         if camera:
             return "sequential", None, f"a camera recording of {len(frames)} frames: one pair"
         return "pairs", None, f"{len(frames)} frames: one pair either way"
-    ok0, m0, _, _ = _motion(frames[0], frames[1])
-    ok1, m1, _, _ = _motion(frames[1], frames[2])
+    ok0, m0 = _motion(frames[0], frames[1])
+    ok1, m1 = _motion(frames[1], frames[2])
 
     def moved(ok: bool, m: float) -> str:
         return f"{m:.2f} px" if ok else "do not correlate"
