@@ -33,6 +33,8 @@ from rspiv.particle_size import particle_diameter
 from rspiv.peak_locking import locking_amplitude
 from rspiv.piv import PivField, piv, piv_at, window_response
 from rspiv.pod import PodResult, pod
+from rspiv.ptv import Particles, Tracks, detect_particles, track_particles
+from rspiv.ptv_profile import SublayerFit, TrackProfile, WallLine, sublayer_fit
 from rspiv.quadrant import QuadrantAccumulator, gaussian_quadrant
 from rspiv.recording import RecordingCheck, check_recording
 from rspiv.reference import load_dns
@@ -70,3 +72,5 @@ __all__ += ["VectorFile", "read_vectors", "FieldComparison", "compare_fields"]
 __all__ += ["SeriesComparison", "compare_series"]
 __all__ += ["VectorStatistics", "vector_statistics"]
 __all__ += ["CampaignInit", "init_campaign", "ReferenceComparison", "compare_reference"]
+__all__ += ["Particles", "Tracks", "detect_particles", "track_particles"]
+__all__ += ["SublayerFit", "TrackProfile", "WallLine", "sublayer_fit"]

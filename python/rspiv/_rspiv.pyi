@@ -305,6 +305,41 @@ MIN_PARTICLE_DIAMETER: float
 
 MIN_NOISE: float
 
+def detect_particles(
+    frame: npt.NDArray[np.generic],
+    block: int,
+    k: float,
+    rel: float,
+    full: float | None = None,
+    mask: npt.NDArray[np.bool_] | None = None,
+) -> dict[str, npt.NDArray[np.generic]]:
+    """The particle images of ``frame`` (``piv_core::ptv::detect``): 1D arrays ``x``, ``y``
+    (px), ``height`` (counts above the background), ``diameter_x``, ``diameter_y``,
+    ``sigma_x``, ``sigma_y`` (px; NaN where not measured) and ``saturated``."""
+
+def field_at(
+    field_grid: tuple[float, float, float, float],
+    field_u: npt.NDArray[np.float64],
+    field_v: npt.NDArray[np.float64],
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """A regular-grid field ``(x0, y0, dx, dy)``, ``u``, ``v`` at the points ``(x, y)``:
+    bilinear, constant beyond the outer nodes (``piv_core::GridField::at``)."""
+
+def track_particles(
+    ax: npt.NDArray[np.float64],
+    ay: npt.NDArray[np.float64],
+    bx: npt.NDArray[np.float64],
+    by: npt.NDArray[np.float64],
+    du: npt.NDArray[np.float64],
+    dv: npt.NDArray[np.float64],
+    radius: float,
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.uint8]]:
+    """Each particle image of A's partner in B (index or -1) and its status (0 matched, 1
+    none within ``radius``, 2 several, 3 claimed by another, 4 no predictor;
+    ``piv_core::ptv::track``)."""
+
 def seeding(
     frame: npt.NDArray[np.generic],
     block: int,

@@ -83,6 +83,7 @@ __all__ = [
     "check_recording",
     "coarse_pass",
     "exclusion_area",
+    "full_scale",
     "mean_diameter",
     "median_displacement",
     "roi_mask",
@@ -282,15 +283,21 @@ def roi_mask(
     return out if mask is None else out | mask
 
 
-def _frame_stats(frame: np.ndarray, mask: np.ndarray | None) -> dict[str, Any]:
-    """The Rust block count of one frame; its particle images at the full scale of an integer
-    frame (255, or ``2^n - 1`` reached by the frame) count as saturated."""
-    full = None
+def full_scale(frame: np.ndarray) -> float | None:
+    """The sensor's full scale where an integer frame reaches it (255, or ``2^n - 1`` for n of
+    8-16 reached by the frame's maximum), else None: the level at which a particle image counts
+    as saturated."""
     if frame.dtype.kind == "u" and frame.size:
         top = int(frame.max())
         if top in ({255} if frame.dtype == np.uint8 else {2**n - 1 for n in range(8, 17)}):
-            full = float(top)
-    return _rspiv.seeding(frame, BLOCK, K_NOISE, REL_SIGNAL, full, mask)
+            return float(top)
+    return None
+
+
+def _frame_stats(frame: np.ndarray, mask: np.ndarray | None) -> dict[str, Any]:
+    """The Rust block count of one frame; its particle images at the full scale of an integer
+    frame (:func:`full_scale`) count as saturated."""
+    return _rspiv.seeding(frame, BLOCK, K_NOISE, REL_SIGNAL, full_scale(frame), mask)
 
 
 def _lit_blocks(sa: dict, sb: dict):

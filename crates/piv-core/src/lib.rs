@@ -19,6 +19,8 @@
 //!   flatness);
 //! - [`particle_size`]: the particle images' diameter from the correlation peaks, and the
 //!   peak-locking check;
+//! - [`ptv`]: particle images found with sub-pixel centres and paired between the frames
+//!   through a PIV predictor (particle tracking at the wall);
 //! - [`seeding`]: each block's background and noise, and the particle images standing out of
 //!   them (the seeding density);
 //! - [`synth::render_particles`]: synthetic particle images;
@@ -36,6 +38,7 @@ pub mod image;
 pub mod moments;
 pub mod multipass;
 pub mod particle_size;
+pub mod ptv;
 pub mod seeding;
 pub mod synth;
 pub mod validate;

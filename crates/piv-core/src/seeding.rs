@@ -162,11 +162,6 @@ pub fn measure<T: Pixel>(
         *spread.select_nth_unstable_by(m, f32::total_cmp).1
     };
     // 2. the particle images above each block's threshold
-    let floor = if signal.is_finite() {
-        rel * signal
-    } else {
-        0.0
-    };
     let counted: Vec<Vec<(u32, f64, u32, u32)>> = (0..rows)
         .into_par_iter()
         .map(|r| {
@@ -178,7 +173,7 @@ pub fn measure<T: Pixel>(
                     if !b.is_finite() {
                         return (0, 0.0, 0, 0);
                     }
-                    let thr = b + (k * noise[i]).max(floor);
+                    let thr = threshold(b, noise[i], signal, k, rel);
                     let (x0, x1) = ((c * block).max(1), ((c + 1) * block).min(w - 1));
                     let (mut n, mut sum, mut searched, mut sat) = (0u32, 0.0f64, 0u32, 0u32);
                     for y in y0..y1 {
@@ -226,6 +221,18 @@ pub fn measure<T: Pixel>(
     })
 }
 
+/// The level a particle image stands above in a block of background `b` and noise `s`:
+/// `b + max(k s, rel signal)` (`rel signal` counts as 0 when the frame's signal is not
+/// measured). Shared with [`crate::ptv::detect`].
+pub(crate) fn threshold(b: f32, s: f32, signal: f32, k: f32, rel: f32) -> f32 {
+    let floor = if signal.is_finite() {
+        rel * signal
+    } else {
+        0.0
+    };
+    b + (k * s).max(floor)
+}
+
 /// `[b, s, top]` of a block's values (module docs); reorders `vals`.
 fn block_stats(vals: &mut [f32]) -> [f32; 4] {
     let n = vals.len();
@@ -268,7 +275,7 @@ fn probit(p: f64) -> f64 {
 /// Is `v` at (y, x) the maximum of its 3 x 3 neighbourhood (ties to the later pixels in raster
 /// order)? (y, x) is off the frame's outer ring.
 #[inline(always)]
-fn is_peak<T: Pixel>(img: &ArrayView2<'_, T>, y: usize, x: usize, v: f32) -> bool {
+pub(crate) fn is_peak<T: Pixel>(img: &ArrayView2<'_, T>, y: usize, x: usize, v: f32) -> bool {
     for (dy, dx) in [(-1isize, -1isize), (-1, 0), (-1, 1), (0, -1)] {
         let (yy, xx) = ((y as isize + dy) as usize, (x as isize + dx) as usize);
         if img[[yy, xx]].to_f32() >= v {

@@ -13,6 +13,7 @@ mod frames;
 mod mapping;
 mod moments;
 mod piv;
+mod ptv;
 mod remap;
 mod seeding;
 mod vortices;
@@ -28,6 +29,7 @@ fn _rspiv(m: &Bound<'_, PyModule>) -> PyResult<()> {
     condition::register(m)?;
     ensemble::register(m)?;
     moments::register(m)?;
+    ptv::register(m)?;
     seeding::register(m)?;
     vortices::register(m)?;
     Ok(())

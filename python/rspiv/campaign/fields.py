@@ -73,7 +73,15 @@ from rspiv.errors import InvalidInputError
 from rspiv.hdf5_check import global_heap_damage
 from rspiv.outputs import write_netcdf
 
-__all__ = ["FieldWriter", "each_field", "finish_pass", "grid_x", "read_field", "read_pair"]
+__all__ = [
+    "FieldWriter",
+    "each_field",
+    "finish_pass",
+    "frame_name",
+    "grid_x",
+    "read_field",
+    "read_pair",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,8 +145,8 @@ class FieldWriter:
                     )
             attrs: dict[str, Any] = {
                 "pair_id": int(pair.pair_id),
-                "frame_a": _frame(pair.a, pair.frame_a),
-                "frame_b": _frame(pair.b, pair.frame_b),
+                "frame_a": frame_name(pair.a, pair.frame_a),
+                "frame_b": frame_name(pair.b, pair.frame_b),
                 "run": run,
                 "method": methods.get(run, ""),
                 "frame": "raw image" if methods.get(run) == "none" else "object",
@@ -170,7 +178,7 @@ class FieldWriter:
 _REPLACED = {"long_name": "flat (row-major) index of a vector not valid that the PIV replaced"}
 
 
-def _frame(path: str, index: int | None) -> str:
+def frame_name(path: str, index: int | None) -> str:
     """A frame's file, with ``[index]`` for a page of a stack."""
     return path if index is None else f"{path}[{index}]"
 

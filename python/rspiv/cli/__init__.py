@@ -21,6 +21,7 @@ _COMMANDS: list[str] = [
     "rspiv.cli.piv",
     "rspiv.cli.compare",
     "rspiv.cli.compare_profile",
+    "rspiv.cli.ptv",
     "rspiv.cli.correct_vectors",
     "rspiv.cli.statistics",
     "rspiv.cli.dewarp",

@@ -1,0 +1,374 @@
+"""Particle tracking at the wall over a processed campaign (``rspiv ptv campaign.toml``).
+
+A campaign's profiles come from windows: the 32 x 8 px windows of the paper's last pass span
+several wall units, and the rows nearest the wall hold the wall itself or its reflection. This
+pass follows each particle image of every pair from frame A to frame B
+(:func:`rspiv.ptv.track_particles`), with that pair's own field as the predictor, and bins the
+tracks by their distance from the run's wall (:class:`rspiv.ptv_profile.TrackProfile`): the
+mean profile and the Reynolds stresses in bins of half a pixel, down to about a particle
+image's diameter from the wall, and the wall shear from the viscous sublayer
+(:func:`rspiv.ptv_profile.sublayer_fit`) beside the campaign's own ``u_tau``.
+
+Needs
+    A campaign processed with ``[output] fields = true``: ``OUT/summary.json`` (the run's wall,
+    ``u_tau``, ``nu``), ``OUT/context.json`` written for the campaign file as it is now, and
+    the run's field files (``OUT/fields/<run>/pair_<id>.nc``, which carry the context's fields
+    fingerprint). Each pair's frames are read again and conditioned as the ensemble bands are
+    (the campaign's conditioning without the high-pass filter and the smoothing, which reshape
+    the particle images).
+
+Frames per run
+    ``none``: the raw frames, the field and the wall in raw px. Method I: the frames dewarped
+    to the object frame, as the campaign correlated them. Method II: the raw frames; the
+    predictor at a raw point ``p`` is the object field at ``X = F^-1(p)`` mapped as
+    ``F(X + D/2) - F(X - D/2)``, and each track's two centres are mapped to the object frame
+    by ``F^-1`` (its displacement the difference, its position the midpoint): the tracks are
+    corrected exactly, point by point.
+
+Outputs (atomic)
+    ``OUT/ptv_<run>.csv``: per bin ``h_px`` (object px for the corrected runs), ``n``,
+    ``pairs``, ``U``, ``V``, ``uu``, ``vv``, ``uv`` (px per pair; :mod:`rspiv.ptv_profile`'s
+    wall frame, ``U`` towards the flow) with ``se_*``, ``near_wall``; with the campaign's units
+    ``y_m``, ``U_si`` ... (m, m/s, m^2/s^2) and wall units ``y_plus``, ``U_plus``,
+    ``uu_plus`` ... from the run's ``u_tau``. ``OUT/ptv_<run>.json``: the settings, the pairs,
+    the tracks' counts, the warnings the pairs gave (each once, with how many pairs), and the
+    sublayer fit: ``u_tau`` from it with its standard error against the campaign's.
+
+Resuming
+    Every :data:`CHECKPOINT_EVERY` pairs the profile's sums and the pairs done are written to
+    ``OUT/ptv/<run>.pkl`` (atomically); a pass started again with the same settings and fields
+    goes on from there; with other settings it starts afresh (said).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import pathlib
+import pickle
+import re
+import time
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from rspiv.campaign.fields import frame_name, read_pair
+from rspiv.campaign.pair import read_checked_pair
+from rspiv.campaign.spec import PairContext
+from rspiv.correction import dewarp_pair
+from rspiv.errors import InvalidInputError, RspivError
+from rspiv.outputs import atomic_write_bytes, atomic_write_text, write_profile_csv
+from rspiv.preprocess import condition_pair
+from rspiv.ptv import Tracks, predictor_of, track_particles
+from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
+
+__all__ = ["CHECKPOINT_EVERY", "campaign_ptv"]
+
+#: Pairs between two checkpoints of the pass.
+CHECKPOINT_EVERY = 20
+
+#: The state file's format (a pass resumes only a state of its own format).
+_STATE_VERSION = 1
+
+
+def _context(camp: Any) -> tuple[PairContext, dict[str, Any]]:
+    """The frozen context and the summary of the campaign's last processing (the fields, the
+    wall and ``u_tau`` all come from it, whatever the campaign file says since)."""
+    out = pathlib.Path(camp.out_dir)
+    summary_path, ctx_path = out / "summary.json", out / "context.json"
+    if not summary_path.is_file() or not ctx_path.is_file():
+        raise InvalidInputError(
+            f"{out}: no summary.json or context.json: process the campaign first (rspiv process)"
+        )
+    try:
+        saved = json.loads(ctx_path.read_text(encoding="utf-8"))
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+        ctx = PairContext.from_dict(saved["context"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidInputError(f"{out}: cannot read the campaign's outputs: {exc}") from None
+    return ctx, summary
+
+
+def _wall(summary: dict[str, Any], run: str) -> WallLine:
+    """The run's wall as its analysis found it (``summary.json``)."""
+    r = summary.get("runs", {}).get(run, {})
+    w = r.get("wall")
+    if not w or not np.isfinite(w.get("intercept_px", np.nan)):
+        raise InvalidInputError(f"run {run}: summary.json holds no wall: nothing to track against")
+    return WallLine(float(w["intercept_px"]), float(w["slope"]), r.get("flow_side", "above"))
+
+
+def _field(
+    path: pathlib.Path, pair: Any, shape: tuple[int, int], run: str, fp: str,
+    window: tuple[int, int],
+) -> SimpleNamespace:  # fmt: skip
+    """A pair's field file as a predictor: its window centres, ``u``, ``v`` (replacements in),
+    the final ``window`` (w, h). InvalidInputError when the file was written for other frames
+    than ``pair``'s (the campaign's image list changed since)."""
+    import h5py  # deferred: only the pass reads the coordinates
+
+    u, v, _valid, _su, _sv = read_pair(path, shape, run, fp)
+    try:
+        with h5py.File(path, "r") as f:
+            x, y = np.asarray(f["x"], np.float64), np.asarray(f["y"], np.float64)
+            names = [_text(f.attrs.get(k)) for k in ("frame_a", "frame_b")]
+    except (OSError, KeyError) as exc:
+        raise InvalidInputError(f"{path}: no readable window centres ({exc})") from None
+    want = [frame_name(pair.a, pair.frame_a), frame_name(pair.b, pair.frame_b)]
+    if [pathlib.Path(n or "").name for n in names] != [pathlib.Path(n).name for n in want]:
+        raise InvalidInputError(
+            f"{path}: written for frames {names[0]}, {names[1]}, not the pair's {want[0]}, "
+            f"{want[1]} (the campaign's images changed since it was processed)"
+        )
+    X, Y = np.meshgrid(x, y)
+    return SimpleNamespace(x=X, y=Y, u=u, v=v, window=window)
+
+
+def _text(v: Any) -> str | None:
+    return v.decode() if isinstance(v, bytes) else (None if v is None else str(v))
+
+
+def _frames(ctx: PairContext, frames: tuple[np.ndarray, np.ndarray]) -> tuple:
+    """The pair conditioned as the ensemble bands see it (module docstring)."""
+    pre = ctx.ensemble_preprocess()
+    if pre is None:
+        return ctx.condition(*frames)
+    return condition_pair(*frames, pre, ctx.backgrounds())
+
+
+def _method_two(ctx: PairContext, a, b, field, wall, radius: float, mask) -> Tracks:
+    """Method II: tracks in the raw frames through the mapped predictor, their centres mapped
+    to the object frame (module docstring)."""
+    m = ctx.mapping
+    obj = predictor_of(field, wall)
+
+    def raw(px: np.ndarray, py: np.ndarray):
+        X = m.inverse(np.column_stack([px, py]), on_fail="nan")
+        D = np.column_stack(obj(X[:, 0], X[:, 1]))
+        d = m.forward(X + 0.5 * D) - m.forward(X - 0.5 * D)
+        return d[:, 0], d[:, 1]
+
+    t = track_particles(a, b, raw, radius=radius, mask=mask)
+    pa = np.column_stack([t.x - 0.5 * t.u, t.y - 0.5 * t.v])
+    pb = np.column_stack([t.x + 0.5 * t.u, t.y + 0.5 * t.v])
+    oa, ob = m.inverse(pa, on_fail="nan"), m.inverse(pb, on_fail="nan")
+    mid, d = 0.5 * (oa + ob), ob - oa
+    return dataclasses.replace(t, x=mid[:, 0], y=mid[:, 1], u=d[:, 0], v=d[:, 1])
+
+
+def _track(ctx: PairContext, run: Any, frames, field, wall, radius: float) -> Tracks:
+    a, b = _frames(ctx, frames)
+    mask = ctx.mask()
+    if run.method == "II":
+        return _method_two(ctx, a, b, field, wall, radius, mask)
+    if run.method == "I":
+        a, b, mask = dewarp_pair(
+            a, b, ctx.mapping, object_shape=ctx.object_shape, mask=mask, zero_fill="keep"
+        )
+    return track_particles(a, b, field, radius=radius, wall=wall, mask=mask)
+
+
+def campaign_ptv(
+    camp: Any,
+    run: str | None = None,
+    *,
+    radius: float = 2.0,
+    bin_px: float = 0.5,
+    band_px: float = 32.0,
+    max_pairs: int = 0,
+    resume: bool = True,
+) -> dict[str, Any]:
+    """Track the particle images of a processed campaign's pairs at the wall (module docstring).
+
+    Parameters
+    ----------
+    camp : rspiv.Campaign
+        The campaign (``rspiv.Campaign.load(path)``).
+    run : str, optional
+        The run (``method_II``, ``method_I``, ``uncorrected``); default the campaign's first.
+    radius, bin_px, band_px
+        :func:`rspiv.ptv.track_particles`'s search radius and
+        :class:`rspiv.ptv_profile.TrackProfile`'s bins (px of the run's frame).
+    max_pairs : int
+        Track only the first this many pairs with fields (0: all).
+    resume : bool
+        Go on from the pass's checkpoint when its settings match.
+
+    Returns
+    -------
+    dict
+        What ``OUT/ptv_<run>.json`` holds, with ``csv`` and ``json`` the files written.
+
+    Raises
+    ------
+    InvalidInputError
+        A campaign not processed (or processed with another campaign file), without field
+        files for the run, an unknown run, a run without a wall, bad settings.
+    """
+    ctx, summary = _context(camp)
+    runs = {r.name: r for r in ctx.runs}
+    name = run or ctx.runs[0].name
+    if name not in runs:
+        raise InvalidInputError(f"run {name!r}: the campaign's runs are {', '.join(runs)}")
+    spec = runs[name]
+    wall = _wall(summary, name)
+    out = pathlib.Path(camp.out_dir)
+    fdir = out / "fields" / name
+    files = {
+        int(m.group(1)): p
+        for p in sorted(fdir.glob("pair_*.nc"))
+        if (m := re.fullmatch(r"pair_(\d{6})\.nc", p.name))
+    }
+    pairs = camp.pair_index()
+    ids = [pid for pid in sorted(files) if pid in pairs]
+    if not ids:
+        raise InvalidInputError(
+            f"{fdir}: no field files of the campaign's pairs: process it with [output] fields = "
+            "true first (the pass takes each pair's field as its predictor)"
+        )
+    if max_pairs:
+        ids = ids[: int(max_pairs)]
+    shape = tuple(ctx.grid()[0].shape)
+    fp = ctx.fields_fingerprint()
+    window = tuple(int(c) for c in ctx.piv.passes[-1])
+    settings = {"radius": float(radius), "bin_px": float(bin_px), "band_px": float(band_px)}
+    prof = TrackProfile(wall, bin_px=bin_px, band_px=band_px)
+    state_path = out / "ptv" / f"{name}.pkl"
+    done: list[int] = []
+    counts: collections.Counter = collections.Counter()
+    said: collections.Counter = collections.Counter()
+    skipped: dict[int, str] = {}
+    key = {"version": _STATE_VERSION, "fingerprint": fp, "settings": settings}
+    if resume and state_path.is_file():
+        try:
+            st = pickle.loads(state_path.read_bytes())
+            if {k: st.get(k) for k in key} == key:
+                prof, done, counts, said = st["profile"], st["done"], st["counts"], st["said"]
+                skipped = st["skipped"]
+                camp.say(f"ptv {name}: resuming after {len(done)} pair(s) ({state_path})")
+            else:
+                camp.say(f"ptv {name}: {state_path} was written with other settings; afresh")
+        except (OSError, pickle.UnpicklingError, KeyError, EOFError, AttributeError):
+            camp.say(f"ptv {name}: {state_path} cannot be read; starting afresh")
+
+    def save() -> None:
+        st = {**key, "profile": prof, "done": done, "counts": counts, "said": said,
+              "skipped": skipped}  # fmt: skip
+        atomic_write_bytes(state_path, pickle.dumps(st, protocol=pickle.HIGHEST_PROTOCOL))
+
+    t0 = time.perf_counter()
+    todo = [pid for pid in ids if pid not in set(done) and pid not in skipped]
+    for k, pid in enumerate(todo):
+        try:
+            frames = read_checked_pair(pairs[pid], ctx.image_shape)
+            field = _field(files[pid], pairs[pid], shape, name, fp, window)
+            tracks = _track(ctx, spec, frames, field, wall, radius)
+        except (RspivError, ValueError, OSError) as exc:
+            skipped[pid] = str(exc)
+            camp.say(f"ptv {name}: pair {pid} skipped: {exc}")
+            continue
+        prof.add(tracks)
+        counts.update(tracks.status)
+        counts["tracks"] += len(tracks)
+        counts["detected_a"] += tracks.detected[0]
+        said.update(_general(w) for w in tracks.warnings)
+        done.append(pid)
+        if (k + 1) % CHECKPOINT_EVERY == 0:
+            save()
+            camp.say(f"ptv {name}: {len(done)} of {len(ids)} pair(s)")
+    save()
+    if not done:
+        first = next(iter(skipped.values()), "no pair")
+        raise InvalidInputError(f"ptv {name}: no pair tracked ({len(skipped)} skipped: {first})")
+    return _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped,
+                  time.perf_counter() - t0)  # fmt: skip
+
+
+def _general(warning: str) -> str:
+    """A pair's warning without its figures (the same warning of many pairs, said once)."""
+    return re.sub(r"\d+(\.\d+)?", "#", warning)
+
+
+def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped, seconds):
+    """The pass's profile and summary files (module docstring)."""
+    res = prof.result()
+    out = pathlib.Path(camp.out_dir)
+    r = summary["runs"][name]
+    ut, nu = r.get("u_tau"), r.get("nu")
+    cfg = camp.config
+    dt = getattr(cfg.flow, "dt", None)
+    m_per_px = _m_per_px(ctx, camp)
+    sign_x = 1.0 if not np.nanmedian(res["U"]) < 0 else -1.0
+    cols: dict[str, Any] = {
+        "h_px": res["h_px"], "n": res["n"], "pairs": res["pairs"],
+        "U": sign_x * res["U"], "se_U": res["se_U"], "V": res["V"], "se_V": res["se_V"],
+        "uu": res["uu"], "se_uu": res["se_uu"], "vv": res["vv"], "se_vv": res["se_vv"],
+        "uv": sign_x * res["uv"], "se_uv": res["se_uv"],
+        "near_wall": res["near_wall"].astype(float),
+    }  # fmt: skip
+    info: dict[str, Any] = {
+        "run": name, "method": next(x.method for x in ctx.runs if x.name == name),
+        "settings": settings, "pairs": len(done), "skipped": skipped,
+        "seconds": round(seconds, 3), "counts": dict(counts),
+        "diameter_px": float(res["diameter_px"]),
+        "warnings": {w: n for w, n in said.most_common()},
+    }  # fmt: skip
+    si = bool(dt and m_per_px and dt > 0)
+    if si:
+        v = m_per_px / dt
+        cols.update(y_m=res["h_px"] * m_per_px, U_si=cols["U"] * v, uu_si=res["uu"] * v * v,
+                    vv_si=res["vv"] * v * v, uv_si=cols["uv"] * v * v)  # fmt: skip
+        if ut and nu and np.isfinite(ut) and ut > 0:
+            cols.update(y_plus=cols["y_m"] * ut / nu, U_plus=cols["U_si"] / ut,
+                        uu_plus=cols["uu_si"] / ut**2, vv_plus=cols["vv_si"] / ut**2,
+                        uv_plus=cols["uv_si"] / ut**2)  # fmt: skip
+    info["sublayer"] = _sublayer(cols, res, ut, nu, dt, m_per_px, sign_x)
+    csv_path = out / f"ptv_{name}.csv"
+    meta = {"run": name, "pairs": len(done), "radius_px": settings["radius"]}
+    write_profile_csv(csv_path, cols, meta)
+    json_path = out / f"ptv_{name}.json"
+    info.update(csv=str(csv_path), json=str(json_path))
+    atomic_write_text(json_path, json.dumps(info, indent=2, default=float) + "\n")
+    return info
+
+
+def _m_per_px(ctx: PairContext, camp: Any) -> float | None:
+    """Metres per px of the run's frame, as the campaign's analysis scales every run: 1e-3
+    over the calibration's magnification (px/mm); None without a calibration."""
+    cal = getattr(camp, "calibration", None)
+    if cal is None:
+        path = pathlib.Path(camp.out_dir) / "calibration.json"
+        if path.is_file():
+            from rspiv.calibration import Calibration  # deferred: only with a calibration
+
+            cal = Calibration.load(path)
+    mag = getattr(cal, "magnification", None)
+    return 1e-3 / float(mag) if mag else None
+
+
+def _sublayer(cols, res, ut, nu, dt, m_per_px, sign_x) -> dict[str, Any]:
+    """The sublayer fit up to ``y+ = 5`` (by the campaign's ``u_tau``; 8 bins without it),
+    its ``u_tau`` against the campaign's, or why there is none."""
+    prof = {"h_px": res["h_px"], "U": sign_x * res["U"], "se_U": res["se_U"],
+            "near_wall": res["near_wall"]}  # fmt: skip
+    units = bool(ut and nu and dt and m_per_px and ut > 0)
+    h_max = 5.0 * nu / (ut * m_per_px) if units else 8 * float(np.diff(res["edge_px"][:2])[0])
+    try:
+        if units:
+            fit = sublayer_fit(prof, h_max, nu=nu, dt=dt, scale_m_per_px=m_per_px)
+        else:
+            fit = sublayer_fit(prof, h_max)
+    except InvalidInputError as exc:
+        return {"fitted": False, "reason": str(exc), "h_max_px": h_max}
+    d = {"fitted": True, **dataclasses.asdict(fit), "h_max_px": h_max}
+    if nu and dt:
+        try:
+            u, se = fit.u_tau(nu, dt)
+            d.update(u_tau=u, se_u_tau=se, campaign_u_tau=ut)
+            if ut:
+                d["difference"] = (u - ut) / ut
+        except InvalidInputError as exc:
+            d["reason"] = str(exc)
+    return d

@@ -1,0 +1,315 @@
+"""Particle tracking at the wall (rspiv.ptv, rspiv.ptv_profile, rspiv.campaign.ptv).
+
+Ground truth: particle images rendered by the generator at known positions, moved by known
+displacements (a boundary layer's mean profile plus per-particle fluctuations of known
+variances and covariance); the DNS profile for the sublayer fit; a synthetic campaign whose
+``u_tau`` is known.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pickle
+
+import numpy as np
+import pytest
+from campaign_cases import lean
+from rspiv import _rspiv
+from rspiv.campaign import Campaign
+from rspiv.campaign.ptv import campaign_ptv
+from rspiv.cli import main as cli_main
+from rspiv.demo import DEFAULT_SCENE, synth_campaign
+from rspiv.errors import InvalidInputError
+from rspiv.piv import piv
+from rspiv.ptv import detect_particles, predictor_of, track_particles
+from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
+from rspiv.reference import load_dns
+from rspiv.synth.tbl import TBLFlow
+from scipy.spatial import cKDTree
+
+H, W, WALL = 384, 768, 330.0
+LPLUS, UT = 0.675, 1.0  # y+ per px, u_tau in px per pair
+SU, SV, RUV = 0.3, 0.15, -0.4  # the fluctuations' rms (px) and correlation, tapered at the wall
+FLOW = TBLFlow()
+
+
+def _mean_u(h):
+    return UT * FLOW.u_plus(np.maximum(h, 0) * LPLUS) * (h > 0)
+
+
+def _taper(h):
+    return np.minimum(np.maximum(h, 0) / 5.0, 1.0)
+
+
+def _pair(seed, density=0.02, diameter=2.5, noise=0.05, reflection=0.5):
+    """A pair above a wall at y = WALL with its reflection: each particle's displacement the
+    mean profile at its midpoint plus its own fluctuation; returns the frames and the truth
+    (A's positions, u, v)."""
+    rng = np.random.default_rng(seed)
+    n = rng.poisson(density * (W + 40) * (WALL + 20))
+    xm, ym = rng.uniform(-20, W + 20, n), rng.uniform(-20, WALL, n)
+    h = WALL - ym
+    a, b = rng.normal(size=n), rng.normal(size=n)
+    u = _mean_u(h) + SU * _taper(h) * a
+    # V (away from the wall) is -v in the pixel frame
+    v = -SV * _taper(h) * (RUV * a + np.sqrt(1 - RUV**2) * b)
+    peak = 0.8 * 4095 * rng.uniform(0.6, 1.0, n)
+    frames = []
+    for s, k in ((-0.5, 1), (0.5, 2)):
+        x, y, pk = xm + s * u, ym + s * v, peak
+        if reflection:
+            x, y, pk = np.r_[x, x], np.r_[y, 2 * WALL - y], np.r_[peak, reflection * peak]
+        sigma = noise * 0.8 * 4095 * 0.8
+        frames.append(
+            _rspiv.render_particles(H, W, x, y, pk, np.array([diameter]), sigma, 4095, seed * 7 + k)
+        )
+    return frames, (xm - 0.5 * u, ym - 0.5 * v, u, v)
+
+
+def _errors(tracks, truth):
+    """Each track's displacement error against the particle it started from."""
+    tree = cKDTree(np.c_[truth[0], truth[1]])
+    _, i = tree.query(np.c_[tracks.x - 0.5 * tracks.u, tracks.y - 0.5 * tracks.v])
+    return tracks.u - truth[2][i], tracks.v - truth[3][i]
+
+
+def _field(a, b):
+    return piv(a, b, passes=[(64, 64), (32, 32), (32, 8)], overlap=0.5, deformation="symmetric")
+
+
+WALL_LINE = WallLine(WALL, 0.0, "above")
+
+
+def test_particle_images_are_found_where_the_generator_put_them():
+    rng = np.random.default_rng(4)
+    # isolated particle images on a grid 10 px apart, jittered
+    gx, gy = np.meshgrid(np.arange(10, 250, 10.0), np.arange(10, 150, 10.0))
+    x = gx.ravel() + rng.uniform(-2, 2, gx.size)
+    y = gy.ravel() + rng.uniform(-2, 2, gx.size)
+    peak = rng.uniform(1500, 3000, x.size)
+    frame = _rspiv.render_particles(160, 260, x, y, peak, np.array([2.5]), 40.0, 4095, 1)
+    p = detect_particles(frame)
+    assert len(p) == x.size
+    d, _ = cKDTree(np.c_[x, y]).query(np.c_[p.x, p.y])
+    assert np.sqrt(np.mean(d**2)) < 0.05
+    # the diameter: the pixel-integrated image of 2.5 px reads about 2.7 px
+    assert 2.4 < p.diameter < 3.0
+    # a saturated frame: its particle images flagged
+    clipped = np.minimum(frame, 1200).astype(np.uint16)
+    q = detect_particles(clipped, full=1200)
+    at_full = clipped[np.rint(q.y).astype(int), np.rint(q.x).astype(int)] >= 1200
+    assert q.saturated.mean() > 0.5 and np.mean(q.saturated == at_full) > 0.97
+
+
+def test_tracks_follow_their_particles():
+    (a, b), truth = _pair(11)
+    t = track_particles(a, b, _field(a, b), radius=1.5, wall=WALL_LINE)
+    above = (WALL - t.y) > 3
+    eu, ev = _errors(t, truth)
+    wrong = (np.abs(eu) + np.abs(ev) > 0.5) & above
+    assert wrong.sum() / above.sum() < 0.01, "merged images dropped: under 1 % wrong pairs"
+    ok = above & ~wrong
+    assert np.sqrt(np.mean(eu[ok] ** 2)) < 0.13 and np.sqrt(np.mean(ev[ok] ** 2)) < 0.13
+    assert t.status["matched"] > 0.75 * t.detected[0]
+    assert t.status["misshapen"] > 0 and not t.warnings
+    assert 0 < t.stray_pairs < 0.02
+    # a predictor that misses the flow by 5 px pairs almost nothing, and says so
+    miss = track_particles(a, b, (-5.0, 0.0), radius=1.5)
+    assert len(miss) < 0.25 * len(t) and any("paired" in w for w in miss.warnings)
+    # a uniform predictor with a radius under the fluctuations: the edge is crowded, said
+    flat = track_particles(a, b, lambda x, y: (_mean_u(WALL - y), 0 * y), radius=0.4)
+    assert flat.edge_share > 0.05 and any("clips" in w for w in flat.warnings)
+
+
+def test_a_fields_predictor_goes_to_zero_at_the_wall():
+    x, y = np.meshgrid(np.arange(16.0, 200, 16), np.arange(4.0, 100, 4))
+    field = type("F", (), {})()
+    field.x, field.y, field.window = x, y, (32, 8)
+    field.u, field.v = 3.0 + 0 * x, 0.5 + 0 * x
+    wall = WallLine(90.0, 0.0, "above")
+    fn = predictor_of(field, wall)
+    # rows at y = 84 (h = 6 >= half the window) and beyond are used; nearer, scaled by h / 6
+    u, v = fn(np.array([50.0, 50, 50, 50]), np.array([80.0, 87, 89, 91]))
+    np.testing.assert_allclose(u, [3.0, 1.5, 0.5, 0.0])
+    np.testing.assert_allclose(v, [0.5, 0.25, 0.5 / 6, 0.0])
+
+
+@pytest.fixture(scope="module")
+def near_wall_profile():
+    """A profile of 16 pairs and every pair's tracks' errors against the generator."""
+    prof = TrackProfile(WALL_LINE, bin_px=0.5, band_px=20.0)
+    err = []
+    for k in range(16):
+        (a, b), truth = _pair(100 + k)
+        t = track_particles(a, b, _field(a, b), radius=1.5, wall=WALL_LINE)
+        prof.add(t)
+        eu, ev = _errors(t, truth)
+        keep = ((WALL - t.y) > 3) & (np.abs(eu) + np.abs(ev) < 0.5)
+        err.append(np.c_[eu[keep], ev[keep]])
+    return prof.result(), np.concatenate(err)
+
+
+def test_the_binned_profile_is_the_planted_one(near_wall_profile):
+    r, err = near_wall_profile
+    h = r["h_px"]
+    use = ~r["near_wall"] & np.isfinite(r["se_U"])
+    assert use.sum() >= 30 and r["near_wall"][:4].all()
+    # the mean profile within its standard errors, which are the scatter's
+    z = (r["U"] - _mean_u(h))[use] / r["se_U"][use]
+    assert np.all(np.abs(z) < 4) and 0.6 < z.std() < 1.6
+    z = r["V"][use] / r["se_V"][use]
+    assert np.all(np.abs(z) < 4)
+    # the stresses: the planted ones plus the tracks' own error (measured against the truth)
+    nu, nv = np.var(err[:, 0]), np.var(err[:, 1])
+    assert 0.005 < nu < 0.02
+    planted = {
+        "uu": SU**2 * _taper(h) ** 2 + nu,
+        "vv": SV**2 * _taper(h) ** 2 + nv,
+        "uv": SU * SV * RUV * _taper(h) ** 2,
+    }
+    for k, want in planted.items():
+        z = (r[k] - want)[use] / r[f"se_{k}"][use]
+        assert abs(z.mean()) < 1.0 and z.std() < 2.0, k
+        assert np.all(np.abs(z) < 4), k
+    # in the sublayer the mean changes by 0.34 px across a bin (0.0096 px^2 if it were taken
+    # for a fluctuation, a third of uu there): within the errors
+    sub = use & (h < 5)
+    assert sub.sum() >= 4
+    assert np.all(np.abs((r["uu"] - planted["uu"])[sub] / r["se_uu"][sub]) < 3)
+
+
+def test_the_standard_errors_count_pairs_not_tracks():
+    # every track of a pair carries the pair's own offset: n tracks are one draw
+    prof = TrackProfile(WallLine(100.0), bin_px=2.0, band_px=4.0)
+    rng = np.random.default_rng(0)
+    offsets = rng.normal(0, 0.5, 40)
+    for off in offsets:
+        n = 200
+        t = type("T", (), {})()
+        t.x, t.y = rng.uniform(0, 100, n), 100 - rng.uniform(0, 2, n)
+        t.u, t.v = off + rng.normal(0, 0.05, n), np.zeros(n)
+        t.saturated, t.diameter = np.zeros(n, bool), 2.5
+        prof.add(t)
+    r = prof.result()
+    want = offsets.std(ddof=1) / np.sqrt(offsets.size)
+    np.testing.assert_allclose(r["se_U"][0], want, rtol=0.05)
+    assert r["se_U"][0] > 10 * 0.05 / np.sqrt(40 * 200)
+
+
+def test_the_sublayer_fit_on_the_dns_profile():
+    dns = load_dns()
+    nu, scale, ut = 1.5e-5, 1e-5, 0.5  # y+ per px = scale ut / nu
+    lplus = scale * ut / nu
+    dt = 2.0 * scale / ut  # u_tau = 2 px per pair
+    h = np.arange(0.25, 20, 0.5)
+    U = 2.0 * np.interp(h * lplus, dns.y_plus, dns.u_plus)
+    prof = {"h_px": h, "U": U, "se_U": np.full(h.size, 0.01), "near_wall": h < 2}
+    lo, hi = 2.0 / lplus, 5.0 / lplus
+    line = sublayer_fit(prof, hi, h_min_px=lo)
+    assert -0.06 < line.gradient / (2.0 * lplus) - 1 < -0.04  # the curvature: 5 % low
+    fit = sublayer_fit(prof, hi, h_min_px=lo, nu=nu, dt=dt, scale_m_per_px=scale)
+    assert fit.curvature and abs(fit.gradient / (2.0 * lplus) - 1) < 2e-3
+    assert abs(fit.wall_offset_px) < 0.01 and fit.y_plus_range[0] >= 2.0
+    u, se = fit.u_tau(nu, dt)
+    assert abs(u / ut - 1) < 1e-3 and se > 0
+    with pytest.raises(InvalidInputError, match="at least 3"):
+        sublayer_fit(prof, 1.0 / lplus)
+    with pytest.raises(InvalidInputError, match="go together"):
+        sublayer_fit(prof, hi, nu=nu)
+
+
+def test_bad_input_is_refused():
+    (a, b), _ = _pair(1)
+    with pytest.raises(InvalidInputError, match="radius"):
+        track_particles(a, b, (1.0, 0.0), radius=0)
+    with pytest.raises(InvalidInputError, match="different shapes"):
+        track_particles(a, b[:-1], (1.0, 0.0))
+    with pytest.raises(InvalidInputError, match="predictor"):
+        track_particles(a, b, "field")
+    with pytest.raises(InvalidInputError, match="not finite"):
+        track_particles(a, b, (np.nan, 0.0))
+    with pytest.raises(InvalidInputError, match="line"):
+        TrackProfile(object())
+    with pytest.raises(InvalidInputError, match="band_px"):
+        TrackProfile(WALL_LINE, bin_px=1.0, band_px=0.5)
+    with pytest.raises(InvalidInputError, match="2D"):
+        detect_particles(np.zeros(5))
+    with pytest.raises(InvalidInputError, match="max_diameter"):
+        track_particles(a, b, (1.0, 0.0), max_diameter=0.0)
+
+
+def test_real_recording_tracks_agree_with_its_piv():
+    """OpenPIV's real test1 pair (OpenPIV is in the test extra): the tracks against the PIV
+    field they were predicted from."""
+    import pathlib
+
+    openpiv = pytest.importorskip("openpiv")
+    from rspiv.io import read_image
+
+    files = sorted((pathlib.Path(openpiv.__file__).parent / "data" / "test1").glob("exp1_001_*"))
+    assert len(files) == 2
+    a, b = (read_image(f) for f in files)
+    field = piv(a, b, passes=[(64, 64), (32, 32)], overlap=0.5, deformation="symmetric")
+    t = track_particles(a, b, field, radius=1.5)
+    assert len(t) > 0.4 * t.detected[0]
+    # a PIV vector is the mean displacement of its window's particle images: the tracks'
+    # mean over each 32 px window (at least 10 of them) against it
+    diff = []
+    for j, i in zip(*np.nonzero(field.valid), strict=True):
+        m = (np.abs(t.x - field.x[j, i]) < 16) & (np.abs(t.y - field.y[j, i]) < 16)
+        if m.sum() >= 10:
+            diff.append((t.u[m].mean() - field.u[j, i], t.v[m].mean() - field.v[j, i]))
+    diff = np.array(diff)
+    assert len(diff) > 400
+    assert np.all(np.median(np.abs(diff), axis=0) < 0.12)
+    assert np.all(np.abs(diff.mean(axis=0)) < 0.05)
+    # a dense recording (0.036 images per px^2) whose partners are often lost (out of the
+    # light sheet): the strays said
+    assert t.stray_pairs > 0.05 and any("stray" in w for w in t.warnings)
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ptv")
+    scene = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=4, monte_carlo_samples=200)
+    toml = synth_campaign(d, scene=scene)
+    toml.write_text(lean(toml.read_text(), fields=True, report=False, uncorrected=False))
+    Campaign.load(toml, progress=False).run()
+    return d, toml
+
+
+def test_a_campaigns_wall_shear_from_its_tracks(campaign, capsys):
+    d, toml = campaign
+    truth = json.loads((d / "truth.json").read_text())
+    assert cli_main(["ptv", str(toml), "-q"]) == 0
+    printed = capsys.readouterr().out
+    assert "u_tau from the viscous sublayer" in printed
+    out = d / "out"
+    info = json.loads((out / "ptv_method_II.json").read_text())
+    s = info["sublayer"]
+    assert info["pairs"] == 4 and s["fitted"] and s["curvature"]
+    assert abs(s["u_tau"] - truth["u_tau"]) < max(3 * s["se_u_tau"], 0.03 * truth["u_tau"])
+    assert abs(s["wall_offset_px"]) < 1.0
+    text = (out / "ptv_method_II.csv").read_text()
+    assert "y_plus" in text and "U_plus" in text
+    # resumed from its state: the same answer, no pair tracked again
+    st = pickle.loads((out / "ptv" / "method_II.pkl").read_bytes())
+    assert st["done"] == [0, 1, 2, 3]
+    again = campaign_ptv(Campaign.load(toml, progress=False))
+    assert again["sublayer"]["u_tau"] == s["u_tau"] and again["seconds"] < 1.0
+    # other settings: afresh
+    other = campaign_ptv(Campaign.load(toml, progress=False), radius=1.5, max_pairs=2)
+    assert other["pairs"] == 2 and other["settings"]["radius"] == 1.5
+
+
+def test_a_campaign_without_what_tracking_needs_is_refused(campaign, tmp_path):
+    d, toml = campaign
+    camp = Campaign.load(toml, progress=False)
+    with pytest.raises(InvalidInputError, match="runs are"):
+        campaign_ptv(camp, "method_I")
+    # not processed
+    bare = Campaign.load(toml, progress=False, out_dir=tmp_path / "none")
+    with pytest.raises(InvalidInputError, match="process the campaign first"):
+        campaign_ptv(bare)
+    assert cli_main(["ptv", str(toml), "--run", "nope", "-q"]) == 2
