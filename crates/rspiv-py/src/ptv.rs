@@ -75,6 +75,9 @@ fn track_particles<'py>(
     Ok((m.partner.into_pyarray(py), m.status.into_pyarray(py)))
 }
 
+/// The displacements `(u, v)` at a set of points.
+type Displacements<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
+
 /// A regular-grid field `(x0, y0, dx, dy)`, `u`, `v` (finite, steps > 0) at the points
 /// `(x, y)`: bilinear, constant beyond the outer nodes (`piv_core::GridField::at`, the PIV's own
 /// predictor). The point arrays are contiguous float64 of one length.
@@ -86,7 +89,7 @@ fn field_at<'py>(
     field_v: PyReadonlyArray2<'py, f64>,
     x: PyReadonlyArray1<'py, f64>,
     y: PyReadonlyArray1<'py, f64>,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<Displacements<'py>> {
     let field = grid_field(Some(field_grid), Some(&field_u), Some(&field_v))?
         .expect("a grid, u and v were given");
     let (x, y) = (x.as_slice()?, y.as_slice()?);
