@@ -27,4 +27,4 @@ echo "== pytest"
 # fixtures run once): the suite is mostly single-threaded Python between its Rust calls, so two
 # workers on 2 cores take about 10 minutes where one took 15-18.
 cd tests
-RSPIV_STRICT_SKIPS=1 python3 -m pytest -q -p no:cacheprovider -n 2 --dist loadfile .
+RSPIV_STRICT_SKIPS=1 python3 -m pytest -q -p no:cacheprovider -n 2 --dist loadfile --durations=15 .

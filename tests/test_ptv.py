@@ -298,7 +298,9 @@ def test_a_campaigns_wall_shear_from_its_tracks(campaign, capsys):
     assert st["done"] == [0, 1, 2, 3]
     again = campaign_ptv(Campaign.load(toml, progress=False))
     assert again["sublayer"]["u_tau"] == s["u_tau"] and again["seconds"] < 1.0
-    # other settings: afresh
+    # fewer pairs than the state holds, or other settings: afresh
+    fewer = campaign_ptv(Campaign.load(toml, progress=False), max_pairs=2)
+    assert fewer["pairs"] == 2
     other = campaign_ptv(Campaign.load(toml, progress=False), radius=1.5, max_pairs=2)
     assert other["pairs"] == 2 and other["settings"]["radius"] == 1.5
 
@@ -308,6 +310,8 @@ def test_a_campaign_without_what_tracking_needs_is_refused(campaign, tmp_path):
     camp = Campaign.load(toml, progress=False)
     with pytest.raises(InvalidInputError, match="runs are"):
         campaign_ptv(camp, "method_I")
+    with pytest.raises(InvalidInputError, match="radius"):
+        campaign_ptv(camp, radius=-1.0)
     # not processed
     bare = Campaign.load(toml, progress=False, out_dir=tmp_path / "none")
     with pytest.raises(InvalidInputError, match="process the campaign first"):

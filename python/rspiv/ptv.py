@@ -309,7 +309,6 @@ class _FieldPredictor:
             self.sign = 1.0 if side == "above" else -1.0
             win = getattr(field, "window", None)
             self.half = 0.5 * float(win[1]) if win is not None else 0.0
-            self.y0, self.dy = float(y[0, 0]), float(y[1, 0] - y[0, 0])
 
     def _sample(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         qx, qy = (np.ascontiguousarray(p, dtype=np.float64) for p in (px, py))
@@ -320,10 +319,10 @@ class _FieldPredictor:
             return self._sample(px, py)
         s, wy = self.sign, np.asarray(self.wall.line(px), dtype=np.float64)
         h = s * (wy - py)
-        # the first row clear of the wall by half a window, at each point's x
-        t = (wy - s * self.half - self.y0) / self.dy
-        j = np.floor(t) if s * self.dy > 0 else np.ceil(t)
-        row_y = self.y0 + j * self.dy
+        # the first row clear of the wall by half a window, at each point's x (rows ascending)
+        _, y0, _, dy = self.node
+        t = (wy - s * self.half - y0) / dy
+        row_y = y0 + (np.floor(t) if s > 0 else np.ceil(t)) * dy
         h1 = s * (wy - row_y)
         near = h < h1
         qy = np.where(near, row_y, py)

@@ -137,6 +137,7 @@ class TrackProfile:
         if self.x_range is not None:
             keep &= (x >= self.x_range[0]) & (x <= self.x_range[1])
         h = self.sign * (np.asarray(self.wall.line(x), dtype=np.float64) - y) * self._cos
+        h = np.where(keep & np.isfinite(h), h, -1.0)  # a track mapped nowhere (NaN) is left out
         b = np.floor(h / self.bin_px).astype(np.int64)
         keep &= (h >= 0) & (b < self.nbins)
         b, h = b[keep], h[keep]

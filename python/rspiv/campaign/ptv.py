@@ -204,9 +204,12 @@ def campaign_ptv(
     Raises
     ------
     InvalidInputError
-        A campaign not processed (or processed with another campaign file), without field
-        files for the run, an unknown run, a run without a wall, bad settings.
+        A campaign not processed, without field files for the run, an unknown run, a run
+        without a wall, bad settings, no pair tracked (a pair whose frames cannot be read or
+        whose field file was written for other frames is skipped with its reason).
     """
+    if not (isinstance(radius, int | float) and np.isfinite(radius) and radius > 0):
+        raise InvalidInputError(f"radius must be a finite number of px > 0, got {radius!r}")
     ctx, summary = _context(camp)
     runs = {r.name: r for r in ctx.runs}
     name = run or ctx.runs[0].name
@@ -244,12 +247,14 @@ def campaign_ptv(
     if resume and state_path.is_file():
         try:
             st = pickle.loads(state_path.read_bytes())
-            if {k: st.get(k) for k in key} == key:
+            if {k: st.get(k) for k in key} == key and set(st["done"]) <= set(ids):
                 prof, done, counts, said = st["profile"], st["done"], st["counts"], st["said"]
                 skipped = st["skipped"]
                 camp.say(f"ptv {name}: resuming after {len(done)} pair(s) ({state_path})")
             else:
-                camp.say(f"ptv {name}: {state_path} was written with other settings; afresh")
+                camp.say(
+                    f"ptv {name}: {state_path} was written with other settings or pairs; afresh"
+                )
         except (OSError, pickle.UnpicklingError, KeyError, EOFError, AttributeError):
             camp.say(f"ptv {name}: {state_path} cannot be read; starting afresh")
 
@@ -259,7 +264,8 @@ def campaign_ptv(
         atomic_write_bytes(state_path, pickle.dumps(st, protocol=pickle.HIGHEST_PROTOCOL))
 
     t0 = time.perf_counter()
-    todo = [pid for pid in ids if pid not in set(done) and pid not in skipped]
+    seen = set(done) | set(skipped)
+    todo = [pid for pid in ids if pid not in seen]
     for k, pid in enumerate(todo):
         try:
             frames = read_checked_pair(pairs[pid], ctx.image_shape)
@@ -300,7 +306,8 @@ def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped
     cfg = camp.config
     dt = getattr(cfg.flow, "dt", None)
     m_per_px = _m_per_px(ctx, camp)
-    sign_x = 1.0 if not np.nanmedian(res["U"]) < 0 else -1.0
+    U = res["U"][np.isfinite(res["U"])]
+    sign_x = -1.0 if U.size and np.median(U) < 0 else 1.0
     cols: dict[str, Any] = {
         "h_px": res["h_px"], "n": res["n"], "pairs": res["pairs"],
         "U": sign_x * res["U"], "se_U": res["se_U"], "V": res["V"], "se_V": res["se_V"],
