@@ -231,6 +231,8 @@ def test_bad_input_is_refused():
         track_particles(a, b, (np.nan, 0.0))
     with pytest.raises(InvalidInputError, match="line"):
         TrackProfile(object())
+    with pytest.raises(InvalidInputError, match="flow_side"):
+        track_particles(a, b, (1.0, 0.0), wall=WallLine(10.0, 0.0, "left"))
     with pytest.raises(InvalidInputError, match="band_px"):
         TrackProfile(WALL_LINE, bin_px=1.0, band_px=0.5)
     with pytest.raises(InvalidInputError, match="2D"):

@@ -61,6 +61,7 @@ __all__ = [
     "detect_particles",
     "predictor_of",
     "track_particles",
+    "wall_sign",
 ]
 
 #: Block size (px) of the background and noise under the particle images: smaller than the
@@ -265,6 +266,18 @@ def detect_particles(
     )  # fmt: skip
 
 
+def wall_sign(wall: Any) -> float:
+    """+1 for a flow above ``wall`` (at smaller y), -1 below it. InvalidInputError for an
+    object without ``line(x)`` or whose ``flow_side`` is neither ``"above"`` nor ``"below"``
+    (absent: above)."""
+    if not callable(getattr(wall, "line", None)):
+        raise InvalidInputError("wall must have line(x) (an rspiv.Wall)")
+    side = getattr(wall, "flow_side", "above")
+    if side not in ("above", "below"):
+        raise InvalidInputError(f"wall.flow_side must be above or below, got {side!r}")
+    return 1.0 if side == "above" else -1.0
+
+
 def _filled(field: Any) -> tuple[np.ndarray, np.ndarray]:
     """``u``, ``v`` of a field with every missing vector taken from the nearest present one."""
     from scipy.ndimage import distance_transform_edt  # deferred: scipy loads on first use
@@ -301,12 +314,7 @@ class _FieldPredictor:
         self.u, self.v = np.ascontiguousarray(u), np.ascontiguousarray(v)
         self.wall = wall
         if wall is not None:
-            if not callable(getattr(wall, "line", None)):
-                raise InvalidInputError("wall must have line(x) (an rspiv.Wall)")
-            side = getattr(wall, "flow_side", "above")
-            if side not in ("above", "below"):
-                raise InvalidInputError(f"wall.flow_side must be above or below, got {side!r}")
-            self.sign = 1.0 if side == "above" else -1.0
+            self.sign = wall_sign(wall)
             win = getattr(field, "window", None)
             self.half = 0.5 * float(win[1]) if win is not None else 0.0
 
@@ -404,6 +412,8 @@ def track_particles(
     """
     if not (isinstance(radius, int | float) and np.isfinite(radius) and radius > 0):
         raise InvalidInputError(f"radius must be a finite number of px > 0, got {radius!r}")
+    if wall is not None:
+        wall_sign(wall)
     shape = None
     if not isinstance(frame_a, Particles) and not isinstance(frame_b, Particles):
         sa, sb = np.shape(frame_a), np.shape(frame_b)
@@ -433,8 +443,7 @@ def track_particles(
     # reflections' strays never reach a profile)
     none = status == STATUS["none"]
     if wall is not None:
-        side = 1.0 if getattr(wall, "flow_side", "above") == "above" else -1.0
-        none &= side * (np.asarray(wall.line(pa.x), dtype=np.float64) - pa.y) > 0
+        none &= wall_sign(wall) * (np.asarray(wall.line(pa.x), dtype=np.float64) - pa.y) > 0
     matched = counts["matched"]
     stray_pairs = lam * np.count_nonzero(none) / matched if matched else float("nan")
     res = np.hypot(u - du[ia], v - dv[ia])

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.ptv import wall_sign
 
 __all__ = ["SublayerFit", "TrackProfile", "WallLine", "sublayer_fit"]
 
@@ -102,16 +103,12 @@ class TrackProfile:
         x_range: tuple[float, float] | None = None,
         saturated: bool = False,
     ) -> None:
-        if not callable(getattr(wall, "line", None)):
-            raise InvalidInputError("wall must have line(x) (an rspiv.Wall)")
-        side = getattr(wall, "flow_side", "above")
-        if side not in ("above", "below"):
-            raise InvalidInputError(f"wall.flow_side must be above or below, got {side!r}")
+        sign = wall_sign(wall)
         if not (np.isfinite(bin_px) and bin_px > 0 and np.isfinite(band_px) and band_px > bin_px):
             raise InvalidInputError(
                 f"bin_px ({bin_px}) must be > 0 and band_px ({band_px}) larger than it"
             )
-        self.wall, self.sign = wall, (1.0 if side == "above" else -1.0)
+        self.wall, self.sign = wall, sign
         self.bin_px, self.band_px = float(bin_px), float(band_px)
         self.nbins = int(np.ceil(self.band_px / self.bin_px))
         self.x_range = x_range
