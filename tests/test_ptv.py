@@ -318,4 +318,11 @@ def test_a_campaign_without_what_tracking_needs_is_refused(campaign, tmp_path):
     bare = Campaign.load(toml, progress=False, out_dir=tmp_path / "none")
     with pytest.raises(InvalidInputError, match="process the campaign first"):
         campaign_ptv(bare)
+    # processed without the field files the predictor comes from
+    lean_out = tmp_path / "no_fields"
+    lean_out.mkdir()
+    for name in ("summary.json", "context.json"):
+        (lean_out / name).write_bytes((d / "out" / name).read_bytes())
+    with pytest.raises(InvalidInputError, match="fields = true"):
+        campaign_ptv(Campaign.load(toml, progress=False, out_dir=lean_out))
     assert cli_main(["ptv", str(toml), "--run", "nope", "-q"]) == 2
