@@ -17,10 +17,11 @@ import pytest
 from campaign_cases import lean
 from rspiv import _rspiv
 from rspiv.campaign import Campaign
-from rspiv.campaign.ptv import campaign_ptv
+from rspiv.campaign.ptv import _context, campaign_ptv, report_section
 from rspiv.cli import main as cli_main
 from rspiv.demo import DEFAULT_SCENE, synth_campaign
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import read_profile_csv
 from rspiv.piv import piv
 from rspiv.ptv import detect_particles, predictor_of, track_particles
 from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
@@ -295,6 +296,9 @@ def test_a_campaigns_wall_shear_from_its_tracks(campaign, capsys):
     assert abs(s["wall_offset_px"]) < 1.0
     text = (out / "ptv_method_II.csv").read_text()
     assert "y_plus" in text and "U_plus" in text
+    assert info["figure"] == str(out / "ptv_method_II.png")
+    assert (out / "ptv_method_II.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "ptv_method_II.png" in printed and "rspiv process" not in printed  # no report
     # resumed from its state: the same answer, no pair tracked again
     st = pickle.loads((out / "ptv" / "method_II.pkl").read_bytes())
     assert st["done"] == [0, 1, 2, 3]
@@ -326,3 +330,43 @@ def test_a_campaign_without_what_tracking_needs_is_refused(campaign, tmp_path):
     with pytest.raises(InvalidInputError, match="fields = true"):
         campaign_ptv(Campaign.load(toml, progress=False, out_dir=lean_out))
     assert cli_main(["ptv", str(toml), "--run", "nope", "-q"]) == 2
+
+
+def test_the_report_shows_the_tracks_of_the_fields_as_they_are(campaign, tmp_path):
+    """The report's section: the run's wall shear from its tracks as the JSON holds it, the
+    figure; a pass over other fields named, not shown; no pass, no section. The figure is also
+    drawn in px where the profile has no wall units."""
+    from rspiv.plots.ptv import plot_track_profile
+
+    d, toml = campaign
+    out = d / "out"
+    if not (out / "ptv_method_II.json").is_file():
+        assert cli_main(["ptv", str(toml), "-q"]) == 0
+    camp = Campaign.load(toml, progress=False)
+    ctx, _ = _context(camp)
+    info = json.loads((out / "ptv_method_II.json").read_text())
+    sec = report_section(camp, ctx)
+    (row,) = sec.tables[0].data
+    assert row["pairs"] == info["pairs"] and row["tracks"] == info["counts"]["tracks"]
+    assert row["u_tau, sublayer (m/s)"] == info["sublayer"]["u_tau"]
+    assert row["difference (%)"] == 100 * info["sublayer"]["difference"]
+    assert sec.figures == [(info["figure"], "P3 + rotation, Method II: tracks at the wall")]
+    assert "Not shown" not in sec.text
+    # the pass was over other fields (the campaign processed again since): named, not shown
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in ("summary.json", "context.json"):
+        (other / name).write_bytes((out / name).read_bytes())
+    (other / "ptv_method_II.json").write_text(json.dumps({**info, "fingerprint": "x"}))
+    stale = report_section(Campaign.load(toml, progress=False, out_dir=other), ctx)
+    assert not stale.tables and not stale.figures
+    assert "Not shown: ptv_method_II.json" in stale.text
+    (other / "ptv_method_II.json").unlink()
+    assert report_section(Campaign.load(toml, progress=False, out_dir=other), ctx) is None
+    # px axes without wall units
+    cols, _ = read_profile_csv(out / "ptv_method_II.csv")
+    cols = {k: v for k, v in cols.items() if "plus" not in k}
+    png = plot_track_profile(tmp_path / "px.png", cols, sublayer=info["sublayer"])
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(InvalidInputError, match="h_px"):
+        plot_track_profile(tmp_path / "no.png", {**cols, "h_px": []})

@@ -78,6 +78,98 @@ pub fn measure<T: Pixel>(
     rel: f32,
     full: f32,
 ) -> Result<Seeding> {
+    let Blocks {
+        rows,
+        cols,
+        background,
+        noise,
+        top,
+        median,
+        signal,
+    } = blocks(img, mask, block, k, rel)?;
+    let (h, w) = img.dim();
+    let excluded = |y: usize, x: usize| mask.as_ref().is_some_and(|m| m[[y, x]]);
+    // 2. the particle images above each block's threshold
+    let counted: Vec<Vec<(u32, f64, u32, u32)>> = (0..rows)
+        .into_par_iter()
+        .map(|r| {
+            let (y0, y1) = ((r * block).max(1), ((r + 1) * block).min(h - 1));
+            (0..cols)
+                .map(|c| {
+                    let i = r * cols + c;
+                    let b = background[i];
+                    if !b.is_finite() {
+                        return (0, 0.0, 0, 0);
+                    }
+                    let thr = threshold(b, noise[i], signal, k, rel);
+                    let (x0, x1) = ((c * block).max(1), ((c + 1) * block).min(w - 1));
+                    let (mut n, mut sum, mut searched, mut sat) = (0u32, 0.0f64, 0u32, 0u32);
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            if excluded(y, x) {
+                                continue;
+                            }
+                            searched += 1;
+                            let v = img[[y, x]].to_f32();
+                            if v > thr && is_peak(&img, y, x, v) {
+                                n += 1;
+                                sum += (v - b) as f64;
+                                sat += u32::from(v >= full);
+                            }
+                        }
+                    }
+                    (n, sum, searched, sat)
+                })
+                .collect()
+        })
+        .collect();
+    let mut peaks = Vec::with_capacity(rows * cols);
+    let mut heights = Vec::with_capacity(rows * cols);
+    let mut searched = Vec::with_capacity(rows * cols);
+    let mut saturated = Vec::with_capacity(rows * cols);
+    for (n, s, m, f) in counted.into_iter().flatten() {
+        saturated.push(f);
+        peaks.push(n);
+        heights.push(s);
+        searched.push(m);
+    }
+    Ok(Seeding {
+        rows,
+        cols,
+        block,
+        background,
+        noise,
+        top,
+        median,
+        peaks,
+        heights,
+        saturated,
+        searched,
+        signal,
+    })
+}
+
+/// Each block's background, noise, top and median and the frame's signal (module docs): the
+/// first half of [`measure`], shared with [`crate::ptv::detect`], which finds the particle
+/// images itself. Errors as [`measure`] does.
+pub(crate) struct Blocks {
+    pub rows: usize,
+    pub cols: usize,
+    pub background: Vec<f32>,
+    pub noise: Vec<f32>,
+    pub top: Vec<f32>,
+    pub median: Vec<f32>,
+    pub signal: f32,
+}
+
+/// The block statistics of `img` (module docs; [`Blocks`]).
+pub(crate) fn blocks<T: Pixel>(
+    img: ArrayView2<'_, T>,
+    mask: Option<ArrayView2<'_, bool>>,
+    block: usize,
+    k: f32,
+    rel: f32,
+) -> Result<Blocks> {
     let (h, w) = img.dim();
     if block < 8 {
         return Err(PivError::InvalidInput(format!(
@@ -161,62 +253,13 @@ pub fn measure<T: Pixel>(
         let m = spread.len() / 2;
         *spread.select_nth_unstable_by(m, f32::total_cmp).1
     };
-    // 2. the particle images above each block's threshold
-    let counted: Vec<Vec<(u32, f64, u32, u32)>> = (0..rows)
-        .into_par_iter()
-        .map(|r| {
-            let (y0, y1) = ((r * block).max(1), ((r + 1) * block).min(h - 1));
-            (0..cols)
-                .map(|c| {
-                    let i = r * cols + c;
-                    let b = background[i];
-                    if !b.is_finite() {
-                        return (0, 0.0, 0, 0);
-                    }
-                    let thr = threshold(b, noise[i], signal, k, rel);
-                    let (x0, x1) = ((c * block).max(1), ((c + 1) * block).min(w - 1));
-                    let (mut n, mut sum, mut searched, mut sat) = (0u32, 0.0f64, 0u32, 0u32);
-                    for y in y0..y1 {
-                        for x in x0..x1 {
-                            if excluded(y, x) {
-                                continue;
-                            }
-                            searched += 1;
-                            let v = img[[y, x]].to_f32();
-                            if v > thr && is_peak(&img, y, x, v) {
-                                n += 1;
-                                sum += (v - b) as f64;
-                                sat += u32::from(v >= full);
-                            }
-                        }
-                    }
-                    (n, sum, searched, sat)
-                })
-                .collect()
-        })
-        .collect();
-    let mut peaks = Vec::with_capacity(rows * cols);
-    let mut heights = Vec::with_capacity(rows * cols);
-    let mut searched = Vec::with_capacity(rows * cols);
-    let mut saturated = Vec::with_capacity(rows * cols);
-    for (n, s, m, f) in counted.into_iter().flatten() {
-        saturated.push(f);
-        peaks.push(n);
-        heights.push(s);
-        searched.push(m);
-    }
-    Ok(Seeding {
+    Ok(Blocks {
         rows,
         cols,
-        block,
         background,
         noise,
         top,
         median,
-        peaks,
-        heights,
-        saturated,
-        searched,
         signal,
     })
 }

@@ -71,7 +71,15 @@ fn vectors(csv: &str) -> Vec<(f64, f64, f64, f64, bool)> {
     let num = |f: &[&str], i: usize| f[i].parse::<f64>().unwrap();
     lines
         .map(|l| l.split(',').collect::<Vec<_>>())
-        .map(|f| (num(&f, ix), num(&f, iy), num(&f, iu), num(&f, iv), f[ok] == "1"))
+        .map(|f| {
+            (
+                num(&f, ix),
+                num(&f, iy),
+                num(&f, iu),
+                num(&f, iv),
+                f[ok] == "1",
+            )
+        })
         .collect()
 }
 
@@ -99,7 +107,10 @@ fn piv_of_a_uniform_shift_gives_the_shift() {
     for &(x, y, u, v, ok) in &vecs {
         let inner = x > 16.0 && x < 239.0 && y > 16.0 && y < 175.0;
         assert_eq!(ok, inner, "valid at ({x}, {y})");
-        assert!((u - dx).abs() < 0.05 && (v - dy).abs() < 0.05, "({x}, {y}): ({u}, {v})");
+        assert!(
+            (u - dx).abs() < 0.05 && (v - dy).abs() < 0.05,
+            "({x}, {y}): ({u}, {v})"
+        );
     }
     std::fs::remove_dir_all(&d).unwrap();
 }
@@ -119,9 +130,16 @@ fn a_missing_frame_is_one_line_and_exit_two_with_no_output() {
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(err.starts_with("rspiv-engine: error: ") && err.contains("nowhere_a.tif"), "{err}");
+    assert!(
+        err.starts_with("rspiv-engine: error: ") && err.contains("nowhere_a.tif"),
+        "{err}"
+    );
     assert!(!out.exists());
-    assert_eq!(std::fs::read_dir(&d).unwrap().count(), 0, "no temporary file left");
+    assert_eq!(
+        std::fs::read_dir(&d).unwrap().count(),
+        0,
+        "no temporary file left"
+    );
     std::fs::remove_dir_all(&d).unwrap();
 }
 
@@ -129,7 +147,15 @@ fn a_missing_frame_is_one_line_and_exit_two_with_no_output() {
 fn bad_passes_are_refused_before_any_frame_is_read() {
     let d = scratch("passes");
     let out = d.join("v.csv");
-    let o = run(&["piv", "a.tif", "b.tif", "-o", out.to_str().unwrap(), "--passes", "64y64"]);
+    let o = run(&[
+        "piv",
+        "a.tif",
+        "b.tif",
+        "-o",
+        out.to_str().unwrap(),
+        "--passes",
+        "64y64",
+    ]);
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("--passes") && err.contains("64y64"), "{err}");
@@ -142,5 +168,8 @@ fn info_names_the_version() {
     let o = run(&["info"]);
     assert!(o.status.success());
     let s = String::from_utf8_lossy(&o.stdout);
-    assert!(s.starts_with(&format!("rspiv-engine {}", env!("CARGO_PKG_VERSION"))), "{s}");
+    assert!(
+        s.starts_with(&format!("rspiv-engine {}", env!("CARGO_PKG_VERSION"))),
+        "{s}"
+    );
 }

@@ -31,6 +31,7 @@ from rspiv.campaign import conditional as conditional_work
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
+from rspiv.campaign import ptv as ptv_work
 from rspiv.campaign import quadrant as quadrant_work
 from rspiv.campaign import reference as reference_work
 from rspiv.campaign import screen as screen_work
@@ -692,8 +693,8 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     extra = list(extra_sections)
-    if (sec := reference_work.report_section(camp)) is not None:
-        extra.append(sec)
+    for sec in (reference_work.report_section(camp), ptv_work.report_section(camp, ctx)):
+        extra += [sec] if sec is not None else []
     sec = pair_quality.report_section(camp, res, res.pair_quality)
     if sec is not None:
         extra.append(sec)

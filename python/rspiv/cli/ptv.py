@@ -2,7 +2,7 @@
 (:mod:`rspiv.campaign.ptv`).
 
 Tracks every pair's particle images with the pair's field as the predictor, bins them by their
-distance from the run's wall and writes ``OUT/ptv_<run>.csv`` and ``OUT/ptv_<run>.json``;
+distance from the run's wall and writes ``OUT/ptv_<run>.csv``, ``.json`` and ``.png``;
 prints the tracks' counts, what the pairs said and the wall shear from the viscous sublayer
 against the campaign's ``u_tau``. Exit status 0 when written, 2 for a campaign it cannot use
 (not processed, no field files, no wall).
@@ -27,7 +27,7 @@ def _run(args) -> int:
         f"{info['diameter_px']:.2f} px) in {info['seconds']:.1f} s"
     )
     for w, n in info["warnings"].items():
-        print(f"  {n} pair(s): {w}")
+        print(f"  {n} pair(s): {w}" + (" (the figures of the first)" if n > 1 else ""))
     s = info["sublayer"]
     if not s["fitted"]:
         print(f"  no sublayer fit: {s['reason']}")
@@ -45,6 +45,13 @@ def _run(args) -> int:
     else:
         print(f"  sublayer gradient {s['gradient']:.4g} +- {s['se_gradient']:.2g} px/px per pair")
     print(f"-> {info['csv']}\n-> {info['json']}")
+    if "figure" in info:
+        print(f"-> {info['figure']}")
+    if camp.config.output.report:
+        print(
+            f"the campaign report shows the tracks after `rspiv process {args.campaign}` again "
+            "(it resumes: no pair is processed again)"
+        )
     return 0
 
 

@@ -104,7 +104,7 @@ pub fn detect<T: Pixel>(
     rel: f32,
     full: f32,
 ) -> Result<Particles> {
-    let s = seeding::measure(img, mask, block, k, rel, full)?;
+    let s = seeding::blocks(img, mask, block, k, rel)?;
     if full.is_nan() {
         return Err(PivError::InvalidInput(
             "the saturation level must not be NaN".into(),
