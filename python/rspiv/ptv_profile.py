@@ -31,6 +31,26 @@ uncertain, most for the stresses whose tracks' errors have long tails (one bin o
 read its ``vv``'s error at half the independent tracks' ``vv sqrt(2 / n)``): the error given is
 the larger of the two.
 
+**Two-track stresses** (``uu_two``, ``vv_two``, ``uv_two``): from the products of the residuals
+of two different tracks of one pair in one bin, ``s`` apart along the wall. Their errors are
+independent (the lowest separation, 4 px by default, keeps the two particle images apart), so
+the tracks' own error drops out of the products' mean, which is the two-point correlation
+``C(s) = <u'(x) u'(x + s)>``. Its mean in each class of separations (``separation_px``: 4-10,
+10-17 and 17-24 px by default) is fitted by a straight line in ``s^2`` (a smooth field's
+correlation is ``C(0) - C''(0) s^2 / 2 + ...``), weighted by each class's pairs of tracks, and
+the line's value at ``s = 0`` is the stress without the tracks' error. On fields correlated over
+30 px along the wall with 0.1 px errors per component it is the error-free tracks' stress within
+its errors and ``uu - uu_two``, ``vv - vv_two`` are the errors' variance to 0.0002 px^2
+(``tests/test_ptv.py``); a field correlated over less than about the largest separation bends
+the line (a Gaussian correlation of 25 px: 1-3 % low). Near the wall the turbulence stays
+correlated along it over tens of wall units (``v``) to hundreds (``u``, the streaks), at the
+paper's 0.67 wall units per px well beyond 24 px. Where the difference matters most is ``vv``
+within a few wall units of the wall, whose true value (``v+`` ~ ``y+^2``) is below the tracks'
+error. Each track pairs with only the few others of its bin that near (about 0.4 at 0.02
+particle images per px^2 in bins of 0.5 px), so the two-track stresses need many pairs; their
+standard errors come the same way, over the pairs, floored by independent products'
+(``sqrt((s_a^2 s_b^2 + C^2) / n2)`` through the fit).
+
 Bins within one particle-image diameter of the wall (``near_wall``) hold particle images that
 merge with their own reflection in the wall: their centres are pulled towards the wall line and
 their displacements mix with the reflection's.
@@ -56,8 +76,16 @@ from rspiv.ptv import wall_sign
 __all__ = ["SublayerFit", "TrackProfile", "WallLine", "sublayer_fit"]
 
 #: The moments summed per bin and pair: n, U, V, UU, VV, UV, c, cc, cU, cV (``c`` the track's
-#: distance from the bin's centre).
-_MOMENTS = 10
+#: distance from the bin's centre), then for each class of separations the sums over the pairs
+#: of tracks ``(i, j)`` in it (:class:`TrackProfile`): N2, Pu, Pv, Qu, Qv, H1, H2, Xuu, Xvv,
+#: Xuv, S2 with ``P_a = a_i + a_j``, ``Q_a = a_i c_j + a_j c_i``, ``H1 = c_i + c_j``, ``H2 = c_i
+#: c_j``, ``X_ab = (a_i b_j + a_j b_i) / 2`` and ``S2`` the separation squared.
+_SINGLE = 10
+_PER_CLASS = 11
+
+#: The edges (px) of the classes of separation along the wall of the two tracks whose products
+#: give the two-track stresses.
+SEPARATION_PX = (4.0, 10.0, 17.0, 24.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,6 +120,11 @@ class TrackProfile:
     saturated : bool
         Keep tracks whose particle image is saturated in either frame (their centres come
         from clipped profiles); default False.
+    separation_px : sequence of float
+        The edges (px, at least three, increasing) of the classes of separation along the wall
+        of two tracks of one pair and one bin whose fluctuations' products give the two-track
+        stresses (module docstring); the lowest keeps the two particle images apart (their
+        errors independent).
     """
 
     def __init__(
@@ -102,8 +135,20 @@ class TrackProfile:
         band_px: float = 32.0,
         x_range: tuple[float, float] | None = None,
         saturated: bool = False,
+        separation_px: tuple[float, ...] = SEPARATION_PX,
     ) -> None:
         sign = wall_sign(wall)
+        edges = np.asarray(separation_px, dtype=np.float64)
+        if not (
+            edges.ndim == 1 and edges.size >= 3 and np.all(np.isfinite(edges))
+            and edges[0] >= 0 and np.all(np.diff(edges) > 0)
+        ):  # fmt: skip
+            raise InvalidInputError(
+                f"separation_px {tuple(separation_px)}: give at least three increasing edges "
+                "(px, >= 0)"
+            )
+        self.separation_px = tuple(float(e) for e in edges)
+        self.moments = _SINGLE + _PER_CLASS * (edges.size - 1)
         if not (np.isfinite(bin_px) and bin_px > 0 and np.isfinite(band_px) and band_px > bin_px):
             raise InvalidInputError(
                 f"bin_px ({bin_px}) must be > 0 and band_px ({band_px}) larger than it"
@@ -119,8 +164,8 @@ class TrackProfile:
         self._t = np.array([1.0, slope]) * self._cos
         self._n = -self.sign * np.array([-slope, 1.0]) * self._cos
         self.pairs = 0
-        self.total = np.zeros((self.nbins, _MOMENTS))
-        self.outer = np.zeros((self.nbins, _MOMENTS, _MOMENTS))
+        self.total = np.zeros((self.nbins, self.moments))
+        self.outer = np.zeros((self.nbins, self.moments, self.moments))
         self.pairs_in = np.zeros(self.nbins, dtype=np.int64)
         self.diameters: list[float] = []
 
@@ -143,8 +188,10 @@ class TrackProfile:
         # h about the bin's centre: the sums of h^2 stay well conditioned
         c = h - (b + 0.5) * self.bin_px
         m = np.stack([np.ones_like(U), U, V, U * U, V * V, U * V, c, c * c, c * U, c * V], -1)
-        t = np.zeros((self.nbins, _MOMENTS))
-        np.add.at(t, b, m)
+        t = np.zeros((self.nbins, self.moments))
+        np.add.at(t[:, :_SINGLE], b, m)
+        along = np.stack([x[keep], y[keep]], axis=-1) @ self._t
+        self._two_track_sums(t, b, along, U, V, c)
         self.total += t
         self.outer += t[:, :, None] * t[:, None, :]
         self.pairs_in += t[:, 0] > 0
@@ -153,19 +200,48 @@ class TrackProfile:
             self.diameters.append(float(tracks.diameter))
         return int(b.size)
 
+    def _two_track_sums(self, t, b, along, U, V, c) -> None:
+        """Add to ``t[:, 10:]`` the sums over this pair's pairs of tracks in one bin, by the
+        class of their separation along the wall (:attr:`separation_px`, ``_PER_CLASS``): the
+        tracks sorted by bin and place along the wall, each compared with its k-th successor
+        for k = 1, 2 ... while any successor in the bin is near enough."""
+        edges = np.asarray(self.separation_px)
+        s_lo, s_hi = edges[0], edges[-1]
+        o = np.lexsort((along, b))
+        b, along, U, V, c = b[o], along[o], U[o], V[o], c[o]
+        for k in range(1, b.size):
+            same = b[k:] == b[:-k]
+            ds = along[k:] - along[:-k]
+            near = same & (ds <= s_hi)
+            if not near.any():
+                break
+            i = np.flatnonzero(near & (ds >= s_lo))
+            j = i + k
+            cls = np.minimum(np.searchsorted(edges, ds[i], side="right") - 1, edges.size - 2)
+            m = np.stack([
+                np.ones(i.size), U[i] + U[j], V[i] + V[j],
+                U[i] * c[j] + U[j] * c[i], V[i] * c[j] + V[j] * c[i],
+                c[i] + c[j], c[i] * c[j],
+                U[i] * U[j], V[i] * V[j], 0.5 * (U[i] * V[j] + U[j] * V[i]), ds[i] ** 2,
+            ], -1)  # fmt: skip
+            cols = _SINGLE + _PER_CLASS * cls[:, None] + np.arange(_PER_CLASS)
+            np.add.at(t, (b[i][:, None], cols), m)
+
     def result(self, min_tracks: int = 10) -> dict[str, np.ndarray]:
         """The profile (module docstring): per bin ``h_px``, ``edge_px`` (the bin's lower edge),
         ``n``, ``pairs`` (the pairs with a track in it), ``U``, ``V``, ``uu``, ``vv``, ``uv``,
-        ``se_U``, ... ``se_uv`` and ``near_wall``; bins with fewer than ``min_tracks`` (at least
-        3) tracks are NaN. Also ``diameter_px`` (the particle images' median e^-2 diameter)
+        the two-track stresses ``uu_two``, ``vv_two``, ``uv_two`` with ``n_two`` (the pairs
+        of tracks), ``se_U``, ... ``se_uv_two`` and ``near_wall``; bins with fewer than
+        ``min_tracks`` (at least 3) tracks, or pairs of tracks for the two-track stresses, are
+        NaN. Also ``diameter_px`` (the particle images' median e^-2 diameter)
         and ``total_pairs`` as 0-d arrays."""
         T, M, P = self.total, self.outer, self.pairs
         n = T[:, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
             stats = _statistics(T)
             # each statistic's gradient in the sums, by central differences
-            grads = {k: np.zeros((self.nbins, _MOMENTS)) for k in stats}
-            for j in range(_MOMENTS):
+            grads = {k: np.zeros((self.nbins, self.moments)) for k in stats}
+            for j in range(self.moments):
                 step = 1e-6 * np.maximum(np.abs(T[:, j]), 1.0)
                 hi, lo = T.copy(), T.copy()
                 hi[:, j] += step
@@ -176,7 +252,7 @@ class TrackProfile:
             # covariance of the sums over pairs drawn independently: P/(P-1) (M - T T^T / P)
             cov = (M - T[:, :, None] * T[:, None, :] / max(P, 1)) * (P / max(P - 1, 1))
             out: dict[str, np.ndarray] = {}
-            iid = _independent_errors(stats, n)
+            iid = _independent_errors(stats, n, T)
             for k, g in grads.items():
                 out[k] = stats[k]
                 se = np.sqrt(np.maximum(np.einsum("bi,bij,bj->b", g, cov, g), 0.0))
@@ -184,8 +260,10 @@ class TrackProfile:
             centre = (np.arange(self.nbins) + 0.5) * self.bin_px
             h = centre + T[:, 6] / n
         few = n < max(int(min_tracks), 3)
+        n_two = _extrapolation(T)[1].sum(axis=1)
+        few_two = n_two < max(int(min_tracks), 3)
         for k in list(out):
-            out[k] = np.where(few, np.nan, out[k])
+            out[k] = np.where(few | (few_two if k.endswith("_two") else False), np.nan, out[k])
             if k.startswith("se_"):
                 out[k] = np.where(self.pairs_in < 2, np.nan, out[k])
         diameter = float(np.median(self.diameters)) if self.diameters else float("nan")
@@ -193,6 +271,7 @@ class TrackProfile:
             h_px=np.where(n > 0, h, centre),
             edge_px=centre - 0.5 * self.bin_px,
             n=n.astype(np.int64),
+            n_two=n_two.astype(np.int64),
             pairs=self.pairs_in.copy(),
             near_wall=centre < (diameter if np.isfinite(diameter) else 0.0),
             diameter_px=np.asarray(diameter),
@@ -201,36 +280,83 @@ class TrackProfile:
         return out
 
 
-def _independent_errors(stats: dict[str, np.ndarray], n: np.ndarray) -> dict[str, np.ndarray]:
+def _independent_errors(
+    stats: dict[str, np.ndarray], n: np.ndarray, T: np.ndarray
+) -> dict[str, np.ndarray]:
     """The standard errors of ``n`` independent tracks (Gaussian fluctuations for the
     stresses): the floor of the pairs' estimate (module docstring)."""
     uu, vv, uv = (np.maximum(stats[k], 0.0) if k != "uv" else stats[k] for k in ("uu", "vv", "uv"))
     m = np.maximum(n - 1, 1)
+    lam, n2 = _extrapolation(T)
+    n2 = (np.where(n2 > 0, lam**2 / np.where(n2 > 0, n2, 1.0), 0.0)).sum(axis=1)
+    n2 = 1.0 / n2  # the pairs of tracks the extrapolated products are worth
     return {
         "U": np.sqrt(uu / n),
         "V": np.sqrt(vv / n),
         "uu": uu * np.sqrt(2.0 / m),
         "vv": vv * np.sqrt(2.0 / m),
         "uv": np.sqrt((uu * vv + uv**2) / m),
+        # a product of two tracks' fluctuations: variance s_a^2 s_b^2 + C_ab^2
+        "uu_two": np.sqrt((uu * uu + stats["uu_two"] ** 2) / n2),
+        "vv_two": np.sqrt((vv * vv + stats["vv_two"] ** 2) / n2),
+        "uv_two": np.sqrt((uu * vv + stats["uv_two"] ** 2) / n2),
     }
 
 
 def _statistics(T: np.ndarray) -> dict[str, np.ndarray]:
     """``U``, ``V`` (at the tracks' mean distance) and the stresses about the bin's straight
-    lines in ``h`` (module docstring) from the sums ``T`` (bins, 10): n, U, V, UU, VV, UV, c,
-    cc, cU, cV with ``c`` the distance from the bin's centre."""
+    lines in ``h`` (module docstring), and the two-track stresses ``uu_two``, ``vv_two``,
+    ``uv_two``: the mean product of two tracks' residuals from those lines at no separation,
+    from the sums ``T`` (bins, moments: ``_SINGLE`` and ``_PER_CLASS`` per class)."""
     n = T[:, 0]
     mu, mv, mc = T[:, 1] / n, T[:, 2] / n, T[:, 6] / n
     vc = T[:, 7] / n - mc**2
     cu, cv = T[:, 8] / n - mu * mc, T[:, 9] / n - mv * mc
     dof = n / (n - 2)
-    return {
+    out = {
         "U": mu,
         "V": mv,
         "uu": (T[:, 3] / n - mu**2 - cu * cu / vc) * dof,
         "vv": (T[:, 4] / n - mv**2 - cv * cv / vc) * dof,
         "uv": (T[:, 5] / n - mu * mv - cu * cv / vc) * dof,
     }
+    # the bin's lines a + b c (c from the bin's centre), the pairs of tracks' mean products of
+    # their residuals from them in each class of separation, and those extrapolated to no
+    # separation (module docstring; _PER_CLASS for the sums)
+    bu, bv = cu / vc, cv / vc
+    line = {"U": (mu - bu * mc, bu, 1, 3), "V": (mv - bv * mc, bv, 2, 4)}
+    lam, _ = _extrapolation(T)
+    for key, (p, q), x in (("uu_two", ("U", "U"), 7), ("vv_two", ("V", "V"), 8),
+                           ("uv_two", ("U", "V"), 9)):  # fmt: skip
+        (aa, ba, ia, ja), (ab, bb, ib, jb) = line[p], line[q]
+        r0 = np.zeros_like(n)
+        for k in range(lam.shape[1]):
+            o = _SINGLE + _PER_CLASS * k
+            n2, h1, h2 = T[:, o], T[:, o + 5], T[:, o + 6]
+            pa, qa, pb, qb = T[:, o + ia], T[:, o + ja], T[:, o + ib], T[:, o + jb]
+            c = (
+                T[:, o + x] - 0.5 * (ab * pa + aa * pb) - 0.5 * (bb * qa + ba * qb)
+                + aa * ab * n2 + 0.5 * (aa * bb + ba * ab) * h1 + ba * bb * h2
+            ) / n2  # fmt: skip
+            r0 = r0 + np.where(n2 > 0, lam[:, k] * c, 0.0)
+        out[key] = r0
+    return out
+
+
+def _extrapolation(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The weights ``lam`` (bins, classes) that take the classes' mean products ``C_k`` to
+    their straight line in the squared separation at no separation, ``R0 = sum lam_k C_k``
+    (least squares weighted by each class's pairs of tracks; module docstring), and those
+    pairs ``n2`` (bins, classes). NaN where fewer than two classes hold pairs."""
+    k = (T.shape[1] - _SINGLE) // _PER_CLASS
+    o = _SINGLE + _PER_CLASS * np.arange(k)
+    n2 = T[:, o]
+    m = np.where(n2 > 0, T[:, o + 10] / np.where(n2 > 0, n2, 1.0), 0.0)
+    w_sum = n2.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m_bar = (n2 * m).sum(axis=1, keepdims=True) / w_sum
+        sxx = (n2 * (m - m_bar) ** 2).sum(axis=1, keepdims=True)
+        return n2 / w_sum - m_bar * n2 * (m - m_bar) / sxx, n2
 
 
 @dataclasses.dataclass(frozen=True)

@@ -28,12 +28,16 @@ Frames per run
 Outputs (atomic)
     ``OUT/ptv_<run>.csv``: per bin ``h_px`` (object px for the corrected runs), ``n``,
     ``pairs``, ``U``, ``V``, ``uu``, ``vv``, ``uv`` (px per pair; :mod:`rspiv.ptv_profile`'s
-    wall frame, ``U`` towards the flow) with ``se_*``, ``near_wall``; with the campaign's units
+    wall frame, ``U`` towards the flow) with ``se_*``, the two-track stresses ``uu_two``,
+    ``vv_two``, ``uv_two`` (without the tracks' own error) with ``n_two``, ``near_wall``; with
+    the campaign's units
     ``y_m``, ``U_si`` ... (m, m/s, m^2/s^2) and wall units ``y_plus``, ``U_plus``,
     ``uu_plus`` ... from the run's ``u_tau``. ``OUT/ptv_<run>.json``: the settings, the pairs,
     the tracks' counts, the warnings the pairs gave (each once, with how many pairs and the
-    figures of the first pair that gave it), the sublayer fit (``u_tau`` from it with its
-    standard error against the campaign's) and the fields' fingerprint. ``OUT/ptv_<run>.png``:
+    figures of the first pair that gave it), the tracks' own error at most
+    (``track_error_px2``: the single-track stresses less the two-track ones), the sublayer fit
+    (``u_tau`` from it with its standard error against the campaign's) and the fields'
+    fingerprint. ``OUT/ptv_<run>.png``:
     the profile's figure (:func:`rspiv.plots.ptv.plot_track_profile`, beside the campaign's
     windowed profile and the DNS).
 
@@ -89,14 +93,16 @@ REPORT_TEXT = (
     "wall shear from the viscous sublayer's gradient (with the DNS's curvature taken out) "
     "beside the campaign's. Error bars and errors: the scatter between pairs. The stresses "
     "include the tracks' own error (about 0.01 px^2 per component on clean images), which "
-    "dominates vv within a few wall units of the wall."
+    "dominates vv within a few wall units of the wall; the two-track stresses (the products "
+    "of two tracks' fluctuations a few px apart along the wall, extrapolated to none) leave it "
+    "out, at the price of larger errors (the figure's third panel)."
 )
 
 #: Pairs between two checkpoints of the pass.
 CHECKPOINT_EVERY = 20
 
 #: The state file's format (a pass resumes only a state of its own format).
-_STATE_VERSION = 1
+_STATE_VERSION = 2  # 2: the two-track stresses' sums
 
 
 def _context(camp: Any) -> tuple[PairContext, dict[str, Any]]:
@@ -345,6 +351,9 @@ def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped
         "U": sign_x * res["U"], "se_U": res["se_U"], "V": res["V"], "se_V": res["se_V"],
         "uu": res["uu"], "se_uu": res["se_uu"], "vv": res["vv"], "se_vv": res["se_vv"],
         "uv": sign_x * res["uv"], "se_uv": res["se_uv"],
+        "n_two": res["n_two"], "uu_two": res["uu_two"], "se_uu_two": res["se_uu_two"],
+        "vv_two": res["vv_two"], "se_vv_two": res["se_vv_two"],
+        "uv_two": sign_x * res["uv_two"], "se_uv_two": res["se_uv_two"],
         "near_wall": res["near_wall"].astype(float),
     }  # fmt: skip
     info: dict[str, Any] = {
@@ -353,17 +362,18 @@ def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped
         "settings": settings, "pairs": len(done), "skipped": skipped,
         "seconds": round(seconds, 3), "counts": dict(counts),
         "diameter_px": float(res["diameter_px"]),
+        "track_error_px2": _track_error(cols),
         "warnings": said,
     }  # fmt: skip
     si = bool(dt and m_per_px and dt > 0)
     if si:
         v = m_per_px / dt
-        cols.update(y_m=res["h_px"] * m_per_px, U_si=cols["U"] * v, uu_si=res["uu"] * v * v,
-                    vv_si=res["vv"] * v * v, uv_si=cols["uv"] * v * v)  # fmt: skip
+        cols.update(y_m=res["h_px"] * m_per_px, U_si=cols["U"] * v)
+        stresses = [f"{c}{t}" for t in ("", "_two") for c in ("uu", "vv", "uv")]
+        cols.update({f"{k}_si": cols[k] * v * v for k in stresses})
         if ut and nu and np.isfinite(ut) and ut > 0:
-            cols.update(y_plus=cols["y_m"] * ut / nu, U_plus=cols["U_si"] / ut,
-                        uu_plus=cols["uu_si"] / ut**2, vv_plus=cols["vv_si"] / ut**2,
-                        uv_plus=cols["uv_si"] / ut**2)  # fmt: skip
+            cols.update(y_plus=cols["y_m"] * ut / nu, U_plus=cols["U_si"] / ut)
+            cols.update({f"{k}_plus": cols[f"{k}_si"] / ut**2 for k in stresses})
     info["sublayer"] = _sublayer(cols, res, ut, nu, dt, m_per_px, sign_x)
     try:
         info["figure"] = str(_figure(out, name, cols, info["sublayer"], r))
@@ -392,6 +402,19 @@ def _figure(out: pathlib.Path, name: str, cols, sublayer, run_summary) -> pathli
     return plot_track_profile(
         out / f"ptv_{name}.png", cols, sublayer=sublayer, piv=piv, dns=dns, title=title
     )
+
+
+def _track_error(cols: dict[str, Any]) -> dict[str, float]:
+    """The tracks' own error per component (px^2), at most: the median over the bins off the
+    wall of the single-track stress less the two-track one (:mod:`rspiv.ptv_profile`), with
+    the median's standard error from the bins' spread; NaN without two-track stresses."""
+    out: dict[str, float] = {}
+    for c in ("uu", "vv"):
+        d = (cols[c] - cols[f"{c}_two"])[cols["near_wall"] == 0]
+        d = d[np.isfinite(d)]
+        out[c] = float(np.median(d)) if d.size else float("nan")
+        out[f"se_{c}"] = float(1.2533 * np.std(d) / np.sqrt(d.size)) if d.size > 1 else float("nan")
+    return out
 
 
 def _m_per_px(ctx: PairContext, camp: Any) -> float | None:
@@ -465,6 +488,9 @@ def report_section(camp: Any, ctx: PairContext) -> Any:
         if s.get("difference") is not None:
             row["difference (%)"] = 100.0 * s["difference"]
         row["chi2/dof"] = s.get("chi2_dof")
+        e = info.get("track_error_px2") or {}
+        if e:
+            row["tracks' own error uu, vv (px^2, at most)"] = (e.get("uu"), e.get("vv"))
         if s.get("fitted") and np.all(np.isfinite(s.get("y_plus_range", [np.nan]))):
             row["y+ fitted"] = "{:.2f}-{:.2f}".format(*s["y_plus_range"])
         elif not s.get("fitted"):

@@ -10,6 +10,8 @@ against the campaign's ``u_tau``. Exit status 0 when written, 2 for a campaign i
 
 from __future__ import annotations
 
+import numpy as np
+
 from rspiv.campaign.ptv import campaign_ptv
 from rspiv.campaign.runner import Campaign
 
@@ -28,6 +30,12 @@ def _run(args) -> int:
     )
     for w, n in info["warnings"].items():
         print(f"  {n} pair(s): {w}" + (" (the figures of the first)" if n > 1 else ""))
+    e = info.get("track_error_px2") or {}
+    if np.isfinite(e.get("uu", np.nan)):
+        print(
+            f"  the tracks' own error (at most, from the two-track stresses): uu {e['uu']:.4f} "
+            f"+- {e['se_uu']:.4f}, vv {e['vv']:.4f} +- {e['se_vv']:.4f} px^2"
+        )
     s = info["sublayer"]
     if not s["fitted"]:
         print(f"  no sublayer fit: {s['reason']}")

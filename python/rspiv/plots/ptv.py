@@ -1,6 +1,7 @@
 """The particle-tracking profile at the wall (``rspiv ptv``): the mean velocity and the Reynolds
 stresses of the tracks' bins, beside the campaign's windowed profile, the viscous sublayer's
-fitted line and the Schlatter & Örlü DNS.
+fitted line and the Schlatter & Örlü DNS; and ``vv`` within 10 wall units of the wall with and
+without the tracks' own error (the two-track stresses of :mod:`rspiv.ptv_profile`).
 
 In wall units when the profile has them (``y_plus``, ``U_plus`` ...: the campaign's ``u_tau``,
 ``nu``, ``dt`` and calibration), else in px from the wall and px per pair. Error bars are two
@@ -52,7 +53,9 @@ def plot_track_profile(
         The PNG file.
     cols : mapping
         The profile's columns as ``rspiv ptv`` writes them: ``h_px``, ``U``, ``se_U``, ``uu``,
-        ``vv``, ``uv`` with their ``se_*`` and ``near_wall``, and in wall units ``y_plus``,
+        ``vv``, ``uv`` with their ``se_*``, ``near_wall``, optionally ``vv_two`` and
+        ``se_vv_two`` (the two-track ``vv``, without the tracks' own error: a third panel,
+        ``vv`` at the wall with and without it), and in wall units ``y_plus``,
         ``U_plus``, ``uu_plus``, ``vv_plus``, ``uv_plus`` when known.
     sublayer : mapping, optional
         The sublayer fit (``rspiv ptv``'s JSON ``"sublayer"``: ``fitted``, ``gradient``,
@@ -83,9 +86,12 @@ def plot_track_profile(
         fy = fu = 1.0
     y = h * fy
     near = np.asarray(cols.get("near_wall", np.zeros_like(h)), dtype=float) > 0
-    fig = Figure(figsize=(11, 4.6))
-    ax_u, ax_s = fig.subplots(1, 2)
+    two = "vv_two" in cols and np.isfinite(np.asarray(cols["vv_two"], dtype=float)).any()
+    fig = Figure(figsize=(15.5 if two else 11, 4.6))
+    ax_u, ax_s, *rest = fig.subplots(1, 3 if two else 2)
+    ax_v = rest[0] if two else None
     y_top = float(np.nanmax(y)) * 1.05 if np.isfinite(y).any() else 1.0
+    y_wall = 10.0 if plus else y_top / 3  # the third panel's reach: y+ 10, or a third
 
     def bars(ax, key: str, sign: float, fmt: str, label: str, colour: str) -> None:
         v = sign * np.asarray(cols[key], dtype=float) * (fu if key == "U" else fu * fu)
@@ -127,6 +133,25 @@ def plot_track_profile(
     bars(ax_s, "uu", 1.0, "o", "uu", "C0")
     bars(ax_s, "vv", 1.0, "^", "vv", "C1")
     bars(ax_s, "uv", -1.0, "s", "-uv", "C2")
+    if ax_v is not None:  # vv at the wall, with and without the tracks' own error
+        sel = ~near & (y <= y_wall)
+        for key, fmt, colour, label in (
+            ("vv", "^", "C1", "single tracks (with their error)"),
+            ("vv_two", "v", "C3", "two-track (without it)"),
+        ):
+            v = np.asarray(cols[key], dtype=float)[sel] * fu * fu
+            e = 2.0 * np.asarray(cols[f"se_{key}"], dtype=float)[sel] * fu * fu
+            ax_v.errorbar(y[sel], v, yerr=e, fmt=fmt, ms=3, capsize=0, elinewidth=0.6,
+                          color=colour, label=label)  # fmt: skip
+        if plus and dns is not None:
+            d = dns.y_plus <= y_wall
+            ax_v.plot(dns.y_plus[d], dns.vrms_plus[d] ** 2, "-", color="k", lw=0.8, label="DNS")
+        ax_v.set_xlim(0.0, y_wall)
+        ax_v.axhline(0.0, color="0.8", lw=0.5)
+        ax_v.set_xlabel("y+" if plus else "distance from the wall (px)")
+        ax_v.set_ylabel("vv+" if plus else "vv (px^2)")
+        ax_v.set_title("vv at the wall (2 SE)")
+        ax_v.legend(fontsize=7, loc="upper left")
     unit = "+" if plus else " (px)"
     ax_u.set_xlabel("y+" if plus else "distance from the wall (px)")
     ax_u.set_ylabel("U+" if plus else "U (px per pair)")
