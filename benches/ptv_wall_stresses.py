@@ -1,0 +1,94 @@
+"""The tracks' stresses at the wall against the planted ones: single-track and two-track.
+
+A synthetic campaign (``rspiv.demo``'s scene at ``--scale``, ``--pairs`` pairs: particle images
+with their reflection in the wall, the paper's lens and magnification, the stresses of the
+Schlatter & Örlü DNS at Re_theta 4060 planted by correlated random fields), processed with the
+field files, then ``rspiv ptv``. For the bins from a particle image's diameter to ``y+ = 12``,
+each stress's z-score against the planted one, ``(measured - planted) / SE``: the single-track
+stresses (which include the tracks' own error) and the two-track ones (which leave it out,
+:mod:`rspiv.ptv_profile`), in px from the truth's viscous length and friction velocity; and
+``vv`` bin by bin up to ``y+ = 5``, where the planted value is below the tracks' error.
+
+Run: ``python benches/ptv_wall_stresses.py [--scale 0.25 --pairs 16 --dir DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import pathlib
+import re
+import tempfile
+import time
+
+import numpy as np
+from rspiv.campaign import Campaign
+from rspiv.campaign.ptv import campaign_ptv
+from rspiv.demo import DEFAULT_SCENE, synth_campaign
+from rspiv.outputs import read_profile_csv
+from rspiv.reference import load_dns
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scale", type=float, default=0.25)
+    ap.add_argument("--pairs", type=int, default=16)
+    ap.add_argument("--dir", type=pathlib.Path, default=None)
+    args = ap.parse_args()
+    d = args.dir or pathlib.Path(tempfile.mkdtemp(prefix="rspiv_ptv_"))
+    scene = dataclasses.replace(
+        DEFAULT_SCENE, scale=args.scale, pairs=args.pairs, monte_carlo_samples=200
+    )
+    toml = synth_campaign(d, scene=scene)
+    text = re.sub(r"(?m)^fields = \w+", "fields = true", toml.read_text())
+    toml.write_text(re.sub(r"(?m)^report = \w+", "report = false", text))
+    t0 = time.perf_counter()
+    Campaign.load(toml, progress=False).run()
+    t1 = time.perf_counter()
+    info = campaign_ptv(Campaign.load(toml, progress=False), resume=False)
+    t2 = time.perf_counter()
+    truth = json.loads((d / "truth.json").read_text())
+    cols, _ = read_profile_csv(info["csv"])
+    ut_px = truth["u_tau"] * truth["dt"] * truth["magnification"] * 1e3  # px per pair
+    y_plus = cols["h_px"] / truth["viscous_length_px"]
+    dns = load_dns(4060)
+    planted = {
+        "uu": np.interp(y_plus, dns.y_plus, dns.urms_plus**2) * ut_px**2,
+        "vv": np.interp(y_plus, dns.y_plus, dns.vrms_plus**2) * ut_px**2,
+        "uv": np.interp(y_plus, dns.y_plus, dns.uv_plus) * ut_px**2,
+    }
+    sel = (cols["near_wall"] == 0) & (y_plus <= 12.0)
+    print(
+        f"scale {args.scale}, {args.pairs} pairs: processed in {t1 - t0:.1f} s, tracked in "
+        f"{t2 - t1:.1f} s; {int(sel.sum())} bins from y+ {y_plus[sel].min():.2f} to 12"
+    )
+    print("z-scores against the planted stresses (mean, spread over the bins):")
+    for k, want in planted.items():
+        row = []
+        for kind in ("", "_two"):
+            z = ((cols[f"{k}{kind}"] - want) / cols[f"se_{k}{kind}"])[sel]
+            z = z[np.isfinite(z)]
+            row.append(f"{'two-track' if kind else 'single'} {z.mean():+.2f} {z.std():.2f}")
+        print(f"  {k}: " + "; ".join(row))
+    print("vv (px^2) up to y+ 5: y+, planted, single +- SE, two-track +- SE")
+    for i in np.flatnonzero(sel & (y_plus <= 5.0)):
+        print(
+            f"  {y_plus[i]:5.2f}  {planted['vv'][i]:.4f}  {cols['vv'][i]:.4f} +- "
+            f"{cols['se_vv'][i]:.4f}  {cols['vv_two'][i]:+.4f} +- {cols['se_vv_two'][i]:.4f}"
+        )
+    e = info["track_error_px2"]
+    print(
+        f"the tracks' own error (at most): uu {e['uu']:.4f} +- {e['se_uu']:.4f}, vv "
+        f"{e['vv']:.4f} +- {e['se_vv']:.4f} px^2"
+    )
+    s = info["sublayer"]
+    if "u_tau" in s:
+        print(
+            f"u_tau from the sublayer {s['u_tau']:.4f} +- {s['se_u_tau']:.4f} m/s, the flow's "
+            f"{truth['u_tau']:.4f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
