@@ -18,7 +18,7 @@ import pytest
 from campaign_cases import lean
 from rspiv import _rspiv
 from rspiv.campaign import Campaign
-from rspiv.campaign.ptv import _context, campaign_ptv, report_section
+from rspiv.campaign.ptv import _context, campaign_ptv, merge_ptv, report_section
 from rspiv.cli import main as cli_main
 from rspiv.demo import DEFAULT_SCENE, synth_campaign
 from rspiv.errors import InvalidInputError
@@ -427,3 +427,41 @@ def test_the_report_shows_the_tracks_of_the_fields_as_they_are(campaign, tmp_pat
     assert png.read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(InvalidInputError, match="h_px"):
         plot_track_profile(tmp_path / "no.png", {**cols, "h_px": []})
+
+
+def test_a_pass_in_shards_merges_to_the_whole(campaign, capsys):
+    """Two shards (every other pair), each resumable on its own, merged: the profile of one
+    pass to rounding; a merge refused while a shard is missing or unfinished, or shards of two
+    counts lie side by side."""
+    d, toml = campaign
+    out = d / "out"
+    whole = campaign_ptv(Campaign.load(toml, progress=False), resume=False)
+    with pytest.raises(InvalidInputError, match="no shard"):
+        merge_ptv(Campaign.load(toml, progress=False))
+    assert cli_main(["ptv", str(toml), "--shard", "1/2", "-q"]) == 0
+    assert "--merge" in capsys.readouterr().out
+    with pytest.raises(InvalidInputError, match="shard 2 of 2 of run method_II is missing"):
+        merge_ptv(Campaign.load(toml, progress=False))
+    part = campaign_ptv(Campaign.load(toml, progress=False), shard=(2, 2))
+    assert part["pairs"] == 2 and part["shard"] == "2/2"
+    st = pickle.loads((out / "ptv" / "method_II.shard-2-of-2.pkl").read_bytes())
+    assert st["complete"] and st["done"] == [1, 3]
+    assert cli_main(["ptv", str(toml), "--merge", "-q"]) == 0
+    merged = json.loads((out / "ptv_method_II.json").read_text())
+    assert merged["pairs"] == whole["pairs"] == 4 and merged["counts"] == whole["counts"]
+    for k in ("u_tau", "se_u_tau", "gradient", "wall_offset_px"):
+        assert merged["sublayer"][k] == pytest.approx(whole["sublayer"][k], rel=1e-9, abs=1e-12)
+    # an unfinished shard, or shards of two counts
+    (out / "ptv" / "method_II.shard-2-of-2.pkl").write_bytes(
+        pickle.dumps({**st, "complete": False, "done": [1]})
+    )
+    with pytest.raises(InvalidInputError, match="stopped after 1 of 2 pair"):
+        merge_ptv(Campaign.load(toml, progress=False))
+    (out / "ptv" / "method_II.shard-1-of-3.pkl").write_bytes(b"")
+    with pytest.raises(InvalidInputError, match="shards of 2 and of 3"):
+        merge_ptv(Campaign.load(toml, progress=False))
+    assert cli_main(["ptv", str(toml), "--merge", "-q"]) == 2
+    for p in (out / "ptv").glob("method_II.shard-*"):
+        p.unlink()
+    with pytest.raises(InvalidInputError, match="shard"):
+        campaign_ptv(Campaign.load(toml, progress=False), shard=(3, 2))

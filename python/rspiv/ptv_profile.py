@@ -227,6 +227,27 @@ class TrackProfile:
             cols = _SINGLE + _PER_CLASS * cls[:, None] + np.arange(_PER_CLASS)
             np.add.at(t, (b[i][:, None], cols), m)
 
+    def merge(self, other: TrackProfile) -> None:
+        """Add the sums of ``other`` (a profile of other pairs: a shard of the same pass) to
+        this one. Refused (InvalidInputError) unless both have the same wall, bins, band,
+        range, separations and saturation choice."""
+        def shape(p: TrackProfile) -> tuple:
+            return (
+                p.sign, p.bin_px, p.band_px, p.x_range, p.keep_saturated, p.separation_px,
+                float(getattr(p.wall, "slope", 0.0)), float(np.asarray(p.wall.line(0.0))),
+            )  # fmt: skip
+
+        if shape(self) != shape(other):
+            raise InvalidInputError(
+                f"the profiles differ in wall, bins or separations: {shape(self)} against "
+                f"{shape(other)}"
+            )
+        self.total += other.total
+        self.outer += other.outer
+        self.pairs_in += other.pairs_in
+        self.pairs += other.pairs
+        self.diameters.extend(other.diameters)
+
     def result(self, min_tracks: int = 10) -> dict[str, np.ndarray]:
         """The profile (module docstring): per bin ``h_px``, ``edge_px`` (the bin's lower edge),
         ``n``, ``pairs`` (the pairs with a track in it), ``U``, ``V``, ``uu``, ``vv``, ``uv``,

@@ -41,6 +41,13 @@ Outputs (atomic)
     the profile's figure (:func:`rspiv.plots.ptv.plot_track_profile`, beside the campaign's
     windowed profile and the DNS).
 
+Shards
+    A long pass splits over processes or cluster jobs: ``campaign_ptv(..., shard=(i, n))``
+    (``rspiv ptv campaign.toml --shard i/n``) tracks every n-th pair from the i-th into its own
+    resumable state ``OUT/ptv/<run>.shard-<i>-of-<n>.pkl``; once all n are complete,
+    :func:`merge_ptv` (``rspiv ptv campaign.toml --merge``) sums them (the profile's sums add
+    up: the same profile as one pass, to rounding) and writes the outputs.
+
 Report
     The campaign report (``OUT/report``, written by ``rspiv process``; a processed campaign's
     report is written again by ``rspiv process`` in seconds, no pair processed again) has a
@@ -83,7 +90,7 @@ from rspiv.ptv import Tracks, predictor_of, track_particles
 from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
 from rspiv.reference import dns_profile_for_re_tau
 
-__all__ = ["CHECKPOINT_EVERY", "campaign_ptv", "report_section"]
+__all__ = ["CHECKPOINT_EVERY", "campaign_ptv", "merge_ptv", "report_section"]
 
 #: The report section's opening paragraph.
 REPORT_TEXT = (
@@ -211,6 +218,7 @@ def campaign_ptv(
     band_px: float = 32.0,
     max_pairs: int = 0,
     resume: bool = True,
+    shard: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """Track the particle images of a processed campaign's pairs at the wall (module docstring).
 
@@ -227,11 +235,16 @@ def campaign_ptv(
         Track only the first this many pairs with fields (0: all).
     resume : bool
         Go on from the pass's checkpoint when its settings match.
+    shard : (int, int), optional
+        ``(i, n)``: track only the i-th of every n pairs (1-based) into the shard's own state
+        ``OUT/ptv/<run>.shard-<i>-of-<n>.pkl``, writing no profile; :func:`merge_ptv` writes
+        it once every shard is done (module docstring, "Shards").
 
     Returns
     -------
     dict
-        What ``OUT/ptv_<run>.json`` holds, with ``csv`` and ``json`` the files written.
+        What ``OUT/ptv_<run>.json`` holds, with ``csv`` and ``json`` the files written; for a
+        shard, ``run``, ``shard``, ``pairs``, ``skipped``, ``seconds`` and ``state``.
 
     Raises
     ------
@@ -242,6 +255,10 @@ def campaign_ptv(
     """
     if not (isinstance(radius, int | float) and np.isfinite(radius) and radius > 0):
         raise InvalidInputError(f"radius must be a finite number of px > 0, got {radius!r}")
+    if shard is not None:
+        i, n = shard
+        if not (isinstance(i, int) and isinstance(n, int) and 1 <= i <= n):
+            raise InvalidInputError(f"shard {shard!r}: give (i, n) with 1 <= i <= n")
     ctx, summary = _context(camp)
     runs = {r.name: r for r in ctx.runs}
     name = run or ctx.runs[0].name
@@ -265,12 +282,16 @@ def campaign_ptv(
         )
     if max_pairs:
         ids = ids[: int(max_pairs)]
+    if shard is not None:
+        ids = ids[shard[0] - 1 :: shard[1]]
     shape = tuple(ctx.grid()[0].shape)
     fp = ctx.fields_fingerprint()
     window = tuple(int(c) for c in ctx.piv.passes[-1])
     settings = {"radius": float(radius), "bin_px": float(bin_px), "band_px": float(band_px)}
     prof = TrackProfile(wall, bin_px=bin_px, band_px=band_px)
-    state_path = out / "ptv" / f"{name}.pkl"
+    state_path = out / "ptv" / (
+        f"{name}.pkl" if shard is None else f"{name}.shard-{shard[0]}-of-{shard[1]}.pkl"
+    )
     done: list[int] = []
     counts: collections.Counter = collections.Counter()
     said: collections.Counter = collections.Counter()
@@ -292,11 +313,15 @@ def campaign_ptv(
         except (OSError, pickle.UnpicklingError, KeyError, EOFError, AttributeError):
             camp.say(f"ptv {name}: {state_path} cannot be read; starting afresh")
 
-    def save() -> None:
+    def save(complete: bool = False) -> None:
         st = {**key, "profile": prof, "done": done, "counts": counts, "said": said, "first": first,
-              "skipped": skipped}  # fmt: skip
+              "skipped": skipped, "ids": ids, "complete": complete,
+              "seconds": seconds + time.perf_counter() - t0}  # fmt: skip
         atomic_write_bytes(state_path, pickle.dumps(st, protocol=pickle.HIGHEST_PROTOCOL))
 
+    seconds = 0.0  # of the earlier passes this state resumes (a shard's time, all told)
+    if done or skipped:
+        seconds = float(st.get("seconds", 0.0))
     t0 = time.perf_counter()
     seen = set(done) | set(skipped)
     todo = [pid for pid in ids if pid not in seen]
@@ -320,14 +345,108 @@ def campaign_ptv(
         if (k + 1) % CHECKPOINT_EVERY == 0:
             save()
             camp.say(f"ptv {name}: {len(done)} of {len(ids)} pair(s)")
-    save()
+    save(complete=True)
+    if shard is not None:  # the merge writes the profile
+        return {"run": name, "shard": f"{shard[0]}/{shard[1]}", "pairs": len(done),
+                "skipped": len(skipped), "seconds": seconds + time.perf_counter() - t0,
+                "state": str(state_path)}  # fmt: skip
     if not done:
-        first = next(iter(skipped.values()), "no pair")
-        raise InvalidInputError(f"ptv {name}: no pair tracked ({len(skipped)} skipped: {first})")
+        reason = next(iter(skipped.values()), "no pair")
+        raise InvalidInputError(f"ptv {name}: no pair tracked ({len(skipped)} skipped: {reason})")
     # each warning once, with the figures of the first pair that gave it
     warned = {first.get(w, w): n for w, n in said.most_common()}
     return _write(camp, summary, ctx, name, prof, settings, done, counts, warned, skipped,
                   time.perf_counter() - t0)  # fmt: skip
+
+
+def merge_ptv(camp: Any, run: str | None = None) -> dict[str, Any]:
+    """Write the profile of a pass run in shards (:func:`campaign_ptv` with ``shard``): the
+    states ``OUT/ptv/<run>.shard-<i>-of-<n>.pkl`` of every ``i`` of one ``n``, each complete,
+    of one set of settings and of the campaign's fields as they are, summed into one profile
+    (:meth:`rspiv.ptv_profile.TrackProfile.merge`) and written as :func:`campaign_ptv`
+    writes it.
+
+    Returns
+    -------
+    dict
+        What ``OUT/ptv_<run>.json`` holds (``seconds``: the shards' time, summed).
+
+    Raises
+    ------
+    InvalidInputError
+        No shard, shards of more than one count, a shard missing or not complete, shards of
+        other settings or of other fields than the campaign's, no pair tracked.
+    """
+    ctx, summary = _context(camp)
+    names = [r.name for r in ctx.runs]
+    name = run or names[0]
+    if name not in names:
+        raise InvalidInputError(f"run {name!r}: the campaign's runs are {', '.join(names)}")
+    sdir = pathlib.Path(camp.out_dir) / "ptv"
+    found: dict[int, dict[int, pathlib.Path]] = collections.defaultdict(dict)
+    for path in sdir.glob(f"{name}.shard-*-of-*.pkl"):
+        if m := re.fullmatch(rf"{re.escape(name)}\.shard-(\d+)-of-(\d+)\.pkl", path.name):
+            found[int(m.group(2))][int(m.group(1))] = path
+    if not found:
+        raise InvalidInputError(f"{sdir}: no shard of run {name} (rspiv ptv --shard I/N first)")
+    if len(found) > 1:
+        raise InvalidInputError(
+            f"{sdir}: shards of {' and of '.join(str(n) for n in sorted(found))} for run {name}: "
+            "remove the states of the count not wanted"
+        )
+    ((n, paths),) = found.items()
+    missing = [i for i in range(1, n + 1) if i not in paths]
+    if missing:
+        raise InvalidInputError(
+            f"{sdir}: shard {missing[0]} of {n} of run {name} is missing: run `rspiv ptv "
+            f"--shard {missing[0]}/{n}` first"
+        )
+    fp = ctx.fields_fingerprint()
+    states = []
+    for i in range(1, n + 1):
+        try:
+            st = pickle.loads(paths[i].read_bytes())
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
+            raise InvalidInputError(f"{paths[i]}: cannot be read ({exc})") from exc
+        if st.get("version") != _STATE_VERSION or st.get("fingerprint") != fp:
+            raise InvalidInputError(
+                f"{paths[i]}: written for other fields than the campaign's (processed again "
+                "since?) or by another version: run the shard again"
+            )
+        if not st.get("complete"):
+            raise InvalidInputError(
+                f"{paths[i]}: shard {i} of {n} stopped after {len(st['done'])} of "
+                f"{len(st['ids'])} pair(s): run it again to finish"
+            )
+        if states and st["settings"] != states[0]["settings"]:
+            raise InvalidInputError(
+                f"{paths[i]}: settings {st['settings']} differ from shard 1's "
+                f"{states[0]['settings']}"
+            )
+        states.append(st)
+    prof = states[0]["profile"]
+    counts: collections.Counter = collections.Counter()
+    said: collections.Counter = collections.Counter()
+    first: dict[str, str] = {}
+    done: list[int] = []
+    skipped: dict[int, str] = {}
+    for k, st in enumerate(states):
+        if k:
+            prof.merge(st["profile"])
+        counts.update(st["counts"])
+        said.update(st["said"])
+        for g, w in st["first"].items():
+            first.setdefault(g, w)
+        done += st["done"]
+        skipped.update(st["skipped"])
+    if not done:
+        reason = next(iter(skipped.values()), "no pair")
+        raise InvalidInputError(f"ptv {name}: no pair tracked ({len(skipped)} skipped: {reason})")
+    warned = {first.get(w, w): c for w, c in said.most_common()}
+    seconds = sum(float(st.get("seconds", 0.0)) for st in states)
+    camp.say(f"ptv {name}: {n} shard(s) merged, {len(done)} pair(s)")
+    return _write(camp, summary, ctx, name, prof, states[0]["settings"], sorted(done), counts,
+                  warned, skipped, seconds)  # fmt: skip
 
 
 def _general(warning: str) -> str:

@@ -12,16 +12,31 @@ from __future__ import annotations
 
 import numpy as np
 
-from rspiv.campaign.ptv import campaign_ptv
+from rspiv.campaign.ptv import campaign_ptv, merge_ptv
 from rspiv.campaign.runner import Campaign
+from rspiv.campaign.spec import parse_shard
+from rspiv.errors import InvalidInputError
 
 
 def _run(args) -> int:
     camp = Campaign.load(args.campaign, progress=False, log=None if args.quiet else print)
-    info = campaign_ptv(
-        camp, args.run, radius=args.radius, bin_px=args.bin, band_px=args.band,
-        max_pairs=args.max_pairs, resume=not args.afresh,
-    )  # fmt: skip
+    if args.merge and args.shard:
+        raise InvalidInputError("--merge and --shard: a shard tracks, the merge writes; one")
+    if args.merge:
+        info = merge_ptv(camp, args.run)
+    else:
+        shard = parse_shard(args.shard) if args.shard else None
+        info = campaign_ptv(
+            camp, args.run, radius=args.radius, bin_px=args.bin, band_px=args.band,
+            max_pairs=args.max_pairs, resume=not args.afresh, shard=shard,
+        )  # fmt: skip
+        if shard is not None:
+            print(
+                f"ptv {info['run']} shard {info['shard']}: {info['pairs']} pair(s) tracked "
+                f"({info['skipped']} skipped) in {info['seconds']:.1f} s -> {info['state']}; "
+                f"`rspiv ptv {args.campaign} --merge` writes the profile once every shard is done"
+            )
+            return 0
     c = info["counts"]
     print(
         f"ptv {info['run']}: {info['pairs']} pair(s), {c.get('tracks', 0)} tracks of "
@@ -83,5 +98,13 @@ def register(sub) -> None:
     p.add_argument("--band", type=float, default=32.0, help="band from the wall, px (default 32)")
     p.add_argument("--max-pairs", type=int, default=0, help="only the first N pairs (0: all)")
     p.add_argument("--afresh", action="store_true", help="ignore the pass's checkpoint")
+    p.add_argument(
+        "--shard", default=None, metavar="I/N",
+        help="track every N-th pair from the I-th into the shard's own state (for cluster jobs)",
+    )  # fmt: skip
+    p.add_argument(
+        "--merge", action="store_true",
+        help="write the profile of a pass run in shards, once every shard is done",
+    )  # fmt: skip
     p.add_argument("-q", "--quiet", action="store_true", help="say less")
     p.set_defaults(func=_run)
