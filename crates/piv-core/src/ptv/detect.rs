@@ -122,6 +122,8 @@ pub fn detect<T: Pixel>(
             let (y0, y1) = ((r * block).max(1), ((r + 1) * block).min(h - 1));
             let mut found = Vec::new();
             for y in y0..y1 {
+                let row = img.row(y);
+                let out = mask.as_ref().map(|m| m.row(y));
                 for c in 0..s.cols {
                     let i = r * s.cols + c;
                     let b = s.background[i];
@@ -131,10 +133,10 @@ pub fn detect<T: Pixel>(
                     let thr = threshold(b, s.noise[i], s.signal, k, rel);
                     let (x0, x1) = ((c * block).max(1), ((c + 1) * block).min(w - 1));
                     for x in x0..x1 {
-                        if excluded(y, x) {
+                        if out.as_ref().is_some_and(|m| m[x]) {
                             continue;
                         }
-                        let v = img[[y, x]].to_f32();
+                        let v = row[x].to_f32();
                         if v > thr && is_peak(&img, y, x, v) && !touches_mask(y, x) {
                             found.push(fit(&img, y, x, b, s.noise[i], v >= full));
                         }
