@@ -481,7 +481,8 @@ def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped
         "settings": settings, "pairs": len(done), "skipped": skipped,
         "seconds": round(seconds, 3), "counts": dict(counts),
         "diameter_px": float(res["diameter_px"]),
-        "track_error_px2": _track_error(cols),
+        "track_error_px2": (err := _track_error(cols)),
+        "profile_warning": _error_warning(cols, err),
         "warnings": said,
     }  # fmt: skip
     si = bool(dt and m_per_px and dt > 0)
@@ -536,6 +537,22 @@ def _track_error(cols: dict[str, Any]) -> dict[str, float]:
     return out
 
 
+def _error_warning(cols: dict[str, Any], err: dict[str, float]) -> str:
+    """What to say when the tracks' own error is more than half the single-track ``vv`` (the
+    median over the bins off the wall), beyond two of its standard errors: those stresses
+    are then mostly tracking error (a dense or noisy recording, strays). Empty otherwise."""
+    vv = np.asarray(cols["vv"], dtype=float)[np.asarray(cols["near_wall"]) == 0]
+    vv = vv[np.isfinite(vv)]
+    e, se = err.get("vv", np.nan), err.get("se_vv", np.nan)
+    if not (vv.size and np.isfinite(e) and np.isfinite(se) and e - 2 * se > 0.5 * np.median(vv)):
+        return ""
+    return (
+        f"the tracks' own error ({e:.3g} +- {se:.2g} px^2 per component) is more than half the "
+        f"single-track vv ({np.median(vv):.3g} px^2, the bins' median): those stresses are "
+        "mostly tracking error; use the two-track ones (uu_two, vv_two, uv_two)"
+    )
+
+
 def _m_per_px(ctx: PairContext, camp: Any) -> float | None:
     """Metres per px of the run's frame, as the campaign's analysis scales every run: 1e-3
     over the calibration's magnification (px/mm); None without a calibration."""
@@ -584,7 +601,7 @@ def report_section(camp: Any, ctx: PairContext) -> Any:
 
     out = pathlib.Path(camp.out_dir)
     fp = ctx.fields_fingerprint()
-    rows, figures, said, stale = [], [], [], []
+    rows, figures, said, stale, warned = [], [], [], [], []
     for spec in ctx.runs:
         path = out / f"ptv_{spec.name}.json"
         if not path.is_file():
@@ -615,6 +632,7 @@ def report_section(camp: Any, ctx: PairContext) -> Any:
         elif not s.get("fitted"):
             row["sublayer"] = s.get("reason", "not fitted")
         rows.append(row)
+        warned.append(info.get("profile_warning", ""))
         if info.get("figure") and pathlib.Path(info["figure"]).is_file():
             figures.append((info["figure"], f"{spec.label}: tracks at the wall"))
         said += [
@@ -624,6 +642,7 @@ def report_section(camp: Any, ctx: PairContext) -> Any:
     if not rows and not stale:
         return None
     text = REPORT_TEXT
+    said = [f"Warning ({r['run']}): {w}." for r, w in zip(rows, warned, strict=True) if w] + said
     if said:
         text += "\n\n" + "\n\n".join(said)
     if stale:

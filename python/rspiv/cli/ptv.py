@@ -51,6 +51,8 @@ def _run(args) -> int:
             f"  the tracks' own error (at most, from the two-track stresses): uu {e['uu']:.4f} "
             f"+- {e['se_uu']:.4f}, vv {e['vv']:.4f} +- {e['se_vv']:.4f} px^2"
         )
+    if info.get("profile_warning"):
+        print(f"  warning: {info['profile_warning']}")
     s = info["sublayer"]
     if not s["fitted"]:
         print(f"  no sublayer fit: {s['reason']}")
