@@ -104,6 +104,59 @@ def test_particle_images_are_found_where_the_generator_put_them():
     assert q.saturated.mean() > 0.5 and np.mean(q.saturated == at_full) > 0.97
 
 
+def test_rows_are_searched_as_the_whole_frame_searches_them():
+    """Rows of whole blocks searched on their own: with the threshold from the noise alone
+    (``rel = 0``; the signal's share of it is the rows' own) the same particle images, bit for
+    bit, as the whole frame's in those rows, in the whole frame's px; the rows a wall's band
+    needs, flow above or below, and mapped from another frame."""
+    (a, b), _ = _pair(5)
+    whole = detect_particles(a, rel=0.0)
+    part = detect_particles(a, rel=0.0, rows=(64, 192))
+    assert part.y.min() >= 64 and part.y.max() <= 191
+    sel = []
+    for p in (whole, part):
+        inner = (p.y >= 66) & (p.y <= 189)
+        sel.append((inner, np.lexsort((p.x[inner], p.y[inner]))))
+    (iw, ow), (ip, op) = sel
+    assert iw.sum() > 300 and iw.sum() == ip.sum()
+    for k in ("x", "height", "diameter_x", "sigma_y"):
+        np.testing.assert_array_equal(getattr(whole, k)[iw][ow], getattr(part, k)[ip][op])
+    # y: the rows' own centre plus their first row (to rounding)
+    np.testing.assert_allclose(whole.y[iw][ow], part.y[ip][op], rtol=0, atol=1e-12)
+    # the default threshold takes the rows' own signal: nearly the same images
+    d = detect_particles(a, rows=(64, 192))
+    assert abs(len(d) - len(part)) < 0.05 * len(part)
+    # the rows of a band: 32 px into the flow, a margin of 10 px, in whole blocks of 32
+    from rspiv.ptv import search_rows
+
+    assert search_rows(WallLine(300.0), (1000, 500), 32.0, 10.0) == (256, 320)
+    assert search_rows(WallLine(300.0, 0.0, "below"), (1000, 500), 32.0, 10.0) == (288, 352)
+    assert search_rows(WallLine(300.0), (1000, 500), 32.0, 10.0, context_px=100.0) == (128, 320)
+    # a sloping wall: its whole course across the width
+    assert search_rows(WallLine(300.0, 0.05), (1000, 500), 32.0, 10.0) == (256, 352)
+    # the wall in another frame, mapped 40 px down
+    down = search_rows(WallLine(300.0), (1000, 500), 32.0, 10.0, to_frame=lambda p: p + [0, 40])
+    assert down == (288, 352)
+    assert search_rows(WallLine(990.0, 0.0, "below"), (1000, 500), 32.0, 10.0) == (960, 1000)
+    with pytest.raises(InvalidInputError, match="outside the frame"):
+        search_rows(WallLine(-200.0), (1000, 500), 32.0, 10.0)
+    # tracks of the rows near the wall: those of the whole frames in the band, to a few
+    f = _field(a, b)
+    rows = search_rows(WALL_LINE, a.shape, 32.0, 12.0, context_px=64.0)
+    assert rows == (192, 352)
+    t_rows = track_particles(a, b, f, radius=1.5, wall=WALL_LINE, rows=rows)
+    t_all = track_particles(a, b, f, radius=1.5, wall=WALL_LINE)
+    assert t_rows.detected[0] < 0.5 * t_all.detected[0]
+    in_band = [(WALL - t.y > 0) & (WALL - t.y < 32) for t in (t_rows, t_all)]
+    n_rows, n_all = (int(k.sum()) for k in in_band)
+    assert n_all > 300 and abs(n_rows - n_all) <= 0.02 * n_all
+    assert abs(np.mean(t_rows.u[in_band[0]]) - np.mean(t_all.u[in_band[1]])) < 0.01
+    with pytest.raises(InvalidInputError, match="rows"):
+        detect_particles(a, rows=(10, 11))
+    with pytest.raises(InvalidInputError, match="rows"):
+        track_particles(whole, whole, (0.0, 0.0), rows=(0, 64))
+
+
 def test_tracks_follow_their_particles():
     (a, b), truth = _pair(11)
     t = track_particles(a, b, _field(a, b), radius=1.5, wall=WALL_LINE)
@@ -473,3 +526,27 @@ def test_a_pass_in_shards_merges_to_the_whole(campaign, capsys):
         p.unlink()
     with pytest.raises(InvalidInputError, match="shard"):
         campaign_ptv(Campaign.load(toml, progress=False), shard=(3, 2))
+
+
+def test_the_rows_near_the_wall_give_the_whole_frames_profile(campaign):
+    """Searched only near the wall (the default) or over the whole frames: the same tracks in
+    the band, to a few per cent per bin (the threshold's signal and the shape test's widths
+    come from other rows), and the same profile well within its errors."""
+    _, toml = campaign
+    band = campaign_ptv(Campaign.load(toml, progress=False), resume=False)
+    cb = read_profile_csv(band["csv"])[0]
+    whole = campaign_ptv(Campaign.load(toml, progress=False), resume=False, whole_frame=True)
+    cw = read_profile_csv(whole["csv"])[0]
+    assert not band["settings"]["whole_frame"] and whole["settings"]["whole_frame"]
+    # the rows searched hold a part of the frames' particle images (at this small scale the
+    # band and its 256 px of flow are half the frame; at 47 MP a twelfth)
+    assert band["counts"]["detected_a"] < 0.6 * whole["counts"]["detected_a"]
+    ok = np.isfinite(cb["U"]) & np.isfinite(cw["U"])
+    assert ok.sum() >= 60
+    ratio = cb["n"][ok] / cw["n"][ok]
+    assert 0.95 < ratio.min() and ratio.max() < 1.05 and abs(np.median(ratio) - 1) < 0.01
+    for k in ("U", "V", "uu", "vv", "uv", "vv_two"):
+        z = ((cb[k] - cw[k]) / cw[f"se_{k}"])[ok]
+        assert np.nanmax(np.abs(z)) < 0.5, k
+    sb, sw = band["sublayer"], whole["sublayer"]
+    assert abs(sb["u_tau"] - sw["u_tau"]) < 0.05 * sw["se_u_tau"]

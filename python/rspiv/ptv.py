@@ -60,6 +60,7 @@ __all__ = [
     "Tracks",
     "detect_particles",
     "predictor_of",
+    "search_rows",
     "track_particles",
     "wall_sign",
 ]
@@ -224,6 +225,7 @@ def detect_particles(
     block: int = DETECT_BLOCK,
     k: float = K_NOISE,
     rel: float = REL_SIGNAL,
+    rows: tuple[int, int] | None = None,
 ) -> Particles:
     """The particle images of ``frame`` with their sub-pixel centres.
 
@@ -241,6 +243,12 @@ def detect_particles(
         Block size (px, >= 8) of the background and noise estimates.
     k, rel : float
         The threshold ``b + max(k sigma, rel signal)`` (``piv_core::seeding``).
+    rows : (int, int), optional
+        Search only rows ``first`` to ``stop - 1`` (a view of them, not a copy), as a frame of
+        their own: the blocks start at ``first``, and the signal of the threshold is the
+        median over those rows' blocks; the centres are still in the whole frame's px. A
+        particle image on the first or last of those rows is not found (its neighbours are
+        outside). Tracking at a wall needs only the rows near it (:func:`search_rows`).
 
     Returns
     -------
@@ -250,7 +258,7 @@ def detect_particles(
     ------
     InvalidInputError
         A frame that is not 2D or under 3 x 3 px, a mask of another shape, non-finite values,
-        bad factors.
+        bad factors, rows outside the frame or fewer than 3 of them.
     """
     a = np.asarray(frame)
     if a.ndim != 2:
@@ -258,12 +266,72 @@ def detect_particles(
     m = mask_array(mask, a.shape)
     if full is None:
         full = full_scale(a)
+    r0 = 0
+    if rows is not None:
+        r0, r1 = _rows(rows, a.shape[0])
+        a = a[r0:r1]
+        m = None if m is None else m[r0:r1]
     d = _rspiv.detect_particles(a, int(block), float(k), float(rel), full, m)
+    if r0:
+        d["y"] += r0
     return Particles(
         x=d["x"], y=d["y"], height=d["height"], diameter_x=d["diameter_x"],
         diameter_y=d["diameter_y"], sigma_x=d["sigma_x"], sigma_y=d["sigma_y"],
         saturated=d["saturated"],
     )  # fmt: skip
+
+
+def _rows(rows: Any, height: int) -> tuple[int, int]:
+    """``rows`` as ``(first, stop)`` within a frame of ``height`` rows, at least 3 of them."""
+    try:
+        r0, r1 = (int(r) for r in rows)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"rows must be (first, stop), got {rows!r}") from None
+    if not (0 <= r0 and r1 <= height and r1 - r0 >= 3):
+        raise InvalidInputError(
+            f"rows ({r0}, {r1}): give first >= 0, stop <= the frame's {height} rows and at "
+            "least 3 rows"
+        )
+    return r0, r1
+
+
+def search_rows(
+    wall: Any, shape: tuple[int, int], band_px: float, margin_px: float,
+    context_px: float = 0.0, block: int = DETECT_BLOCK, to_frame: Callable | None = None,
+) -> tuple[int, int]:  # fmt: skip
+    """The rows a tracking at ``wall`` has to search, as ``rows`` of :func:`detect_particles`:
+    from ``margin_px`` beyond the wall to ``band_px + margin_px + context_px`` into the flow
+    (``wall.line(x)`` over the frame's width, ``flow_side`` as :func:`wall_sign`), widened to
+    whole blocks of the detection. ``margin_px`` must hold a particle image's partner (the
+    search radius and the largest displacement across the rows) and its neighbours; the
+    ``context_px`` beyond the band make the frame's statistics (the threshold's signal, the
+    shape test's diameters) those of the flow rather than of the wall's neighbourhood.
+    ``to_frame``: the wall given in another frame (Method II: the object frame), this maps
+    ``(n, 2)`` points of that frame to the frames' px (the mapping's ``forward``); the band's
+    edges are mapped at 65 places across the width. InvalidInputError when the band lies
+    outside the frame."""
+    s = wall_sign(wall)
+    h, w = int(shape[0]), int(shape[1])
+    x = np.linspace(0.0, w - 1.0, 65)
+    wy = np.asarray(wall.line(x), dtype=np.float64)
+    far = band_px + margin_px + context_px
+    lo = wy - far if s > 0 else wy - margin_px
+    hi = wy + margin_px if s > 0 else wy + far
+    if to_frame is not None:
+        ends = np.asarray(to_frame(np.column_stack([np.r_[x, x], np.r_[lo, hi]])), np.float64)
+        lo = hi = ends[:, 1]
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise InvalidInputError("the wall's line is not finite across the frame")
+    r0 = max(0, int(np.floor(lo.min())))
+    r1 = min(h, int(np.ceil(hi.max())) + 1)
+    r0 = (r0 // block) * block
+    r1 = min(h, -(-r1 // block) * block)
+    if r1 - r0 < 3:
+        raise InvalidInputError(
+            f"the wall's band (rows {lo.min():.0f} to {hi.max():.0f}) lies outside the frame's "
+            f"{h} rows"
+        )
+    return r0, r1
 
 
 def wall_sign(wall: Any) -> float:
@@ -377,6 +445,7 @@ def track_particles(
     mask: Any = None,
     full: float | None = None,
     max_diameter: float | None = MAX_DIAMETER,
+    rows: tuple[int, int] | None = None,
 ) -> Tracks:
     """Follow each particle image of frame A to frame B.
 
@@ -398,6 +467,10 @@ def track_particles(
         than this many times its frame's median diameter (:data:`MAX_DIAMETER`) and than the
         :data:`WIDEST_KEPT` percentile of its frame's widths; saturated images are kept and
         flagged. None keeps every pair.
+    rows : (int, int), optional
+        Search only these rows of the frames (:func:`detect_particles`; frames only): the
+        tracks, the counts and the stray estimate are then those of these rows (the frames'
+        statistics too: a stray's chance from B's particle images per px^2 of these rows).
 
     Returns
     -------
@@ -420,7 +493,12 @@ def track_particles(
         if sa != sb:
             raise InvalidInputError(f"frames of different shapes: A {sa}, B {sb}")
         shape = sa
-    pa, pb = (f if isinstance(f, Particles) else detect_particles(f, mask=mask, full=full)
+    if rows is not None:
+        if shape is None or len(shape) != 2:
+            raise InvalidInputError("rows apply to 2D frames, not to particle images found")
+        rows = _rows(rows, shape[0])
+    pa, pb = (f if isinstance(f, Particles)
+              else detect_particles(f, mask=mask, full=full, rows=rows)
               for f in (frame_a, frame_b))  # fmt: skip
     fn = predictor_of(predictor, wall)
     du, dv = _predict(fn, pa.x, pa.y)
@@ -434,7 +512,7 @@ def track_particles(
         ia, ib = ia[shaped], ib[shaped]
     u, v = pb.x[ib] - pa.x[ia], pb.y[ib] - pa.y[ia]
     if shape is not None:
-        area = float(shape[0] * shape[1])
+        area = float((shape[0] if rows is None else rows[1] - rows[0]) * shape[1])
     else:
         area = float((np.ptp(pb.x) + 1) * (np.ptp(pb.y) + 1)) if len(pb) > 1 else 1.0
     lam = len(pb) / area * np.pi * radius**2

@@ -25,6 +25,18 @@ Frames per run
     by ``F^-1`` (its displacement the difference, its position the midpoint): the tracks are
     corrected exactly, point by point.
 
+Rows searched
+    Only the tracks within ``band_px`` of the wall reach the profile, so only the rows that
+    can hold them and their partners are searched for particle images
+    (:func:`rspiv.ptv.search_rows`): from a margin beyond the wall (the radius, the field's
+    largest wall-normal displacement and 8 px) to the band, the margin and
+    :data:`CONTEXT_PX` more rows of flow, whose particle images make the detection's frame
+    statistics (the threshold's signal, the shape test's diameters) the flow's, as over the
+    whole frame, rather than those of the wall's neighbourhood (its reflections, its glare).
+    For Method II the band's edges are mapped to the raw frames. The tracks' counts and
+    warnings are then those of these rows. At 47 MP a few hundred of 5288 rows; the whole
+    frames with ``whole_frame=True`` (``rspiv ptv --whole-frame``).
+
 Outputs (atomic)
     ``OUT/ptv_<run>.csv``: per bin ``h_px`` (object px for the corrected runs), ``n``,
     ``pairs``, ``U``, ``V``, ``uu``, ``vv``, ``uv`` (px per pair; :mod:`rspiv.ptv_profile`'s
@@ -86,11 +98,19 @@ from rspiv.outputs import (
     write_profile_csv,
 )
 from rspiv.preprocess import condition_pair
-from rspiv.ptv import Tracks, predictor_of, track_particles
+from rspiv.ptv import (
+    Particles,
+    Tracks,
+    detect_particles,
+    predictor_of,
+    search_rows,
+    track_particles,
+)
 from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
+from rspiv.recording import full_scale
 from rspiv.reference import dns_profile_for_re_tau
 
-__all__ = ["CHECKPOINT_EVERY", "campaign_ptv", "merge_ptv", "report_section"]
+__all__ = ["CHECKPOINT_EVERY", "CONTEXT_PX", "campaign_ptv", "merge_ptv", "report_section"]
 
 #: The report section's opening paragraph.
 REPORT_TEXT = (
@@ -109,7 +129,11 @@ REPORT_TEXT = (
 CHECKPOINT_EVERY = 20
 
 #: The state file's format (a pass resumes only a state of its own format).
-_STATE_VERSION = 2  # 2: the two-track stresses' sums
+_STATE_VERSION = 3  # 2: the two-track stresses' sums; 3: the rows searched
+
+#: Rows of flow searched beyond the band (px of the run's frame; module docstring, "Rows
+#: searched").
+CONTEXT_PX = 256.0
 
 
 def _context(camp: Any) -> tuple[PairContext, dict[str, Any]]:
@@ -169,15 +193,31 @@ def _text(v: Any) -> str | None:
     return v.decode() if isinstance(v, bytes) else (None if v is None else str(v))
 
 
-def _frames(ctx: PairContext, frames: tuple[np.ndarray, np.ndarray]) -> tuple:
-    """The pair conditioned as the ensemble bands see it (module docstring)."""
-    pre = ctx.ensemble_preprocess()
-    if pre is None:
-        return ctx.condition(*frames)
-    return condition_pair(*frames, pre, ctx.backgrounds())
+def _frames(ctx: PairContext, frames: tuple[np.ndarray, np.ndarray], rows=None) -> tuple:
+    """The pair conditioned as the ensemble bands see it (module docstring); with ``rows``,
+    those rows of it. A conditioning of pixels and their neighbours only (hot pixels, the
+    background) runs on those rows and two more each side: the same values as the whole
+    frames' rows; one that looks further or over the frame (the cap, the min-max
+    normalisation) runs on the whole frames."""
+    pre = ctx.ensemble_preprocess() or ctx.preprocess
+    a, b = frames
+    if rows is None:
+        return (a, b) if not pre.enabled else condition_pair(a, b, pre, ctx.backgrounds())
+    r0, r1 = rows
+    if not pre.enabled:
+        return a[r0:r1], b[r0:r1]
+    bg = ctx.backgrounds()
+    if pre.cap or pre.min_max or pre.high_pass or pre.smooth:
+        ca, cb = condition_pair(a, b, pre, bg)
+        return ca[r0:r1], cb[r0:r1]
+    lo, hi = max(r0 - 2, 0), min(r1 + 2, a.shape[0])
+    ca, cb = condition_pair(
+        a[lo:hi], b[lo:hi], pre, None if bg is None else (bg[0][lo:hi], bg[1][lo:hi])
+    )
+    return ca[r0 - lo : r1 - lo], cb[r0 - lo : r1 - lo]
 
 
-def _method_two(ctx: PairContext, a, b, field, wall, radius: float, mask) -> Tracks:
+def _method_two(ctx: PairContext, pa, pb, field, wall, radius: float) -> Tracks:
     """Method II: tracks in the raw frames through the mapped predictor, their centres mapped
     to the object frame (module docstring)."""
     m = ctx.mapping
@@ -189,7 +229,13 @@ def _method_two(ctx: PairContext, a, b, field, wall, radius: float, mask) -> Tra
         d = m.forward(X + 0.5 * D) - m.forward(X - 0.5 * D)
         return d[:, 0], d[:, 1]
 
-    t = track_particles(a, b, raw, radius=radius, mask=mask)
+    # the wall in the raw frames (a cubic through it mapped), so that the stray estimate
+    # counts the particle images without a partner in the flow only, as for the other runs
+    xo = np.linspace(0.0, ctx.object_shape[1] - 1.0, 65)
+    wr = m.forward(np.column_stack([xo, wall.line(xo)]))
+    coef = np.polyfit(wr[:, 0], wr[:, 1], 3)
+    raw_wall = SimpleNamespace(line=lambda x: np.polyval(coef, x), flow_side=wall.flow_side)
+    t = track_particles(pa, pb, raw, radius=radius, wall=raw_wall)
     pa = np.column_stack([t.x - 0.5 * t.u, t.y - 0.5 * t.v])
     pb = np.column_stack([t.x + 0.5 * t.u, t.y + 0.5 * t.v])
     oa, ob = m.inverse(pa, on_fail="nan"), m.inverse(pb, on_fail="nan")
@@ -197,16 +243,50 @@ def _method_two(ctx: PairContext, a, b, field, wall, radius: float, mask) -> Tra
     return dataclasses.replace(t, x=mid[:, 0], y=mid[:, 1], u=d[:, 0], v=d[:, 1])
 
 
-def _track(ctx: PairContext, run: Any, frames, field, wall, radius: float) -> Tracks:
-    a, b = _frames(ctx, frames)
+def _rows(ctx: PairContext, run: Any, shape, field, wall, radius: float, band_px: float):
+    """The rows of the run's frames searched for particle images (module docstring, "Rows
+    searched"): :func:`rspiv.ptv.search_rows` with a margin of the radius, the field's largest
+    wall-normal displacement (a quarter more for Method II's raw frames) and 8 px."""
+    v = np.abs(np.asarray(field.v, dtype=np.float64))
+    vmax = float(np.max(v[np.isfinite(v)])) if np.isfinite(v).any() else 0.0
+    margin = radius + 1.25 * vmax + 8.0
+    to = ctx.mapping.forward if run.method == "II" else None
+    return search_rows(wall, shape, band_px, margin, CONTEXT_PX, to_frame=to)
+
+
+def _track(
+    ctx: PairContext, run: Any, frames, field, wall, radius: float, band_px: float | None
+) -> Tracks:
+    """One pair's tracks: the particle images of the rows searched (all with ``band_px``
+    None) in each frame, in the frame's px, tracked through the pair's field."""
     mask = ctx.mask()
-    if run.method == "II":
-        return _method_two(ctx, a, b, field, wall, radius, mask)
+    shape = tuple(ctx.object_shape) if run.method == "I" else tuple(frames[0].shape)
+    rows = (0, shape[0])
+    if band_px is not None:
+        rows = _rows(ctx, run, shape, field, wall, radius, band_px)
     if run.method == "I":
+        a, b = _frames(ctx, frames)
         a, b, mask = dewarp_pair(
             a, b, ctx.mapping, object_shape=ctx.object_shape, mask=mask, zero_fill="keep"
         )
-    return track_particles(a, b, field, radius=radius, wall=wall, mask=mask)
+        a, b = a[rows[0] : rows[1]], b[rows[0] : rows[1]]
+    else:
+        a, b = _frames(ctx, frames, rows)
+    m = None if mask is None else mask[rows[0] : rows[1]]
+    # the sensor's full scale from the whole raw frame (none for conditioned frames)
+    full = [full_scale(f) if a.dtype.kind == "u" else None for f in frames]
+    pa, pb = (
+        _shifted(detect_particles(f, mask=m, full=fs), rows[0])
+        for f, fs in zip((a, b), full, strict=True)
+    )
+    if run.method == "II":
+        return _method_two(ctx, pa, pb, field, wall, radius)
+    return track_particles(pa, pb, field, radius=radius, wall=wall)
+
+
+def _shifted(p: Particles, r0: int) -> Particles:
+    """Particle images found in rows from ``r0`` on, in the whole frame's px."""
+    return p if not r0 else dataclasses.replace(p, y=p.y + r0)
 
 
 def campaign_ptv(
@@ -219,6 +299,7 @@ def campaign_ptv(
     max_pairs: int = 0,
     resume: bool = True,
     shard: tuple[int, int] | None = None,
+    whole_frame: bool = False,
 ) -> dict[str, Any]:
     """Track the particle images of a processed campaign's pairs at the wall (module docstring).
 
@@ -239,6 +320,10 @@ def campaign_ptv(
         ``(i, n)``: track only the i-th of every n pairs (1-based) into the shard's own state
         ``OUT/ptv/<run>.shard-<i>-of-<n>.pkl``, writing no profile; :func:`merge_ptv` writes
         it once every shard is done (module docstring, "Shards").
+    whole_frame : bool
+        Search the whole frames for particle images, not only the rows of the band and its
+        margins (module docstring, "Rows searched"); the same profile, at 47 MP several times
+        slower.
 
     Returns
     -------
@@ -287,7 +372,9 @@ def campaign_ptv(
     shape = tuple(ctx.grid()[0].shape)
     fp = ctx.fields_fingerprint()
     window = tuple(int(c) for c in ctx.piv.passes[-1])
-    settings = {"radius": float(radius), "bin_px": float(bin_px), "band_px": float(band_px)}
+    settings = {"radius": float(radius), "bin_px": float(bin_px), "band_px": float(band_px),
+                "whole_frame": bool(whole_frame)}  # fmt: skip
+    search_band = None if whole_frame else float(band_px)
     prof = TrackProfile(wall, bin_px=bin_px, band_px=band_px)
     state_path = out / "ptv" / (
         f"{name}.pkl" if shard is None else f"{name}.shard-{shard[0]}-of-{shard[1]}.pkl"
@@ -329,7 +416,7 @@ def campaign_ptv(
         try:
             frames = read_checked_pair(pairs[pid], ctx.image_shape)
             field = _field(files[pid], pairs[pid], shape, name, fp, window)
-            tracks = _track(ctx, spec, frames, field, wall, radius)
+            tracks = _track(ctx, spec, frames, field, wall, radius, search_band)
         except (RspivError, ValueError, OSError) as exc:
             skipped[pid] = str(exc)
             camp.say(f"ptv {name}: pair {pid} skipped: {exc}")

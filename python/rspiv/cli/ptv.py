@@ -29,6 +29,7 @@ def _run(args) -> int:
         info = campaign_ptv(
             camp, args.run, radius=args.radius, bin_px=args.bin, band_px=args.band,
             max_pairs=args.max_pairs, resume=not args.afresh, shard=shard,
+            whole_frame=args.whole_frame,
         )  # fmt: skip
         if shard is not None:
             print(
@@ -100,6 +101,10 @@ def register(sub) -> None:
     p.add_argument("--band", type=float, default=32.0, help="band from the wall, px (default 32)")
     p.add_argument("--max-pairs", type=int, default=0, help="only the first N pairs (0: all)")
     p.add_argument("--afresh", action="store_true", help="ignore the pass's checkpoint")
+    p.add_argument(
+        "--whole-frame", action="store_true",
+        help="search the whole frames for particle images, not only the rows near the wall",
+    )  # fmt: skip
     p.add_argument(
         "--shard", default=None, metavar="I/N",
         help="track every N-th pair from the I-th into the shard's own state (for cluster jobs)",
