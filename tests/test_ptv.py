@@ -11,11 +11,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import pickle
+import re
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from campaign_cases import lean
+from campaign_cases import lean, switch
 from rspiv import _rspiv
 from rspiv.campaign import Campaign
 from rspiv.campaign.ptv import _context, campaign_ptv, merge_ptv, report_section
@@ -550,3 +551,57 @@ def test_the_rows_near_the_wall_give_the_whole_frames_profile(campaign):
         assert np.nanmax(np.abs(z)) < 0.5, k
     sb, sw = band["sublayer"], whole["sublayer"]
     assert abs(sb["u_tau"] - sw["u_tau"]) < 0.05 * sw["se_u_tau"]
+
+
+def test_the_campaign_file_asks_for_the_tracks(campaign, monkeypatch):
+    """``[ptv] enabled``: ``rspiv process`` tracks the first run after its analysis with the
+    section's settings and the report shows it; ``rspiv ptv`` takes its defaults from the same
+    section; refused without the field files or with bins as high as the band; a pass that
+    cannot track is said, and the campaign's outputs stand."""
+    from rspiv.campaign import ptv as ptv_mod
+    from rspiv.campaign_config import load_campaign_config
+
+    d, toml = campaign
+    text = toml.read_text()
+    out = d / "out"
+    try:
+        on, n = re.subn(r"\[ptv\]\nenabled = false\nradius = 2\.0\n",
+                        "[ptv]\nenabled = true\nradius = 1.8\n", switch(text, "report", True))
+        assert n == 1  # the campaign file the demo writes has the section, off
+        toml.write_text(on)
+        said: list[str] = []
+        camp = Campaign.load(toml, progress=False, log=said.append)
+        camp.run()  # every pair resumed: the analysis, then the tracks, then the report
+        info = json.loads((out / "ptv_method_II.json").read_text())
+        assert info["settings"]["radius"] == 1.8 and info["pairs"] == 4
+        assert any(m.startswith("ptv method_II: 4 pair(s)") for m in said)
+        report = (out / "report" / "report.md").read_text()
+        assert "Particle tracking at the wall" in report and "ptv_method_II.png" in report
+        # rspiv ptv's defaults are the section's: the same settings, so the pass resumes
+        assert cli_main(["ptv", str(toml), "-q"]) == 0
+        again = json.loads((out / "ptv_method_II.json").read_text())
+        assert again["settings"] == info["settings"] and again["seconds"] < 1.0
+        # a pass that cannot track: said, nothing raised
+        def refuse(*args, **kwargs):
+            raise InvalidInputError("run method_II: summary.json holds no wall")
+
+        monkeypatch.setattr(ptv_mod, "campaign_ptv", refuse)
+        said.clear()
+        assert ptv_mod.configured_ptv(camp) is None
+        assert said == ["warning: [ptv]: no tracks at the wall: run method_II: summary.json "
+                        "holds no wall"]  # fmt: skip
+    finally:
+        toml.write_text(text)
+    def parsed(fields: bool = True, **ptv):
+        cfg = Campaign.load(toml, progress=False).config
+        cfg.output.fields = fields
+        cfg.ptv = dataclasses.replace(cfg.ptv, **ptv)
+        return load_campaign_config(cfg.save(d / "c.toml"))
+
+    assert parsed(enabled=True).ptv.enabled
+    with pytest.raises(InvalidInputError, match=r"\[ptv\].enabled: needs each pair's fields"):
+        parsed(False, enabled=True)
+    with pytest.raises(InvalidInputError, match=r"\[ptv\].bin_px: must be under band_px"):
+        parsed(bin_px=4.0, band_px=4.0)
+    with pytest.raises(InvalidInputError, match=r"\[ptv\].radius"):
+        parsed(radius=-1.0)

@@ -170,6 +170,16 @@ A complete file (every key optional except where noted; defaults shown)::
     pixel_segment = 64           # px along the wall per summed segment (>= 8)
     pixel_lags = [8, 3]          # lag half-ranges [x, y] px around the pilot's profile
 
+    [ptv]                        # particle tracking at the wall after the analysis, over the
+                                 # campaign's first run (rspiv.campaign.ptv; needs [output]
+                                 # fields): OUT/ptv_<run>.csv/.json/.png and a report section;
+                                 # `rspiv ptv` takes its settings from here
+    enabled = false
+    radius = 2.0                 # search radius about each predicted position, px
+    bin_px = 0.5                 # bin height, px
+    band_px = 32.0               # band from the wall, px
+    whole_frame = false          # search the whole frames, not only the rows near the wall
+
     [output]
     dir = "rspiv-out"
     netcdf = true
@@ -189,7 +199,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
-import re
 from typing import Any
 
 try:  # Python >= 3.11
@@ -197,7 +206,7 @@ try:  # Python >= 3.11
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as _toml  # type: ignore[no-redef]
 
-from rspiv.campaign_schema import ALIASES, PARSERS, Ctx, parse_pairs
+from rspiv.campaign_schema import ALIASES, PARSERS, Ctx, locate_toml_error, parse_pairs
 from rspiv.errors import InvalidInputError
 from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
 from rspiv.outputs import atomic_write_text
@@ -473,6 +482,15 @@ class EnsembleConfig:
 
 
 @dataclasses.dataclass
+class PtvConfig:
+    enabled: bool = False
+    radius: float = 2.0
+    bin_px: float = 0.5
+    band_px: float = 32.0
+    whole_frame: bool = False
+
+
+@dataclasses.dataclass
 class OutputConfig:
     dir: pathlib.Path = dataclasses.field(default_factory=lambda: pathlib.Path("rspiv-out"))
     netcdf: bool = True
@@ -491,6 +509,7 @@ _SECTIONS: dict[str, type] = {
     "flow": FlowConfig,
     "statistics": StatisticsConfig,
     "ensemble": EnsembleConfig,
+    "ptv": PtvConfig,
     "output": OutputConfig,
 }
 
@@ -514,6 +533,7 @@ class CampaignConfig:
     flow: FlowConfig = dataclasses.field(default_factory=FlowConfig)
     statistics: StatisticsConfig = dataclasses.field(default_factory=StatisticsConfig)
     ensemble: EnsembleConfig = dataclasses.field(default_factory=EnsembleConfig)
+    ptv: PtvConfig = dataclasses.field(default_factory=PtvConfig)
     output: OutputConfig = dataclasses.field(default_factory=OutputConfig)
     source: pathlib.Path | None = None
 
@@ -575,7 +595,7 @@ class CampaignConfig:
         else:
             pv["roi"] = [int(v) for v in self.piv.roi]
         out["piv"] = pv
-        for name in ("preprocess", "wall", "flow", "statistics", "ensemble"):
+        for name in ("preprocess", "wall", "flow", "statistics", "ensemble", "ptv"):
             out[name] = dataclasses.asdict(getattr(self, name))
         out["ensemble"]["window"] = [int(v) for v in self.ensemble.window]
         out["ensemble"]["step"] = [float(v) for v in self.ensemble.step]
@@ -714,6 +734,13 @@ def parse_campaign_config(
             "needs the vorticity statistics ([statistics] vorticity = true): the threshold is "
             "a multiple of the swirling strength's rms",
         )
+    if cfg.ptv.enabled and not cfg.output.fields:
+        raise ctx.err(
+            "[ptv].enabled",
+            "needs each pair's fields ([output] fields = true): they predict the tracks",
+        )
+    if cfg.ptv.bin_px >= cfg.ptv.band_px:
+        raise ctx.err("[ptv].bin_px", f"must be under band_px ({cfg.ptv.band_px:g} px)")
     if cfg.ensemble.single_pixel and not cfg.ensemble.enabled:
         raise ctx.err(
             "[ensemble].single_pixel", "needs the ensemble band ([ensemble] enabled = true)"
@@ -721,35 +748,6 @@ def parse_campaign_config(
     if "dir" not in data.get("output", {}):
         cfg.output.dir = ctx.base / cfg.output.dir
     return cfg
-
-
-def _locate_toml_error(text: str, message: str) -> str:
-    """``"[section].key: "`` of the line a TOML syntax error points at, or ``""``."""
-    m = re.search(r"line (\d+)", message)
-    lines = text.splitlines()
-    if m:
-        lineno = min(int(m.group(1)), len(lines))
-    elif "end of document" in message:
-        lineno = len(lines)
-    else:
-        return ""
-    section, key = "", ""
-    for i, line in enumerate(lines[:lineno]):
-        s = line.strip()
-        hm = re.match(r"^\[\s*([^\[\]]+?)\s*\]", s)
-        if hm:
-            section, key = hm.group(1), ""
-            if i == lineno - 1:
-                key = ""
-            continue
-        km = re.match(r"^([A-Za-z0-9_\-\.\"']+)\s*=", s)
-        if km:
-            key = km.group(1).strip("\"'")
-    if not key and not section:
-        return ""
-    if not section:
-        return f"{key}: "
-    return f"[{section}].{key}: " if key else f"[{section}]: "
 
 
 def load_campaign_config(path: str | os.PathLike) -> CampaignConfig:
@@ -776,7 +774,7 @@ def load_campaign_config(path: str | os.PathLike) -> CampaignConfig:
     except UnicodeDecodeError as exc:
         raise InvalidInputError(f"{path.name}: not UTF-8 text ({exc.reason})") from exc
     except _toml.TOMLDecodeError as exc:
-        where = _locate_toml_error(raw.decode("utf-8", "replace"), str(exc))
+        where = locate_toml_error(raw.decode("utf-8", "replace"), str(exc))
         raise InvalidInputError(f"{path.name}: {where}malformed TOML: {exc}") from exc
     cfg = parse_campaign_config(data, fname=path.name, base=path.resolve().parent)
     cfg.source = path.resolve()
@@ -791,6 +789,7 @@ __all__ = [
     "ImagesConfig",
     "OutputConfig",
     "PIVConfig",
+    "PtvConfig",
     "StatisticsConfig",
     "WallConfig",
     "load_campaign_config",

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import re
 from typing import Any
 
 from rspiv.derivatives import SCHEMES
@@ -338,6 +339,13 @@ PARSERS: dict[str, dict[str, Any]] = {
         "pixel_segment": lambda c, w, v: _number(c, w, v, integer=True, minimum=8),
         "pixel_lags": lambda c, w, v: _pair(c, w, v, integer=True, minimum=1),
     },
+    "ptv": {
+        "enabled": _boolean,
+        "radius": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "bin_px": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "band_px": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
+        "whole_frame": _boolean,
+    },
     "output": {
         "dir": lambda c, w, v: c.path(w, v, allow_empty=False),
         "netcdf": _boolean,
@@ -363,3 +371,32 @@ def parse_pairs(ctx, where, v):
             )
         )
     return out
+
+
+def locate_toml_error(text: str, message: str) -> str:
+    """``"[section].key: "`` of the line a TOML syntax error points at, or ``""``."""
+    m = re.search(r"line (\d+)", message)
+    lines = text.splitlines()
+    if m:
+        lineno = min(int(m.group(1)), len(lines))
+    elif "end of document" in message:
+        lineno = len(lines)
+    else:
+        return ""
+    section, key = "", ""
+    for i, line in enumerate(lines[:lineno]):
+        s = line.strip()
+        hm = re.match(r"^\[\s*([^\[\]]+?)\s*\]", s)
+        if hm:
+            section, key = hm.group(1), ""
+            if i == lineno - 1:
+                key = ""
+            continue
+        km = re.match(r"^([A-Za-z0-9_\-\.\"']+)\s*=", s)
+        if km:
+            key = km.group(1).strip("\"'")
+    if not key and not section:
+        return ""
+    if not section:
+        return f"{key}: "
+    return f"[{section}].{key}: " if key else f"[{section}]: "

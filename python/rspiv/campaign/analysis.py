@@ -638,6 +638,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     res.files["summary"] = atomic_write_text(
         out / "summary.json", json.dumps(summary, indent=1, default=json_default)
     )
+    ptv_work.configured_ptv(camp)  # [ptv]: the tracks at the wall, once the walls are written
     if cfg.output.report:
         write_report(camp, res)
 

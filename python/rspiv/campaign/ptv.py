@@ -60,6 +60,15 @@ Shards
     :func:`merge_ptv` (``rspiv ptv campaign.toml --merge``) sums them (the profile's sums add
     up: the same profile as one pass, to rounding) and writes the outputs.
 
+From the campaign file
+    ``[ptv] enabled = true`` (with ``[output] fields = true``) runs the pass over the
+    campaign's first run at the end of ``rspiv process``, once the analysis has written
+    ``summary.json`` and before the report (:func:`configured_ptv`), with the section's
+    ``radius``, ``bin_px``, ``band_px`` and ``whole_frame``; ``rspiv ptv`` takes its defaults
+    from the same section. A campaign processed again resumes the pass (no pair tracked twice
+    while the fields stay the same). A sharded campaign's shards do not track; the merge's
+    analysis does, in one process (``rspiv ptv --shard`` spreads it instead).
+
 Report
     The campaign report (``OUT/report``, written by ``rspiv process``; a processed campaign's
     report is written again by ``rspiv process`` in seconds, no pair processed again) has a
@@ -81,15 +90,13 @@ import pathlib
 import pickle
 import re
 import time
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.fields import frame_name, read_pair
 from rspiv.campaign.pair import read_checked_pair
+from rspiv.campaign.ptv_pair import CONTEXT_PX, pair_field, pair_tracks
 from rspiv.campaign.spec import PairContext
-from rspiv.correction import dewarp_pair
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outputs import (
     atomic_write_bytes,
@@ -97,20 +104,17 @@ from rspiv.outputs import (
     read_profile_csv,
     write_profile_csv,
 )
-from rspiv.preprocess import condition_pair
-from rspiv.ptv import (
-    Particles,
-    Tracks,
-    detect_particles,
-    predictor_of,
-    search_rows,
-    track_particles,
-)
 from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
-from rspiv.recording import full_scale
 from rspiv.reference import dns_profile_for_re_tau
 
-__all__ = ["CHECKPOINT_EVERY", "CONTEXT_PX", "campaign_ptv", "merge_ptv", "report_section"]
+__all__ = [
+    "CHECKPOINT_EVERY",
+    "CONTEXT_PX",
+    "campaign_ptv",
+    "configured_ptv",
+    "merge_ptv",
+    "report_section",
+]
 
 #: The report section's opening paragraph.
 REPORT_TEXT = (
@@ -131,9 +135,7 @@ CHECKPOINT_EVERY = 20
 #: The state file's format (a pass resumes only a state of its own format).
 _STATE_VERSION = 3  # 2: the two-track stresses' sums; 3: the rows searched
 
-#: Rows of flow searched beyond the band (px of the run's frame; module docstring, "Rows
-#: searched").
-CONTEXT_PX = 256.0
+
 
 
 def _context(camp: Any) -> tuple[PairContext, dict[str, Any]]:
@@ -161,132 +163,6 @@ def _wall(summary: dict[str, Any], run: str) -> WallLine:
     if not w or not np.isfinite(w.get("intercept_px", np.nan)):
         raise InvalidInputError(f"run {run}: summary.json holds no wall: nothing to track against")
     return WallLine(float(w["intercept_px"]), float(w["slope"]), r.get("flow_side", "above"))
-
-
-def _field(
-    path: pathlib.Path, pair: Any, shape: tuple[int, int], run: str, fp: str,
-    window: tuple[int, int],
-) -> SimpleNamespace:  # fmt: skip
-    """A pair's field file as a predictor: its window centres, ``u``, ``v`` (replacements in),
-    the final ``window`` (w, h). InvalidInputError when the file was written for other frames
-    than ``pair``'s (the campaign's image list changed since)."""
-    import h5py  # deferred: only the pass reads the coordinates
-
-    u, v, _valid, _su, _sv = read_pair(path, shape, run, fp)
-    try:
-        with h5py.File(path, "r") as f:
-            x, y = np.asarray(f["x"], np.float64), np.asarray(f["y"], np.float64)
-            names = [_text(f.attrs.get(k)) for k in ("frame_a", "frame_b")]
-    except (OSError, KeyError) as exc:
-        raise InvalidInputError(f"{path}: no readable window centres ({exc})") from None
-    want = [frame_name(pair.a, pair.frame_a), frame_name(pair.b, pair.frame_b)]
-    if [pathlib.Path(n or "").name for n in names] != [pathlib.Path(n).name for n in want]:
-        raise InvalidInputError(
-            f"{path}: written for frames {names[0]}, {names[1]}, not the pair's {want[0]}, "
-            f"{want[1]} (the campaign's images changed since it was processed)"
-        )
-    X, Y = np.meshgrid(x, y)
-    return SimpleNamespace(x=X, y=Y, u=u, v=v, window=window)
-
-
-def _text(v: Any) -> str | None:
-    return v.decode() if isinstance(v, bytes) else (None if v is None else str(v))
-
-
-def _frames(ctx: PairContext, frames: tuple[np.ndarray, np.ndarray], rows=None) -> tuple:
-    """The pair conditioned as the ensemble bands see it (module docstring); with ``rows``,
-    those rows of it. A conditioning of pixels and their neighbours only (hot pixels, the
-    background) runs on those rows and two more each side: the same values as the whole
-    frames' rows; one that looks further or over the frame (the cap, the min-max
-    normalisation) runs on the whole frames."""
-    pre = ctx.ensemble_preprocess() or ctx.preprocess
-    a, b = frames
-    if rows is None:
-        return (a, b) if not pre.enabled else condition_pair(a, b, pre, ctx.backgrounds())
-    r0, r1 = rows
-    if not pre.enabled:
-        return a[r0:r1], b[r0:r1]
-    bg = ctx.backgrounds()
-    if pre.cap or pre.min_max or pre.high_pass or pre.smooth:
-        ca, cb = condition_pair(a, b, pre, bg)
-        return ca[r0:r1], cb[r0:r1]
-    lo, hi = max(r0 - 2, 0), min(r1 + 2, a.shape[0])
-    ca, cb = condition_pair(
-        a[lo:hi], b[lo:hi], pre, None if bg is None else (bg[0][lo:hi], bg[1][lo:hi])
-    )
-    return ca[r0 - lo : r1 - lo], cb[r0 - lo : r1 - lo]
-
-
-def _method_two(ctx: PairContext, pa, pb, field, wall, radius: float) -> Tracks:
-    """Method II: tracks in the raw frames through the mapped predictor, their centres mapped
-    to the object frame (module docstring)."""
-    m = ctx.mapping
-    obj = predictor_of(field, wall)
-
-    def raw(px: np.ndarray, py: np.ndarray):
-        X = m.inverse(np.column_stack([px, py]), on_fail="nan")
-        D = np.column_stack(obj(X[:, 0], X[:, 1]))
-        d = m.forward(X + 0.5 * D) - m.forward(X - 0.5 * D)
-        return d[:, 0], d[:, 1]
-
-    # the wall in the raw frames (a cubic through it mapped), so that the stray estimate
-    # counts the particle images without a partner in the flow only, as for the other runs
-    xo = np.linspace(0.0, ctx.object_shape[1] - 1.0, 65)
-    wr = m.forward(np.column_stack([xo, wall.line(xo)]))
-    coef = np.polyfit(wr[:, 0], wr[:, 1], 3)
-    raw_wall = SimpleNamespace(line=lambda x: np.polyval(coef, x), flow_side=wall.flow_side)
-    t = track_particles(pa, pb, raw, radius=radius, wall=raw_wall)
-    pa = np.column_stack([t.x - 0.5 * t.u, t.y - 0.5 * t.v])
-    pb = np.column_stack([t.x + 0.5 * t.u, t.y + 0.5 * t.v])
-    oa, ob = m.inverse(pa, on_fail="nan"), m.inverse(pb, on_fail="nan")
-    mid, d = 0.5 * (oa + ob), ob - oa
-    return dataclasses.replace(t, x=mid[:, 0], y=mid[:, 1], u=d[:, 0], v=d[:, 1])
-
-
-def _rows(ctx: PairContext, run: Any, shape, field, wall, radius: float, band_px: float):
-    """The rows of the run's frames searched for particle images (module docstring, "Rows
-    searched"): :func:`rspiv.ptv.search_rows` with a margin of the radius, the field's largest
-    wall-normal displacement (a quarter more for Method II's raw frames) and 8 px."""
-    v = np.abs(np.asarray(field.v, dtype=np.float64))
-    vmax = float(np.max(v[np.isfinite(v)])) if np.isfinite(v).any() else 0.0
-    margin = radius + 1.25 * vmax + 8.0
-    to = ctx.mapping.forward if run.method == "II" else None
-    return search_rows(wall, shape, band_px, margin, CONTEXT_PX, to_frame=to)
-
-
-def _track(
-    ctx: PairContext, run: Any, frames, field, wall, radius: float, band_px: float | None
-) -> Tracks:
-    """One pair's tracks: the particle images of the rows searched (all with ``band_px``
-    None) in each frame, in the frame's px, tracked through the pair's field."""
-    mask = ctx.mask()
-    shape = tuple(ctx.object_shape) if run.method == "I" else tuple(frames[0].shape)
-    rows = (0, shape[0])
-    if band_px is not None:
-        rows = _rows(ctx, run, shape, field, wall, radius, band_px)
-    if run.method == "I":
-        a, b = _frames(ctx, frames)
-        a, b, mask = dewarp_pair(
-            a, b, ctx.mapping, object_shape=ctx.object_shape, mask=mask, zero_fill="keep"
-        )
-        a, b = a[rows[0] : rows[1]], b[rows[0] : rows[1]]
-    else:
-        a, b = _frames(ctx, frames, rows)
-    m = None if mask is None else mask[rows[0] : rows[1]]
-    # the sensor's full scale from the whole raw frame (none for conditioned frames)
-    full = [full_scale(f) if a.dtype.kind == "u" else None for f in frames]
-    pa, pb = (
-        _shifted(detect_particles(f, mask=m, full=fs), rows[0])
-        for f, fs in zip((a, b), full, strict=True)
-    )
-    if run.method == "II":
-        return _method_two(ctx, pa, pb, field, wall, radius)
-    return track_particles(pa, pb, field, radius=radius, wall=wall)
-
-
-def _shifted(p: Particles, r0: int) -> Particles:
-    """Particle images found in rows from ``r0`` on, in the whole frame's px."""
-    return p if not r0 else dataclasses.replace(p, y=p.y + r0)
 
 
 def campaign_ptv(
@@ -415,8 +291,8 @@ def campaign_ptv(
     for k, pid in enumerate(todo):
         try:
             frames = read_checked_pair(pairs[pid], ctx.image_shape)
-            field = _field(files[pid], pairs[pid], shape, name, fp, window)
-            tracks = _track(ctx, spec, frames, field, wall, radius, search_band)
+            field = pair_field(files[pid], pairs[pid], shape, name, fp, window)
+            tracks = pair_tracks(ctx, spec, frames, field, wall, radius, search_band)
         except (RspivError, ValueError, OSError) as exc:
             skipped[pid] = str(exc)
             camp.say(f"ptv {name}: pair {pid} skipped: {exc}")
@@ -444,6 +320,39 @@ def campaign_ptv(
     warned = {first.get(w, w): n for w, n in said.most_common()}
     return _write(camp, summary, ctx, name, prof, settings, done, counts, warned, skipped,
                   time.perf_counter() - t0)  # fmt: skip
+
+
+def configured_ptv(camp: Any) -> dict[str, Any] | None:
+    """The pass a campaign file asks for (``[ptv] enabled``), over its first run with the
+    file's settings, run by the analysis once ``summary.json`` holds the walls (module
+    docstring, "From the campaign file"); None when not asked for or when it cannot track
+    (why is said in the log: the campaign's own outputs stand)."""
+    pc = getattr(camp.config, "ptv", None)
+    if pc is None or not pc.enabled:
+        return None
+    try:
+        info = campaign_ptv(
+            camp, radius=pc.radius, bin_px=pc.bin_px, band_px=pc.band_px,
+            whole_frame=pc.whole_frame,
+        )  # fmt: skip
+    except InvalidInputError as exc:
+        camp.say(f"warning: [ptv]: no tracks at the wall: {exc}")
+        return None
+    s = info["sublayer"]
+    fit = (
+        f"u_tau from the viscous sublayer {s['u_tau']:.4g} +- {s['se_u_tau']:.2g} m/s"
+        if "u_tau" in s
+        else f"no sublayer u_tau ({s.get('reason', 'no units')})"
+    )
+    camp.say(
+        f"ptv {info['run']}: {info['pairs']} pair(s), {info['counts'].get('tracks', 0)} tracks "
+        f"at the wall; {fit} -> {info['csv']}"
+    )
+    for w in ([info["profile_warning"]] if info.get("profile_warning") else []) + list(
+        info["warnings"]
+    ):
+        camp.say(f"warning: ptv {info['run']}: {w}")
+    return info
 
 
 def merge_ptv(camp: Any, run: str | None = None) -> dict[str, Any]:

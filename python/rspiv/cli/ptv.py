@@ -5,7 +5,9 @@ Tracks every pair's particle images with the pair's field as the predictor, bins
 distance from the run's wall and writes ``OUT/ptv_<run>.csv``, ``.json`` and ``.png``;
 prints the tracks' counts, what the pairs said and the wall shear from the viscous sublayer
 against the campaign's ``u_tau``. Exit status 0 when written, 2 for a campaign it cannot use
-(not processed, no field files, no wall).
+(not processed, no field files, no wall). The settings not given default to the campaign
+file's ``[ptv]`` section (the same names: ``radius``, ``bin_px``, ``band_px``,
+``whole_frame``).
 """
 
 from __future__ import annotations
@@ -26,10 +28,13 @@ def _run(args) -> int:
         info = merge_ptv(camp, args.run)
     else:
         shard = parse_shard(args.shard) if args.shard else None
+        pc = camp.config.ptv  # the campaign file's [ptv] settings, unless given here
         info = campaign_ptv(
-            camp, args.run, radius=args.radius, bin_px=args.bin, band_px=args.band,
+            camp, args.run, radius=pc.radius if args.radius is None else args.radius,
+            bin_px=pc.bin_px if args.bin is None else args.bin,
+            band_px=pc.band_px if args.band is None else args.band,
             max_pairs=args.max_pairs, resume=not args.afresh, shard=shard,
-            whole_frame=args.whole_frame,
+            whole_frame=args.whole_frame or pc.whole_frame,
         )  # fmt: skip
         if shard is not None:
             print(
@@ -94,11 +99,16 @@ def register(sub) -> None:
     p.add_argument("campaign", help="the campaign file (TOML)")
     p.add_argument("--run", default=None, help="the run (default the campaign's first)")
     p.add_argument(
-        "--radius", type=float, default=2.0,
-        help="search radius about each predicted position, px (default 2)",
+        "--radius", type=float, default=None,
+        help="search radius about each predicted position, px (default: [ptv] radius, 2)",
     )  # fmt: skip
-    p.add_argument("--bin", type=float, default=0.5, help="bin height, px (default 0.5)")
-    p.add_argument("--band", type=float, default=32.0, help="band from the wall, px (default 32)")
+    p.add_argument(
+        "--bin", type=float, default=None, help="bin height, px (default: [ptv] bin_px, 0.5)"
+    )
+    p.add_argument(
+        "--band", type=float, default=None,
+        help="band from the wall, px (default: [ptv] band_px, 32)",
+    )  # fmt: skip
     p.add_argument("--max-pairs", type=int, default=0, help="only the first N pairs (0: all)")
     p.add_argument("--afresh", action="store_true", help="ignore the pass's checkpoint")
     p.add_argument(
