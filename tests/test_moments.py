@@ -11,8 +11,7 @@ import pytest
 import rspiv
 import scipy.stats as ss
 from rspiv import _rspiv, moments
-from rspiv.campaign.analysis import scaled_accumulator
-from rspiv.profiles import profile_from_accumulator
+from rspiv.profiles import profile_from_accumulator, scaled_accumulator
 from rspiv.stats import FieldAccumulator
 from rspiv.synth import particle_pair
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
+import warnings
 
 import h5py
 import numpy as np
@@ -21,6 +22,7 @@ from rspiv.campaign import Campaign
 from rspiv.campaign import pair as pair_work
 from rspiv.demo import DEFAULT_SCENE, synth_campaign
 from rspiv.errors import InvalidInputError
+from rspiv.outputs import read_profile_csv
 
 SCENE = dataclasses.replace(DEFAULT_SCENE, scale=0.15, pairs=8, monte_carlo_samples=300)
 LEFT_OUT = 3
@@ -161,6 +163,12 @@ def test_pairs_left_out_are_re_reduced_from_the_fields_without_the_piv(runs):
         for name, val in vars(vo_ref).items():
             if isinstance(val, np.ndarray) and val.dtype.kind == "f":
                 _close(getattr(vo, name), val, f"{run} vorticity {name}")
+        # the profile rows' sums for their errors from pair to pair
+        ro, ro_ref = acc.rows, ref.rows
+        assert ro.pair_ids == ro_ref.pair_ids == kept
+        np.testing.assert_array_equal(ro.pairs_in, ro_ref.pairs_in)
+        for name in ("total", "outer"):
+            _close(getattr(ro, name), getattr(ro_ref, name), f"{run} rows {name}")
         # the ensemble band, correlated from the frames again: to the last bit
         assert acc.ensemble.pairs == ref.ensemble.pairs == len(kept)
         np.testing.assert_array_equal(acc.ensemble.acc, ref.ensemble.acc)
@@ -296,3 +304,32 @@ def test_rspiv_statistics_of_the_field_files_give_the_campaigns_statistics(runs)
         # the uncorrected run's wall bows through the demo's lens (2.7 px here): said
         bowed = [w for w in r.warnings if "bows" in w]
         assert bool(bowed) == (run == "uncorrected"), r.warnings
+
+
+def test_the_profiles_errors_from_pair_to_pair_are_the_field_files_scatter(runs):
+    """The profile's errors from the scatter between pairs (``eps_U_plus_pairs`` ...,
+    :class:`rspiv.row_errors.RowErrors`) against the same read off the field files: each
+    pair's row means' standard deviation over the square root of the pairs, relative to the
+    vectors' own spread averaged along the row (the profile's conservative ``eps_U_plus``)."""
+    d = runs[0]
+    cols, _ = read_profile_csv(d / "out_fresh" / "profile_method_II.csv")
+    assert np.nanmax(cols["pairs"]) == SCENE.pairs - 1  # pair 3 left out
+    ratio = cols["eps_U_plus"] / cols["eps_U_plus_pairs"]
+    stack = []
+    for path in sorted((d / "out_fresh" / "fields" / "method_II").glob("pair_*.nc")):
+        with h5py.File(path, "r") as f:
+            u = np.asarray(f["u"], dtype=np.float64)
+            stack.append(np.where(np.asarray(f["valid"]).astype(bool), u, np.nan))
+    s = np.array(stack)
+    with warnings.catch_warnings():  # rows without a valid vector
+        warnings.simplefilter("ignore", RuntimeWarning)
+        files = np.nanmean(np.nanstd(s, axis=0, ddof=1), axis=1) / np.nanstd(
+            np.nanmean(s, axis=2), axis=0, ddof=1
+        )
+    files = files[np.isfinite(files)]
+    # a wide frame: the pairs' scatter of a row mean is several times under the bound
+    assert np.median(ratio) > 2.0
+    assert np.median(ratio) == pytest.approx(np.median(files), rel=0.15)
+    for k in ("uu", "vv", "uv"):
+        assert np.nanmedian(cols[f"eps_{k}_plus"] / cols[f"eps_{k}_plus_pairs"]) > 1.5
+

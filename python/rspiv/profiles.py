@@ -7,14 +7,24 @@ Units are those of the statistics (px or SI); the profile runs along the remaini
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
 
 import numpy as np
 
 from rspiv import moments
 from rspiv.errors import InvalidInputError
+from rspiv.stats import FieldAccumulator
 
-__all__ = ["average_along_x", "profile_from_accumulator"]
+__all__ = [
+    "average_along_x",
+    "pair_error_columns",
+    "pair_error_summary",
+    "pair_errors",
+    "pair_errors_in_wall_units",
+    "profile_from_accumulator",
+    "scaled_accumulator",
+]
 
 
 def average_along_x(
@@ -133,4 +143,110 @@ def profile_from_accumulator(acc, *, min_count: int = 2, axis: int = -1) -> dict
             out[f"{key}_{comp}"] = sf[key]
         s_c, f_c = moments.noise_corrected(avg[0], avg[1], avg[2], out[f"noise_{comp * 2}"], s4)
         out[f"S_{comp}_c"], out[f"F_{comp}_c"] = s_c, f_c
+    return out
+
+
+def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
+    """The standard errors of the profile's rows from the scatter between pairs
+    (:class:`rspiv.row_errors.RowErrors` attached to ``acc`` as ``acc.rows``): ``U``, ``V``,
+    ``uu``, ``vv``, ``uv`` (each row's), in the units of ``acc`` times ``k`` (``k^2`` for the
+    stresses), and ``pairs``. Pairs that follow each other in time (a time-resolved recording)
+    are not independent: each variance is divided by the row's mean of ``n_eff / n`` of the
+    per-vector statistics (:meth:`rspiv.stats.FieldAccumulator.n_eff`; 1 for independent
+    pairs). None when ``acc`` carries no such sums, or sums of other pairs than its own (a
+    state resumed from before they existed).
+    """
+    rows = getattr(acc, "rows", None)
+    if rows is None or rows.pair_ids != acc.pair_ids or rows.n_fields != acc.n_fields:
+        return None
+    res = rows.result()
+    cnt = np.asarray(acc.count, dtype=np.float64)
+    csum = cnt.sum(axis=-1)
+    out: dict[str, np.ndarray] = {"pairs": res["pairs"]}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for key, q, power in (("U", "u", 1), ("V", "v", 1), ("uu", "uu", 2), ("vv", "vv", 2),
+                              ("uv", "uv", 2)):  # fmt: skip
+            serial = np.nansum(np.asarray(acc.n_eff(q), dtype=np.float64), axis=-1) / csum
+            serial = np.where(serial > 0, np.minimum(serial, 1.0), 1.0)
+            out[key] = res[f"se_{key}"] / np.sqrt(serial) * abs(k) ** power
+    return out
+
+
+#: The statistics whose pair-to-pair errors a profile carries in wall units
+#: (``eps_U_plus_pairs``, ``eps_uu_plus_pairs`` ...: :func:`pair_errors_in_wall_units`).
+PAIR_ERROR_KEYS = ("U", "uu", "vv", "uv")
+
+
+def pair_error_columns(pe: dict, ok: np.ndarray, noise=None) -> dict[str, np.ndarray]:
+    """:func:`pair_errors` at the profile's points ``ok`` as columns for
+    :func:`rspiv.boundary_layer.analyse_profile`'s ``extra`` (in the profile's units until
+    :func:`pair_errors_in_wall_units`), and ``pairs``. ``noise``: the ``noise`` given to
+    ``analyse_profile`` (the normal stresses noise-corrected): its standard errors of the mean
+    squared uncertainty are added in quadrature, as to the profile's own ``eps_uu``."""
+    out = {f"_pair_se_{k}": np.asarray(pe[k], dtype=np.float64)[ok] for k in PAIR_ERROR_KEYS}
+    if noise is not None:
+        out["_pair_se_uu"] = np.hypot(out["_pair_se_uu"], noise[2])
+        out["_pair_se_vv"] = np.hypot(out["_pair_se_vv"], noise[3])
+    out["pairs"] = np.asarray(pe["pairs"], dtype=np.float64)[ok]
+    return out
+
+
+def pair_errors_in_wall_units(extra: dict, u_tau: float) -> None:
+    """Turn :func:`pair_error_columns` in ``extra`` (a profile's, sorted with it) into wall
+    units of ``u_tau`` in place: ``eps_U_plus_pairs`` (``/ u_tau``), ``eps_uu_plus_pairs``,
+    ``eps_vv_plus_pairs``, ``eps_uv_plus_pairs`` (``/ u_tau^2``)."""
+    for key in PAIR_ERROR_KEYS:
+        a = extra.pop(f"_pair_se_{key}", None)
+        if a is not None:
+            extra[f"eps_{key}_plus_pairs"] = a / u_tau ** (1 if key == "U" else 2)
+
+
+def pair_error_summary(result) -> dict[str, float] | None:
+    """``summary.json``'s ``profile_errors`` of a run's
+    :class:`rspiv.boundary_layer.BoundaryLayerResult`: per statistic the median over the
+    profile's points of its conservative error (``eps_U_plus`` ...) over its error from pair
+    to pair (``eps_U_plus_pairs`` ...): how many times the profile's error bars overstate the
+    scatter of its rows; and the fewest pairs in a row. None without them."""
+    extra = result.extra
+    if "eps_U_plus_pairs" not in extra:
+        return None
+    out = {}
+    for key in PAIR_ERROR_KEYS:
+        conservative = np.asarray(getattr(result, f"eps_{key.lower()}_plus"), dtype=np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = conservative / extra[f"eps_{key}_plus_pairs"]
+        r = r[np.isfinite(r)]
+        out[f"overstated_{key}"] = float(np.median(r)) if r.size else float("nan")
+    pairs = np.asarray(extra["pairs"], dtype=np.float64)
+    out["pairs_min"] = float(np.nanmin(pairs)) if np.isfinite(pairs).any() else 0.0
+    return out
+
+
+def scaled_accumulator(
+    acc: FieldAccumulator, k: float, sign_u: float = 1.0, sign_v: float = 1.0
+) -> FieldAccumulator:
+    """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
+    and axis flips; every moment of the state transforms exactly)."""
+    # not the ensemble's sums
+    attached = (acc.ensemble, acc.pixel, acc.two_point, acc.vorticity)
+    out = copy.deepcopy(acc, memo={id(a): None for a in attached})
+    ku, kv = k * sign_u, k * sign_v
+    out.mean_u = acc.mean_u * ku
+    out.mean_v = acc.mean_v * kv
+    out.m2_uu = acc.m2_uu * ku * ku
+    out.m2_vv = acc.m2_vv * kv * kv
+    out.c_uv = acc.c_uv * ku * kv
+    for comp, kk in (("u", ku), ("v", kv)):
+        for part in ("a", "b"):
+            name = f"lag_mean_{part}_{comp}"
+            setattr(out, name, getattr(acc, name) * kk)
+        setattr(out, f"lag_c_{comp}", getattr(acc, f"lag_c_{comp}") * kk * kk)
+    # the noise sums: sigma^2 scales by k^2, sigma^4 by k^4 (the signs do not enter)
+    out.noise_s_uu = acc.noise_s_uu * k**2
+    out.noise_s_vv = acc.noise_s_vv * k**2
+    out.noise_s2_uu = acc.noise_s2_uu * k**4
+    out.noise_s2_vv = acc.noise_s2_vv * k**4
+    # the central sums of orders 3-8: M_p by k^p (with the sign)
+    out.hm_u = moments.scale(acc.hm_u, ku)
+    out.hm_v = moments.scale(acc.hm_v, kv)
     return out

@@ -66,6 +66,7 @@ from rspiv import moments
 from rspiv.errors import InvalidInputError
 from rspiv.outlier_screen import ScreenTally
 from rspiv.peak_locking import LockingHistogram
+from rspiv.row_errors import RowErrors
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vorticity import VorticityAccumulator
 
@@ -155,6 +156,8 @@ class FieldAccumulator:
         self.vorticity: Any = None
         #: optional :class:`rspiv.peak_locking.LockingHistogram` of the same fields, alike
         self.locking: Any = None
+        #: optional :class:`rspiv.row_errors.RowErrors` of the same fields, alike
+        self.rows: Any = None
         #: optional :class:`rspiv.outlier_screen.ScreenTally` of what a screen left out, alike
         self.screen: Any = None
 
@@ -354,7 +357,7 @@ class FieldAccumulator:
         self._has_last = np.zeros(self.shape, dtype=bool)
         for name in _NOISE:
             setattr(self, name, getattr(self, name) + getattr(other, name))
-        for name in ("ensemble", "pixel", "two_point", "vorticity", "locking", "screen"):
+        for name in ("ensemble", "pixel", "two_point", "vorticity", "locking", "screen", "rows"):
             theirs = getattr(other, name)
             if theirs is not None:
                 mine = getattr(self, name)
@@ -537,6 +540,7 @@ class FieldAccumulator:
         self.__dict__.setdefault("two_point", None)
         self.__dict__.setdefault("vorticity", None)
         self.__dict__.setdefault("locking", None)
+        self.__dict__.setdefault("rows", None)
         self.__dict__.setdefault("screen", None)
         # pickles from before the noise sums: no noise information
         for name in _NOISE:
@@ -626,7 +630,7 @@ class FieldAccumulator:
             for k, val in variables.items():
                 ds[k] = val
             ds.attrs.update(tp_attrs)
-        for extra in (self.vorticity, self.locking, self.screen):
+        for extra in (self.vorticity, self.locking, self.screen, self.rows):
             if extra is not None:
                 variables, v_attrs = extra.to_dataset_vars()
                 ds = ds.assign(variables)
@@ -692,6 +696,8 @@ class FieldAccumulator:
             acc.locking = LockingHistogram.from_dataset_vars(ds, acc.pair_ids)
         if "screened_count" in ds:
             acc.screen = ScreenTally.from_dataset_vars(ds, acc.pair_ids)
+        if "row_errors_total" in ds:
+            acc.rows = RowErrors.from_dataset_vars(ds, acc.pair_ids)
         return acc
 
     def __repr__(self) -> str:

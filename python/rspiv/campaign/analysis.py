@@ -17,14 +17,12 @@ refused pass never leaves an older result beside the new ones (:func:`remove_sta
 
 from __future__ import annotations
 
-import copy
 import json
 import pathlib
 from typing import Any
 
 import numpy as np
 
-from rspiv import moments
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile
 from rspiv.campaign import conditional as conditional_work
@@ -52,7 +50,14 @@ from rspiv.outputs import (
     write_netcdf,
     write_profile_csv,
 )
-from rspiv.profiles import profile_from_accumulator
+from rspiv.profiles import (
+    pair_error_columns,
+    pair_error_summary,
+    pair_errors,
+    pair_errors_in_wall_units,
+    profile_from_accumulator,
+    scaled_accumulator,
+)
 from rspiv.reference_comparison import viscous_window
 from rspiv.report import ReportSection, ReportTable, campaign_report
 from rspiv.stats import FieldAccumulator
@@ -66,42 +71,11 @@ __all__ = [
     "partial_correlation_note",
     "remove_stale",
     "run_statistics_dataset",
-    "scaled_accumulator",
     "wall_dict",
     "wall_figure",
     "write_report",
     "write_shard",
 ]
-
-
-def scaled_accumulator(
-    acc: FieldAccumulator, k: float, sign_u: float = 1.0, sign_v: float = 1.0
-) -> FieldAccumulator:
-    """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
-    and axis flips; every moment of the state transforms exactly)."""
-    # not the ensemble's sums
-    attached = (acc.ensemble, acc.pixel, acc.two_point, acc.vorticity)
-    out = copy.deepcopy(acc, memo={id(a): None for a in attached})
-    ku, kv = k * sign_u, k * sign_v
-    out.mean_u = acc.mean_u * ku
-    out.mean_v = acc.mean_v * kv
-    out.m2_uu = acc.m2_uu * ku * ku
-    out.m2_vv = acc.m2_vv * kv * kv
-    out.c_uv = acc.c_uv * ku * kv
-    for comp, kk in (("u", ku), ("v", kv)):
-        for part in ("a", "b"):
-            name = f"lag_mean_{part}_{comp}"
-            setattr(out, name, getattr(acc, name) * kk)
-        setattr(out, f"lag_c_{comp}", getattr(acc, f"lag_c_{comp}") * kk * kk)
-    # the noise sums: sigma^2 scales by k^2, sigma^4 by k^4 (the signs do not enter)
-    out.noise_s_uu = acc.noise_s_uu * k**2
-    out.noise_s_vv = acc.noise_s_vv * k**2
-    out.noise_s2_uu = acc.noise_s2_uu * k**4
-    out.noise_s2_vv = acc.noise_s2_vv * k**4
-    # the central sums of orders 3-8: M_p by k^p (with the sign)
-    out.hm_u = moments.scale(acc.hm_u, ku)
-    out.hm_v = moments.scale(acc.hm_v, kv)
-    return out
 
 
 def find_run_wall(acc: FieldAccumulator, gx, gy, stations: int, side: str, min_count: int):
@@ -202,6 +176,11 @@ def analyse_run(
     # the measurement noise's variance out of the normal stresses (rspiv.boundary_layer)
     keys = ("noise_uu", "noise_vv", "eps_noise_uu", "eps_noise_vv")
     noise = tuple(prof[k][ok] for k in keys) if st.noise_correction else None
+    extra = profile_extra(
+        prof, ok, st.noise_correction, dist_px[ok] < NEAR_WALL_HEIGHTS * window[1]
+    )
+    if (pe := pair_errors(acc, k)) is not None:  # the rows' errors from pair to pair
+        extra.update(pair_error_columns(pe, ok, noise))
     result = analyse_profile(
         y_m,
         prof["U"][ok],
@@ -214,10 +193,9 @@ def analyse_run(
         fit_offset=st.fit_offset,
         y_min_fit=y_min_fit,
         noise=noise,
-        extra=profile_extra(
-            prof, ok, st.noise_correction, dist_px[ok] < NEAR_WALL_HEIGHTS * window[1]
-        ),
+        extra=extra,
     )
+    pair_errors_in_wall_units(result.extra, result.u_tau)
     return RunAnalysis(run, wall, side, profile, result)
 
 
@@ -549,6 +527,8 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
             rs.update(an.result.summary())
             if (ref := reference_work.run_entry(camp, an, ctx.piv.final_window)) is not None:
                 rs["reference"] = ref
+            if (pe := pair_error_summary(an.result)) is not None:
+                rs["profile_errors"] = pe  # the conservative errors over the pairs' own
             if an.result.warning:
                 rs["profile_warning"] = an.result.warning
                 camp.say(f"warning: {run.label}: {an.result.warning}")
@@ -693,6 +673,9 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         if np.all(np.isfinite(share)):
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
+    if r0 is not None and r0.result is not None and (pe := pair_error_summary(r0.result)):
+        piv["error bars over the rows' scatter between pairs (U, uu)"] = (
+            pe["overstated_U"], pe["overstated_uu"])  # fmt: skip
     extra = list(extra_sections)
     for sec in (reference_work.report_section(camp), ptv_work.report_section(camp, ctx)):
         extra += [sec] if sec is not None else []

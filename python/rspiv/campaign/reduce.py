@@ -19,6 +19,7 @@ from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import PairContext, PairResult
 from rspiv.campaign.state import RunLog, RunState
 from rspiv.peak_locking import LockingHistogram
+from rspiv.row_errors import RowErrors
 from rspiv.stats import FieldAccumulator
 
 __all__ = ["RunReducer", "add_fields", "logged_warnings", "new_accumulators"]
@@ -36,6 +37,7 @@ def new_accumulators(ctx: PairContext) -> dict[str, FieldAccumulator]:
         accs = work.attach(ctx, accs)
     for acc in accs.values():  # the displacements' histogram (peak locking), for every run
         acc.locking = LockingHistogram()
+        acc.rows = RowErrors(gx.shape[0])  # the profile's errors from pair to pair
     return screen_work.attach(ctx, accs)
 
 
@@ -53,7 +55,8 @@ def add_fields(
             tally = getattr(accs[name], "screen", None)
             u, v, valid = screen_work.apply(screens[name], u, v, valid, tally, result.pair_id)
         accs[name].add(u, v, valid, pair_id=result.pair_id, sigma_u=su, sigma_v=sv)
-        for extra in (accs[name].two_point, accs[name].vorticity, accs[name].locking):
+        acc = accs[name]
+        for extra in (acc.two_point, acc.vorticity, acc.locking, acc.rows):
             if extra is not None:
                 extra.add(u, v, valid, pair_id=result.pair_id)
     return time.perf_counter() - t0

@@ -1,0 +1,78 @@
+"""How conservative are a campaign profile's standard errors? Measured from its field files.
+
+A campaign's profile averages each row of vectors along the wall over every pair, and its
+standard errors (``eps_U = sqrt(uu / n_eff)``, ``eps_uu = uu sqrt(2 / n_eff)``:
+:mod:`rspiv.boundary_layer`, :func:`rspiv.profiles.average_along_x`) take the vectors of one
+field as fully correlated: a conservative choice. The errors of the row means themselves are
+the scatter from pair to pair of each pair's own row mean (the vectors of a row decorrelate
+along the wall over a few boundary-layer structures, so a wide frame averages several
+independent ones). This script reads the field files of a processed campaign (``[output]
+fields = true``) and gives, row by row, both errors of the mean ``U`` and of ``uu`` from the same
+files:
+
+- per vector, as the campaign's profile takes them: the standard deviation over the pairs of
+  each vector, averaged along the row, over the square root of the pairs (``uu sqrt(2 / n)``
+  for ``uu``);
+- the pair-to-pair standard error of the row mean: the standard deviation over the pairs of
+  each pair's row mean of ``u`` (of ``(u - U_x)^2``, ``U_x`` the vector's mean over the pairs,
+  for ``uu``), over the square root of the pairs.
+
+Their ratio is how much larger the profile's errors are than they need be (pairs of a
+double-frame campaign are independent; for a time-resolved one both would need the same
+correction for serial correlation). With few pairs the pair-to-pair errors are themselves
+uncertain (about ``1 / sqrt(2 (n - 1))`` relative): the median over the rows tells.
+
+Run: ``python benches/profile_errors.py OUT [--run method_II]`` (``OUT`` a processed campaign's
+output folder with field files).
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import warnings
+
+import h5py
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=pathlib.Path, help="the campaign's output folder")
+    ap.add_argument("--run", default="method_II")
+    args = ap.parse_args()
+    files = sorted((args.out / "fields" / args.run).glob("pair_*.nc"))
+    if len(files) < 3:
+        raise SystemExit(f"{args.out}: {len(files)} field files of run {args.run}: 3 or more")
+    stack = []
+    for path in files:
+        with h5py.File(path, "r") as f:
+            u = np.asarray(f["u"], dtype=np.float64)
+            ok = np.asarray(f["valid"]).astype(bool) if "valid" in f else np.isfinite(u)
+        stack.append(np.where(ok & np.isfinite(u), u, np.nan))
+    s = np.array(stack)  # pairs, rows, columns
+    n = s.shape[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rows without valid vectors
+        ux = np.nanmean(s, axis=0)  # each vector's mean over the pairs
+        sd = np.nanstd(s, axis=0, ddof=1)
+        per_vector_u = np.nanmean(sd, axis=1) / np.sqrt(n)
+        uu_row = np.nanmean(sd**2, axis=1)
+        per_vector_uu = uu_row * np.sqrt(2.0 / n)
+        row_u = np.nanmean(s, axis=2)  # each pair's row mean
+        row_uu = np.nanmean((s - ux) ** 2, axis=2) * n / (n - 1)
+        pair_u = np.nanstd(row_u, axis=0, ddof=1) / np.sqrt(n)
+        pair_uu = np.nanstd(row_uu, axis=0, ddof=1) / np.sqrt(n)
+    print(f"{args.out} run {args.run}: {n} pairs, {s.shape[1]} rows of {s.shape[2]} vectors")
+    for name, a, b in (("U", per_vector_u, pair_u), ("uu", per_vector_uu, pair_uu)):
+        r = a / b
+        r = r[np.isfinite(r) & (b > 0)]
+        q = np.percentile(r, [10, 50, 90])
+        print(
+            f"  {name}: per-vector error / pair-to-pair error of the row mean over {r.size} "
+            f"rows: median {q[1]:.2f} (10-90 %: {q[0]:.2f}-{q[2]:.2f})"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,110 @@
+"""The standard errors of a profile's rows from the scatter between pairs (rspiv.row_errors,
+rspiv.profiles.pair_errors).
+
+Ground truth: fields drawn from known distributions, many rows at once: the errors are right
+when the rows' estimates scatter about the true values by them (z-scores of spread 1).
+"""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+from rspiv.errors import InvalidInputError
+from rspiv.profiles import pair_errors
+from rspiv.row_errors import RowErrors
+from rspiv.stats import FieldAccumulator
+
+ROWS, COLS = 300, 24
+
+
+def _fields(rng, pairs, along=0.0):
+    """``pairs`` fields of ROWS x COLS: u = 2 + row / 100 + a fluctuation of rms 1, v of rms
+    0.5 correlated with u at -0.5; ``along``: the share of u's variance that is one offset per
+    row and pair (fully correlated along the row)."""
+    for _ in range(pairs):
+        a = rng.normal(size=(ROWS, COLS))
+        if along:
+            a = np.sqrt(1 - along) * a + np.sqrt(along) * rng.normal(size=(ROWS, 1))
+        b = rng.normal(size=(ROWS, COLS))
+        u = 2.0 + np.arange(ROWS)[:, None] / 100 + a
+        v = 0.5 * (-0.5 * a + np.sqrt(0.75) * b)
+        yield u, v
+
+
+TRUE = {"uu": 1.0, "vv": 0.25, "uv": -0.25}
+
+
+@pytest.mark.parametrize("along", [0.0, 0.8])
+def test_the_errors_are_the_scatter_of_the_rows(along):
+    """Independent vectors (the error of a row's mean sqrt(COLS) times smaller than a
+    vector's) and vectors mostly correlated along the row: the z-scores of U, uu, vv, uv
+    against the truth spread by 1 over the rows."""
+    rng = np.random.default_rng(3)
+    rows = RowErrors(ROWS)
+    for k, (u, v) in enumerate(_fields(rng, 60, along)):
+        rows.add(u, v, pair_id=k)
+    r = rows.result()
+    assert (r["pairs"] == 60).all()
+    truth = {"U": 2.0 + np.arange(ROWS) / 100, "V": 0.0, **TRUE}
+    for key, want in truth.items():
+        # the rows' scatter about the truth against their typical error (not the mean of
+        # each row's ratio: a variance's error grows with its estimate, which skews that)
+        d, se = r[key] - want, np.median(r[f"se_{key}"])
+        assert abs(np.mean(d)) < 0.25 * se and 0.85 < np.std(d) / se < 1.15, (key, np.std(d) / se)
+    # the error of U: a vector's rms over sqrt(pairs x the independent vectors of a row)
+    independent = COLS if not along else 1 / (along + (1 - along) / COLS)
+    assert np.median(r["se_U"]) == pytest.approx(1 / np.sqrt(60 * independent), rel=0.1)
+
+
+def test_parts_merge_to_the_whole_and_round_trip():
+    rng = np.random.default_rng(5)
+    fields = list(_fields(rng, 12))
+    whole, a, b = RowErrors(ROWS), RowErrors(ROWS), RowErrors(ROWS)
+    for k, (u, v) in enumerate(fields):
+        whole.add(u, v, pair_id=k)
+        (a if k % 2 else b).add(u, v, pair_id=k)
+    merged = copy.deepcopy(a).merge(b)
+    for key, val in whole.result().items():
+        np.testing.assert_allclose(merged.result()[key], val, rtol=1e-10)
+    again = pickle.loads(pickle.dumps(whole))
+    np.testing.assert_array_equal(again.result()["se_uu"], whole.result()["se_uu"])
+    with pytest.raises(InvalidInputError, match="in both parts"):
+        a.merge(whole)
+    with pytest.raises(InvalidInputError, match="added before"):
+        a.add(*fields[1], pair_id=1)
+    with pytest.raises(InvalidInputError, match="rows"):
+        a.add(fields[0][0][:5], fields[0][1][:5], pair_id=99)
+    with pytest.raises(InvalidInputError, match="rows"):
+        a.merge(RowErrors(ROWS - 1))
+
+
+def test_a_field_accumulator_carries_them():
+    """Attached to a FieldAccumulator: merged with it, through its NetCDF state, masked
+    vectors left out; pair_errors scales them and gives none for sums of other pairs."""
+    rng = np.random.default_rng(8)
+    accs = [FieldAccumulator((ROWS, COLS)) for _ in range(2)]
+    for acc in accs:
+        acc.rows = RowErrors(ROWS)
+    for k, (u, v) in enumerate(_fields(rng, 10)):
+        valid = rng.uniform(size=u.shape) > 0.1
+        u = np.where(valid, u, 1e6)  # invalid vectors never count, whatever they hold
+        acc = accs[k % 2]
+        acc.add(u, v, valid, pair_id=k)
+        acc.rows.add(u, v, valid, pair_id=k)
+    whole = FieldAccumulator.merged(accs)
+    assert whole.rows.pair_ids == set(range(10)) and whole.rows.n_fields == 10
+    back = FieldAccumulator.from_xarray(whole.to_xarray())
+    np.testing.assert_array_equal(back.rows.outer, whole.rows.outer)
+    pe = pair_errors(back, k=2.0)
+    res = whole.rows.result()
+    assert np.all(res["U"] < 10)  # the 1e6 of the invalid vectors left out
+    # independent pairs (n_eff <= n): at least the clusters' errors, scaled by k and k^2
+    assert np.all(pe["U"] >= 2.0 * res["se_U"] * (1 - 1e-12))
+    assert np.all(pe["uu"] >= 4.0 * res["se_uu"] * (1 - 1e-12))
+    assert np.median(pe["U"] / (2.0 * res["se_U"])) < 1.3
+    # sums of other pairs than the statistics' (a state from before they existed): none
+    back.rows = RowErrors(ROWS)
+    assert pair_errors(back) is None
