@@ -55,6 +55,32 @@ def test_the_dns_against_itself():
     assert f"reach {100 * want:.0f} % of the reference's U+ or uu+" in verdict
 
 
+def test_the_rows_scatter_between_pairs_judges_where_enough_pairs_give_it():
+    """A profile carrying both errors: the bound (0.5) hides a planted difference of 0.5 in
+    the log layer's U+; its rows' scatter between pairs (0.05) shows it where a row has
+    VERDICT_PAIRS pairs, the bound judges rows of fewer."""
+    from rspiv.reference_comparison import VERDICT_PAIRS
+
+    cols = _columns(DNS, eps=0.5)
+    y = cols["y_plus"]
+    cols["U_plus"][(y >= 30) & (y < 0.15 * DNS.re_tau)] += 0.5
+    for q in ("U_plus", "uu_plus", "vv_plus", "uv_plus"):
+        cols[f"eps_{q}_pairs"] = np.full(y.size, 0.05)
+    cols["pairs"] = np.full(y.size, float(VERDICT_PAIRS))
+    cmp = compare_reference(cols, DNS)
+    b = _band(cmp, "log layer", "U_plus")
+    assert cmp.errors == "pairs" and not b["agrees"]
+    assert b["error"] == pytest.approx(0.05, rel=1e-12)
+    assert cmp.to_dict()["errors"] == "pairs"
+    cols["pairs"][:] = VERDICT_PAIRS - 1
+    cmp = compare_reference(cols, DNS)
+    b = _band(cmp, "log layer", "U_plus")
+    assert cmp.errors == "bound" and b["agrees"] and b["error"] == pytest.approx(0.5)
+    # a profile without them (another tool's, an older campaign's): the bound
+    plain = {k: v for k, v in cols.items() if "pairs" not in k}
+    assert compare_reference(plain, DNS).errors == "bound"
+
+
 def test_planted_differences_are_read_back():
     cols = _columns(DNS, eps=0.05)
     y = cols["y_plus"]
