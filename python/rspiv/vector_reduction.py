@@ -182,7 +182,7 @@ class SeriesReducer:
         if su is None or sv is None or not np.isfinite(su[ok]).any():
             su = sv = None
         acc.add(u, v, valid, pair_id=pair_id, sigma_u=su, sigma_v=sv)
-        for extra in (acc.locking, acc.vorticity, acc.two_point):  # not the levelling pilot's
+        for extra in (acc.locking, acc.vorticity, acc.two_point, acc.rows):  # not the pilot's
             if extra is not None:
                 extra.add(u, v, valid, pair_id=pair_id)
 

@@ -94,6 +94,7 @@ from rspiv.outputs import atomic_write_text, profile_dataset, write_netcdf, writ
 from rspiv.peak_locking import LockingHistogram
 from rspiv.reference import dns_profile_for_re_tau
 from rspiv.reference_comparison import ReferenceComparison, compare_reference, viscous_window
+from rspiv.row_errors import RowErrors
 from rspiv.stats import FieldAccumulator
 from rspiv.two_point import TwoPointAccumulator
 from rspiv.vector_levelling import field_transform, identity_mapping, levelling, wall_bow, wall_rise
@@ -619,6 +620,7 @@ def vector_statistics(
             state = {"done": 0, "acc": FieldAccumulator(first.u.shape), "skipped": skipped,
                      "rotation": rotation, "warnings": pilot_said, "bounds": None}  # fmt: skip
             state["acc"].locking = LockingHistogram()
+            state["acc"].rows = RowErrors(first.u.shape[0])  # the profile's errors by field
             if scheme is not None:
                 dx, dy = float(xs[1] - xs[0]), float(ys[1] - ys[0])
                 state["acc"].vorticity = VorticityAccumulator(first.u.shape, dx, dy, scheme)
