@@ -22,8 +22,13 @@ double-frame campaign are independent; for a time-resolved one both would need t
 correction for serial correlation). With few pairs the pair-to-pair errors are themselves
 uncertain (about ``1 / sqrt(2 (n - 1))`` relative): the median over the rows tells.
 
+With ``--openpiv``: OpenPIV's real ``test2`` instead (six pairs read from the ``openpiv``
+package's installation, not vendored, each through ``rspiv.piv`` 64 -> 32 px with symmetric
+deformation), the bound of the profile (``rspiv.profiles.profile_from_accumulator``) against
+:class:`rspiv.row_errors.RowErrors` of the same fields.
+
 Run: ``python benches/profile_errors.py OUT [--run method_II]`` (``OUT`` a processed campaign's
-output folder with field files).
+output folder with field files), or ``python benches/profile_errors.py --openpiv``.
 """
 
 from __future__ import annotations
@@ -38,9 +43,15 @@ import numpy as np
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("out", type=pathlib.Path, help="the campaign's output folder")
+    ap.add_argument("out", type=pathlib.Path, nargs="?", help="the campaign's output folder")
     ap.add_argument("--run", default="method_II")
+    ap.add_argument("--openpiv", action="store_true", help="OpenPIV's real test2 instead")
     args = ap.parse_args()
+    if args.openpiv:
+        openpiv_test2()
+        return
+    if args.out is None:
+        ap.error("give the campaign's output folder, or --openpiv")
     files = sorted((args.out / "fields" / args.run).glob("pair_*.nc"))
     if len(files) < 3:
         raise SystemExit(f"{args.out}: {len(files)} field files of run {args.run}: 3 or more")
@@ -71,6 +82,42 @@ def main() -> None:
         print(
             f"  {name}: per-vector error / pair-to-pair error of the row mean over {r.size} "
             f"rows: median {q[1]:.2f} (10-90 %: {q[0]:.2f}-{q[2]:.2f})"
+        )
+
+
+def openpiv_test2() -> None:
+    """The module docstring's ``--openpiv`` figures."""
+    import openpiv  # the bench extra
+    from rspiv.io import read_image
+    from rspiv.piv import piv
+    from rspiv.profiles import pair_errors, profile_from_accumulator
+    from rspiv.row_errors import RowErrors
+    from rspiv.stats import FieldAccumulator
+
+    data = pathlib.Path(openpiv.__file__).parent / "data" / "test2"
+    acc = None
+    for k in range(6):
+        a = read_image(data / f"2image_{k}0.tif").astype(np.float32)
+        b = read_image(data / f"2image_{k}1.tif").astype(np.float32)
+        f = piv(a, b, passes=[(64, 64), (32, 32)], overlap=0.5, deformation="symmetric")
+        u, v, ok = np.asarray(f.u), np.asarray(f.v), np.asarray(f.valid)
+        if acc is None:
+            acc = FieldAccumulator(u.shape)
+            acc.rows = RowErrors(u.shape[0])
+        acc.add(u, v, ok, pair_id=k)
+        acc.rows.add(u, v, ok, pair_id=k)
+    prof, pe = profile_from_accumulator(acc), pair_errors(acc)
+    bound = {
+        "U": np.sqrt(prof["uu"] / prof["n_eff"]["U"]),
+        "uu": prof["uu"] * np.sqrt(2 / prof["n_eff"]["uu"]),
+    }
+    print(f"OpenPIV test2: 6 pairs, {acc.shape[0]} rows of {acc.shape[1]} vectors")
+    for key, b in bound.items():
+        r = b / pe[key]
+        q = np.nanpercentile(r, [10, 50, 90])
+        print(
+            f"  {key}: the bound / the pairs' error: median {q[1]:.2f} (10-90 %: "
+            f"{q[0]:.2f}-{q[2]:.2f})"
         )
 
 
