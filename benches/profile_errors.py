@@ -27,8 +27,16 @@ package's installation, not vendored, each through ``rspiv.piv`` 64 -> 32 px wit
 deformation), the bound of the profile (``rspiv.profiles.profile_from_accumulator``) against
 :class:`rspiv.row_errors.RowErrors` of the same fields.
 
+With ``--campaigns N``: the ground truth of the errors themselves. N independent synthetic
+campaigns (the demo's scene at scale 0.25, 24 pairs each, seeds 100 apart so that no pair is
+shared, Method II) give N profiles of one flow; at 120 heights from y+ 30 to 0.9 of the
+shortest profile, the spread of the N campaigns' U and uu (each in m/s of its own u_tau, from
+its own wall) against their mean error from pair to pair (``eps_U_plus_pairs`` ...) and against
+the bound (``eps_U_plus`` ...): 1 where the errors are right.
+
 Run: ``python benches/profile_errors.py OUT [--run method_II]`` (``OUT`` a processed campaign's
-output folder with field files), or ``python benches/profile_errors.py --openpiv``.
+output folder with field files), ``python benches/profile_errors.py --openpiv`` or ``python
+benches/profile_errors.py --campaigns 12 [--dir DIR]``.
 """
 
 from __future__ import annotations
@@ -46,9 +54,14 @@ def main() -> None:
     ap.add_argument("out", type=pathlib.Path, nargs="?", help="the campaign's output folder")
     ap.add_argument("--run", default="method_II")
     ap.add_argument("--openpiv", action="store_true", help="OpenPIV's real test2 instead")
+    ap.add_argument("--campaigns", type=int, default=0, help="N independent campaigns instead")
+    ap.add_argument("--dir", type=pathlib.Path, default=None, help="where the campaigns go")
     args = ap.parse_args()
     if args.openpiv:
         openpiv_test2()
+        return
+    if args.campaigns:
+        campaigns(args.campaigns, args.dir)
         return
     if args.out is None:
         ap.error("give the campaign's output folder, or --openpiv")
@@ -82,6 +95,54 @@ def main() -> None:
         print(
             f"  {name}: per-vector error / pair-to-pair error of the row mean over {r.size} "
             f"rows: median {q[1]:.2f} (10-90 %: {q[0]:.2f}-{q[2]:.2f})"
+        )
+
+
+def campaigns(n: int, root: pathlib.Path | None) -> None:
+    """The module docstring's ``--campaigns`` figures."""
+    import dataclasses
+    import re
+    import tempfile
+
+    from rspiv.campaign import Campaign
+    from rspiv.demo import DEFAULT_SCENE, synth_campaign
+    from rspiv.outputs import read_profile_csv
+
+    root = root or pathlib.Path(tempfile.mkdtemp(prefix="rspiv_errors_"))
+    prof = []
+    for k in range(n):
+        d = root / f"seed_{100 * (k + 1)}"
+        if not (d / "out" / "profile_method_II.csv").is_file():
+            d.mkdir(parents=True, exist_ok=True)
+            scene = dataclasses.replace(
+                DEFAULT_SCENE, scale=0.25, pairs=24, seed=100 * (k + 1), monte_carlo_samples=200
+            )
+            toml = synth_campaign(d, scene=scene)
+            text = re.sub(r"(?m)^report = \w+", "report = false", toml.read_text())
+            text = re.sub(r"(?m)^compare_uncorrected = \w+", "compare_uncorrected = false", text)
+            toml.write_text(text)
+            Campaign.load(toml, progress=False).run()
+        c, meta = read_profile_csv(d / "out" / "profile_method_II.csv")
+        ut, y0 = float(meta["u_tau"]), float(meta["y0"])
+        prof.append({
+            "y": c["y_m"] + y0, "lv": float(meta["nu"]) / ut,
+            "U": c["U_plus"] * ut, "U_pairs": c["eps_U_plus_pairs"] * ut,
+            "U_bound": c["eps_U_plus"] * ut, "uu": c["uu_plus"] * ut**2,
+            "uu_pairs": c["eps_uu_plus_pairs"] * ut**2, "uu_bound": c["eps_uu_plus"] * ut**2,
+        })  # fmt: skip
+    lv = float(np.mean([p["lv"] for p in prof]))
+    yg = np.linspace(30 * lv, 0.9 * min(float(p["y"].max()) for p in prof), 120)
+    print(f"{n} campaigns of 24 pairs, 120 heights from y+ 30 ({root})")
+    for key in ("U", "uu"):
+        val, pairs, bound = (
+            np.array([np.interp(yg, p["y"], p[f"{key}{s}"]) for p in prof])
+            for s in ("", "_pairs", "_bound")
+        )
+        spread = val.std(axis=0, ddof=1)
+        print(
+            f"  {key}: the spread between the campaigns / their error from pair to pair: median "
+            f"{np.median(spread / pairs.mean(axis=0)):.2f}; / the bound: median "
+            f"{np.median(spread / bound.mean(axis=0)):.2f}"
         )
 
 
