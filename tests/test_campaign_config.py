@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 
 import pytest
@@ -385,3 +386,13 @@ def test_check_pairs_key(tmp_path):
         with pytest.raises(InvalidInputError, match=r"\[images\]\.check_pairs") as exc:
             load_campaign_config(_write(tmp_path, bad))
         assert "\n" not in str(exc.value)
+
+
+def test_to_dict_parses_back_to_the_same_campaign(tmp_path):
+    """``CampaignConfig.to_dict()`` is TOML's own data (lists, not tuples): parsed as it is,
+    without a TOML round trip, it gives the same campaign and the same dict."""
+    cfg = load_campaign_config(_write(tmp_path, FULL))
+    data = cfg.to_dict()
+    back = parse_campaign_config(data, base=tmp_path)
+    assert back.source is None  # not read from a file
+    assert dataclasses.replace(back, source=cfg.source) == cfg and back.to_dict() == data

@@ -255,3 +255,53 @@ def test_rows_the_wall_shapes_are_left_out_of_the_stress_and_moment_figures(
     assert drawn[0].size == yp.size
     for x in drawn[1:]:
         assert x.size == np.count_nonzero(yp >= 10) and x.min() >= 10
+
+
+def test_error_bars_and_uncertainties_take_the_rows_scatter_between_pairs(
+    tmp_path, monkeypatch, result
+):
+    """A run whose rows carry their scatter between pairs (``eps_U_plus_pairs`` ... and
+    ``pairs``): the figures' error bars and the report's uncertainties take it in the rows of
+    VERDICT_PAIRS pairs or more and the bound in the others, as the verdicts do."""
+    import dataclasses
+
+    from rspiv.plots import boundary_layer as bl
+    from rspiv.profiles import VERDICT_PAIRS, judged_errors
+
+    n = result.y_plus.size
+    pairs = np.where(np.arange(n) < n // 2, VERDICT_PAIRS, VERDICT_PAIRS - 1).astype(float)
+    own = {k: getattr(result, f"eps_{k.lower()}_plus") / 4 for k in ("U", "uu", "vv", "uv")}
+    own["uu"][0] = np.nan  # no scatter in that row: the bound
+    extra = {f"eps_{k}_plus_pairs": v for k, v in own.items()} | {"pairs": pairs}
+    run = dataclasses.replace(result, extra=extra)
+
+    eps, which = judged_errors(run)
+    assert which == "pairs" and judged_errors(result)[1] == "bound"
+    many = pairs >= VERDICT_PAIRS
+    for k in ("U", "uu", "vv", "uv"):
+        bound = getattr(result, f"eps_{k.lower()}_plus")
+        want = np.where(many & np.isfinite(own[k]), own[k], bound)
+        np.testing.assert_array_equal(eps[f"eps_{k.lower()}_plus"], want)
+    assert eps["eps_uu_plus"][0] == result.eps_uu_plus[0]
+
+    # the uncertainties: the judged errors' medians over 30 < y+ < Re_tau
+    m = (result.y_plus > 30) & (result.y_plus < result.re_tau)
+    unc = uncertainty_summary(run)
+    want = 100 * np.median(np.abs(eps["eps_u_plus"][m] / result.u_plus[m]))
+    assert unc["uncertainty of U (%)"] == pytest.approx(want, rel=1e-12)
+    assert unc["uncertainty of U (%)"] < uncertainty_summary(result)["uncertainty of U (%)"]
+
+    # the figures' error bars: the first run's judged errors at its drawn rows
+    drawn = []
+    draw = bl._draw
+
+    def spy(ax, i, name, x, y, err):
+        drawn.append((i, None if err is None else np.asarray(err)))
+        draw(ax, i, name, x, y, err)
+
+    monkeypatch.setattr(bl, "_draw", spy)
+    bl.plot_boundary_layer(tmp_path, {"run": run, "bound": result}, dns=False, moments=False)
+    first = [e for i, e in drawn if i == 0]
+    pos = result.y_plus > 0
+    for err, k in zip(first, ("u", "uu", "vv", "uv"), strict=True):
+        np.testing.assert_array_equal(err, eps[f"eps_{k}_plus"][pos])

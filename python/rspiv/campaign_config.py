@@ -206,7 +206,17 @@ try:  # Python >= 3.11
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as _toml  # type: ignore[no-redef]
 
-from rspiv.campaign_schema import ALIASES, PARSERS, Ctx, locate_toml_error, parse_pairs
+from rspiv.campaign_schema import (
+    ALIASES,
+    PARSERS,
+    Ctx,
+    locate_toml_error,
+    parse_pairs,
+    toml_plain,
+)
+from rspiv.campaign_schema import (
+    dump_toml as _dump_toml,
+)
 from rspiv.errors import InvalidInputError
 from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
 from rspiv.outputs import atomic_write_text
@@ -603,7 +613,7 @@ class CampaignConfig:
         o = dataclasses.asdict(self.output)
         o["dir"] = p(self.output.dir)
         out["output"] = o
-        return out
+        return toml_plain(out)
 
     def to_toml(self, relative_to: str | os.PathLike | None = None) -> str:
         """The campaign as TOML text (tomli_w when installed, else a small built-in writer)."""
@@ -619,34 +629,6 @@ class CampaignConfig:
         path = pathlib.Path(path)
         text = self.to_toml(relative_to=path.parent)
         return atomic_write_text(path, text)
-
-
-# ---------------------------------------------------------------------------- TOML writer
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        r = repr(v)
-        return r if any(ch in r for ch in ".en") else r + ".0"
-    if isinstance(v, str):
-        esc = v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
-        return f'"{esc}"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def _dump_toml(data: dict[str, dict[str, Any]]) -> str:
-    """Minimal TOML writer for the campaign's two-level dict of scalars and lists."""
-    lines: list[str] = []
-    for section, table in data.items():
-        lines.append(f"[{section}]")
-        for k, v in table.items():
-            lines.append(f"{k} = {_toml_value(v)}")
-        lines.append("")
-    return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------- loading

@@ -400,3 +400,40 @@ def locate_toml_error(text: str, message: str) -> str:
     if not section:
         return f"{key}: "
     return f"[{section}].{key}: " if key else f"[{section}]: "
+
+
+# ---------------------------------------------------------------------------- TOML writer
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        r = repr(v)
+        return r if any(ch in r for ch in ".en") else r + ".0"
+    if isinstance(v, str):
+        esc = v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n").replace("\t", "\\t")
+        return f'"{esc}"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def toml_plain(v):
+    """``v`` with every tuple a list, recursively (what TOML gives back for an array)."""
+    if isinstance(v, dict):
+        return {k: toml_plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [toml_plain(x) for x in v]
+    return v
+
+
+def dump_toml(data: dict[str, dict[str, Any]]) -> str:
+    """Minimal TOML writer for the campaign's two-level dict of scalars and lists."""
+    lines: list[str] = []
+    for section, table in data.items():
+        lines.append(f"[{section}]")
+        for k, v in table.items():
+            lines.append(f"{k} = {_toml_value(v)}")
+        lines.append("")
+    return "\n".join(lines)

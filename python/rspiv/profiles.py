@@ -172,6 +172,48 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
     return out
 
 
+#: The fewest pairs in a row for its scatter between pairs (``eps_U_plus_pairs`` ...) to give
+#: its error, in the verdicts against a reference (:mod:`rspiv.reference_comparison`), the
+#: profile figures' error bars and the report's uncertainties; with fewer the bound
+#: (``eps_U_plus`` ...) serves: the scatter of fewer pairs is uncertain by more than a sixth.
+VERDICT_PAIRS = 20
+
+
+def pair_rows(own, pairs) -> np.ndarray:
+    """The rows whose scatter between pairs ``own`` gives their error: those of
+    :data:`VERDICT_PAIRS` pairs or more where ``own`` is finite (all False without them)."""
+    if own is None or pairs is None:
+        return np.zeros(np.shape(own if pairs is None else pairs), dtype=bool)
+    own = np.asarray(own, dtype=np.float64)
+    return (np.asarray(pairs, dtype=np.float64) >= VERDICT_PAIRS) & np.isfinite(own)
+
+
+def judged_error(bound, own, pairs) -> np.ndarray:
+    """A profile's error per row: ``own`` (its scatter between pairs) in the rows of
+    :func:`pair_rows`, else ``bound`` (the vectors of a field taken as fully correlated along
+    the wall). Arrays of one length, any units."""
+    bound = np.asarray(bound, dtype=np.float64)
+    if own is None or pairs is None:
+        return bound
+    return np.where(pair_rows(own, pairs), np.asarray(own, dtype=np.float64), bound)
+
+
+def judged_errors(result) -> tuple[dict[str, np.ndarray], str]:
+    """The errors a :class:`rspiv.boundary_layer.BoundaryLayerResult` is judged and drawn by:
+    ``{"eps_u_plus", "eps_uu_plus", "eps_vv_plus", "eps_uv_plus"}`` (wall units) from
+    :func:`judged_error`, and ``"pairs"`` when any row took its scatter between pairs, else
+    ``"bound"``. A result without its rows' errors gives the bound."""
+    extra = getattr(result, "extra", None) or {}
+    pairs = extra.get("pairs")
+    out, used = {}, False
+    for key in PAIR_ERROR_KEYS:
+        bound = np.asarray(getattr(result, f"eps_{key.lower()}_plus"), dtype=np.float64)
+        own = extra.get(f"eps_{key}_plus_pairs")
+        out[f"eps_{key.lower()}_plus"] = judged_error(bound, own, pairs)
+        used |= bool(pair_rows(own, pairs).any())
+    return out, "pairs" if used else "bound"
+
+
 #: The statistics whose pair-to-pair errors a profile carries in wall units
 #: (``eps_U_plus_pairs``, ``eps_uu_plus_pairs`` ...: :func:`pair_errors_in_wall_units`).
 PAIR_ERROR_KEYS = ("U", "uu", "vv", "uv")
@@ -227,8 +269,9 @@ def scaled_accumulator(
 ) -> FieldAccumulator:
     """A copy of ``acc`` with u scaled by ``k * sign_u`` and v by ``k * sign_v`` (unit change
     and axis flips; every moment of the state transforms exactly)."""
-    # not the ensemble's sums
-    attached = (acc.ensemble, acc.pixel, acc.two_point, acc.vorticity)
+    # not the ensemble's sums, nor the rows' pair sums (their errors come from the unscaled
+    # accumulator: :func:`pair_errors`, scaled there)
+    attached = (acc.ensemble, acc.pixel, acc.two_point, acc.vorticity, getattr(acc, "rows", None))
     out = copy.deepcopy(acc, memo={id(a): None for a in attached})
     ku, kv = k * sign_u, k * sign_v
     out.mean_u = acc.mean_u * ku

@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
+from rspiv.profiles import VERDICT_PAIRS, judged_error, pair_rows
 from rspiv.reference import DNSProfile, dns_profile_for_re_tau
 
 __all__ = [
@@ -89,10 +90,6 @@ AGREE_SIGMAS = 3.0
 #: are near zero at the wall, where any error is a large share of them).
 HEADLINE = ("U_plus", "U_e+ - U+", "uu_plus")
 
-#: Pairs a profile's row needs for its errors from the scatter between pairs
-#: (``eps_U_plus_pairs`` ..., :mod:`rspiv.row_errors`) to judge it; with fewer the bound
-#: (``eps_U_plus`` ...) serves: the scatter of fewer pairs is uncertain by more than a sixth.
-VERDICT_PAIRS = 20
 #: The uu+ peak is looked for below this y+.
 PEAK_BELOW = 50.0
 _INNER = (("viscous sublayer", 0.0, 5.0), ("buffer layer", 5.0, 30.0))
@@ -372,16 +369,13 @@ def _judged_errors(cols: dict[str, Any]) -> tuple[dict[str, Any], str]:
     ``"pairs"`` when any was, else ``"bound"``."""
     if "pairs" not in cols:
         return cols, "bound"
-    many = np.asarray(cols["pairs"], dtype=np.float64) >= VERDICT_PAIRS
     out, used = dict(cols), False
     for q in QUANTITIES:
         own, bound = cols.get(f"eps_{q}_pairs"), cols.get(f"eps_{q}")
         if own is None or bound is None:
             continue
-        own = np.asarray(own, dtype=np.float64)
-        take = many & np.isfinite(own)
-        out[f"eps_{q}"] = np.where(take, own, np.asarray(bound, dtype=np.float64))
-        used |= bool(take.any())
+        out[f"eps_{q}"] = judged_error(bound, own, cols["pairs"])
+        used |= bool(pair_rows(own, cols["pairs"]).any())
     return out, "pairs" if used else "bound"
 
 

@@ -360,8 +360,12 @@ def write_report(
 
 def uncertainty_summary(result, y_plus_min: float = 30.0) -> dict[str, float]:
     """Relative standard uncertainties (%) of U, uu, vv, uv: medians over the points with
-    ``y_plus_min < y+ < Re_tau`` (one sigma, from n_eff; compare with the paper's Table 1)."""
+    ``y_plus_min < y+ < Re_tau`` (one sigma; compare with the paper's Table 1). Each point's
+    error is the one the run is judged by (:func:`rspiv.profiles.judged_errors`): its row's
+    scatter between pairs where the row has 20 pairs or more, else the bound from n_eff."""
     import numpy as np
+
+    from rspiv.profiles import judged_errors  # deferred: numpy-only helpers, loaded on use
 
     m = (result.y_plus > y_plus_min) & (result.y_plus < result.re_tau)
     if not np.any(m):
@@ -373,11 +377,12 @@ def uncertainty_summary(result, y_plus_min: float = 30.0) -> dict[str, float]:
         r = r[np.isfinite(r)]
         return float(100.0 * np.median(r)) if r.size else float("nan")
 
+    eps, _ = judged_errors(result)
     return {
-        "uncertainty of U (%)": rel(result.eps_u_plus, result.u_plus),
-        "uncertainty of uu (%)": rel(result.eps_uu_plus, result.uu_plus),
-        "uncertainty of vv (%)": rel(result.eps_vv_plus, result.vv_plus),
-        "uncertainty of uv (%)": rel(result.eps_uv_plus, result.uv_plus),
+        "uncertainty of U (%)": rel(eps["eps_u_plus"], result.u_plus),
+        "uncertainty of uu (%)": rel(eps["eps_uu_plus"], result.uu_plus),
+        "uncertainty of vv (%)": rel(eps["eps_vv_plus"], result.vv_plus),
+        "uncertainty of uv (%)": rel(eps["eps_uv_plus"], result.uv_plus),
     }
 
 
@@ -436,8 +441,9 @@ def campaign_report(
         f"{s['u_tau_clauser']:.4g} m/s), wall offset y0+ = {s['y0_plus']:.3g}, "
         f"delta_99 = {1e3 * s['delta99']:.4g} mm, Re_tau = {s['re_tau']:.4g}, "
         f"Re_theta = {s['re_theta']:.4g}, H = {s['H']:.4g}. Profiles in wall units of each "
-        "run's own u_tau; error bars are one standard uncertainty from the effective sample "
-        "count."
+        "run's own u_tau; error bars are one standard uncertainty: the scatter of each row "
+        "between the pairs where it has 20 pairs or more, else the bound from the effective "
+        "sample count (the vectors of a field taken as fully correlated along the wall)."
     )
     bl = ReportSection(
         "Boundary layer",
@@ -520,7 +526,7 @@ def campaign_report(
             "Acquisition and statistics",
             text=(
                 "Uncertainties: median over 30 < y+ < Re_tau of the one-sigma relative "
-                "uncertainty of the main run."
+                "uncertainty of the main run (as its error bars)."
             ),
             tables=[ReportTable("PIV parameters (as in the paper)", piv_parameters_table(piv))],
         )

@@ -674,7 +674,7 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
             piv["measurement noise in uu, vv (%)"] = (100 * share[0], 100 * share[1])
             piv["stresses noise-corrected"] = "yes" if pr.get("noise_corrected") else "no"
     if r0 is not None and r0.result is not None and (pe := pair_error_summary(r0.result)):
-        piv["error bars over the rows' scatter between pairs (U, uu)"] = (
+        piv["the bound over the rows' scatter between pairs (U, uu)"] = (
             pe["overstated_U"], pe["overstated_uu"])  # fmt: skip
     extra = list(extra_sections)
     for sec in (reference_work.report_section(camp), ptv_work.report_section(camp, ctx)):

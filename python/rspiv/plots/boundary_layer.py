@@ -17,6 +17,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 from rspiv.outputs import atomic_path
+from rspiv.profiles import PAIR_ERROR_KEYS, judged_error
 from rspiv.reference import DNSProfile, dns_profile_for_re_tau, load_dns
 
 _STYLES = ("o", "s", "^", "v", "D", "<", ">", "p")
@@ -31,7 +32,10 @@ def _extra(run: Any) -> Mapping[str, Any]:
 
 
 def _profile(name: str, run: Any) -> dict[str, np.ndarray]:
-    """Accept a BoundaryLayerResult or a mapping with the wall-unit columns."""
+    """Accept a BoundaryLayerResult or a mapping with the wall-unit columns. The errors are
+    those the run is judged by (:func:`rspiv.profiles.judged_error`): a row's scatter between
+    pairs (``extra``'s ``eps_U_plus_pairs`` ... and ``pairs``) where it has
+    :data:`~rspiv.profiles.VERDICT_PAIRS` pairs or more, else the bound ``eps_u_plus`` ..."""
     out = {}
     for k in _KEYS + ("eps_u_plus", "eps_uu_plus", "eps_vv_plus", "eps_uv_plus"):
         v = run.get(k) if isinstance(run, Mapping) else getattr(run, k, None)
@@ -39,6 +43,12 @@ def _profile(name: str, run: Any) -> dict[str, np.ndarray]:
             raise InvalidInputError(f"runs[{name!r}]: missing {k!r}")
         if v is not None:
             out[k] = np.asarray(v, dtype=np.float64)
+    ex = _extra(run)
+    for key in PAIR_ERROR_KEYS:
+        k = f"eps_{key.lower()}_plus"
+        if k in out and "pairs" in ex:
+            own = ex.get(f"eps_{key}_plus_pairs")
+            out[k] = judged_error(out[k], own, ex["pairs"]) if own is not None else out[k]
     if "near_wall" in _extra(run):  # rows the wall shapes (rspiv.campaign.analysis)
         out["near_wall"] = np.asarray(_extra(run)["near_wall"], dtype=np.float64)
     n = out["y_plus"].size
@@ -88,7 +98,8 @@ def plot_boundary_layer(
     runs : mapping
         Run name -> :class:`~rspiv.boundary_layer.BoundaryLayerResult` (or a mapping with
         ``y_plus, u_plus, uu_plus, vv_plus, uv_plus``, optional ``eps_*`` and ``extra``). The
-        first run is drawn with error bars where uncertainties are present; the others as
+        first run is drawn with error bars where uncertainties are present (a row's scatter
+        between pairs where it has 20 pairs or more, else the bound); the others as
         markers only. Rows flagged ``near_wall`` in ``extra`` (shaped by the wall, not the flow)
         are left out of the stress and moment figures.
     dns : DNSProfile, optional
