@@ -508,12 +508,21 @@ def test_a_pass_in_shards_merges_to_the_whole(campaign, capsys):
     assert part["pairs"] == 2 and part["shard"] == "2/2"
     st = pickle.loads((out / "ptv" / "method_II.shard-2-of-2.pkl").read_bytes())
     assert st["complete"] and st["done"] == [1, 3]
+    # the merge takes the shards' settings: one given to it is refused, not ignored
+    assert cli_main(["ptv", str(toml), "--merge", "--max-pairs", "2", "-q"]) == 2
+    assert "--max-pairs would not apply" in capsys.readouterr().err
     assert cli_main(["ptv", str(toml), "--merge", "-q"]) == 0
     merged = json.loads((out / "ptv_method_II.json").read_text())
     assert merged["pairs"] == whole["pairs"] == 4 and merged["counts"] == whole["counts"]
     for k in ("u_tau", "se_u_tau", "gradient", "wall_offset_px"):
         assert merged["sublayer"][k] == pytest.approx(whole["sublayer"][k], rel=1e-9, abs=1e-12)
-    # an unfinished shard, or shards of two counts
+    # shards whose pairs leave one out (shard 2 without pair 1), an unfinished shard, or
+    # shards of two counts
+    (out / "ptv" / "method_II.shard-2-of-2.pkl").write_bytes(
+        pickle.dumps({**st, "ids": [3], "done": [3]})
+    )
+    with pytest.raises(InvalidInputError, match="took pairs 0, 2, not 0, 3 .*--max-pairs"):
+        merge_ptv(Campaign.load(toml, progress=False))
     (out / "ptv" / "method_II.shard-2-of-2.pkl").write_bytes(
         pickle.dumps({**st, "complete": False, "done": [1]})
     )

@@ -371,7 +371,8 @@ def merge_ptv(camp: Any, run: str | None = None) -> dict[str, Any]:
     ------
     InvalidInputError
         No shard, shards of more than one count, a shard missing or not complete, shards of
-        other settings or of other fields than the campaign's, no pair tracked.
+        other settings, of other pairs (another ``max_pairs``) or of other fields than the
+        campaign's, no pair tracked.
     """
     ctx, summary = _context(camp)
     names = [r.name for r in ctx.runs]
@@ -420,6 +421,16 @@ def merge_ptv(camp: Any, run: str | None = None) -> dict[str, Any]:
                 f"{states[0]['settings']}"
             )
         states.append(st)
+    # every shard took every n-th of one list of pairs (shards of other --max-pairs do not)
+    union = sorted({pid for st in states for pid in st["ids"]})
+    for i, st in enumerate(states, 1):
+        if list(st["ids"]) != union[i - 1 :: n]:
+            took, want = list(st["ids"]), union[i - 1 :: n]
+            raise InvalidInputError(
+                f"{paths[i]}: shard {i} of {n} took pairs {_ids(took)}, not {_ids(want)} (every "
+                f"{n}-th of the shards' {len(union)} from the {i}-th): shards run with other "
+                "--max-pairs? run them again alike"
+            )
     prof = states[0]["profile"]
     counts: collections.Counter = collections.Counter()
     said: collections.Counter = collections.Counter()
@@ -443,6 +454,12 @@ def merge_ptv(camp: Any, run: str | None = None) -> dict[str, Any]:
     camp.say(f"ptv {name}: {n} shard(s) merged, {len(done)} pair(s)")
     return _write(camp, summary, ctx, name, prof, states[0]["settings"], sorted(done), counts,
                   warned, skipped, seconds)  # fmt: skip
+
+
+def _ids(ids: list) -> str:
+    """Pair ids for a message: all of a few, else the first five and how many."""
+    head = ", ".join(str(i) for i in ids[:5])
+    return head if len(ids) <= 5 else f"{head} ... ({len(ids)})"
 
 
 def _general(warning: str) -> str:

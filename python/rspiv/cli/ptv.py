@@ -25,6 +25,13 @@ def _run(args) -> int:
     if args.merge and args.shard:
         raise InvalidInputError("--merge and --shard: a shard tracks, the merge writes; one")
     if args.merge:
+        given = [f"--{k.replace('_', '-')}" for k in ("radius", "bin", "band", "max_pairs",
+                 "whole_frame", "afresh") if getattr(args, k) not in (None, 0, False)]  # fmt: skip
+        if given:
+            raise InvalidInputError(
+                f"--merge sums the shards as they were tracked: {', '.join(given)} would not "
+                "apply (give them to the shards)"
+            )
         info = merge_ptv(camp, args.run)
     else:
         shard = parse_shard(args.shard) if args.shard else None
