@@ -31,8 +31,9 @@ With ``--campaigns N``: the ground truth of the errors themselves. N independent
 campaigns (the demo's scene at scale 0.25, 24 pairs each, seeds 100 apart so that no pair is
 shared, Method II) give N profiles of one flow; at 120 heights from y+ 30 to 0.9 of the
 shortest profile, the spread of the N campaigns' U and uu (each in m/s of its own u_tau, from
-its own wall) against their mean error from pair to pair (``eps_U_plus_pairs`` ...) and against
-the bound (``eps_U_plus`` ...): 1 where the errors are right.
+its own wall), and of the skewness and flatness of u, against their mean error from pair to
+pair (``eps_U_plus_pairs`` ..., ``eps_S_u_pairs`` ...) and against the bound (``eps_U_plus``
+..., ``eps_S_u`` ...): 1 where the errors are right.
 
 Run: ``python benches/profile_errors.py OUT [--run method_II]`` (``OUT`` a processed campaign's
 output folder with field files), ``python benches/profile_errors.py --openpiv`` or ``python
@@ -129,11 +130,16 @@ def campaigns(n: int, root: pathlib.Path | None) -> None:
             "U": c["U_plus"] * ut, "U_pairs": c["eps_U_plus_pairs"] * ut,
             "U_bound": c["eps_U_plus"] * ut, "uu": c["uu_plus"] * ut**2,
             "uu_pairs": c["eps_uu_plus_pairs"] * ut**2, "uu_bound": c["eps_uu_plus"] * ut**2,
+            **{f"{m}{s}": c[f"{e}{m}{t}"] for m in ("S_u", "F_u")
+               for s, e, t in (("", "", ""), ("_pairs", "eps_", "_pairs"), ("_bound", "eps_", ""))
+               if f"eps_{m}_pairs" in c},
         })  # fmt: skip
     lv = float(np.mean([p["lv"] for p in prof]))
     yg = np.linspace(30 * lv, 0.9 * min(float(p["y"].max()) for p in prof), 120)
     print(f"{n} campaigns of 24 pairs, 120 heights from y+ 30 ({root})")
-    for key in ("U", "uu"):
+    for key in ("U", "uu", "S_u", "F_u"):
+        if f"{key}_pairs" not in prof[0]:
+            continue
         val, pairs, bound = (
             np.array([np.interp(yg, p["y"], p[f"{key}{s}"]) for p in prof])
             for s in ("", "_pairs", "_bound")

@@ -17,11 +17,17 @@ from rspiv.errors import InvalidInputError
 from rspiv.stats import FieldAccumulator
 
 __all__ = [
+    "MOMENT_KEYS",
+    "PAIR_ERROR_KEYS",
+    "VERDICT_PAIRS",
     "average_along_x",
+    "judged_error",
+    "judged_errors",
     "pair_error_columns",
     "pair_error_summary",
     "pair_errors",
     "pair_errors_in_wall_units",
+    "pair_rows",
     "profile_from_accumulator",
     "scaled_accumulator",
 ]
@@ -150,9 +156,10 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
     """The standard errors of the profile's rows from the scatter between pairs
     (:class:`rspiv.row_errors.RowErrors` attached to ``acc`` as ``acc.rows``): ``U``, ``V``,
     ``uu``, ``vv``, ``uv`` (each row's), in the units of ``acc`` times ``k`` (``k^2`` for the
-    stresses), and ``pairs``. Pairs that follow each other in time (a time-resolved recording)
-    are not independent: each variance is divided by the row's mean of ``n_eff / n`` of the
-    per-vector statistics (:meth:`rspiv.stats.FieldAccumulator.n_eff`; 1 for independent
+    stresses), the skewness and flatness's ``S_u``, ``F_u``, ``S_v``, ``F_v`` (none from sums
+    written before them), and ``pairs``. Pairs that follow each other in time (a time-resolved
+    recording) are not independent: each variance is divided by the row's mean of ``n_eff / n``
+    of the per-vector statistics (:meth:`rspiv.stats.FieldAccumulator.n_eff`; 1 for independent
     pairs). None when ``acc`` carries no such sums, or sums of other pairs than its own (a
     state resumed from before they existed).
     """
@@ -165,7 +172,10 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
     out: dict[str, np.ndarray] = {"pairs": res["pairs"]}
     with np.errstate(invalid="ignore", divide="ignore"):
         for key, q, power in (("U", "u", 1), ("V", "v", 1), ("uu", "uu", 2), ("vv", "vv", 2),
-                              ("uv", "uv", 2)):  # fmt: skip
+                              ("uv", "uv", 2), ("S_u", "u", 0), ("F_u", "u", 0),
+                              ("S_v", "v", 0), ("F_v", "v", 0)):  # fmt: skip
+            if f"se_{key}" not in res:
+                continue
             serial = np.nansum(np.asarray(acc.n_eff(q), dtype=np.float64), axis=-1) / csum
             serial = np.where(serial > 0, np.minimum(serial, 1.0), 1.0)
             out[key] = res[f"se_{key}"] / np.sqrt(serial) * abs(k) ** power
@@ -217,19 +227,26 @@ def judged_errors(result) -> tuple[dict[str, np.ndarray], str]:
 #: The statistics whose pair-to-pair errors a profile carries in wall units
 #: (``eps_U_plus_pairs``, ``eps_uu_plus_pairs`` ...: :func:`pair_errors_in_wall_units`).
 PAIR_ERROR_KEYS = ("U", "uu", "vv", "uv")
+#: The skewness and flatness whose pair-to-pair errors a profile carries (``eps_S_u_pairs``
+#: ..., beside the bound ``eps_S_u`` ... of :func:`profile_from_accumulator`).
+MOMENT_KEYS = ("S_u", "F_u", "S_v", "F_v")
 
 
 def pair_error_columns(pe: dict, ok: np.ndarray, noise=None) -> dict[str, np.ndarray]:
     """:func:`pair_errors` at the profile's points ``ok`` as columns for
     :func:`rspiv.boundary_layer.analyse_profile`'s ``extra`` (in the profile's units until
-    :func:`pair_errors_in_wall_units`), and ``pairs``. ``noise``: the ``noise`` given to
-    ``analyse_profile`` (the normal stresses noise-corrected): its standard errors of the mean
-    squared uncertainty are added in quadrature, as to the profile's own ``eps_uu``."""
+    :func:`pair_errors_in_wall_units`), ``pairs``, and ``eps_S_u_pairs`` ... (no units).
+    ``noise``: the ``noise`` given to ``analyse_profile`` (the normal stresses noise-corrected):
+    its standard errors of the mean squared uncertainty are added in quadrature, as to the
+    profile's own ``eps_uu``."""
     out = {f"_pair_se_{k}": np.asarray(pe[k], dtype=np.float64)[ok] for k in PAIR_ERROR_KEYS}
     if noise is not None:
         out["_pair_se_uu"] = np.hypot(out["_pair_se_uu"], noise[2])
         out["_pair_se_vv"] = np.hypot(out["_pair_se_vv"], noise[3])
     out["pairs"] = np.asarray(pe["pairs"], dtype=np.float64)[ok]
+    for key in MOMENT_KEYS:  # no units: the columns as they stay
+        if key in pe:
+            out[f"eps_{key}_pairs"] = np.asarray(pe[key], dtype=np.float64)[ok]
     return out
 
 
@@ -248,7 +265,8 @@ def pair_error_summary(result) -> dict[str, float] | None:
     :class:`rspiv.boundary_layer.BoundaryLayerResult`: per statistic the median over the
     profile's points of its conservative error (``eps_U_plus`` ...) over its error from pair
     to pair (``eps_U_plus_pairs`` ...): how many times the profile's error bars overstate the
-    scatter of its rows; and the fewest pairs in a row. None without them."""
+    scatter of its rows (``overstated_U`` ..., and ``overstated_S_u`` ... of the skewness and
+    flatness where their sums were kept); and the fewest pairs in a row. None without them."""
     extra = result.extra
     if "eps_U_plus_pairs" not in extra:
         return None
@@ -259,6 +277,12 @@ def pair_error_summary(result) -> dict[str, float] | None:
             r = conservative / extra[f"eps_{key}_plus_pairs"]
         r = r[np.isfinite(r)]
         out[f"overstated_{key}"] = float(np.median(r)) if r.size else float("nan")
+    for key in MOMENT_KEYS:  # the skewness and flatness, where the sums had their powers
+        if f"eps_{key}_pairs" in extra and f"eps_{key}" in extra:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = np.asarray(extra[f"eps_{key}"]) / np.asarray(extra[f"eps_{key}_pairs"])
+            r = r[np.isfinite(r)]
+            out[f"overstated_{key}"] = float(np.median(r)) if r.size else float("nan")
     pairs = np.asarray(extra["pairs"], dtype=np.float64)
     out["pairs_min"] = float(np.nanmin(pairs)) if np.isfinite(pairs).any() else 0.0
     return out

@@ -388,8 +388,9 @@ def uncertainty_summary(result, y_plus_min: float = 30.0) -> dict[str, float]:
 
 #: The caption of the skewness and flatness figure: what moves them besides the flow.
 MOMENTS_CAPTION = (
-    "Skewness S and flatness F of u and v (error bars: one standard error from the moments up "
-    "to order 8, any distribution). Rows within 2.5 window heights of the wall are left out "
+    "Skewness S and flatness F of u and v (error bars: one standard error, the scatter of each "
+    "row between the pairs where it has 20 pairs or more, else from the moments up to order 8, "
+    "any distribution). Rows within 2.5 window heights of the wall are left out "
     "(flagged near_wall in the profile files): there the wall, its reflection and the gradient "
     "across the window skew the measured distribution, much as the DNS's S(u) at the wall. "
     "The measurement noise draws S towards 0 and F towards 3 (removed with [statistics] "

@@ -9,14 +9,17 @@ bound was a median 7.6 times the actual error of a row's mean (``python
 benches/profile_errors.py``).
 
 :class:`RowErrors` sums, per pair and row, the valid vectors' count and their sums of ``u``,
-``v``, ``u^2``, ``v^2`` and ``u v``, and over the pairs those six sums and their products (a
-6 x 6 matrix per row). Each pair is one cluster: the standard errors of the row's pooled mean
-``U = sum u / n``, of its variance about that mean ``uu = sum u^2 / n - U^2`` (``vv``, ``uv``
+``v``, ``u^2``, ``v^2``, ``u v``, ``u^3``, ``v^3``, ``u^4`` and ``v^4``, and over the pairs
+those ten sums and their products (a 10 x 10 matrix per row). Each pair is one cluster: the
+standard errors of the row's pooled mean ``U = sum u / n``, of its variance about that mean
+``uu = sum u^2 / n - U^2`` (``vv``, ``uv`` alike) and of its skewness and flatness
+(``S_u = m3 / m2^1.5``, ``F_u = m4 / m2^2`` of the central moments about the pooled mean; ``v``
 alike) follow from the clusters' scatter by the delta method (the cluster-robust variance of a
 ratio estimator, ``P / (P - 1)`` for ``P`` clusters), exactly as
 :class:`rspiv.ptv_profile.TrackProfile` does for the tracks' bins. The campaign's ``uu`` is the
-mean along the row of each vector's own variance over the pairs; where the mean changes little
-along the row the two variances and their errors agree to first order.
+mean along the row of each vector's own variance over the pairs (its S and F alike); where the
+mean changes little along the row the two and their errors agree to first order. Sums written
+before the third and fourth powers were (six per pair and row) give no S or F.
 
 Assumptions: the pairs are independent (a double-frame campaign). For a time-resolved
 recording the caller scales the variances by the serial correlation (``n / n_eff`` of the
@@ -39,8 +42,10 @@ __all__ = ["MIN_PAIRS", "RowErrors"]
 #: Fewer pairs in a row than this: no error (a scatter of fewer pairs says little).
 MIN_PAIRS = 3
 
-# the six per-pair row sums: count, u, v, uu, vv, uv
-_N, _U, _V, _UU, _VV, _UV = range(6)
+# the ten per-pair row sums: count, u, v, uu, vv, uv, u^3, v^3, u^4, v^4 (the first six: the
+# sums of states written before the higher powers were)
+_N, _U, _V, _UU, _VV, _UV, _U3, _V3, _U4, _V4 = range(10)
+_SUMS = 10
 
 
 class RowErrors:
@@ -53,10 +58,10 @@ class RowErrors:
 
     Attributes
     ----------
-    total : ndarray, shape (rows, 6)
-        The six sums over every pair.
-    outer : ndarray, shape (rows, 6, 6)
-        The sums over the pairs of each pair's products of its six sums.
+    total : ndarray, shape (rows, 10)
+        The ten sums over every pair (6 in a state written before the higher powers).
+    outer : ndarray, shape (rows, 10, 10)
+        The sums over the pairs of each pair's products of its sums.
     pairs_in : ndarray of int64, shape (rows,)
         Pairs with a valid vector in the row.
     pair_ids : set of int
@@ -67,11 +72,18 @@ class RowErrors:
         if int(rows) < 1:
             raise InvalidInputError(f"rows must be >= 1, got {rows}")
         self.rows = int(rows)
-        self.total = np.zeros((self.rows, 6))
-        self.outer = np.zeros((self.rows, 6, 6))
+        self.total = np.zeros((self.rows, _SUMS))
+        self.outer = np.zeros((self.rows, _SUMS, _SUMS))
         self.pairs_in = np.zeros(self.rows, np.int64)
         self.pair_ids: set[int] = set()
         self.n_fields = 0
+        #: the (u, v) each row's sums are taken about (its first pair's row mean): powers of
+        #: small numbers, so that the central moments and their errors keep their digits
+        self.shift = np.zeros((self.rows, 2))
+
+    def __setstate__(self, state: dict) -> None:
+        state.setdefault("shift", np.zeros((int(state["rows"]), 2)))  # pickled before shifts
+        self.__dict__.update(state)
 
     def add(self, u: Any, v: Any, valid: Any = None, pair_id: int | None = None) -> None:
         """Add one pair's field (``u``, ``v`` of shape (rows, columns); ``valid`` the vectors
@@ -92,11 +104,19 @@ class RowErrors:
         ok = np.isfinite(u) & np.isfinite(v)
         if valid is not None:
             ok &= np.asarray(valid, dtype=bool)
-        uz, vz = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
+        cnt = ok.sum(axis=1)
+        fresh = (self.total[:, _N] == 0) & (cnt > 0)  # a row's first vectors: its shift
+        if fresh.any():
+            with np.errstate(invalid="ignore", divide="ignore"):
+                first = np.stack([np.where(ok, u, 0.0).sum(1), np.where(ok, v, 0.0).sum(1)], -1)
+            self.shift[fresh] = first[fresh] / cnt[fresh, None]
+        uz = np.where(ok, u - self.shift[:, :1], 0.0)
+        vz = np.where(ok, v - self.shift[:, 1:], 0.0)
+        u2, v2 = uz * uz, vz * vz
         m = np.stack(
-            [ok.sum(axis=1), uz.sum(1), vz.sum(1), (uz * uz).sum(1), (vz * vz).sum(1),
-             (uz * vz).sum(1)], axis=-1,
-        ).astype(np.float64)  # fmt: skip
+            [cnt, uz.sum(1), vz.sum(1), u2.sum(1), v2.sum(1), (uz * vz).sum(1),
+             (u2 * uz).sum(1), (v2 * vz).sum(1), (u2 * u2).sum(1), (v2 * v2).sum(1)], axis=-1,
+        ).astype(np.float64)[:, : self.total.shape[1]]  # fmt: skip
         self.total += m
         self.outer += m[:, :, None] * m[:, None, :]
         self.pairs_in += m[:, _N] > 0
@@ -111,31 +131,38 @@ class RowErrors:
         common = self.pair_ids & other.pair_ids
         if common:
             raise InvalidInputError(f"row errors: pair {min(common)} in both parts")
-        self.total += other.total
-        self.outer += other.outer
+        k = min(self.total.shape[1], other.total.shape[1])  # a state of six sums: the six
+        empty = self.total[:, _N] == 0  # rows of no vector yet take other's shift
+        self.shift[empty] = other.shift[empty]
+        t = _shift_transform(self.shift - other.shift)[:, :k, :k]
+        self.total = self.total[:, :k] + np.einsum("rij,rj->ri", t, other.total[:, :k])
+        self.outer = self.outer[:, :k, :k] + np.einsum(
+            "rij,rjk,rlk->ril", t, other.outer[:, :k, :k], t
+        )
         self.pairs_in += other.pairs_in
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
         return self
 
     def result(self) -> dict[str, np.ndarray]:
-        """Per row: the pooled ``U``, ``V``, ``uu``, ``vv``, ``uv`` and their standard errors
-        ``se_U`` ... ``se_uv`` from the pairs' scatter (module docstring), ``pairs`` (NaN
-        errors below :data:`MIN_PAIRS`)."""
+        """Per row: the pooled ``U``, ``V``, ``uu``, ``vv``, ``uv``, ``S_u``, ``F_u``, ``S_v``,
+        ``F_v`` and their standard errors ``se_U`` ... ``se_F_v`` from the pairs' scatter
+        (module docstring; no S or F from a state of six sums), ``pairs`` (NaN errors below
+        :data:`MIN_PAIRS`)."""
         t, q = self.total, self.outer
         n = t[:, _N]
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = t / n[:, None]
-            U, V = mean[:, _U], mean[:, _V]
+            U, V = mean[:, _U], mean[:, _V]  # about the shift
             out = {
-                "U": U,
-                "V": V,
+                "U": U + self.shift[:, 0],
+                "V": V + self.shift[:, 1],
                 "uu": mean[:, _UU] - U * U,
                 "vv": mean[:, _VV] - V * V,
                 "uv": mean[:, _UV] - U * V,
                 "pairs": self.pairs_in.copy(),
             }
-            # each statistic's derivative by the six sums, over n (the delta method)
+            # each statistic's derivative by the sums, over n (the delta method)
             zero = np.zeros_like(U)
             grads = {
                 "U": (-U, np.ones_like(U), zero, zero, zero, zero),
@@ -144,9 +171,21 @@ class RowErrors:
                 "vv": (2 * V * V - mean[:, _VV], zero, -2 * V, zero, np.ones_like(U), zero),
                 "uv": (2 * U * V - mean[:, _UV], -V, -U, zero, zero, np.ones_like(U)),
             }
+            if t.shape[1] >= _SUMS:
+                for comp, i1, i2, i3, i4 in (("u", _U, _UU, _U3, _U4), ("v", _V, _VV, _V3, _V4)):
+                    for key, val, g in _shape_gradients(mean[:, [i1, i2, i3, i4]]):
+                        out[f"{key}_{comp}"] = val
+                        grad = [zero] * _SUMS
+                        for i, gi in zip((i1, i2, i3, i4), g, strict=True):
+                            grad[i] = gi
+                        # d/dn of f(t / n): -sum_j df/dm_j m_j
+                        grad[_N] = -sum(gi * mean[:, i] for i, gi in zip((i1, i2, i3, i4), g,
+                                                                         strict=True))  # fmt: skip
+                        grads[f"{key}_{comp}"] = tuple(grad)
             p = self.pairs_in.astype(np.float64)
             scale = np.where(p >= MIN_PAIRS, p / np.maximum(p - 1, 1), np.nan)
             for key, g in grads.items():
+                g = tuple(g) + (zero,) * (t.shape[1] - len(g))
                 w = np.stack(g, axis=-1) / n[:, None]
                 var = np.einsum("ri,rij,rj->r", w, q, w) * scale
                 out[f"se_{key}"] = np.sqrt(np.maximum(var, 0.0))
@@ -159,6 +198,7 @@ class RowErrors:
                 "row_errors_total": (("y", "row_errors_sum"), self.total),
                 "row_errors_outer": (("y", "row_errors_sum", "row_errors_sum2"), self.outer),
                 "row_errors_pairs": (("y",), self.pairs_in),
+                "row_errors_shift": (("y", "component"), self.shift),
             },
             {"row_errors_fields": int(self.n_fields)},
         )
@@ -172,5 +212,42 @@ class RowErrors:
         acc.outer = np.asarray(ds["row_errors_outer"].values, np.float64).copy()
         acc.pairs_in = np.asarray(ds["row_errors_pairs"].values, np.int64).copy()
         acc.n_fields = int(ds.attrs.get("row_errors_fields", 0))
+        if "row_errors_shift" in ds:  # states written before the shifts: about zero
+            acc.shift = np.asarray(ds["row_errors_shift"].values, np.float64).copy()
         acc.pair_ids = {int(i) for i in pair_ids}
         return acc
+
+
+def _shape_gradients(raw: np.ndarray):
+    """The skewness ``S = c3 / c2^1.5`` and flatness ``F = c4 / c2^2`` of the raw moments
+    ``raw`` (rows x [E u, E u^2, E u^3, E u^4]), each as ``(name, value, gradient by the four
+    raw moments)``."""
+    m1, m2, m3, m4 = raw.T
+    c2 = m2 - m1 * m1
+    c3 = m3 - 3 * m1 * m2 + 2 * m1**3
+    c4 = m4 - 4 * m1 * m3 + 6 * m1 * m1 * m2 - 3 * m1**4
+    zero, one = np.zeros_like(m1), np.ones_like(m1)
+    d2 = (-2 * m1, one, zero, zero)
+    d3 = (-3 * m2 + 6 * m1 * m1, -3 * m1, one, zero)
+    d4 = (-4 * m3 + 12 * m1 * m2 - 12 * m1**3, 6 * m1 * m1, -4 * m1, one)
+    s_val, f_val = c3 / c2**1.5, c4 / c2**2
+    ds = tuple(a / c2**1.5 - 1.5 * c3 / c2**2.5 * b for a, b in zip(d3, d2, strict=True))
+    df = tuple(a / c2**2 - 2 * c4 / c2**3 * b for a, b in zip(d4, d2, strict=True))
+    return (("S", s_val, ds), ("F", f_val, df))
+
+
+def _shift_transform(delta: np.ndarray) -> np.ndarray:
+    """Per row, the matrix that takes the ten sums about one (u, v) to the sums about it plus
+    ``delta`` (rows x 2): ``x' = x - a``, ``y' = y - b`` expanded in powers of ``x`` and ``y``
+    (the first six rows and columns for six sums)."""
+    a, b = delta[:, 0], delta[:, 1]
+    t = np.zeros((delta.shape[0], _SUMS, _SUMS))
+    t[:, np.arange(_SUMS), np.arange(_SUMS)] = 1.0
+    for (x, xx, x3, x4), d in (((_U, _UU, _U3, _U4), a), ((_V, _VV, _V3, _V4), b)):
+        t[:, x, _N] = -d
+        t[:, xx, x], t[:, xx, _N] = -2 * d, d * d
+        t[:, x3, xx], t[:, x3, x], t[:, x3, _N] = -3 * d, 3 * d * d, -(d**3)
+        t[:, x4, x3], t[:, x4, xx], t[:, x4, x], t[:, x4, _N] = (
+            -4 * d, 6 * d * d, -4 * d**3, d**4)  # fmt: skip
+    t[:, _UV, _U], t[:, _UV, _V], t[:, _UV, _N] = -b, -a, a * b
+    return t

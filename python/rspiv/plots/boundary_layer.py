@@ -193,8 +193,9 @@ def plot_boundary_layer(
 
 def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.Path:
     """``higher_moments.png``: S and F of u and v against y+ (the DNS's S(u), F(u); the
-    Gaussian values 0 and 3 dotted), error bars on the first run; rows flagged ``near_wall``
-    are left out."""
+    Gaussian values 0 and 3 dotted), error bars on the first run (as the stresses': a row's
+    scatter between pairs where it has 20 pairs or more); rows flagged ``near_wall`` are left
+    out."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(9.6, 6.4), layout="constrained")
@@ -224,6 +225,8 @@ def _plot_moments(path, profiles, runs, dns, dpi: int, y_lo: float) -> pathlib.P
             val = np.asarray(mom[key], dtype=np.float64)
             shown.append(val[m])
             err = mom.get(f"eps_{key}")
+            if err is not None and "pairs" in mom:  # the rows' scatter between pairs
+                err = judged_error(err, mom.get(f"eps_{key}_pairs"), mom["pairs"])
             err = None if err is None else np.asarray(err, dtype=np.float64)[m]
             if i == 0 and err is not None and np.isfinite(err).any():
                 # the typical error bar about the Gaussian value stays on the axis
