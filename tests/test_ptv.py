@@ -574,8 +574,8 @@ def test_the_campaign_file_asks_for_the_tracks(campaign, monkeypatch):
     text = toml.read_text()
     out = d / "out"
     try:
-        on, n = re.subn(r"\[ptv\]\nenabled = false\nradius = 2\.0\n",
-                        "[ptv]\nenabled = true\nradius = 1.8\n", text)
+        on, n = re.subn(r"\[ptv\]\nenabled = false\nruns = \[\]\nradius = 2\.0\n",
+                        "[ptv]\nenabled = true\nruns = []\nradius = 1.8\n", text)
         assert n == 1  # the campaign file the demo writes has the section, off
         toml.write_text(on)
         said: list[str] = []
@@ -593,9 +593,16 @@ def test_the_campaign_file_asks_for_the_tracks(campaign, monkeypatch):
         def refuse(*args, **kwargs):
             raise InvalidInputError("run method_II: summary.json holds no wall")
 
+        # runs named: each tracked, one the campaign does not have said and left
+        camp.config.ptv = dataclasses.replace(camp.config.ptv, runs=("method_I", "method_II"))
+        said.clear()
+        (info_b,) = ptv_mod.configured_ptv(camp)  # resumed from the pass above
+        assert info_b["run"] == "method_II" and info_b["pairs"] == 4
+        assert said[0].startswith("warning: [ptv]: no tracks at the wall: run 'method_I': ")
         monkeypatch.setattr(ptv_mod, "campaign_ptv", refuse)
         said.clear()
-        assert ptv_mod.configured_ptv(camp) is None
+        camp.config.ptv = dataclasses.replace(camp.config.ptv, runs=())
+        assert ptv_mod.configured_ptv(camp) == []
         assert said == ["warning: [ptv]: no tracks at the wall: run method_II: summary.json "
                         "holds no wall"]  # fmt: skip
     finally:
@@ -613,3 +620,6 @@ def test_the_campaign_file_asks_for_the_tracks(campaign, monkeypatch):
         parsed(bin_px=4.0, band_px=4.0)
     with pytest.raises(InvalidInputError, match=r"\[ptv\].radius"):
         parsed(radius=-1.0)
+    assert parsed(runs=("uncorrected", "method_II")).ptv.runs == ("uncorrected", "method_II")
+    with pytest.raises(InvalidInputError, match=r"\[ptv\].runs: expected a list of 'method_I'"):
+        parsed(runs=("method_II", "method_II"))

@@ -175,6 +175,8 @@ A complete file (every key optional except where noted; defaults shown)::
                                  # fields): OUT/ptv_<run>.csv/.json/.png and a report section;
                                  # `rspiv ptv` takes its settings from here
     enabled = false
+    runs = []                    # the runs to track ("method_II", "method_I", "uncorrected");
+                                 # none given: the first
     radius = 2.0                 # search radius about each predicted position, px
     bin_px = 0.5                 # bin height, px
     band_px = 32.0               # band from the wall, px
@@ -494,6 +496,7 @@ class EnsembleConfig:
 @dataclasses.dataclass
 class PtvConfig:
     enabled: bool = False
+    runs: tuple[str, ...] = ()
     radius: float = 2.0
     bin_px: float = 0.5
     band_px: float = 32.0

@@ -189,6 +189,18 @@ def _pair_ids(ctx, where, v):
     return sorted(set(v))
 
 
+#: The names a campaign's runs can have (:meth:`rspiv.campaign.runner.Campaign.runs`).
+RUN_NAMES = ("method_I", "method_II", "uncorrected")
+
+
+def _run_names(ctx, where, v):
+    """``["method_II", ...]``: runs of a campaign, once each."""
+    if not isinstance(v, list) or any(r not in RUN_NAMES for r in v) or len(set(v)) < len(v):
+        raise ctx.err(where, f"expected a list of {', '.join(map(repr, RUN_NAMES))} once each, "
+                      f"got {v!r}")  # fmt: skip
+    return tuple(v)
+
+
 def _method(ctx, where, v):
     try:
         return parse_method(v)
@@ -341,6 +353,7 @@ PARSERS: dict[str, dict[str, Any]] = {
     },
     "ptv": {
         "enabled": _boolean,
+        "runs": lambda c, w, v: _run_names(c, w, v),
         "radius": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "bin_px": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "band_px": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),

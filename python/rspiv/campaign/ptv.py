@@ -62,7 +62,8 @@ Shards
 
 From the campaign file
     ``[ptv] enabled = true`` (with ``[output] fields = true``) runs the pass over the
-    campaign's first run at the end of ``rspiv process``, once the analysis has written
+    section's ``runs`` (none given: the campaign's first run; a run the campaign does not have
+    is said and left) at the end of ``rspiv process``, once the analysis has written
     ``summary.json`` and before the report (:func:`configured_ptv`), with the section's
     ``radius``, ``bin_px``, ``band_px`` and ``whole_frame``; ``rspiv ptv`` takes its defaults
     from the same section. A campaign processed again resumes the pass (no pair tracked twice
@@ -322,37 +323,41 @@ def campaign_ptv(
                   time.perf_counter() - t0)  # fmt: skip
 
 
-def configured_ptv(camp: Any) -> dict[str, Any] | None:
-    """The pass a campaign file asks for (``[ptv] enabled``), over its first run with the
-    file's settings, run by the analysis once ``summary.json`` holds the walls (module
-    docstring, "From the campaign file"); None when not asked for or when it cannot track
-    (why is said in the log: the campaign's own outputs stand)."""
+def configured_ptv(camp: Any) -> list[dict[str, Any]]:
+    """The passes a campaign file asks for (``[ptv] enabled``), over its ``runs`` (none given:
+    the first) with the file's settings, run by the analysis once ``summary.json`` holds the
+    walls (module docstring, "From the campaign file"): what :func:`campaign_ptv` returned for
+    each run tracked; none when not asked for. A run that cannot be tracked (not among the
+    campaign's, no wall ...) is said in the log and left: the campaign's own outputs stand."""
     pc = getattr(camp.config, "ptv", None)
     if pc is None or not pc.enabled:
-        return None
-    try:
-        info = campaign_ptv(
-            camp, radius=pc.radius, bin_px=pc.bin_px, band_px=pc.band_px,
-            whole_frame=pc.whole_frame,
-        )  # fmt: skip
-    except InvalidInputError as exc:
-        camp.say(f"warning: [ptv]: no tracks at the wall: {exc}")
-        return None
-    s = info["sublayer"]
-    fit = (
-        f"u_tau from the viscous sublayer {s['u_tau']:.4g} +- {s['se_u_tau']:.2g} m/s"
-        if "u_tau" in s
-        else f"no sublayer u_tau ({s.get('reason', 'no units')})"
-    )
-    camp.say(
-        f"ptv {info['run']}: {info['pairs']} pair(s), {info['counts'].get('tracks', 0)} tracks "
-        f"at the wall; {fit} -> {info['csv']}"
-    )
-    for w in ([info["profile_warning"]] if info.get("profile_warning") else []) + list(
-        info["warnings"]
-    ):
-        camp.say(f"warning: ptv {info['run']}: {w}")
-    return info
+        return []
+    done = []
+    for run in pc.runs or (None,):
+        try:
+            info = campaign_ptv(
+                camp, run, radius=pc.radius, bin_px=pc.bin_px, band_px=pc.band_px,
+                whole_frame=pc.whole_frame,
+            )  # fmt: skip
+        except InvalidInputError as exc:
+            camp.say(f"warning: [ptv]: no tracks at the wall: {exc}")
+            continue
+        s = info["sublayer"]
+        fit = (
+            f"u_tau from the viscous sublayer {s['u_tau']:.4g} +- {s['se_u_tau']:.2g} m/s"
+            if "u_tau" in s
+            else f"no sublayer u_tau ({s.get('reason', 'no units')})"
+        )
+        camp.say(
+            f"ptv {info['run']}: {info['pairs']} pair(s), {info['counts'].get('tracks', 0)} "
+            f"tracks at the wall; {fit} -> {info['csv']}"
+        )
+        for w in ([info["profile_warning"]] if info.get("profile_warning") else []) + list(
+            info["warnings"]
+        ):
+            camp.say(f"warning: ptv {info['run']}: {w}")
+        done.append(info)
+    return done
 
 
 def merge_ptv(camp: Any, run: str | None = None) -> dict[str, Any]:
