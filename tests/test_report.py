@@ -23,6 +23,7 @@ from rspiv.report import (
     ReportTable,
     campaign_report,
     normalise_table,
+    pairs_for_paper,
     tbl_characteristics_table,
     uncertainty_summary,
     wall_deviation_table,
@@ -290,6 +291,14 @@ def test_error_bars_and_uncertainties_take_the_rows_scatter_between_pairs(
     want = 100 * np.median(np.abs(eps["eps_u_plus"][m] / result.u_plus[m]))
     assert unc["uncertainty of U (%)"] == pytest.approx(want, rel=1e-12)
     assert unc["uncertainty of U (%)"] < uncertainty_summary(result)["uncertainty of U (%)"]
+    # the pairs for the paper's uncertainties: the run's pairs (the median over those rows)
+    # times (its uncertainty / the paper's)^2; none from the bound
+    need = pairs_for_paper(run)
+    n = np.median(pairs[m])
+    for k, paper in (("U", 0.825), ("uu", 0.381), ("vv", 0.381), ("uv", 0.695)):
+        rel = unc[f"uncertainty of {k} (%)"]
+        assert need[k] == int(np.ceil(n * (rel / paper) ** 2))
+    assert pairs_for_paper(result) is None
 
     # the figures' error bars: the first run's judged errors at its drawn rows
     drawn = []

@@ -386,6 +386,38 @@ def uncertainty_summary(result, y_plus_min: float = 30.0) -> dict[str, float]:
     }
 
 
+def pairs_for_paper(result, y_plus_min: float = 30.0) -> dict[str, int] | None:
+    """The pairs a run would need for sampling errors as large as the paper's uncertainties
+    (its Table 1: U 0.825 %, uu and vv 0.381 %, uv 0.695 %; the paper does not say what they
+    include): per quantity, the run's pairs (the median over the
+    rows of :func:`uncertainty_summary`) times the square of its relative uncertainty there over
+    the paper's. Only from errors of the rows' scatter between pairs, which fall as one over
+    the root of the pairs (:func:`rspiv.profiles.judged_errors`); None when the run's errors
+    are the bound, or it has no such rows."""
+    import numpy as np
+
+    from rspiv.profiles import judged_errors  # deferred: numpy-only helpers, loaded on use
+
+    _, which = judged_errors(result)
+    pairs = (getattr(result, "extra", None) or {}).get("pairs")
+    if which != "pairs" or pairs is None:
+        return None
+    try:
+        unc = uncertainty_summary(result, y_plus_min)
+    except InvalidInputError:
+        return None
+    m = (result.y_plus > y_plus_min) & (result.y_plus < result.re_tau)
+    n = float(np.nanmedian(np.asarray(pairs, dtype=np.float64)[m]))
+    out = {}
+    papers = {"U": "uncertainty of U (%)", "uu": "uncertainty of uu, vv (%)",
+              "vv": "uncertainty of uu, vv (%)", "uv": "uncertainty of uv (%)"}  # fmt: skip
+    for key, paper in papers.items():
+        rel = unc[f"uncertainty of {key} (%)"]
+        if np.isfinite(rel) and np.isfinite(n):
+            out[key] = int(np.ceil(n * (rel / PAPER_PIV[paper]) ** 2))
+    return out or None
+
+
 #: The caption of the skewness and flatness figure: what moves them besides the flow.
 MOMENTS_CAPTION = (
     "Skewness S and flatness F of u and v (error bars: one standard error, the scatter of each "
@@ -520,6 +552,10 @@ def campaign_report(
             (unc["uncertainty of uu (%)"], unc["uncertainty of vv (%)"]),
         )
         piv.setdefault("uncertainty of uv (%)", unc["uncertainty of uv (%)"])
+    need = pairs_for_paper(main)
+    if need:
+        piv.setdefault("pairs for sampling errors as the paper's (" + ", ".join(need) + ")",
+                       tuple(need.values()))  # fmt: skip
     piv.setdefault("Re_tau", s["re_tau"])
     piv.setdefault("U_inf (m/s)", s["u_e"])
     sections.append(
@@ -527,7 +563,10 @@ def campaign_report(
             "Acquisition and statistics",
             text=(
                 "Uncertainties: median over 30 < y+ < Re_tau of the one-sigma relative "
-                "uncertainty of the main run (as its error bars)."
+                "uncertainty of the main run (as its error bars). Pairs for sampling errors "
+                "as the paper's uncertainties: the run's pairs times the square of its "
+                "uncertainty over the paper's (where its errors are the rows' scatter between "
+                "pairs; the paper does not say what its uncertainties include)."
             ),
             tables=[ReportTable("PIV parameters (as in the paper)", piv_parameters_table(piv))],
         )
@@ -538,6 +577,7 @@ def campaign_report(
 
 __all__ = [
     "campaign_report",
+    "pairs_for_paper",
     "uncertainty_summary",
     "PAPER_CALIBRATION",
     "PAPER_PIV",
