@@ -8,10 +8,10 @@ import pathlib
 import pytest
 from rspiv.campaign_config import (
     CampaignConfig,
-    _dump_toml,
     load_campaign_config,
     parse_campaign_config,
 )
+from rspiv.campaign_schema import dump_toml
 from rspiv.errors import InvalidInputError
 from rspiv.settings import PivSettings
 
@@ -117,7 +117,7 @@ def test_round_trip_through_toml(tmp_path, use_tomli_w, monkeypatch):
 
 
 def test_builtin_writer_escapes_strings():
-    text = _dump_toml({"campaign": {"name": 'a "q" \\ b', "description": "x\ny"}})
+    text = dump_toml({"campaign": {"name": 'a "q" \\ b', "description": "x\ny"}})
     import tomllib
 
     assert tomllib.loads(text)["campaign"] == {"name": 'a "q" \\ b', "description": "x\ny"}

@@ -212,12 +212,10 @@ from rspiv.campaign_schema import (
     ALIASES,
     PARSERS,
     Ctx,
+    dump_toml,
     locate_toml_error,
     parse_pairs,
     toml_plain,
-)
-from rspiv.campaign_schema import (
-    dump_toml as _dump_toml,
 )
 from rspiv.errors import InvalidInputError
 from rspiv.outlier_screen import SIGMAS as SCREEN_SIGMAS
@@ -624,7 +622,7 @@ class CampaignConfig:
         try:
             import tomli_w
         except ModuleNotFoundError:
-            return _dump_toml(data)
+            return dump_toml(data)
         return tomli_w.dumps(data)
 
     def save(self, path: str | os.PathLike) -> pathlib.Path:

@@ -67,9 +67,9 @@ from rspiv.campaign_config import (
     CalibrationConfig,
     CampaignConfig,
     ImagesConfig,
-    _dump_toml,
     parse_campaign_config,
 )
+from rspiv.campaign_schema import dump_toml
 from rspiv.errors import InvalidInputError
 from rspiv.io import (
     DAVIS_SUFFIXES,
@@ -146,7 +146,7 @@ class CampaignInit:
         lines += [f"# CHECK: {s}" for s in self.said]
         lines.append("")
         section = ""
-        for line in _dump_toml(data).splitlines():
+        for line in dump_toml(data).splitlines():
             if line.startswith("["):
                 section = line.strip("[]")
             key = line.split(" = ", 1)[0]

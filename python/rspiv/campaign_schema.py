@@ -353,7 +353,7 @@ PARSERS: dict[str, dict[str, Any]] = {
     },
     "ptv": {
         "enabled": _boolean,
-        "runs": lambda c, w, v: _run_names(c, w, v),
+        "runs": _run_names,
         "radius": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "bin_px": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),
         "band_px": lambda c, w, v: _number(c, w, v, minimum=0, exclusive_min=True),

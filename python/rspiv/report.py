@@ -389,11 +389,11 @@ def uncertainty_summary(result, y_plus_min: float = 30.0) -> dict[str, float]:
 def pairs_for_paper(result, y_plus_min: float = 30.0) -> dict[str, int] | None:
     """The pairs a run would need for sampling errors as large as the paper's uncertainties
     (its Table 1: U 0.825 %, uu and vv 0.381 %, uv 0.695 %; the paper does not say what they
-    include): per quantity, the run's pairs (the median over the
-    rows of :func:`uncertainty_summary`) times the square of its relative uncertainty there over
-    the paper's. Only from errors of the rows' scatter between pairs, which fall as one over
-    the root of the pairs (:func:`rspiv.profiles.judged_errors`); None when the run's errors
-    are the bound, or it has no such rows."""
+    include): per quantity, the run's pairs (the median over the rows of
+    :func:`uncertainty_summary`) times the square of its relative uncertainty there over the
+    paper's. Only from errors of the rows' scatter between pairs, which fall as one over the
+    root of the pairs (:func:`rspiv.profiles.judged_errors`); None when the run's errors are
+    the bound, or it has no such rows."""
     import numpy as np
 
     from rspiv.profiles import judged_errors  # deferred: numpy-only helpers, loaded on use
