@@ -22,6 +22,7 @@ import xarray as xr
 from lens_cases import strong_lens
 from rspiv.calibration import calibrate_points
 from rspiv.cli import main
+from rspiv.report import ERROR_BARS
 from rspiv.vector_statistics import vector_statistics
 from rspiv.vortices import OSEEN_CROWDED, find_vortices
 from rspiv.vorticity import VorticityAccumulator
@@ -206,6 +207,9 @@ def test_the_command_writes_the_population_and_refuses_bad_options(series, tmp_p
     assert f"# rspiv statistics of {N} DaVis fields" in md
     assert f"vortices: {n[0]} prograde and {n[1]} retrograde cores" in md
     assert f"u_tau = {r.result.u_tau:.4g} +/- " in md and "| Re_tau | " in md
+    # 24 fields: the error bars and uncertainties from the rows' scatter between them
+    assert ERROR_BARS in md
+    assert "| fields for sampling errors as the paper's (U, uu, vv, uv) |" in md
     for png in ("mean_velocity", "reynolds_stresses", "vorticity", "vortices"):
         assert f"](figures/{png}.png)" in md
         assert (out / "report" / "figures" / f"{png}.png").stat().st_size > 10_000

@@ -418,6 +418,14 @@ def pairs_for_paper(result, y_plus_min: float = 30.0) -> dict[str, int] | None:
     return out or None
 
 
+#: What a profile's error bars are (the figures of :func:`rspiv.plots.plot_boundary_layer`).
+ERROR_BARS = (
+    "Error bars are one standard uncertainty: the scatter of each row between the pairs where "
+    "it has 20 pairs or more, else the bound from the effective sample count (the vectors of a "
+    "field taken as fully correlated along the wall)."
+)
+
+
 #: The caption of the skewness and flatness figure: what moves them besides the flow.
 MOMENTS_CAPTION = (
     "Skewness S and flatness F of u and v (error bars: one standard error, the scatter of each "
@@ -474,9 +482,7 @@ def campaign_report(
         f"{s['u_tau_clauser']:.4g} m/s), wall offset y0+ = {s['y0_plus']:.3g}, "
         f"delta_99 = {1e3 * s['delta99']:.4g} mm, Re_tau = {s['re_tau']:.4g}, "
         f"Re_theta = {s['re_theta']:.4g}, H = {s['H']:.4g}. Profiles in wall units of each "
-        "run's own u_tau; error bars are one standard uncertainty: the scatter of each row "
-        "between the pairs where it has 20 pairs or more, else the bound from the effective "
-        "sample count (the vectors of a field taken as fully correlated along the wall)."
+        f"run's own u_tau. {ERROR_BARS}"
     )
     bl = ReportSection(
         "Boundary layer",
@@ -576,6 +582,7 @@ def campaign_report(
 
 
 __all__ = [
+    "ERROR_BARS",
     "campaign_report",
     "pairs_for_paper",
     "uncertainty_summary",

@@ -26,9 +26,11 @@ from rspiv._rspiv import __version__
 from rspiv.errors import InvalidInputError
 from rspiv.reference_comparison import REPORT_TEXT
 from rspiv.report import (
+    ERROR_BARS,
     MOMENTS_CAPTION,
     ReportSection,
     ReportTable,
+    pairs_for_paper,
     uncertainty_summary,
     write_report,
 )
@@ -165,8 +167,7 @@ def _boundary_layer(stats: Any, figs: dict[str, pathlib.Path]) -> ReportSection:
         f"{' m/s' if math.isfinite(s['u_tau_clauser']) else ''}), "
         f"wall offset y0+ = {s['y0_plus']:.3g}, "
         f"delta_99 = {1e3 * s['delta99']:.4g} mm, Re_tau = {s['re_tau']:.4g}, "
-        f"Re_theta = {s['re_theta']:.4g}, H = {s['H']:.4g}. Error bars are one standard "
-        "uncertainty from the effective sample count."
+        f"Re_theta = {s['re_theta']:.4g}, H = {s['H']:.4g}. {ERROR_BARS}"
     )
     row = {
         "U_e (m/s)": s.get("u_e"),
@@ -179,11 +180,13 @@ def _boundary_layer(stats: Any, figs: dict[str, pathlib.Path]) -> ReportSection:
     }
     tables = [ReportTable("Boundary-layer characteristics", row)]
     try:
+        unc: dict[str, Any] = dict(uncertainty_summary(r))
+        need = pairs_for_paper(r)  # none from the bound
+        if need:
+            key = "fields for sampling errors as the paper's (" + ", ".join(need) + ")"
+            unc[key] = tuple(need.values())
         tables.append(
-            ReportTable(
-                "Statistical uncertainties (median over 30 < y+ < Re_tau, one sigma)",
-                uncertainty_summary(r),
-            )
+            ReportTable("Statistical uncertainties (median over 30 < y+ < Re_tau, one sigma)", unc)
         )
     except InvalidInputError as exc:
         text += f"\n\nNo uncertainty summary: {exc}."
