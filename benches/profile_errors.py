@@ -33,7 +33,8 @@ shared, Method II) give N profiles of one flow; at 120 heights from y+ 30 to 0.9
 shortest profile, the spread of the N campaigns' U and uu (each in m/s of its own u_tau, from
 its own wall), and of the skewness and flatness of u, against their mean error from pair to
 pair (``eps_U_plus_pairs`` ..., ``eps_S_u_pairs`` ...) and against the bound (``eps_U_plus``
-..., ``eps_S_u`` ...): 1 where the errors are right.
+..., ``eps_S_u`` ...): 1 where the errors are right; and the spread of their u_tau against its
+error from the pairs (the jackknife, ``u_tau_std_pairs``) and the fit's own (``u_tau_std``).
 
 Run: ``python benches/profile_errors.py OUT [--run method_II]`` (``OUT`` a processed campaign's
 output folder with field files), ``python benches/profile_errors.py --openpiv`` or ``python
@@ -126,6 +127,8 @@ def campaigns(n: int, root: pathlib.Path | None) -> None:
         c, meta = read_profile_csv(d / "out" / "profile_method_II.csv")
         ut, y0 = float(meta["u_tau"]), float(meta["y0"])
         prof.append({
+            "u_tau": ut, "u_tau_std": float(meta["u_tau_std"]),
+            "u_tau_std_pairs": float(meta.get("u_tau_std_pairs", "nan")),
             "y": c["y_m"] + y0, "lv": float(meta["nu"]) / ut,
             "U": c["U_plus"] * ut, "U_pairs": c["eps_U_plus_pairs"] * ut,
             "U_bound": c["eps_U_plus"] * ut, "uu": c["uu_plus"] * ut**2,
@@ -137,6 +140,14 @@ def campaigns(n: int, root: pathlib.Path | None) -> None:
     lv = float(np.mean([p["lv"] for p in prof]))
     yg = np.linspace(30 * lv, 0.9 * min(float(p["y"].max()) for p in prof), 120)
     print(f"{n} campaigns of 24 pairs, 120 heights from y+ 30 ({root})")
+    ut = np.array([p["u_tau"] for p in prof])
+    spread = ut.std(ddof=1)
+    print(
+        f"  u_tau: {ut.mean():.5f} m/s, the spread between the campaigns {spread:.5f} m/s; / "
+        f"their error from the pairs (jackknife): median "
+        f"{spread / np.median([p['u_tau_std_pairs'] for p in prof]):.2f}; / the fit's own: "
+        f"median {spread / np.median([p['u_tau_std'] for p in prof]):.2f}"
+    )
     for key in ("U", "uu", "S_u", "F_u"):
         if f"{key}_pairs" not in prof[0]:
             continue

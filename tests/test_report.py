@@ -25,6 +25,7 @@ from rspiv.report import (
     normalise_table,
     pairs_for_paper,
     tbl_characteristics_table,
+    u_tau_text,
     uncertainty_summary,
     wall_deviation_table,
     write_report,
@@ -299,6 +300,12 @@ def test_error_bars_and_uncertainties_take_the_rows_scatter_between_pairs(
         rel = unc[f"uncertainty of {k} (%)"]
         assert need[k] == int(np.ceil(n * (rel / paper) ** 2))
     assert pairs_for_paper(result) is None
+    # u_tau's error: the pairs' where there is one, else the fit's said to be too small
+    assert "(the fit's own, its rows taken as independent: too small)" in u_tau_text(
+        result.summary())
+    run.u_tau_std_pairs = 0.0123
+    assert u_tau_text(run.summary()) == (
+        f"{run.u_tau:.4g} +/- 0.012 m/s (one standard error from the pairs' scatter)")
 
     # the figures' error bars: the first run's judged errors at its drawn rows
     drawn = []

@@ -209,6 +209,8 @@ def test_the_command_writes_the_population_and_refuses_bad_options(series, tmp_p
     assert f"u_tau = {r.result.u_tau:.4g} +/- " in md and "| Re_tau | " in md
     # 24 fields: the error bars and uncertainties from the rows' scatter between them
     assert ERROR_BARS in md
+    e = r.result.u_tau_std_pairs  # u_tau's error from the fields' scatter (the jackknife)
+    assert e > r.result.u_tau_std and f"+/- {e:.2g} m/s (one standard error from the pairs" in md
     assert "| fields for sampling errors as the paper's (U, uu, vv, uv) |" in md
     for png in ("mean_velocity", "reynolds_stresses", "vorticity", "vortices"):
         assert f"](figures/{png}.png)" in md

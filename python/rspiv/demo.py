@@ -456,7 +456,7 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
         rows.append(
             {
                 "claim": f"{run.label}: u_tau within 2 % of the truth ({ut:.4f} m/s)",
-                "measured": f"{r.u_tau:.4f} m/s ({100 * e_ut:+.2f} %)",
+                "measured": f"{r.u_tau:.4f} +/- {r.u_tau_std_pairs:.4f} m/s ({100 * e_ut:+.2f} %)",
                 "limit": "2 %",
                 "pass": bool(abs(e_ut) <= 0.02) if corrected else None,
             }

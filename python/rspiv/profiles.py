@@ -157,11 +157,14 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
     (:class:`rspiv.row_errors.RowErrors` attached to ``acc`` as ``acc.rows``): ``U``, ``V``,
     ``uu``, ``vv``, ``uv`` (each row's), in the units of ``acc`` times ``k`` (``k^2`` for the
     stresses), the skewness and flatness's ``S_u``, ``F_u``, ``S_v``, ``F_v`` (none from sums
-    written before them), and ``pairs``. Pairs that follow each other in time (a time-resolved
-    recording) are not independent: each variance is divided by the row's mean of ``n_eff / n``
-    of the per-vector statistics (:meth:`rspiv.stats.FieldAccumulator.n_eff`; 1 for independent
-    pairs). None when ``acc`` carries no such sums, or sums of other pairs than its own (a
-    state resumed from before they existed).
+    written before them), and ``pairs``; ``replicates``, the rows' mean u times ``k`` with one
+    batch of pairs left out in each (:meth:`rspiv.row_errors.RowErrors.replicates`; none
+    before 8 batches hold pairs), and ``serial_U``, each row's ``n_eff / n`` of u. Pairs that
+    follow each other in time (a time-resolved recording) are not independent: each variance is
+    divided by the row's mean of ``n_eff / n`` of the per-vector statistics
+    (:meth:`rspiv.stats.FieldAccumulator.n_eff`; 1 for independent pairs). None when ``acc``
+    carries no such sums, or sums of other pairs than its own (a state resumed from before they
+    existed).
     """
     rows = getattr(acc, "rows", None)
     if rows is None or rows.pair_ids != acc.pair_ids or rows.n_fields != acc.n_fields:
@@ -179,6 +182,11 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
             serial = np.nansum(np.asarray(acc.n_eff(q), dtype=np.float64), axis=-1) / csum
             serial = np.where(serial > 0, np.minimum(serial, 1.0), 1.0)
             out[key] = res[f"se_{key}"] / np.sqrt(serial) * abs(k) ** power
+            if key == "U":
+                out["serial_U"] = serial
+    reps = rows.replicates()
+    if reps is not None:  # the rows' mean u, one batch of pairs left out in each (times k)
+        out["replicates"] = reps * k
     return out
 
 

@@ -418,6 +418,22 @@ def pairs_for_paper(result, y_plus_min: float = 30.0) -> dict[str, int] | None:
     return out or None
 
 
+def u_tau_text(s: Mapping[str, float]) -> str:
+    """``u_tau`` of a result's :meth:`~rspiv.boundary_layer.BoundaryLayerResult.summary` with
+    its error: from the pairs' scatter (its jackknife, ``u_tau_std_pairs``) where there is one,
+    else the fit's own said to be a lower bound (its rows taken as independent)."""
+    import math
+
+    e = s.get("u_tau_std_pairs", math.nan)
+    if math.isfinite(e):
+        return f"{s['u_tau']:.4g} +/- {e:.2g} m/s (one standard error from the pairs' scatter)"
+    e = s.get("u_tau_std", math.nan)
+    if math.isfinite(e):
+        return (f"{s['u_tau']:.4g} +/- {e:.2g} m/s (the fit's own, its rows taken as "
+                "independent: too small)")  # fmt: skip
+    return f"{s['u_tau']:.4g} m/s"
+
+
 #: What a profile's error bars are (the figures of :func:`rspiv.plots.plot_boundary_layer`).
 ERROR_BARS = (
     "Error bars are one standard uncertainty: the scatter of each row between the pairs where "
@@ -478,7 +494,7 @@ def campaign_report(
     figs = plot_boundary_layer(out_dir / "figures", results)
     s = main.summary()
     text = (
-        f"Main run: {main_name}. u_tau = {s['u_tau']:.4g} m/s (composite fit; Clauser "
+        f"Main run: {main_name}. u_tau = {u_tau_text(s)}, composite fit (Clauser "
         f"{s['u_tau_clauser']:.4g} m/s), wall offset y0+ = {s['y0_plus']:.3g}, "
         f"delta_99 = {1e3 * s['delta99']:.4g} mm, Re_tau = {s['re_tau']:.4g}, "
         f"Re_theta = {s['re_theta']:.4g}, H = {s['H']:.4g}. Profiles in wall units of each "
@@ -585,6 +601,7 @@ __all__ = [
     "ERROR_BARS",
     "campaign_report",
     "pairs_for_paper",
+    "u_tau_text",
     "uncertainty_summary",
     "PAPER_CALIBRATION",
     "PAPER_PIV",

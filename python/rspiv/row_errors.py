@@ -37,10 +37,16 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["MIN_PAIRS", "RowErrors"]
+__all__ = ["BATCHES", "MIN_BATCHES", "MIN_PAIRS", "RowErrors"]
 
 #: Fewer pairs in a row than this: no error (a scatter of fewer pairs says little).
 MIN_PAIRS = 3
+#: Batches of pairs (a pair's id modulo this) whose rows' counts and sums of u are kept apart:
+#: the delete-one-batch replicates of the profile (:meth:`RowErrors.replicates`), from which a
+#: fit over many rows (u_tau) gets its error by the jackknife, row-to-row correlation and all.
+BATCHES = 16
+#: Fewer batches holding pairs than this: no replicates.
+MIN_BATCHES = 8
 
 # the ten per-pair row sums: count, u, v, uu, vv, uv, u^3, v^3, u^4, v^4 (the first six: the
 # sums of states written before the higher powers were)
@@ -80,9 +86,13 @@ class RowErrors:
         #: the (u, v) each row's sums are taken about (its first pair's row mean): powers of
         #: small numbers, so that the central moments and their errors keep their digits
         self.shift = np.zeros((self.rows, 2))
+        #: per batch of pairs (:data:`BATCHES`) and row: the count and the sum of u (about
+        #: zero); None in states written before the batches
+        self.batch: np.ndarray | None = np.zeros((BATCHES, self.rows, 2))
 
     def __setstate__(self, state: dict) -> None:
         state.setdefault("shift", np.zeros((int(state["rows"]), 2)))  # pickled before shifts
+        state.setdefault("batch", None)  # pickled before the batches
         self.__dict__.update(state)
 
     def add(self, u: Any, v: Any, valid: Any = None, pair_id: int | None = None) -> None:
@@ -120,6 +130,10 @@ class RowErrors:
         self.total += m
         self.outer += m[:, :, None] * m[:, None, :]
         self.pairs_in += m[:, _N] > 0
+        if self.batch is not None:
+            b = (int(pair_id) if pair_id is not None else self.n_fields) % BATCHES
+            self.batch[b, :, 0] += cnt
+            self.batch[b, :, 1] += m[:, _U] + cnt * self.shift[:, 0]
         self.n_fields += 1
         if pair_id is not None:
             self.pair_ids.add(int(pair_id))
@@ -140,6 +154,8 @@ class RowErrors:
             "rij,rjk,rlk->ril", t, other.outer[:, :k, :k], t
         )
         self.pairs_in += other.pairs_in
+        theirs = getattr(other, "batch", None)
+        self.batch = None if self.batch is None or theirs is None else self.batch + theirs
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
         return self
@@ -191,6 +207,22 @@ class RowErrors:
                 out[f"se_{key}"] = np.sqrt(np.maximum(var, 0.0))
         return out
 
+    def replicates(self) -> np.ndarray | None:
+        """The rows' mean u with each batch of pairs left out in turn (batches x rows, the
+        batches holding pairs only; NaN in a row no other batch reaches): a fit over the rows
+        done again on each gives its jackknife error (:func:`rspiv.boundary_layer.
+        u_tau_jackknife`). None before :data:`MIN_BATCHES` batches hold pairs, or for sums
+        written before the batches."""
+        if self.batch is None:
+            return None
+        used = np.flatnonzero(self.batch[:, :, 0].sum(axis=1) > 0)
+        if used.size < MIN_BATCHES:
+            return None
+        whole = self.batch.sum(axis=0)
+        rest = whole[None] - self.batch[used]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(rest[..., 0] > 0, rest[..., 1] / rest[..., 0], np.nan)
+
     def to_dataset_vars(self) -> tuple[dict, dict]:
         """``(variables, attrs)`` to write beside a FieldAccumulator's (``row_errors_*``)."""
         return (
@@ -199,6 +231,9 @@ class RowErrors:
                 "row_errors_outer": (("y", "row_errors_sum", "row_errors_sum2"), self.outer),
                 "row_errors_pairs": (("y",), self.pairs_in),
                 "row_errors_shift": (("y", "component"), self.shift),
+                **({} if self.batch is None else {
+                    "row_errors_batch": (("row_errors_batch", "y", "row_errors_part"), self.batch)
+                }),
             },
             {"row_errors_fields": int(self.n_fields)},
         )
@@ -214,6 +249,10 @@ class RowErrors:
         acc.n_fields = int(ds.attrs.get("row_errors_fields", 0))
         if "row_errors_shift" in ds:  # states written before the shifts: about zero
             acc.shift = np.asarray(ds["row_errors_shift"].values, np.float64).copy()
+        acc.batch = (  # none in states written before the batches
+            np.asarray(ds["row_errors_batch"].values, np.float64).copy()
+            if "row_errors_batch" in ds else None
+        )
         acc.pair_ids = {int(i) for i in pair_ids}
         return acc
 

@@ -31,6 +31,7 @@ from rspiv.report import (
     ReportSection,
     ReportTable,
     pairs_for_paper,
+    u_tau_text,
     uncertainty_summary,
     write_report,
 )
@@ -162,7 +163,7 @@ def _boundary_layer(stats: Any, figs: dict[str, pathlib.Path]) -> ReportSection:
         return ReportSection("Boundary layer", text=f"No wall units: {why}.")
     s = r.summary()
     text = (
-        f"u_tau = {s['u_tau']:.4g} +/- {r.u_tau_std:.2g} m/s (composite fit; Clauser "
+        f"u_tau = {u_tau_text(s)}, composite fit (Clauser "
         f"{_number(s['u_tau_clauser'], '.4g') or 'not found'}"
         f"{' m/s' if math.isfinite(s['u_tau_clauser']) else ''}), "
         f"wall offset y0+ = {s['y0_plus']:.3g}, "

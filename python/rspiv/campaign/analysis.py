@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from rspiv._rspiv import __version__
-from rspiv.boundary_layer import analyse_profile
+from rspiv.boundary_layer import analyse_profile, u_tau_jackknife
 from rspiv.campaign import conditional as conditional_work
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair_quality
@@ -196,6 +196,11 @@ def analyse_run(
         extra=extra,
     )
     pair_errors_in_wall_units(result.extra, result.u_tau)
+    if pe is not None and "replicates" in pe:  # u_tau's error from the pairs (jackknife)
+        result.u_tau_std_pairs = u_tau_jackknife(
+            y_m, pe["replicates"][:, ok] * sign_x, cfg.flow.nu, fit_offset=st.fit_offset,
+            y_min_fit=y_min_fit, serial=float(np.nanmedian(pe["serial_U"][ok])),
+        )  # fmt: skip
     return RunAnalysis(run, wall, side, profile, result)
 
 
