@@ -418,6 +418,23 @@ def test_a_campaigns_wall_shear_from_its_tracks(campaign, capsys):
     assert info["figure"] == str(out / "ptv_method_II.png")
     assert (out / "ptv_method_II.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "ptv_method_II.png" in printed and "rspiv process" not in printed  # no report
+    # 4 pairs give the campaign's u_tau no error from its pairs; with one (0.004 m/s), the
+    # difference is also said in both errors combined
+    assert "difference_errors" not in s and "errors)" not in printed
+    path = out / "summary.json"
+    before = path.read_text()
+    summ = json.loads(before)
+    summ["runs"]["method_II"]["u_tau_std_pairs"] = 0.004
+    try:
+        path.write_text(json.dumps(summ))
+        assert cli_main(["ptv", str(toml), "-q"]) == 0  # resumed: written again
+        s2 = json.loads((out / "ptv_method_II.json").read_text())["sublayer"]
+        want = (s2["u_tau"] - s2["campaign_u_tau"]) / np.hypot(s2["se_u_tau"], 0.004)
+        assert s2["difference_errors"] == pytest.approx(want, rel=1e-12)
+        assert f"{want:+.1f} errors)" in capsys.readouterr().out
+    finally:
+        path.write_text(before)
+        assert cli_main(["ptv", str(toml), "-q"]) == 0
     # resumed from its state: the same answer, no pair tracked again
     st = pickle.loads((out / "ptv" / "method_II.pkl").read_bytes())
     assert st["done"] == [0, 1, 2, 3]

@@ -21,6 +21,13 @@ mean along the row of each vector's own variance over the pairs (its S and F ali
 mean changes little along the row the two and their errors agree to first order. Sums written
 before the third and fourth powers were (six per pair and row) give no S or F.
 
+A fit over many rows (the friction velocity of the composite profile) needs the rows' errors
+together, correlated as they are (rows share their pairs; the flow's structures move many rows
+at once). For it each pair's row counts and sums of u also go to one of :data:`BATCHES`
+batches (the pair's id modulo), and :meth:`RowErrors.replicates` gives the rows' means with
+each batch left out: the fit done again on each gives its error by the jackknife
+(:func:`rspiv.boundary_layer.u_tau_jackknife`).
+
 Assumptions: the pairs are independent (a double-frame campaign). For a time-resolved
 recording the caller scales the variances by the serial correlation (``n / n_eff`` of the
 per-vector statistics). Rows with fewer than :data:`MIN_PAIRS` pairs get NaN.

@@ -513,6 +513,11 @@ def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped
             cols.update(y_plus=cols["y_m"] * ut / nu, U_plus=cols["U_si"] / ut)
             cols.update({f"{k}_plus": cols[f"{k}_si"] / ut**2 for k in stresses})
     info["sublayer"] = _sublayer(cols, res, ut, nu, dt, m_per_px, sign_x)
+    ut_se = r.get("u_tau_std_pairs")  # the campaign's u_tau error from its pairs, if any
+    s = info["sublayer"]
+    if s.get("difference") is not None and ut_se is not None and np.isfinite(ut_se):
+        s["campaign_se_u_tau"] = float(ut_se)
+        s["difference_errors"] = float((s["u_tau"] - ut) / np.hypot(s["se_u_tau"], ut_se))
     try:
         info["figure"] = str(_figure(out, name, cols, info["sublayer"], r))
     except Exception as exc:  # noqa: BLE001 -- a figure never costs the profile
@@ -641,6 +646,8 @@ def report_section(camp: Any, ctx: PairContext) -> Any:
         row["u_tau, campaign (m/s)"] = s.get("campaign_u_tau")
         if s.get("difference") is not None:
             row["difference (%)"] = 100.0 * s["difference"]
+        if s.get("difference_errors") is not None:  # in both u_tau's errors combined
+            row["difference (errors)"] = s["difference_errors"]
         row["chi2/dof"] = s.get("chi2_dof")
         e = info.get("track_error_px2") or {}
         if e:

@@ -71,9 +71,12 @@ def _run(args) -> int:
         print(f"  no sublayer fit: {s['reason']}")
     elif "u_tau" in s:
         ref = s.get("campaign_u_tau")
+        z = s.get("difference_errors")  # in both errors combined, when the campaign has its
+        zs = f", {z:+.1f} errors" if z is not None else ""
         vs = (
-            f" against the campaign's {ref:.4g} m/s ({100 * s['difference']:+.1f} %)" if ref else ""
-        )
+            f" against the campaign's {ref:.4g} m/s ({100 * s['difference']:+.1f} %{zs})"
+            if ref else ""
+        )  # fmt: skip
         print(
             f"  u_tau from the viscous sublayer ({s['bins']} bins, y+ "
             f"{s['y_plus_range'][0]:.2g}-{s['y_plus_range'][1]:.2g}): {s['u_tau']:.4g} "
