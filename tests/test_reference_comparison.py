@@ -188,3 +188,29 @@ def test_a_csv_reference_and_the_command(tmp_path, capsys):
         compare_reference(meas, empty)
     with pytest.raises(rspiv.InvalidInputError, match="Re_tau is needed"):
         compare_reference({"y_plus": y, "U_plus": DNS.u_plus})
+
+
+def test_u_tau_error_enters_each_rows_error(tmp_path):
+    """A profile whose u_tau has its error from the pairs (0.5 %: a CSV header's
+    ``u_tau_std_pairs`` over ``u_tau``): each row's error takes ``|U+| 0.005`` (``2 |q| 0.005``
+    for a stress) in quadrature, so U+ 0.5 % high everywhere (a friction velocity low by its
+    error) agrees in the log layer; the same profile without that header differs."""
+    from rspiv.outputs import write_profile_csv
+
+    cols = _columns(DNS, eps=0.01)
+    cols["U_plus"] = cols["U_plus"] * 1.005
+    meta = {"u_tau": 0.4, "re_tau": DNS.re_tau}
+    with_err = write_profile_csv(tmp_path / "a.csv", cols, metadata={**meta,
+                                                                       "u_tau_std_pairs": 0.002})
+    plain = write_profile_csv(tmp_path / "b.csv", cols, metadata=meta)
+    cmp = compare_reference(with_err, DNS)
+    y = cols["y_plus"]
+    log = (y >= 30) & (y < 0.15 * DNS.re_tau)
+    b = _band(cmp, "log layer", "U_plus")
+    want = np.mean(np.hypot(0.01, 0.005 * cols["U_plus"][log]))
+    assert b["error"] == pytest.approx(want, rel=1e-9) and b["agrees"]
+    b = _band(cmp, "log layer", "uu_plus")
+    want = np.mean(np.hypot(0.01, 2 * 0.005 * np.abs(cols["uu_plus"][log])))
+    assert b["error"] == pytest.approx(want, rel=1e-9)
+    b = _band(compare_reference(plain, DNS), "log layer", "U_plus")
+    assert b["error"] == pytest.approx(0.01, rel=1e-9) and not b["agrees"]

@@ -31,6 +31,10 @@ earlier experiment in similar flow conditions (its mean-velocity and Reynolds-st
   rows closer to the wall than half a window are not compared for ``U+``). The stresses are not
   filtered: a window of ``w+ x h+`` averages away the small scales, so a lower ``uu+`` near its
   peak is what a window of that size measures, not an error (the result names the window);
+- **u_tau's error**: where a profile's u_tau has its error from the pairs (``u_tau_std_pairs``,
+  :func:`rspiv.boundary_layer.u_tau_jackknife`), it enters each row's error in quadrature
+  (``|U+| r`` for U+ and the defect, ``2 |q| r`` for a stress, ``r`` its relative error): a
+  difference in wall units may be the friction velocity's;
 - **rows beside the wall**: rows flagged ``near_wall`` (within 2.5 window heights, where the
   wall and its reflection shape the measured distribution) are left out of the stresses;
 - **the peak of uu+** below ``y+ = 50`` in both, with its height.
@@ -195,8 +199,9 @@ class ReferenceComparison:
 def profile_table(source: Any) -> tuple[dict[str, np.ndarray], dict[str, float], str]:
     """``(columns, scalars, label)`` of a profile: a :class:`rspiv.BoundaryLayerResult`, a
     :class:`rspiv.reference.DNSProfile`, a profile CSV (rspiv's ``profile_<run>.csv`` or the
-    columns of the module docstring) or a mapping of columns. ``scalars`` holds ``re_tau`` and
-    ``u_e_plus`` where known."""
+    columns of the module docstring) or a mapping of columns. ``scalars`` holds ``re_tau``,
+    ``u_e_plus`` and ``u_tau_rel`` (u_tau's relative error from the pairs, a header's
+    ``u_tau_std_pairs / u_tau``) where known."""
     if isinstance(source, DNSProfile):
         cols = {
             "y_plus": source.y_plus,
@@ -208,7 +213,9 @@ def profile_table(source: Any) -> tuple[dict[str, np.ndarray], dict[str, float],
         return cols, {"re_tau": source.re_tau, "u_e_plus": source.u_inf_plus}, source.label()
     if hasattr(source, "profile_columns"):  # a BoundaryLayerResult
         cols = source.profile_columns()
-        scal = {"re_tau": float(source.re_tau), "u_e_plus": source.u_e / source.u_tau}
+        rel = getattr(source, "u_tau_std_pairs", math.nan) / source.u_tau
+        scal = {"re_tau": float(source.re_tau), "u_e_plus": source.u_e / source.u_tau,
+                "u_tau_rel": rel}  # fmt: skip
         return cols, scal, "the measured profile"
     if isinstance(source, (str, os.PathLike)):
         return _read_csv(pathlib.Path(source))
@@ -240,6 +247,8 @@ def _read_csv(path: pathlib.Path) -> tuple[dict[str, np.ndarray], dict[str, floa
             scal["re_tau"] = float(meta["re_tau"])
         if "u_e" in meta and "u_tau" in meta:
             scal["u_e_plus"] = float(meta["u_e"]) / float(meta["u_tau"])
+        if "u_tau_std_pairs" in meta and "u_tau" in meta:
+            scal["u_tau_rel"] = float(meta["u_tau_std_pairs"]) / float(meta["u_tau"])
     except ValueError as exc:
         raise InvalidInputError(f"{path}: a header value is not a number ({exc})") from None
     label = meta.get("label", path.name)
@@ -334,6 +343,9 @@ def compare_reference(
         at_eps = np.interp(np.log(np.maximum(y, 1e-12)), np.log(yr[inner_ok]), reps[inner_ok])
         if q == "U_plus" and window_plus is not None:
             at = _window_mean(y, yr, qr, float(window_plus[1]))
+        # each profile's own u_tau's error (from its pairs) on its wall-unit values
+        eps = _with_u_tau(eps, np.asarray(cols[q], dtype=np.float64), q, scal)
+        at_eps = _with_u_tau(at_eps, at, q, rscal)
         use = np.isfinite(at) & np.isfinite(np.asarray(cols[q], dtype=np.float64))
         if q != "U_plus":
             use &= ~near
@@ -396,6 +408,16 @@ def _band(name, q, y, meas, ref, eps, reps) -> dict[str, Any]:
     }
 
 
+def _with_u_tau(eps: np.ndarray, val: np.ndarray, q: str, scal: dict[str, float]) -> np.ndarray:
+    """``eps`` and the error a profile's u_tau gives its wall-unit values ``val`` in quadrature:
+    ``|val| r`` for U+ and the velocity defect, ``2 |val| r`` for the stresses, ``r`` the
+    relative error of u_tau from the pairs (``scal["u_tau_rel"]``; none without it)."""
+    rel = scal.get("u_tau_rel", math.nan)
+    if not (math.isfinite(rel) and rel > 0):
+        return eps
+    return np.hypot(eps, (1 if q == "U_plus" else 2) * rel * np.abs(val))
+
+
 def _outer(q, cols, scal, rcols, rscal, order, use) -> dict[str, Any] | None:
     """The outer layer's band in ``y / delta99`` (the velocity defect for U+), or None where a
     Re_tau or a free stream is missing."""
@@ -415,6 +437,7 @@ def _outer(q, cols, scal, rcols, rscal, order, use) -> dict[str, Any] | None:
     eps = np.asarray(cols.get(f"eps_{q}", np.zeros_like(eta)), dtype=np.float64)
     reps_r = np.asarray(rcols.get(f"eps_{q}", np.zeros(order.size)), dtype=np.float64)[order]
     reps = np.interp(eta, eta_r, reps_r)
+    eps, reps = _with_u_tau(eps, meas, q, scal), _with_u_tau(reps, at, q, rscal)
     out = _band("outer layer", q, np.asarray(cols["y_plus"])[sel], meas[sel], at[sel],
                 eps[sel], reps[sel])  # fmt: skip
     if q == "U_plus":
