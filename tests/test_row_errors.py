@@ -228,5 +228,8 @@ def test_u_tau_error_from_the_pairs_is_the_spread_of_campaigns():
         jack.append(u_tau_jackknife(y, rows.replicates(), nu))
     spread = np.std(fits, ddof=1)
     assert abs(np.mean(fits) - ut) < 2 * spread / np.sqrt(30)
+    with pytest.raises(InvalidInputError, match=r"replicates: expected \(batches, 120\)"):
+        u_tau_jackknife(y, rows.replicates()[:, :-1], nu)
+    assert np.isnan(u_tau_jackknife(y, rows.replicates()[:7], nu))  # too few to say
     assert 0.75 < spread / np.median(jack) < 1.25, (spread, np.median(jack))
     assert spread / np.median(own) > 3, (spread, np.median(own))

@@ -501,8 +501,18 @@ def u_tau_jackknife(
     (1 for independent pairs; the batches interleave successive pairs). It holds what the
     fit's own ``u_tau_std`` leaves out: the rows' errors are correlated (rows share their
     pairs, the flow's structures span many rows). NaN when fewer than 8 replicates are fitted.
+
+    Raises
+    ------
+    InvalidInputError
+        Replicates of another length than ``y_m``.
     """
     reps = np.atleast_2d(np.asarray(replicates, dtype=np.float64))
+    y_m = np.asarray(y_m, dtype=np.float64)
+    if reps.ndim != 2 or reps.shape[1] != y_m.size:
+        raise InvalidInputError(
+            f"replicates: expected (batches, {y_m.size}) values at y_m, got {reps.shape}"
+        )
     fits: list[float] = []
     first = None  # the others start from the first replicate's fit (the same minima, sooner)
     for u in reps:
