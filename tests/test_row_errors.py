@@ -38,6 +38,17 @@ def _fields(rng, pairs, along=0.0):
 TRUE = {"uu": 1.0, "vv": 0.25, "uv": -0.25}
 
 
+def _whole_and_parts(seed: int, pairs: int, first: int):
+    """``pairs`` fields (:func:`_fields`) summed whole, and in two parts: the first ``first``
+    pairs and the rest."""
+    fields = list(_fields(np.random.default_rng(seed), pairs))
+    whole, a, b = RowErrors(ROWS), RowErrors(ROWS), RowErrors(ROWS)
+    for k, (u, v) in enumerate(fields):
+        whole.add(u, v, pair_id=k)
+        (a if k < first else b).add(u, v, pair_id=k)
+    return fields, whole, a, b
+
+
 @pytest.mark.parametrize("along", [0.0, 0.8])
 def test_the_errors_are_the_scatter_of_the_rows(along):
     """Independent vectors (the error of a row's mean sqrt(COLS) times smaller than a
@@ -90,12 +101,7 @@ def test_sums_of_six_give_no_skewness_and_merge_as_six():
     """A state written before the third and fourth powers (six sums per pair and row, taken
     about zero): its U and stresses as before, no S or F; merged with a state of ten sums,
     the six."""
-    rng = np.random.default_rng(12)
-    fields = list(_fields(rng, 8))
-    new, old, whole = RowErrors(ROWS), RowErrors(ROWS), RowErrors(ROWS)
-    for k, (u, v) in enumerate(fields):
-        whole.add(u, v, pair_id=k)
-        (old if k < 4 else new).add(u, v, pair_id=k)
+    _, whole, old, new = _whole_and_parts(12, 8, 4)
     # the old state as it was written: about zero, six sums
     zero = copy.deepcopy(old)
     t = row_errors._shift_transform(-zero.shift)
@@ -171,12 +177,7 @@ def test_the_batches_give_the_delete_one_batch_means():
     """Each pair's row sums go to batch ``pair_id % BATCHES``: the replicates are the rows'
     means without one batch, exactly; they merge, round-trip and are none for sums written
     before the batches or with fewer than MIN_BATCHES batches of pairs."""
-    rng = np.random.default_rng(21)
-    fields = list(_fields(rng, 40))
-    whole, a, b = RowErrors(ROWS), RowErrors(ROWS), RowErrors(ROWS)
-    for k, (u, v) in enumerate(fields):
-        whole.add(u, v, pair_id=k)
-        (a if k < 17 else b).add(u, v, pair_id=k)
+    fields, whole, a, b = _whole_and_parts(21, 40, 17)
     reps = whole.replicates()
     assert reps.shape == (row_errors.BATCHES, ROWS)
     for bt in (0, 7, 15):
