@@ -30,13 +30,16 @@ def engine() -> str:
     """Path of the standalone ``rspiv-engine`` binary, built (or brought up to date) by cargo;
     without cargo, an ``rspiv-engine`` on the PATH.
 
-    Built as ``cargo test --workspace --exclude rspiv-py`` builds it (the engine's own CLI tests
-    need it), with the dev-dependencies' features: in CI the binary is already there. A plain
-    ``cargo build -p rspiv-engine`` resolves other features (``either/use_std``, ``serde/alloc``)
-    and rebuilt every core crate: 172 s of the suite on 2 cores."""
+    Built by the command CI runs before pytest (``cargo test --workspace --exclude rspiv-py``,
+    here with ``--no-run``): the same profile (``[profile.test]``), features and units, so in CI
+    the binary is already there. A plain ``cargo build -p rspiv-engine`` resolves other features
+    (``either/use_std``, ``serde/alloc``) and rebuilt every core crate (172 s of the suite on 2
+    cores); ``cargo build --tests --bins`` builds with the dev profile, not the test profile
+    ``cargo test`` uses, and rebuilt every crate's unit tests (221-264 s of CI's suite once the
+    test profile differed)."""
     cargo = shutil.which("cargo")
     if cargo is not None:
-        cmd = [cargo, "build", "-q", "--workspace", "--exclude", "rspiv-py", "--tests", "--bins"]
+        cmd = [cargo, "test", "-q", "--no-run", "--workspace", "--exclude", "rspiv-py"]
         subprocess.run(cmd, cwd=REPO, check=True)
         return str(REPO / "target" / "debug" / "rspiv-engine")
     exe = shutil.which("rspiv-engine")
