@@ -321,3 +321,18 @@ def test_error_bars_and_uncertainties_take_the_rows_scatter_between_pairs(
     pos = result.y_plus > 0
     for err, k in zip(first, ("u", "uu", "vv", "uv"), strict=True):
         np.testing.assert_array_equal(err, eps[f"eps_{k}_plus"][pos])
+
+
+def test_the_texts_name_the_pairs_the_error_bars_take():
+    """The reports' and figures' words say the rows' scatter is taken from
+    :data:`rspiv.profiles.VERDICT_PAIRS` pairs on (written out where the texts are, so that the
+    report stays free of the statistics' imports): they move together."""
+    from rspiv.plots import boundary_layer as bl_plots
+    from rspiv.profiles import VERDICT_PAIRS
+    from rspiv.report import ERROR_BARS, MOMENTS_CAPTION, uncertainty_summary
+
+    said = f"{VERDICT_PAIRS} pairs or more"
+    texts = (ERROR_BARS, MOMENTS_CAPTION, uncertainty_summary.__doc__,
+             bl_plots.plot_boundary_layer.__doc__, bl_plots._plot_moments.__doc__)  # fmt: skip
+    for text in texts:
+        assert said in " ".join(text.split()), text
