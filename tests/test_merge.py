@@ -179,3 +179,37 @@ def test_merge_campaign_refuses_incomplete_or_mixed_shards(case, tmp_path):
         f.unlink()
     with pytest.raises(rspiv.InvalidInputError, match=r"shard\(s\) 2/3 missing"):
         merge_campaign(Campaign.load(toml, progress=False, out_dir=out))
+
+
+def test_merge_campaign_refuses_a_shard_of_another_configuration(case, tmp_path):
+    """A shard processed with other settings (here the median test's threshold) holds other
+    statistics: among the campaign's own shards it is refused in one line naming its file, not
+    summed in, and nothing is written."""
+    import xarray as xr
+    from rspiv.campaign_config import load_campaign_config
+    from rspiv.merge import merge_campaign
+
+    full, shards = case
+    toml = full.out_dir.parent / "campaign.toml"
+    cfg = load_campaign_config(toml)
+    cfg.piv.median_threshold = 3.0
+    other = prepared_copy(full.out_dir, tmp_path / "other")
+    assert not Campaign(cfg, progress=False, out_dir=other, shard="2/3").run().analyses
+    name = f"statistics_{RUN}.shard-2-of-3.nc"
+    fps = []
+    for p in (shards / name, other / "shards" / name):
+        with xr.open_dataset(p, engine="h5netcdf") as ds:
+            fps.append(ds.attrs["fingerprint"])
+    assert fps[0] != fps[1]  # the setting is part of the configuration's fingerprint
+    out = prepared_copy(full.out_dir, tmp_path / "out")
+    (out / "shards").mkdir()
+    for f in shards.glob("*.shard-*-of-3.nc"):
+        shutil.copy(f, out / "shards" / f.name)
+    shutil.copy(other / "shards" / name, out / "shards" / name)
+    with pytest.raises(rspiv.InvalidInputError, match="written for another configuration") as e:
+        merge_campaign(Campaign.load(toml, progress=False, out_dir=out))
+    said = str(e.value)
+    assert str(out / "shards" / name) in said and "\n" not in said and fps[1] in said
+    assert not (out / "checkpoint").exists()
+    # the CLI: a non-zero exit and the same line
+    assert main(["merge", "--campaign", str(toml), "-o", str(out), "-q"]) != 0
