@@ -510,8 +510,8 @@ def test_the_report_shows_the_tracks_of_the_fields_as_they_are(campaign, tmp_pat
 
 def test_a_pass_in_shards_merges_to_the_whole(campaign, capsys):
     """Two shards (every other pair), each resumable on its own, merged: the profile of one
-    pass to rounding; a merge refused while a shard is missing or unfinished, or shards of two
-    counts lie side by side."""
+    pass to rounding; a merge refused while a shard is missing or unfinished, of other settings
+    or fields, or shards of two counts lie side by side."""
     d, toml = campaign
     out = d / "out"
     whole = campaign_ptv(Campaign.load(toml, progress=False), resume=False)
@@ -533,6 +533,16 @@ def test_a_pass_in_shards_merges_to_the_whole(campaign, capsys):
     assert merged["pairs"] == whole["pairs"] == 4 and merged["counts"] == whole["counts"]
     for k in ("u_tau", "se_u_tau", "gradient", "wall_offset_px"):
         assert merged["sublayer"][k] == pytest.approx(whole["sublayer"][k], rel=1e-9, abs=1e-12)
+    # a shard run with another radius, or written for other fields (the campaign processed
+    # again since): refused, naming the file
+    campaign_ptv(Campaign.load(toml, progress=False), shard=(2, 2), radius=3.0, resume=False)
+    with pytest.raises(InvalidInputError, match=r"shard-2-of-2.pkl: settings .*'radius': 3.0"):
+        merge_ptv(Campaign.load(toml, progress=False))
+    (out / "ptv" / "method_II.shard-2-of-2.pkl").write_bytes(
+        pickle.dumps({**st, "fingerprint": "0123456789abcdef"})
+    )
+    with pytest.raises(InvalidInputError, match="shard-2-of-2.pkl: written for other fields"):
+        merge_ptv(Campaign.load(toml, progress=False))
     # shards whose pairs leave one out (shard 2 without pair 1), an unfinished shard, or
     # shards of two counts
     (out / "ptv" / "method_II.shard-2-of-2.pkl").write_bytes(
