@@ -24,12 +24,14 @@ Usage::
     python benches/bench_campaign.py --scales 1.0 --no-peer --methods II --rereduce
     python benches/bench_campaign.py --scales 0.146 0.505 1.0 --methods II --threads 1 2 --no-peer
 
-Prints a Markdown table (for benches/RESULTS.md). With ``--threads``, each configuration runs
-once per thread count (``RAYON_NUM_THREADS``, the pool every rspiv kernel runs on) and a scaling
-table follows: the loop's seconds per pair and per megapixel, and the speed-up over one thread
-(scales 0.146 / 0.505 / 1.0 are 1 / 12 / 47 MP sensors). With ``--rereduce`` each pair's
-fields are written and the campaign runs again with pair 1 left out: its statistics summed again
-from the field files (:mod:`rspiv.campaign.rereduce`), in seconds per pair against the PIV's.
+Prints a Markdown table (for benches/RESULTS.md), and the run's CPU time (loop and analysis,
+user and system: the system share is mostly the kernel zeroing fresh pages). With ``--threads``,
+each configuration runs once per thread count (``RAYON_NUM_THREADS``, the pool every rspiv
+kernel runs on) and a scaling table follows: the loop's seconds per pair and per megapixel, and
+the speed-up over one thread (scales 0.146 / 0.505 / 1.0 are 1 / 12 / 47 MP sensors). With
+``--rereduce`` each pair's fields are written and the campaign runs again with pair 1 left out:
+its statistics summed again from the field files (:mod:`rspiv.campaign.rereduce`), in seconds
+per pair against the PIV's.
 """
 
 from __future__ import annotations
@@ -103,9 +105,11 @@ def _timed(*a, **k):
     ends.append(time.perf_counter())
     return r
 _pair.process_pair = _timed
+cpu0 = os.times()
 t2 = time.perf_counter()
 res = camp.run()  # reuses the prepared context
 run_s = time.perf_counter() - t2
+cpu1 = os.times()
 huge_after = huge_mb()
 wall = time.perf_counter() - t0
 t = res.timings
@@ -128,6 +132,9 @@ print(json.dumps({**rer,
     **{k: t.get(k, 0.0) / n for k in STAGES},
     "prepare_s": prepare_s, "analysis_s": t.get("analysis", 0.0),
     "peak_rss_mb": hwm_mb(), "prepare_peak_mb": prepare_peak, "huge_mb": huge_after,
+    # the run's CPU time (loop and analysis): the kernel's share is mostly first-touch page
+    # zeroing of fresh buffers
+    "user_s": cpu1.user - cpu0.user, "sys_s": cpu1.system - cpu0.system,
 }))
 """
 
@@ -260,6 +267,16 @@ def main() -> int:
             f"{m['read']:.2f} | {m['condition']:.2f} | {m['dewarp']:.2f} | {m['piv']:.2f} | "
             f"{m['statistics']:.3f} | "
             f"{m['prepare_s']:.1f} | {m['peak_rss_mb']:.0f} | {m['prepare_peak_mb']:.0f} |"
+        )
+    print()
+    print("| sensor | method | threads | CPU user s, run | CPU system s, run | system share |")
+    print("|---|---|---|---|---|---|")
+    for m in rows:
+        threads = "all" if m["threads"] is None else m["threads"]
+        cpu = m["user_s"] + m["sys_s"]
+        print(
+            f"| {m['mp']:.1f} MP | {m['method']} | {threads} | {m['user_s']:.1f} | "
+            f"{m['sys_s']:.1f} | {m['sys_s'] / cpu if cpu > 0 else float('nan'):.0%} |"
         )
     if any("rereduce_s" in m for m in rows):
         print()
