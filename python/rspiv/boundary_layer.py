@@ -521,7 +521,8 @@ def u_tau_jackknife(
                                 y_min_fit=y_min_fit, start=first)  # fmt: skip
         except (ConvergenceError, InvalidInputError):
             continue
-        first = first or fit
+        if first is None:
+            first = fit
         fits.append(fit.u_tau)
     b = len(fits)
     if b < 8 or not serial > 0:
