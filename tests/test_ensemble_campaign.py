@@ -203,6 +203,39 @@ def test_methods_agree_and_distortion_shows(processed, scenes):
     assert np.all(np.isfinite(er))
 
 
+def test_the_statistics_converge_as_pairs_of_one_flow(processed):
+    """80 pairs of one flow (independent realisations): the prefixes of 10, 20, 50 and 80
+    pairs per row, the whole run's U the profile's (the pooled mean of every valid vector),
+    the first 50 pairs and the last 30 not said to differ; the file, the figure, the summary
+    and the report say so."""
+    camp, res = processed
+    out = res.out_dir
+    summary = json.loads((out / "summary.json").read_text())
+    for run in ("method_II", "method_I", "uncorrected"):
+        entry = summary["runs"][run]["convergence"]
+        assert entry["prefix_pairs"] == [10, 20, 50, 80] and entry["split_pairs"] == [50, 30]
+        assert "warning" not in entry and entry["rows_judged"] > 20
+        for key in ("U", "uu", "vv", "uv"):
+            assert entry[f"beyond_{key}"] < 0.05, (run, key, entry)
+        cols, meta = rspiv.outputs.read_profile_csv(out / f"convergence_{run}.csv")
+        assert meta["split_pairs"] == "50 30" and meta["units"].startswith("SI")
+        last = cols["pairs"] == 80
+        prof, pmeta = rspiv.outputs.read_profile_csv(out / f"profile_{run}.csv")
+        # the profile's rows (sorted by y) against the file's whole-run rows at the same y+:
+        # the same mean where every vector of the row has two samples or more (most rows)
+        u_tau = float(pmeta["u_tau"])
+        same = []
+        for yp, U in zip(cols["y_plus"][last], cols["U"][last], strict=True):
+            i = int(np.argmin(np.abs(prof["y_plus"] - yp)))
+            if abs(prof["y_plus"][i] - yp) < 1e-6 * max(abs(yp), 1.0):
+                same.append(abs(U - prof["U_plus"][i] * u_tau) <= 1e-9 * abs(U))
+        assert len(same) > 20 and np.mean(same) > 0.8, (run, len(same), np.mean(same))
+        band = cols["band_U"]
+        assert np.all(band[last] == 0) and np.all(band[cols["pairs"] == 10] > 0)
+        assert (out / f"convergence_{run}.png").is_file()
+    assert "Convergence with the pairs" in (out / "report" / "report.html").read_text()
+
+
 def test_local_and_merged_shards_agree(processed, synth):
     """The ensemble sums of two shards merge to the one-shard sums to 1e-12 relative."""
     from rspiv.stats import FieldAccumulator
@@ -233,6 +266,9 @@ def test_local_and_merged_shards_agree(processed, synth):
     np.testing.assert_array_equal(back.pixel.y, pix.y)
     assert back.pixel.wall[0] == pix.wall[0] and back.pixel.pairs == 80
     np.testing.assert_array_equal(back.pixel.wall[2], pix.wall[2])
+    # the rows' history (rspiv.convergence): every n-th pair per shard, the bands add up
+    hist = res.accumulators["method_II"].rows.history
+    np.testing.assert_allclose(merged.rows.history, hist, rtol=1e-12, atol=1e-12 * abs(hist).max())
 
 
 def test_dask_chunks_give_the_local_bands(processed):
@@ -255,6 +291,8 @@ def test_dask_chunks_give_the_local_bands(processed):
             scale = np.abs(want.acc).max()
             np.testing.assert_allclose(got.acc, want.acc, rtol=1e-12, atol=1e-12 * scale)
             np.testing.assert_allclose(got.saturation.sum, want.saturation.sum, rtol=1e-12)
+        hist = ref.rows.history  # the rows' history (rspiv.convergence) alike
+        np.testing.assert_allclose(merged.rows.history, hist, atol=1e-12 * abs(hist).max())
 
 
 def _pixel_truth(res, run, scenes):

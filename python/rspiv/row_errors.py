@@ -28,6 +28,13 @@ batches (the pair's id modulo), and :meth:`RowErrors.replicates` gives the rows'
 each batch left out: the fit done again on each gives its error by the jackknife
 (:func:`rspiv.boundary_layer.u_tau_jackknife`).
 
+How the statistics converge with the pairs, and whether the run's first pairs and its last
+agree (:mod:`rspiv.convergence`), need the rows' sums over the first ``n`` pairs for a few
+``n``. Each pair's row counts and sums of ``u``, ``v``, ``u^2``, ``v^2``, ``u v`` (about zero)
+also go to the band of pair ids it falls in (:data:`HISTORY_EDGES`: 10, 20, 50, 100, 200, 500
+...): the sums of the pairs numbered below an edge are the bands' below it summed, whichever
+order the pairs came in and however the run was split into shards (the bands add up).
+
 Assumptions: the pairs are independent (a double-frame campaign). For a time-resolved
 recording the caller scales the variances by the serial correlation (``n / n_eff`` of the
 per-vector statistics). Rows with fewer than :data:`MIN_PAIRS` pairs get NaN.
@@ -44,7 +51,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 
-__all__ = ["BATCHES", "MIN_BATCHES", "MIN_PAIRS", "RowErrors"]
+__all__ = ["BATCHES", "HISTORY_EDGES", "MIN_BATCHES", "MIN_PAIRS", "RowErrors"]
 
 #: Fewer pairs in a row than this: no error (a scatter of fewer pairs says little).
 MIN_PAIRS = 3
@@ -54,6 +61,11 @@ MIN_PAIRS = 3
 BATCHES = 16
 #: Fewer batches holding pairs than this: no replicates.
 MIN_BATCHES = 8
+#: The pair ids at which the history's bands part (:meth:`RowErrors.prefixes`): a 1-2-5
+#: sequence from 10 pairs, the statistics of the pairs numbered below each.
+HISTORY_EDGES = tuple(m * 10**e for e in range(1, 9) for m in (1, 2, 5))
+#: The history's sums per band and row: count, u, v, u^2, v^2, u v (about zero).
+_HISTORY_SUMS = 6
 
 # the ten per-pair row sums: count, u, v, uu, vv, uv, u^3, v^3, u^4, v^4 (the first six: the
 # sums of states written before the higher powers were)
@@ -96,10 +108,16 @@ class RowErrors:
         #: per batch of pairs (:data:`BATCHES`) and row: the count and the sum of u (about
         #: zero); None in states written before the batches
         self.batch: np.ndarray | None = np.zeros((BATCHES, self.rows, 2))
+        #: per band of pair ids (:data:`HISTORY_EDGES`) and row: the count and the sums of u,
+        #: v, u^2, v^2, u v (about zero); None in states written before the history
+        self.history: np.ndarray | None = np.zeros(
+            (len(HISTORY_EDGES) + 1, self.rows, _HISTORY_SUMS)
+        )
 
     def __setstate__(self, state: dict) -> None:
         state.setdefault("shift", np.zeros((int(state["rows"]), 2)))  # pickled before shifts
         state.setdefault("batch", None)  # pickled before the batches
+        state.setdefault("history", None)  # pickled before the history
         self.__dict__.update(state)
 
     def add(self, u: Any, v: Any, valid: Any = None, pair_id: int | None = None) -> None:
@@ -141,6 +159,13 @@ class RowErrors:
             b = (int(pair_id) if pair_id is not None else self.n_fields) % BATCHES
             self.batch[b, :, 0] += cnt
             self.batch[b, :, 1] += m[:, _U] + cnt * self.shift[:, 0]
+        if self.history is not None:
+            pid = int(pair_id) if pair_id is not None else self.n_fields
+            uo, vo = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
+            self.history[int(np.searchsorted(HISTORY_EDGES, pid, side="right"))] += np.stack(
+                [cnt, uo.sum(1), vo.sum(1), (uo * uo).sum(1), (vo * vo).sum(1),
+                 (uo * vo).sum(1)], axis=-1,
+            )  # fmt: skip
         self.n_fields += 1
         if pair_id is not None:
             self.pair_ids.add(int(pair_id))
@@ -163,6 +188,8 @@ class RowErrors:
         self.pairs_in += other.pairs_in
         theirs = getattr(other, "batch", None)
         self.batch = None if self.batch is None or theirs is None else self.batch + theirs
+        theirs = getattr(other, "history", None)
+        self.history = None if self.history is None or theirs is None else self.history + theirs
         self.pair_ids |= other.pair_ids
         self.n_fields += other.n_fields
         return self
@@ -230,6 +257,25 @@ class RowErrors:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(rest[..., 0] > 0, rest[..., 1] / rest[..., 0], np.nan)
 
+    def prefixes(self) -> list[tuple[int, np.ndarray]]:
+        """The history's sums (rows x 6: count, u, v, u^2, v^2, u v) of the pairs numbered
+        below each edge of :data:`HISTORY_EDGES` that parts the run's pairs, and of them all
+        last, each as ``(pairs in it, sums)`` (one per number of pairs). Empty for sums
+        written before the history."""
+        if self.history is None or not self.pair_ids:
+            return []
+        ids = np.fromiter(self.pair_ids, np.int64, len(self.pair_ids))
+        cum = np.cumsum(self.history, axis=0)
+        out: list[tuple[int, np.ndarray]] = []
+        for i, edge in enumerate(HISTORY_EDGES):
+            n = int(np.count_nonzero(ids < edge))
+            if 0 < n < ids.size and (not out or n > out[-1][0]):  # empty bands: one prefix
+                out.append((n, cum[i]))
+            if n == ids.size:
+                break
+        out.append((int(ids.size), cum[-1]))
+        return out
+
     def to_dataset_vars(self) -> tuple[dict, dict]:
         """``(variables, attrs)`` to write beside a FieldAccumulator's (``row_errors_*``)."""
         return (
@@ -240,6 +286,10 @@ class RowErrors:
                 "row_errors_shift": (("y", "component"), self.shift),
                 **({} if self.batch is None else {
                     "row_errors_batch": (("row_errors_batch", "y", "row_errors_part"), self.batch)
+                }),
+                **({} if self.history is None else {
+                    "row_errors_history": (
+                        ("row_errors_band", "y", "row_errors_hsum"), self.history)
                 }),
             },
             {"row_errors_fields": int(self.n_fields)},
@@ -259,6 +309,10 @@ class RowErrors:
         acc.batch = (  # none in states written before the batches
             np.asarray(ds["row_errors_batch"].values, np.float64).copy()
             if "row_errors_batch" in ds else None
+        )
+        acc.history = (  # none in states written before the history
+            np.asarray(ds["row_errors_history"].values, np.float64).copy()
+            if "row_errors_history" in ds else None
         )
         acc.pair_ids = {int(i) for i in pair_ids}
         return acc

@@ -26,6 +26,7 @@ import numpy as np
 from rspiv._rspiv import __version__
 from rspiv.boundary_layer import analyse_profile, u_tau_jackknife
 from rspiv.campaign import conditional as conditional_work
+from rspiv.campaign import convergence as convergence_work
 from rspiv.campaign import ensemble as ensemble_work
 from rspiv.campaign import pair_quality
 from rspiv.campaign import pod as pod_work
@@ -377,6 +378,7 @@ def partial_correlation_note(res: CampaignResult) -> str:
 ANALYSIS_STEMS = (
     "statistics",
     "profile",
+    "convergence",
     "profile_ensemble",
     "profile_pixel",
     "two_point",
@@ -470,6 +472,7 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
     res.pair_quality = pair_quality.write_outputs(camp, res, RunLog(out / "run_log.jsonl"))
     camp.info.pop("screen_warnings", None)
     camp.info.pop(reference_work.INFO_KEY, None)
+    camp.info.pop(convergence_work.INFO_KEY, None)
     summary.update(pair_quality.summary_entries(camp, res))
     for run in ctx.runs:
         acc = res.accumulators[run.name]
@@ -550,6 +553,9 @@ def analyse_result(camp: Any, res: CampaignResult) -> None:
                 )
         elif an.error:
             rs["error"] = an.error
+        near_px = NEAR_WALL_HEIGHTS * ctx.piv.final_window[1]
+        if (conv := convergence_work.write_outputs(camp, res, run, an, near_px)) is not None:
+            rs["convergence"] = conv  # the statistics over the first pairs (rspiv.convergence)
         bands = (
             ("ensemble", "ensemble", ensemble_work.write_outputs, res.ensembles),
             ("single_pixel", "single-pixel", ensemble_work.write_pixel_outputs, res.pixel_profiles),
@@ -682,7 +688,11 @@ def write_report(camp: Any, res: CampaignResult, extra_sections=()) -> None:
         piv["the bound over the rows' scatter between pairs (U, uu)"] = (
             pe["overstated_U"], pe["overstated_uu"])  # fmt: skip
     extra = list(extra_sections)
-    for sec in (reference_work.report_section(camp), ptv_work.report_section(camp, ctx)):
+    for sec in (
+        reference_work.report_section(camp),
+        convergence_work.report_section(camp),
+        ptv_work.report_section(camp, ctx),
+    ):
         extra += [sec] if sec is not None else []
     sec = pair_quality.report_section(camp, res, res.pair_quality)
     if sec is not None:
