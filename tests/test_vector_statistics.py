@@ -67,7 +67,13 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
     other = vector_statistics(files[:20], nu=NU, dt=2 * truth.dt)
     assert other.dt == r.dt and any("dt = " in w and "files'" in w for w in other.warnings)
     files_out = r.write(tmp_path / "out")
-    assert {"statistics", "profile_nc", "profile_csv", "summary"} <= set(files_out)
+    assert {"statistics", "profile_nc", "profile_csv", "summary", "convergence_csv"} <= set(
+        files_out
+    )
+    # 80 fields of one flow: the first 50 and the last 30 agree (rspiv.convergence)
+    cv = r.convergence
+    assert list(cv.pairs) == [10, 20, 50, 80] and cv.split == (50, 30) and cv.warning is None
+    assert max(cv.summary()[f"beyond_{k}"] for k in ("U", "uu", "vv", "uv")) < 0.05
     ds = r.to_xarray()
     assert ds.attrs["tool"] == "DaVis" and ds["u"].attrs["units"] == "m s-1"
     # the command gives the same figures
@@ -87,6 +93,7 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
 
     summ = json.loads((out / "summary.json").read_text())
     assert summ["u_tau"] == pytest.approx(res.u_tau, rel=1e-12) and summ["fields"] == 80
+    assert summ["convergence"]["split_pairs"] == [50, 30] and (out / "convergence.png").is_file()
     # against the DNS the layer is built from (its inner layer, its outer layer in outer
     # scaling): every band agrees (measured: within 1.6 %)
     ref = summ["reference"]
@@ -99,6 +106,26 @@ def test_a_davis_series_gives_the_flows_wall_units(level, tmp_path):
     assert np.nanmedian(over) > 1.5, np.nanmedian(over)
     lv_px = res.nu / res.u_tau / (r.mm_per_px * 1e-3)
     assert ref["window_plus"] == pytest.approx([32 / lv_px, 32 / lv_px], rel=1e-9)
+
+
+def test_a_series_whose_flow_speeds_up_is_said(tmp_path):
+    """60 exact fields of the layer, every displacement of the last 30 10 % larger (the tunnel
+    faster, the files' scales the same): the first 20 fields against the other 40 (10 as
+    before, 30 faster: U +7.5 %, +7.1 % of the whole series' U) say that U changed, with the
+    change."""
+    folder = tmp_path / "faster"
+    folder.mkdir()
+    files = []
+    for k in range(60):
+        tr, _, _, u, v = exact_field(k)
+        g = 1.1 if k >= 30 else 1.0
+        files.append(write_vc7(folder / f"B{k:05d}.vc7", g * u, g * v, 1 / tr.magnification, tr.dt))
+    r = vector_statistics(files, nu=NU)
+    cv = r.convergence
+    assert cv.split == (20, 40) and "U" in cv.drifting and cv.warning in r.warnings
+    judged = cv.judged & (cv.z["U"] > 4)
+    assert abs(np.median(cv.change["U"][judged]) - 0.075 / 1.05) < 0.01
+    assert "first 20 pairs and of the last 40 differ" in cv.warning
 
 
 def test_openpiv_text_of_the_same_fields_sums_the_same(level, tmp_path):

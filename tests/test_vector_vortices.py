@@ -212,7 +212,10 @@ def test_the_command_writes_the_population_and_refuses_bad_options(series, tmp_p
     e = r.result.u_tau_std_pairs  # u_tau's error from the fields' scatter (the jackknife)
     assert e > r.result.u_tau_std and f"+/- {e:.2g} m/s (one standard error from the pairs" in md
     assert "| fields for sampling errors as the paper's (U, uu, vv, uv) |" in md
-    for png in ("mean_velocity", "reynolds_stresses", "vorticity", "vortices"):
+    # 24 fields of one flow: their convergence shown, nothing said (rspiv.convergence)
+    assert "## Convergence with the fields" in md and summ["convergence"]["split_pairs"] == [10, 14]
+    assert "warning" not in summ["convergence"]
+    for png in ("mean_velocity", "reynolds_stresses", "vorticity", "vortices", "convergence"):
         assert f"](figures/{png}.png)" in md
         assert (out / "report" / "figures" / f"{png}.png").stat().st_size > 10_000
     assert "<h2>Vortex population</h2>" in (out / "report" / "report.html").read_text()

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from rspiv.errors import InvalidInputError
-from rspiv.profiles import VERDICT_PAIRS
+from rspiv.profiles import VERDICT_PAIRS, pair_errors
 from rspiv.row_errors import RowErrors
 
 __all__ = [
@@ -49,9 +49,11 @@ __all__ = [
     "DRIFT_SIGMAS",
     "MIN_HALF_PAIRS",
     "MIN_PREFIX_PAIRS",
+    "REPORT_TEXT",
     "STATISTICS",
     "Convergence",
     "pooled",
+    "profile_convergence",
     "run_convergence",
 ]
 
@@ -67,6 +69,17 @@ DRIFT_SIGMAS = 4.0
 DRIFT_SHARE = 0.25
 #: Fewer rows judged than this: no stationarity verdict.
 MIN_ROWS = 3
+
+#: The report's words on the figure and the test.
+REPORT_TEXT = (
+    "Each run's mean velocity and stresses over the pairs numbered below 10, 20, 50 ... "
+    "against the whole run's, at a few heights, with the band (two standard deviations) "
+    "within which the first n pairs of one flow stray from it (the pairs' scatter, "
+    "sigma_1 sqrt(1/n - 1/N)). The run's pairs split in two near half way: where more than a "
+    "quarter of the rows judged differ between the parts by more than four standard errors, "
+    "the flow or the recording changed over the run, or its pairs span too few of the flow's "
+    "largest scales, and the statistics average over it."
+)
 
 
 def pooled(sums: np.ndarray) -> dict[str, np.ndarray]:
@@ -228,7 +241,27 @@ def run_convergence(
         out.warning = (
             f"the statistics of the first {n1} pairs and of the last {N - n1} differ beyond "
             f"their errors: {'; '.join(said)}; the flow or the recording changed over the run "
-            "(the tunnel's speed or temperature, the seeding, the laser's energy, the camera) "
-            "and the statistics average over the change"
+            "(the tunnel's speed or temperature, the seeding, the laser's energy, the camera), "
+            "or its pairs span too few of the flow's largest scales; the statistics average "
+            "over the change"
         )
     return out
+
+
+def profile_convergence(acc: Any, profile: dict, near_wall_px: float) -> Convergence | None:
+    """:func:`run_convergence` of a run's accumulator ``acc`` (its ``acc.rows``) in the units
+    and axes of its ``profile`` (:func:`rspiv.campaign.analysis.analyse_run`'s: ``k``,
+    ``sign_x``, ``sign_y``, ``dist_px``, ``U``, ``count``), judging the rows on the flow's side
+    at least ``near_wall_px`` from the wall. None when ``acc`` carries no history (sums
+    written before it, or of other pairs than its own) or too few pairs."""
+    rows = getattr(acc, "rows", None)
+    if rows is None or getattr(rows, "history", None) is None:
+        return None
+    pe = pair_errors(acc, profile["k"])
+    if pe is None:
+        return None
+    dist = np.asarray(profile["dist_px"], np.float64)
+    ok = (dist > 0) & np.isfinite(profile["U"]) & (np.asarray(profile["count"]) > 0)
+    return run_convergence(
+        rows, pe, ok & (dist >= near_wall_px), profile["k"], profile["sign_x"], profile["sign_y"]
+    )

@@ -23,6 +23,7 @@ import pathlib
 from typing import Any
 
 from rspiv._rspiv import __version__
+from rspiv.convergence import REPORT_TEXT as CONVERGENCE_TEXT
 from rspiv.errors import InvalidInputError
 from rspiv.reference_comparison import REPORT_TEXT
 from rspiv.report import (
@@ -128,6 +129,9 @@ def write_series_report(
             )
         )
     sections.append(_boundary_layer(stats, figs))
+    if "convergence" in figs:  # the first fields against the series (rspiv.convergence)
+        sections.append(ReportSection("Convergence with the fields", text=CONVERGENCE_TEXT,
+                                      figures=[(figs["convergence"], "Convergence")]))  # fmt: skip
     vort = stats.vorticity
     if vort is not None:
         text = (f"Vorticity statistics in {vort['y'].size} rows by "

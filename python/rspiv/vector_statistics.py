@@ -81,11 +81,18 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.campaign.analysis import analyse_run, run_statistics_dataset, wall_dict
+from rspiv.campaign.analysis import (
+    NEAR_WALL_HEIGHTS,
+    analyse_run,
+    run_statistics_dataset,
+    wall_dict,
+)
+from rspiv.campaign.convergence import write_files as write_convergence
 from rspiv.campaign.spec import RunSpec
 from rspiv.campaign.state import RunAnalysis, json_default
 from rspiv.campaign.vorticity import vorticity_dataset, vorticity_profile
 from rspiv.campaign_config import FlowConfig, StatisticsConfig, WallConfig
+from rspiv.convergence import Convergence, profile_convergence
 from rspiv.derivatives import SCHEMES
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outlier_screen import HALF_WIDTH, ScreenTally, screen_bounds
@@ -172,6 +179,10 @@ class VectorStatistics:
         profile`; :mod:`rspiv.vector_structures`).
     seconds : float
         The reduction's wall time.
+    convergence : Convergence or None
+        The statistics of the first fields against the series' and the first fields against
+        the rest (:mod:`rspiv.convergence`; the fields numbered in the series' order); None
+        for fewer than two prefixes of 5 fields or a state resumed from before it existed.
     """
 
     accumulator: FieldAccumulator
@@ -195,6 +206,7 @@ class VectorStatistics:
     pod: dict[str, Any] | None = None
     vortices: dict[str, Any] | None = None
     seconds: float = 0.0
+    convergence: Convergence | None = None
 
     def screened(self) -> dict[str, Any] | None:
         """The vectors the screen left out of the statistics (their number and share of the
@@ -242,6 +254,8 @@ class VectorStatistics:
         }
         if an.wall is not None:
             out["wall"] = wall_dict(an.wall)
+        if self.convergence is not None:
+            out["convergence"] = self.convergence.summary()
         if an.result is not None:
             out.update(an.result.summary())
             if (ref := self.reference()) is not None:
@@ -339,6 +353,12 @@ class VectorStatistics:
                     )
                 except InvalidInputError:
                     pass  # too few rows in wall units to draw: the file holds them
+        if self.convergence is not None:
+            _, got = write_convergence(out, "convergence", self.convergence, self.analysis,
+                                       f"{self.tool} fields", figure=figures)  # fmt: skip
+            files["convergence_csv"] = got["csv"]
+            if "png" in got:
+                files["figure_convergence"] = got["png"]
         run = self.analysis.run
         files.update(write_structures(out, run, {k: getattr(self, k) for k in STRUCTURES}, figures))
         files["summary"] = atomic_write_text(
@@ -725,11 +745,14 @@ def vector_statistics(
     if an.result is None:
         warnings.append(f"no wall units: {an.error}")
     warnings += reads.notes
+    conv = profile_convergence(acc, an.profile, NEAR_WALL_HEIGHTS * window[1])
+    if conv is not None and conv.warning:
+        warnings.append(conv.warning)
     return VectorStatistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,
         (int(window[0]), int(window[1])), float(state["rotation"]), warnings, locking, vort,
-        *(found[k] for k in STRUCTURES), time.perf_counter() - t_start,
+        *(found[k] for k in STRUCTURES), time.perf_counter() - t_start, conv,
     )  # fmt: skip
 
 

@@ -25,12 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.convergence import STATISTICS, Convergence, run_convergence
+from rspiv.convergence import REPORT_TEXT, STATISTICS, Convergence, profile_convergence
 from rspiv.errors import RspivError
 from rspiv.outputs import write_profile_csv
-from rspiv.profiles import pair_errors
 
-__all__ = ["INFO_KEY", "PLUS_HEIGHTS", "report_section", "write_outputs"]
+__all__ = ["INFO_KEY", "PLUS_HEIGHTS", "report_section", "write_files", "write_outputs"]
 
 #: ``camp.info`` key holding this analysis's convergence per run label: ``(summary, figure)``.
 INFO_KEY = "convergence"
@@ -55,38 +54,28 @@ def _heights(an: Any, cv: Convergence, y_plus: np.ndarray | None) -> list[tuple[
             return got
     order = rows[np.argsort(dist[rows])]
     picks = np.unique(np.round(np.geomspace(1, order.size, 4)).astype(int) - 1)
-    return [(int(order[i]), f"{dist[order[i]]:.0f} px from the wall") for i in picks]
+    if an.wall is not None:
+        return [(int(order[i]), f"{dist[order[i]]:.0f} px from the wall") for i in picks]
+    # no wall found (none looked for): the rows by their place in the frame
+    y = an.profile["y_wall_px"] + an.profile["sign_y"] * dist
+    return [(int(order[i]), f"row y = {y[order[i]]:.0f} px") for i in picks]
 
 
-def write_outputs(
-    camp: Any, res: Any, run: Any, an: Any, near_wall_px: float
-) -> dict[str, Any] | None:
-    """Write run ``run``'s convergence files (module docstring) from its accumulator and its
-    analysis ``an``; returns its ``summary.json`` entry, or None when the run has no profile.
-    Rows within ``near_wall_px`` of the wall are not judged."""
+def write_files(
+    out_dir: pathlib.Path, name: str, cv: Convergence, an: Any, label: str, say=None,
+    figure: bool = True,
+) -> tuple[dict[str, Any], dict[str, pathlib.Path]]:
+    """Write ``<name>.csv`` and (with ``figure``) ``<name>.png`` of ``cv`` (module docstring)
+    to ``out_dir`` for the run analysis ``an`` (its profile's rows, wall units from its result
+    when it has one); returns the ``summary.json`` entry and the files written (``csv``,
+    ``png``). A figure that fails is said through ``say`` and left out."""
     prof = an.profile
-    if not prof:
-        return None
-    acc = res.accumulators[run.name]
-    rows = getattr(acc, "rows", None)
-    pe = pair_errors(acc, prof["k"]) if rows is not None else None
-    if rows is None or pe is None or rows.history is None:
-        return {"missing": "the statistics were summed before the rows' history was kept"}
     dist = np.asarray(prof["dist_px"], np.float64)
-    ok = (dist > 0) & np.isfinite(prof["U"]) & (np.asarray(prof["count"]) > 0)
-    try:
-        cv = run_convergence(rows, pe, ok & (dist >= near_wall_px), prof["k"],
-                             prof["sign_x"], prof["sign_y"])  # fmt: skip
-    except (RspivError, ValueError) as exc:
-        camp.say(f"{run.label}: no convergence: {exc}")
-        return None
-    if cv is None:  # fewer than two prefixes of MIN_PREFIX_PAIRS pairs: nothing to show
-        return None
     y_plus = y_m = None
     if an.result is not None and prof.get("m_per_px"):
         y_m = dist * prof["m_per_px"] - an.result.y0
         y_plus = y_m * an.result.u_tau / an.result.nu
-    out = pathlib.Path(camp.out_dir)
+    ok = (dist > 0) & np.isfinite(prof["U"]) & (np.asarray(prof["count"]) > 0)
     sel = np.flatnonzero(ok)
     P = cv.pairs.size
     cols: dict[str, np.ndarray] = {
@@ -101,41 +90,55 @@ def write_outputs(
         cols[f"band_{key}"] = cv.band[key][:, sel].ravel()
     cols["judged"] = np.tile(cv.judged[sel], P).astype(np.float64)
     units = "SI (m, m/s, m^2/s^2)" if prof.get("si") else "px per pair"
-    csv = write_profile_csv(
-        out / f"convergence_{run.name}.csv", cols,
-        metadata={"run": run.name, "label": run.label, "units": units,
+    files = {"csv": write_profile_csv(
+        out_dir / f"{name}.csv", cols,
+        metadata={"label": label, "units": units,
                   "split_pairs": "" if cv.split is None else f"{cv.split[0]} {cv.split[1]}"},
-    )  # fmt: skip
-    res.files[f"convergence_{run.name}_csv"] = csv
-    entry = {**cv.summary(), "csv": str(csv)}
-    fig = None
-    heights = _heights(an, cv, y_plus)
+    )}  # fmt: skip
+    entry = {**cv.summary(), "csv": str(files["csv"])}
+    heights = _heights(an, cv, y_plus) if figure else []
     if heights:
         from rspiv.plots.convergence import plot_convergence  # deferred: matplotlib
 
         try:
-            fig = plot_convergence(out / f"convergence_{run.name}.png", cv, heights,
-                                   title=f"{run.label}: convergence over {int(cv.pairs[-1])} "
-                                   "pairs (shaded: two standard deviations)")  # fmt: skip
-            res.files[f"convergence_{run.name}_png"] = fig
-            entry["figure"] = str(fig)
+            files["png"] = plot_convergence(out_dir / f"{name}.png", cv, heights,
+                                            title=f"{label}: convergence over "
+                                            f"{int(cv.pairs[-1])} pairs (shaded: two standard "
+                                            "deviations)")  # fmt: skip
+            entry["figure"] = str(files["png"])
         except Exception as exc:  # noqa: BLE001 - a figure never fails the analysis
-            camp.say(f"{run.label}: convergence figure failed: {exc}")
+            if say is not None:
+                say(f"{label}: convergence figure failed: {exc}")
+    return entry, files
+
+
+def write_outputs(
+    camp: Any, res: Any, run: Any, an: Any, near_wall_px: float
+) -> dict[str, Any] | None:
+    """Write run ``run``'s convergence files (module docstring) from its accumulator and its
+    analysis ``an``; returns its ``summary.json`` entry, or None when the run has no profile
+    or too few pairs. Rows within ``near_wall_px`` of the wall are not judged."""
+    if not an.profile:
+        return None
+    acc = res.accumulators[run.name]
+    if getattr(getattr(acc, "rows", None), "history", None) is None:
+        return {"missing": "the statistics were summed before the rows' history was kept"}
+    try:
+        cv = profile_convergence(acc, an.profile, near_wall_px)
+    except (RspivError, ValueError) as exc:
+        camp.say(f"{run.label}: no convergence: {exc}")
+        return None
+    if cv is None:  # fewer than two prefixes of MIN_PREFIX_PAIRS pairs: nothing to show
+        return None
+    entry, files = write_files(
+        pathlib.Path(camp.out_dir), f"convergence_{run.name}", cv, an, run.label, camp.say
+    )
+    for kind, path in files.items():
+        res.files[f"convergence_{run.name}_{kind}"] = path
     if cv.warning:
         camp.say(f"warning: {run.label}: {cv.warning}")
-    camp.info.setdefault(INFO_KEY, {})[run.label] = (entry, fig)
+    camp.info.setdefault(INFO_KEY, {})[run.label] = (entry, files.get("png"))
     return entry
-
-
-#: The report's words on the figure and the test.
-REPORT_TEXT = (
-    "Each run's mean velocity and stresses over the pairs numbered below 10, 20, 50 ... "
-    "against the whole run's, at a few heights, with the band (two standard deviations) "
-    "within which the first n pairs of one flow stray from it (the pairs' scatter, "
-    "sigma_1 sqrt(1/n - 1/N)). The run's pairs split in two near half way: where more than a "
-    "quarter of the rows judged differ between the parts by more than four standard errors, "
-    "the flow or the recording changed over the run and the statistics average over it."
-)
 
 
 def report_section(camp: Any) -> Any:
