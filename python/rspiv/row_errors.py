@@ -155,16 +155,17 @@ class RowErrors:
         self.total += m
         self.outer += m[:, :, None] * m[:, None, :]
         self.pairs_in += m[:, _N] > 0
+        pid = int(pair_id) if pair_id is not None else self.n_fields
+        # the sums about zero from those about the shift (a, b): x = x' + a expanded
+        a, b = self.shift[:, 0], self.shift[:, 1]
+        su, sv = m[:, _U] + cnt * a, m[:, _V] + cnt * b
         if self.batch is not None:
-            b = (int(pair_id) if pair_id is not None else self.n_fields) % BATCHES
-            self.batch[b, :, 0] += cnt
-            self.batch[b, :, 1] += m[:, _U] + cnt * self.shift[:, 0]
+            self.batch[pid % BATCHES, :, 0] += cnt
+            self.batch[pid % BATCHES, :, 1] += su
         if self.history is not None:
-            pid = int(pair_id) if pair_id is not None else self.n_fields
-            uo, vo = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
             self.history[int(np.searchsorted(HISTORY_EDGES, pid, side="right"))] += np.stack(
-                [cnt, uo.sum(1), vo.sum(1), (uo * uo).sum(1), (vo * vo).sum(1),
-                 (uo * vo).sum(1)], axis=-1,
+                [cnt, su, sv, m[:, _UU] + a * (m[:, _U] + su), m[:, _VV] + b * (m[:, _V] + sv),
+                 m[:, _UV] + a * m[:, _V] + b * su], axis=-1,
             )  # fmt: skip
         self.n_fields += 1
         if pair_id is not None:
