@@ -685,7 +685,30 @@ def verdicts(result, directory: str | pathlib.Path) -> list[dict[str, Any]]:
             }
         )
     del res_main
+    rows += _convergence_rows(result, main)
     return rows
+
+
+def _convergence_rows(result, main) -> list[dict[str, Any]]:
+    """The main run's first pairs against the rest (:mod:`rspiv.convergence`): pairs of one
+    flow are not said to differ."""
+    try:
+        summary = json.loads((pathlib.Path(result.out_dir) / "summary.json").read_text())
+    except (OSError, ValueError):
+        return []
+    cv = summary.get("runs", {}).get(main.name, {}).get("convergence") or {}
+    if "split_pairs" not in cv:
+        return []
+    a, b = cv["split_pairs"]
+    shares = ", ".join(f"{k} {100 * (cv.get(f'beyond_{k}') or 0):.0f} %"
+                       for k in ("U", "uu", "vv", "uv"))  # fmt: skip
+    return [{
+        "claim": f"{main.label}: the first {a} pairs and the last {b} agree (pairs of one flow: "
+        "no statistic beyond 4 standard errors in a quarter of the rows)",
+        "measured": f"rows beyond 4: {shares}",
+        "limit": "25 %",
+        "pass": "warning" not in cv,
+    }]  # fmt: skip
 
 
 def format_verdicts(rows: list[dict[str, Any]]) -> str:
