@@ -236,6 +236,41 @@ def test_the_statistics_converge_as_pairs_of_one_flow(processed):
     assert "Convergence with the pairs" in (out / "report" / "report.html").read_text()
 
 
+def test_a_run_that_changes_is_said_in_the_log_summary_and_report(processed, tmp_path):
+    """The campaign's writer on a run whose rows' sums say its pairs from 40 on are 8 % faster
+    (the run's own pairs, its fields replaced by its mean plus noise): the warning in the log,
+    the summary entry and the report section, the files beside them."""
+    import copy
+    from types import SimpleNamespace
+
+    from rspiv.campaign import convergence as convergence_work
+    from rspiv.campaign.analysis import NEAR_WALL_HEIGHTS
+    from rspiv.row_errors import RowErrors
+
+    camp, res = processed
+    run = res.context.runs[0]
+    acc = copy.deepcopy(res.accumulators[run.name])
+    rng = np.random.default_rng(31)
+    mean_u, mean_v = np.nan_to_num(acc.mean_u), np.nan_to_num(acc.mean_v)
+    acc.rows = RowErrors(mean_u.shape[0])
+    for pid in sorted(acc.pair_ids):
+        g = 1.08 if pid >= 40 else 1.0
+        u = g * mean_u + 0.5 * rng.normal(size=mean_u.shape)
+        acc.rows.add(u, mean_v + 0.3 * rng.normal(size=mean_u.shape), acc.count > 0, pair_id=pid)
+    said: list[str] = []
+    fake = SimpleNamespace(out_dir=tmp_path, say=said.append, info={})
+    fake_res = SimpleNamespace(accumulators={run.name: acc}, files={})
+    near = NEAR_WALL_HEIGHTS * res.context.piv.final_window[1]
+    entry = convergence_work.write_outputs(fake, fake_res, run, res.analyses[run.name], near)
+    assert entry["split_pairs"] == [50, 30] and entry["beyond_U"] > 0.5
+    assert "U by a median +" in entry["warning"] and said == [f"warning: {run.label}: "
+                                                              f"{entry['warning']}"]  # fmt: skip
+    assert (tmp_path / f"convergence_{run.name}.csv").is_file()
+    assert (tmp_path / f"convergence_{run.name}.png").is_file()
+    sec = convergence_work.report_section(fake)
+    assert f"Warning: {run.label}: {entry['warning']}." in sec.text and sec.figures
+
+
 def test_local_and_merged_shards_agree(processed, synth):
     """The ensemble sums of two shards merge to the one-shard sums to 1e-12 relative."""
     from rspiv.stats import FieldAccumulator
