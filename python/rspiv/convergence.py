@@ -54,6 +54,7 @@ __all__ = [
     "Convergence",
     "pooled",
     "profile_convergence",
+    "profile_rows",
     "run_convergence",
 ]
 
@@ -248,6 +249,13 @@ def run_convergence(
     return out
 
 
+def profile_rows(profile: dict) -> np.ndarray:
+    """The rows of a run's ``profile`` (:func:`rspiv.campaign.analysis.analyse_run`'s) on the
+    flow's side of the wall with a mean: those its profile holds."""
+    dist = np.asarray(profile["dist_px"], np.float64)
+    return (dist > 0) & np.isfinite(profile["U"]) & (np.asarray(profile["count"]) > 0)
+
+
 def profile_convergence(acc: Any, profile: dict, near_wall_px: float) -> Convergence | None:
     """:func:`run_convergence` of a run's accumulator ``acc`` (its ``acc.rows``) in the units
     and axes of its ``profile`` (:func:`rspiv.campaign.analysis.analyse_run`'s: ``k``,
@@ -260,8 +268,5 @@ def profile_convergence(acc: Any, profile: dict, near_wall_px: float) -> Converg
     pe = pair_errors(acc, profile["k"])
     if pe is None:
         return None
-    dist = np.asarray(profile["dist_px"], np.float64)
-    ok = (dist > 0) & np.isfinite(profile["U"]) & (np.asarray(profile["count"]) > 0)
-    return run_convergence(
-        rows, pe, ok & (dist >= near_wall_px), profile["k"], profile["sign_x"], profile["sign_y"]
-    )
+    judged = profile_rows(profile) & (np.asarray(profile["dist_px"]) >= near_wall_px)
+    return run_convergence(rows, pe, judged, profile["k"], profile["sign_x"], profile["sign_y"])

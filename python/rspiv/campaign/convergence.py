@@ -25,7 +25,13 @@ from typing import Any
 
 import numpy as np
 
-from rspiv.convergence import REPORT_TEXT, STATISTICS, Convergence, profile_convergence
+from rspiv.convergence import (
+    REPORT_TEXT,
+    STATISTICS,
+    Convergence,
+    profile_convergence,
+    profile_rows,
+)
 from rspiv.errors import RspivError
 from rspiv.outputs import write_profile_csv
 
@@ -62,7 +68,12 @@ def _heights(an: Any, cv: Convergence, y_plus: np.ndarray | None) -> list[tuple[
 
 
 def write_files(
-    out_dir: pathlib.Path, name: str, cv: Convergence, an: Any, label: str, say=None,
+    out_dir: pathlib.Path,
+    name: str,
+    cv: Convergence,
+    an: Any,
+    label: str,
+    say=None,
     figure: bool = True,
 ) -> tuple[dict[str, Any], dict[str, pathlib.Path]]:
     """Write ``<name>.csv`` and (with ``figure``) ``<name>.png`` of ``cv`` (module docstring)
@@ -75,8 +86,7 @@ def write_files(
     if an.result is not None and prof.get("m_per_px"):
         y_m = dist * prof["m_per_px"] - an.result.y0
         y_plus = y_m * an.result.u_tau / an.result.nu
-    ok = (dist > 0) & np.isfinite(prof["U"]) & (np.asarray(prof["count"]) > 0)
-    sel = np.flatnonzero(ok)
+    sel = np.flatnonzero(profile_rows(prof))
     P = cv.pairs.size
     cols: dict[str, np.ndarray] = {
         "pairs": np.repeat(cv.pairs, sel.size).astype(np.float64),
