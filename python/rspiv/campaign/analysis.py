@@ -42,6 +42,7 @@ from rspiv.campaign import vorticity as vorticity_work
 from rspiv.campaign.spec import STAGES, RunSpec
 from rspiv.campaign.state import CampaignResult, RunAnalysis, RunLog, json_default
 from rspiv.campaign_config import CampaignConfig
+from rspiv.convergence import profile_rows
 from rspiv.errors import InvalidInputError, RspivError
 from rspiv.outputs import (
     atomic_path,
@@ -166,7 +167,7 @@ def analyse_run(
     n_eff = prof["n_eff"] if st.use_n_eff else prof["count"]
     if isinstance(n_eff, dict):
         n_eff = {kk: vv for kk, vv in n_eff.items() if kk != "V"}
-    ok = (dist_px > 0) & np.isfinite(prof["U"]) & (prof["count"] > 0)
+    ok = profile_rows(profile)  # the rows the profile holds (rspiv.convergence's too)
     if ok.sum() < 8:
         raise InvalidInputError(f"{run.label}: fewer than 8 profile points above the wall")
     y_m = dist_px[ok] * m_per_px
