@@ -108,7 +108,10 @@ def test_sums_of_six_give_no_skewness_and_merge_as_six():
     zero.total = np.einsum("rij,rj->ri", t, zero.total)[:, :6]
     zero.outer = np.einsum("rij,rjk,rlk->ril", t, zero.outer, t)[:, :6, :6]
     zero.shift = np.zeros_like(zero.shift)
+    zero.lags, zero.recent = None, []  # written before the lags too
     for key, val in old.result().items():
+        if key.startswith(("serial_", "open_")) or key == "lag_max":
+            continue
         if key[-2:] not in ("_u", "_v"):
             np.testing.assert_allclose(zero.result()[key], val, rtol=1e-8, atol=1e-12)
     assert "S_u" not in zero.result() and "se_F_v" not in zero.result()
@@ -131,6 +134,8 @@ def test_parts_merge_to_the_whole_and_round_trip():
         (a if k % 2 else b).add(u, v, pair_id=k)
     merged = copy.deepcopy(a).merge(b)
     for key, val in whole.result().items():
+        if key.startswith(("serial_", "open_")):
+            continue  # the parts' chains are not joined (tests/test_row_serial.py)
         np.testing.assert_allclose(merged.result()[key], val, rtol=1e-10)
     again = pickle.loads(pickle.dumps(whole))
     np.testing.assert_array_equal(again.result()["se_uu"], whole.result()["se_uu"])

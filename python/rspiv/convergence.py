@@ -29,6 +29,18 @@ first pairs and its last. Rows judged: on the flow's side of the wall, not flagg
 ``near_wall`` (:func:`rspiv.campaign.analysis.profile_extra`), with
 :data:`rspiv.profiles.VERDICT_PAIRS` pairs or more.
 
+**Pairs too close in time.** The errors of a time-resolved run take the pairs' serial
+correlation from the rows' own means over up to 32 lags (:meth:`rspiv.row_errors.RowErrors.
+serial`); where the lags a run's length allows (a quarter of its pairs) fall short of five of
+the rows' correlation times, the errors and the bands are lower bounds. Where more than
+:data:`DRIFT_SHARE` of the rows judged are so, the run says it (``serial_warning``), with the
+median factor on the variance of U and the cure: a longer recording where the run's length
+limits the lags, pairs spaced further apart in time where the 32 lags kept do. The split's test
+takes the correlation within its two parts (a change between them is, to the whole run's
+autocovariances, a correlation that lasts the run, and would hide itself): each lag's
+autocovariance less the parts' difference's share; where it says the run changes, that is said
+instead of the serial warning.
+
 Units: the profile's (m/s and m^2/s^2 in SI, px per pair otherwise), relative departures as
 fractions of the whole run's value.
 """
@@ -42,7 +54,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 from rspiv.profiles import VERDICT_PAIRS, pair_errors
-from rspiv.row_errors import RowErrors
+from rspiv.row_errors import LAGS, RowErrors, lag_factor
 
 __all__ = [
     "DRIFT_SHARE",
@@ -122,6 +134,15 @@ class Convergence:
         :data:`DRIFT_SHARE` of the rows judged.
     warning : str or None
         One line saying which, with the median relative change over those rows.
+    serial : float or None
+        The median over the rows judged of the factor by which the pairs' serial correlation
+        multiplies the variance of U (1 for independent pairs; None for sums written before
+        the lags).
+    serial_open : float or None
+        The share of the rows judged whose factor is a lower bound (the run too short for its
+        pairs' correlation to be known).
+    serial_warning : str or None
+        One line when that share exceeds :data:`DRIFT_SHARE`.
     """
 
     pairs: np.ndarray
@@ -133,6 +154,9 @@ class Convergence:
     change: dict[str, np.ndarray] | None = None
     drifting: list[str] = dataclasses.field(default_factory=list)
     warning: str | None = None
+    serial: float | None = None
+    serial_open: float | None = None
+    serial_warning: str | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready: the prefixes' pairs, the split, per statistic the share of rows judged
@@ -147,9 +171,77 @@ class Convergence:
                 z = z[np.isfinite(z)]
                 out[f"beyond_{key}"] = float(np.mean(z > DRIFT_SIGMAS)) if z.size else None
                 out[f"median_z_{key}"] = float(np.median(z)) if z.size else None
+        if self.serial is not None:
+            out["serial_factor_U"] = self.serial
+            out["serial_open"] = self.serial_open
         if self.warning:
             out["warning"] = self.warning
+        if self.serial_warning:
+            out["serial_warning"] = self.serial_warning
         return out
+
+
+def _within_parts(
+    errors: dict[str, Any],
+    res: dict[str, np.ndarray],
+    key: str,
+    sigma_1: np.ndarray,
+    d_px: np.ndarray,
+    parts: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray | float]:
+    """One pair's scatter of ``key`` as for independent pairs (``sigma_1`` without the serial
+    factor :func:`rspiv.profiles.pair_errors` applied) and the serial factor within the two
+    parts: the rows' autocovariances (``res``, :meth:`RowErrors.result`'s ``gamma_``, px
+    units) less the share of the parts' difference ``d_px`` at each lag ``k``, ``d^2 (n1 n2 N
+    - k (N^2 - n1 n2)) / N^4`` for ``parts`` = (n1, n2, N) pairs of the row, and at least the
+    per-vector lag-1 factor; that factor alone where the correlation within the parts outlasts
+    the lags followed (a change inside a part looks so). Sums written before the lags, or
+    errors without their factors: ``sigma_1`` as it is and 1."""
+    if "serial" not in errors or key not in errors["serial"]:
+        return sigma_1, 1.0
+    applied = np.asarray(errors["serial"][key], np.float64)  # n_eff / n
+    lag1 = 1.0 / np.asarray(errors["serial_lag1"][key], np.float64)
+    plain = sigma_1 * np.sqrt(applied)
+    if f"gamma_{key}" not in res:
+        return plain, lag1
+    n1, n2, n = parts
+    k = np.arange(res[f"gamma_{key}"].shape[0])[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        step = np.nan_to_num(d_px * d_px * (n1 * n2 * n - k * (n * n - n1 * n2)) / n**4)
+    g = res[f"gamma_{key}"] - step
+    factor, still = lag_factor(g[0], g[1:], res["pairs"], res["lag_max"])
+    # a correlation within the parts that outlasts the lags (a change inside a part, or scales
+    # longer than the lags): not known, and the test takes the per-vector lag-1 factor
+    return plain, np.where(still, lag1, np.maximum(factor, lag1))
+
+
+def _serial_verdict(out: Convergence, errors: dict[str, np.ndarray], N: int) -> None:
+    """The pairs' serial correlation over the rows judged (``out.serial``, ``serial_open``,
+    ``serial_warning``; module docstring), from :func:`rspiv.profiles.pair_errors`' ``serial_U``
+    (n_eff / n) and ``open_U``."""
+    if "open_U" not in errors or np.count_nonzero(out.judged) < MIN_ROWS:
+        return
+    with np.errstate(divide="ignore"):
+        factor = 1.0 / np.asarray(errors["serial_U"], np.float64)[out.judged]
+    still = np.asarray(errors["open_U"], bool)[out.judged]
+    out.serial = float(np.median(factor))
+    out.serial_open = float(np.mean(still))
+    if out.serial_open > DRIFT_SHARE:
+        lags = np.asarray(errors.get("lag_max", np.zeros(out.judged.size)))[out.judged][still]
+        if lags.size and np.median(lags) >= LAGS:  # a long run, its lags too few
+            cure = (
+                f"{LAGS} lags are kept: pairs spaced further apart in time ([images] "
+                "pair_step) make the correlation short enough in pairs to be followed"
+            )
+        else:
+            cure = "a longer recording (more of the flow's slowest scales) makes them known"
+        out.serial_warning = (
+            f"the pairs follow each other too closely for {N} of them to say how far their "
+            f"statistics are from the flow's: in {100 * out.serial_open:.0f} % of the rows the "
+            f"pairs' correlation lasts longer than a fifth of the lags followed (the variance "
+            f"of U {np.median(factor[still]):.1f} times that of independent pairs and more), so "
+            f"the errors and the convergence bands are lower bounds; {cure}"
+        )
 
 
 def run_convergence(
@@ -204,6 +296,7 @@ def run_convergence(
         }
     judged = judged & (np.asarray(errors["pairs"]) >= VERDICT_PAIRS)
     out = Convergence(pairs, values, band, judged)
+    _serial_verdict(out, errors, N)
     # the split: the edge whose first part is nearest half the run, both parts large enough
     firsts = [
         i for i, (n, _) in enumerate(got[:-1]) if n >= MIN_HALF_PAIRS and N - n >= MIN_HALF_PAIRS
@@ -216,12 +309,17 @@ def run_convergence(
     out.split = (n1, N - n1)
     out.z, out.change = {}, {}
     n1r, n2r, nr = n1 * share, (N - n1) * share, N * share  # the row's pairs in each part
+    res = rows.result() if "serial" in errors else {}
     with np.errstate(invalid="ignore", divide="ignore"):
         for key in STATISTICS:
             d = (rest[key] - first[key]) * scale[key]
-            # one pair's scatter within the parts: the whole run's less the parts' difference
-            within = sigma_1[key] ** 2 * (nr - 1) - n1r * n2r / nr * d * d
-            sig = np.sqrt(np.maximum(within, 0.0) / np.maximum(nr - 2, 1.0))
+            # one pair's scatter within the parts: the whole run's less the parts' difference,
+            # and the pairs' serial correlation within the parts (a change between them would
+            # otherwise widen the scatter, and lengthen the correlation, it is held against)
+            s1, factor = _within_parts(errors, res, key, sigma_1[key], rest[key] - first[key],
+                                       (n1r, n2r, nr))  # fmt: skip
+            within = s1**2 * (nr - 1) - n1r * n2r / nr * d * d
+            sig = np.sqrt(np.maximum(within, 0.0) / np.maximum(nr - 2, 1.0) * factor)
             out.z[key] = d / (sig * np.sqrt(1 / n1r + 1 / n2r))
             out.change[key] = d / np.abs(values[key][-1])
     if np.count_nonzero(judged) < MIN_ROWS:
@@ -239,12 +337,20 @@ def run_convergence(
             said.append(f"{key} by a median {100 * med:+.1f} % ({100 * beyond.mean():.0f} % of "
                         f"the rows beyond {DRIFT_SIGMAS:.0f} standard errors)")  # fmt: skip
     if said:
+        # a change is a correlation that outlasts the lags: said as the change, with it
+        longer = (
+            "; the rows' means also stay correlated beyond the lags followed, so the errors "
+            "are lower bounds"
+            if out.serial_warning
+            else ""
+        )
+        out.serial_warning = None
         out.warning = (
             f"the statistics of the first {n1} pairs and of the last {N - n1} differ beyond "
             f"their errors: {'; '.join(said)}; the flow or the recording changed over the run "
             "(the tunnel's speed or temperature, the seeding, the laser's energy, the camera), "
             "or its pairs span too few of the flow's largest scales; the statistics average "
-            "over the change"
+            f"over the change{longer}"
         )
     return out
 

@@ -159,10 +159,15 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
     stresses), the skewness and flatness's ``S_u``, ``F_u``, ``S_v``, ``F_v`` (none from sums
     written before them), and ``pairs``; ``replicates``, the rows' mean u times ``k`` with one
     batch of pairs left out in each (:meth:`rspiv.row_errors.RowErrors.replicates`; none
-    before 8 batches hold pairs), and ``serial_U``, each row's ``n_eff / n`` of u. Pairs that
-    follow each other in time (a time-resolved recording) are not independent: each variance is
-    divided by the row's mean of ``n_eff / n`` of the per-vector statistics
-    (:meth:`rspiv.stats.FieldAccumulator.n_eff`; 1 for independent pairs). None when ``acc``
+    before 8 batches hold pairs), ``serial_U``, each row's ``n_eff / n`` of u, and
+    ``open_U`` (True where that is an upper bound: the pairs' correlation not yet seen to end);
+    ``serial`` and ``serial_lag1``, per statistic the ``n_eff / n`` applied and the per-vector
+    one alone; ``lag_max``, the lags the rows' factor followed (states written since the lags).
+    Pairs that follow each other in time (a time-resolved recording) are not independent: each
+    variance is divided by the smaller of two ``n_eff / n``: the row's mean of the per-vector
+    statistics' (:meth:`rspiv.stats.FieldAccumulator.n_eff`, lag 1 only) and the inverse of
+    the rows' own serial factor over up to 32 lags (:meth:`rspiv.row_errors.RowErrors.serial`;
+    U's for S and F of u, V's for those of v); 1 for independent pairs. None when ``acc``
     carries no such sums, or sums of other pairs than its own (a state resumed from before they
     existed).
     """
@@ -181,9 +186,17 @@ def pair_errors(acc, k: float = 1.0) -> dict[str, np.ndarray] | None:
                 continue
             serial = np.nansum(np.asarray(acc.n_eff(q), dtype=np.float64), axis=-1) / csum
             serial = np.where(serial > 0, np.minimum(serial, 1.0), 1.0)
+            out.setdefault("serial_lag1", {})[key] = serial
+            own = f"serial_{'UV'[q == 'v'] if power == 0 else key}"
+            if own in res:  # the rows' own serial factor (states written since the lags)
+                serial = np.minimum(serial, 1.0 / np.where(res[own] >= 1, res[own], 1.0))
+            out.setdefault("serial", {})[key] = serial
             out[key] = res[f"se_{key}"] / np.sqrt(serial) * abs(k) ** power
             if key == "U":
                 out["serial_U"] = serial
+                out["open_U"] = res.get("open_U", np.zeros(serial.shape, dtype=bool))
+                if "lag_max" in res:
+                    out["lag_max"] = res["lag_max"]
     reps = rows.replicates()
     if reps is not None:  # the rows' mean u, one batch of pairs left out in each (times k)
         out["replicates"] = reps * k

@@ -746,8 +746,8 @@ def vector_statistics(
         warnings.append(f"no wall units: {an.error}")
     warnings += reads.notes
     conv = profile_convergence(acc, an.profile, NEAR_WALL_HEIGHTS * window[1])
-    if conv is not None and conv.warning:
-        warnings.append(conv.warning)
+    if conv is not None:
+        warnings += [w for w in (conv.warning, conv.serial_warning) if w]
     return VectorStatistics(
         acc, xs, ys, an, first.tool, frame, int(acc.n_fields), state["skipped"],
         float("nan") if scale is None else float(scale), float("nan") if pulse is None else pulse,

@@ -15,7 +15,9 @@ exists; a state resumed from before gives none, said in ``summary.json``):
   (:func:`rspiv.plots.convergence.plot_convergence`): ``y+`` near 15, 50, 150 and 500 where
   the run has wall units, else heights spread over the rows judged;
 - ``summary.json``: ``runs.<run>.convergence`` (:meth:`rspiv.convergence.Convergence.summary`
-  and the files); its ``warning`` also in the log and the report.
+  and the files); its ``warning`` and ``serial_warning`` (pairs too close in time for their
+  correlation to be known) also in the log and the report, whose table gives each run's
+  ``serial factor on var(U)`` (the median over the rows judged; 1 for independent pairs).
 """
 
 from __future__ import annotations
@@ -145,8 +147,9 @@ def write_outputs(
     )
     for kind, path in files.items():
         res.files[f"convergence_{run.name}_{kind}"] = path
-    if cv.warning:
-        camp.say(f"warning: {run.label}: {cv.warning}")
+    for said in (cv.warning, cv.serial_warning):
+        if said:
+            camp.say(f"warning: {run.label}: {said}")
     camp.info.setdefault(INFO_KEY, {})[run.label] = (entry, files.get("png"))
     return entry
 
@@ -167,11 +170,14 @@ def report_section(camp: Any) -> Any:
             for key in STATISTICS:
                 share = entry.get(f"beyond_{key}")
                 row[f"rows beyond 4 SE, {key} (%)"] = None if share is None else 100 * share
+        if entry.get("serial_factor_U") is not None:
+            row["serial factor on var(U)"] = entry["serial_factor_U"]
         rows.append(row)
         if fig is not None:
             figures.append((fig, f"{label}: convergence with the pairs"))
-        if entry.get("warning"):
-            said.append(f"Warning: {label}: {entry['warning']}.")
+        for key in ("warning", "serial_warning"):
+            if entry.get(key):
+                said.append(f"Warning: {label}: {entry[key]}.")
     text = "\n\n".join([REPORT_TEXT, *said])
     return ReportSection(
         "Convergence with the pairs", text=text, figures=figures,
