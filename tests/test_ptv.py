@@ -650,3 +650,75 @@ def test_the_campaign_file_asks_for_the_tracks(campaign, monkeypatch):
     assert parsed(runs=("uncorrected", "method_II")).ptv.runs == ("uncorrected", "method_II")
     with pytest.raises(InvalidInputError, match=r"\[ptv\].runs: expected a list of 'method_I'"):
         parsed(runs=("method_II", "method_II"))
+
+
+def _tracks_in_time(rng, pairs, phi, n=400):
+    """``pairs`` pairs of tracks within 4 px of a wall at y = 100 whose mean speed follows an
+    AR(1) process from pair to pair (correlation ``phi``, 0.3 px rms) under independent track
+    fluctuations of 0.5 px: the exact variance of the mean U over the pairs is known."""
+    a = rng.normal(0, 0.3)
+    for _ in range(pairs):
+        t = SimpleNamespace(x=rng.uniform(0, 400, n), y=100 - rng.uniform(0, 4, n),
+                            saturated=np.zeros(n, bool), diameter=2.5)  # fmt: skip
+        t.u, t.v = 2.0 + a + rng.normal(0, 0.5, n), rng.normal(0, 0.2, n)
+        yield t
+        a = phi * a + np.sqrt(1 - phi * phi) * rng.normal(0, 0.3)
+
+
+def test_tracks_of_pairs_that_follow_each_other_take_their_serial_correlation():
+    """The tracks' bins, like the PIV profile's rows (tests/test_row_serial.py): pairs whose
+    mean speed is correlated at 0.8 from pair to pair (a factor of 8.6 on the variance of U
+    over 600 pairs) get it within 15 %, and errors whose z scores against the true mean
+    spread by 1 over the bins; independent pairs a factor near 1; given ids or not, the same;
+    a pickled profile from before the lags gives none; merged parts keep their own chains."""
+    rng = np.random.default_rng(4)
+    prof = TrackProfile(WallLine(100.0), bin_px=0.5, band_px=4.0)
+    for k, t in enumerate(_tracks_in_time(rng, 600, 0.8)):
+        prof.add(t, pair_id=k)
+    r = prof.result()
+    lag = np.arange(600)
+    c = 0.09 * 0.8**lag
+    c[0] += 0.25 / 50  # a bin's 50 tracks' own fluctuations
+    exact = (600 * c[0] + 2 * np.sum((600 - lag[1:]) * c[1:])) / 600**2
+    se_indep = r["se_U"] / np.sqrt(r["serial_U"])
+    factor = exact / np.median(se_indep) ** 2  # the bins' U share the pair's mean: 8.6
+    assert 8 < factor < 9.5 and abs(np.median(r["serial_U"]) / factor - 1) < 0.15
+    assert not r["open_U"].any() and np.median(r["serial_V"]) < 1.2
+    # all bins share the pair's mean, so their z scores are one draw: against the exact error
+    assert abs(np.median(r["se_U"]) / np.sqrt(exact) - 1) < 0.1
+    indep = TrackProfile(WallLine(100.0), bin_px=0.5, band_px=4.0)
+    same = TrackProfile(WallLine(100.0), bin_px=0.5, band_px=4.0)
+    for k, t in enumerate(_tracks_in_time(np.random.default_rng(5), 200, 0.0)):
+        indep.add(t, pair_id=k)
+        same.add(t)
+    ri = indep.result()
+    assert np.median(ri["serial_U"]) < 1.1 and not ri["open_U"].any()
+    np.testing.assert_array_equal(same.result()["se_U"], ri["se_U"])
+    old = pickle.loads(pickle.dumps(indep))
+    del old.__dict__["lags"], old.__dict__["recent"]
+    old = pickle.loads(pickle.dumps(old))
+    assert old.lags is None and "serial_U" not in old.result()
+    a, b = (TrackProfile(WallLine(100.0), bin_px=0.5, band_px=4.0) for _ in range(2))
+    for k, t in enumerate(_tracks_in_time(np.random.default_rng(6), 60, 0.8)):
+        (a if k < 30 else b).add(t, pair_id=k)
+    lags = a.lags + b.lags
+    a.merge(b)
+    np.testing.assert_array_equal(a.lags, lags)
+    assert a.recent == []
+
+
+def test_a_short_time_resolved_ptv_pass_is_said():
+    """40 pairs correlated at 0.95: the bins' factor is a lower bound and the pass says so in
+    its profile warning, beside its other warning; independent pairs say nothing."""
+    from rspiv.campaign.ptv import _serial
+
+    prof = TrackProfile(WallLine(100.0), bin_px=0.5, band_px=4.0)
+    for k, t in enumerate(_tracks_in_time(np.random.default_rng(7), 40, 0.95)):
+        prof.add(t, pair_id=k)
+    got = _serial(prof.result(), 40)
+    assert got["serial_open"] > 0.5 and "lower bounds" in got["serial_warning"]
+    indep = TrackProfile(WallLine(100.0), bin_px=0.5, band_px=4.0)
+    for k, t in enumerate(_tracks_in_time(np.random.default_rng(7), 40, 0.0)):
+        indep.add(t, pair_id=k)
+    got = _serial(indep.result(), 40)
+    assert "serial_warning" not in got and got["serial_factor_U"] < 1.3

@@ -31,6 +31,16 @@ uncertain, most for the stresses whose tracks' errors have long tails (one bin o
 read its ``vv``'s error at half the independent tracks' ``vv sqrt(2 / n)``): the error given is
 the larger of the two.
 
+Pairs that follow each other in time (a time-resolved recording) are not independent draws: as
+the PIV profile's rows do (:mod:`rspiv.row_errors`), each bin keeps the products of its pairs'
+ten single-track sums with those of the pairs up to :data:`rspiv.row_errors.LAGS` ids before it
+(the ids :meth:`TrackProfile.add` is given, else the order of the calls), and the variances of
+``U``, ``V``, ``uu``, ``vv``, ``uv`` take the factor of their residuals' autocovariances
+(:func:`rspiv.row_errors.lag_factor`: Geyer's initial monotone sequence, neighbouring bins
+averaged; the two-track stresses take their single-track stress's); ``serial_U`` ... per bin,
+and ``open_U`` where the lags followed span fewer than five correlation times (the errors are
+then lower bounds). Profiles pickled before the lags: no factor.
+
 **Two-track stresses** (``uu_two``, ``vv_two``, ``uv_two``): from the products of the residuals
 of two different tracks of one pair in one bin, ``s`` apart along the wall. Their errors are
 independent (the lowest separation, 4 px by default, keeps the two particle images apart), so
@@ -72,6 +82,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 from rspiv.ptv import wall_sign
+from rspiv.row_errors import LAG_SHARE, LAGS, lag_factor
 
 __all__ = ["SublayerFit", "TrackProfile", "WallLine", "sublayer_fit"]
 
@@ -168,10 +179,22 @@ class TrackProfile:
         self.outer = np.zeros((self.nbins, self.moments, self.moments))
         self.pairs_in = np.zeros(self.nbins, dtype=np.int64)
         self.diameters: list[float] = []
+        #: per lag 1 .. LAGS and bin: the sums of the products of a pair's single-track sums
+        #: with those of the pair that many ids later (module docstring); None when pickled
+        #: before them
+        self.lags: np.ndarray | None = np.zeros((LAGS, self.nbins, _SINGLE, _SINGLE))
+        #: the last pairs' ``(id, single-track sums)`` (the chain; cleared by a merge)
+        self.recent: list[tuple[int, np.ndarray]] = []
 
-    def add(self, tracks: Any) -> int:
+    def __setstate__(self, state: dict) -> None:
+        state.setdefault("lags", None)  # pickled before the lags
+        state.setdefault("recent", [])
+        self.__dict__.update(state)
+
+    def add(self, tracks: Any, pair_id: int | None = None) -> int:
         """Add one pair's tracks (:class:`rspiv.ptv.Tracks`); returns how many fell in the
-        band."""
+        band. ``pair_id``: the pair's place in time (its id in the campaign), for the pairs'
+        serial correlation (module docstring); default the number of pairs added before."""
         x, y = np.asarray(tracks.x, dtype=np.float64), np.asarray(tracks.y, dtype=np.float64)
         keep = np.isfinite(tracks.u) & np.isfinite(tracks.v)
         if not self.keep_saturated:
@@ -195,6 +218,13 @@ class TrackProfile:
         self.total += t
         self.outer += t[:, :, None] * t[:, None, :]
         self.pairs_in += t[:, 0] > 0
+        if self.lags is not None:
+            pid, single = self.pairs if pair_id is None else int(pair_id), t[:, :_SINGLE].copy()
+            for q, tq in self.recent:
+                if 1 <= abs(pid - q) <= LAGS:
+                    early, late = (tq, single) if q < pid else (single, tq)
+                    self.lags[abs(pid - q) - 1] += early[:, :, None] * late[:, None, :]
+            self.recent = [*self.recent[-(2 * LAGS - 1) :], (pid, single)]
         self.pairs += 1
         if np.isfinite(getattr(tracks, "diameter", np.nan)):
             self.diameters.append(float(tracks.diameter))
@@ -244,6 +274,9 @@ class TrackProfile:
             )
         self.total += other.total
         self.outer += other.outer
+        theirs = getattr(other, "lags", None)
+        self.lags = None if self.lags is None or theirs is None else self.lags + theirs
+        self.recent = []  # the chains of two parts are not joined
         self.pairs_in += other.pairs_in
         self.pairs += other.pairs
         self.diameters.extend(other.diameters)
@@ -254,8 +287,10 @@ class TrackProfile:
         the two-track stresses ``uu_two``, ``vv_two``, ``uv_two`` with ``n_two`` (the pairs
         of tracks), ``se_U``, ... ``se_uv_two`` and ``near_wall``; bins with fewer than
         ``min_tracks`` (at least 3) tracks, or pairs of tracks for the two-track stresses, are
-        NaN. Also ``diameter_px`` (the particle images' median e^-2 diameter)
-        and ``total_pairs`` as 0-d arrays."""
+        NaN; ``serial_U`` ... ``serial_uv`` and ``open_U`` ... (the pairs' serial factor on
+        each variance, already in its ``se_``, and where it is a lower bound; none for
+        profiles pickled before the lags). Also ``diameter_px`` (the particle images' median
+        e^-2 diameter) and ``total_pairs`` as 0-d arrays."""
         T, M, P = self.total, self.outer, self.pairs
         n = T[:, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -274,16 +309,22 @@ class TrackProfile:
             cov = (M - T[:, :, None] * T[:, None, :] / max(P, 1)) * (P / max(P - 1, 1))
             out: dict[str, np.ndarray] = {}
             iid = _independent_errors(stats, n, T)
+            serial = self._serial(grads)
             for k, g in grads.items():
                 out[k] = stats[k]
                 se = np.sqrt(np.maximum(np.einsum("bi,bij,bj->b", g, cov, g), 0.0))
-                out[f"se_{k}"] = np.fmax(se, iid[k])
+                f = serial.get(k.removesuffix("_two"), (1.0, None))[0]
+                out[f"se_{k}"] = np.fmax(se, iid[k]) * np.sqrt(f)
+            for k, (f, still) in serial.items():
+                out[f"serial_{k}"], out[f"open_{k}"] = f, still
             centre = (np.arange(self.nbins) + 0.5) * self.bin_px
             h = centre + T[:, 6] / n
         few = n < max(int(min_tracks), 3)
         n_two = _extrapolation(T)[1].sum(axis=1)
         few_two = n_two < max(int(min_tracks), 3)
         for k in list(out):
+            if k.startswith(("serial_", "open_")):
+                continue
             out[k] = np.where(few | (few_two if k.endswith("_two") else False), np.nan, out[k])
             if k.startswith("se_"):
                 out[k] = np.where(self.pairs_in < 2, np.nan, out[k])
@@ -298,6 +339,22 @@ class TrackProfile:
             diameter_px=np.asarray(diameter),
             total_pairs=np.asarray(P),
         )
+        return out
+
+    def _serial(self, grads: dict[str, np.ndarray]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per single-track statistic, the serial factor on its variance per bin and whether
+        it is a lower bound (module docstring); empty for profiles pickled before the lags."""
+        if self.lags is None:
+            return {}
+        p = self.pairs_in
+        kmax = np.minimum(LAGS, np.floor(LAG_SHARE * p)).astype(np.int64)
+        M = self.outer[:, :_SINGLE, :_SINGLE]
+        out = {}
+        for k in ("U", "V", "uu", "vv", "uv"):
+            g = np.nan_to_num(grads[k][:, :_SINGLE])
+            gam0 = np.einsum("bi,bij,bj->b", g, M, g)
+            gam = np.einsum("bi,kbij,bj->kb", g, self.lags, g)
+            out[k] = lag_factor(gam0, gam, p, kmax)
         return out
 
 

@@ -47,13 +47,16 @@ adds them, a chain never joined across two merged parts). For a statistic of gra
 ``gamma_k = w^T L_k w``, and the variance of the run's mean is ``-gamma_0 + 2 sum_m Gamma_m``,
 ``Gamma_m = gamma_2m + gamma_2m+1`` summed while positive and not increasing (Geyer's initial
 monotone sequence, 1992), up to lag ``min(LAGS, pairs / 4)``, each ``gamma_k / gamma_0``
-averaged first over :data:`SMOOTH_ROWS` neighbouring rows (one row's estimate is noisy).
+averaged first over :data:`SMOOTH_ROWS` neighbouring rows (one row's estimate is noisy), and
+none taken where the averaged lag-1 correlation is within :data:`SEEN_SIGMAS` sampling errors
+of none (independent pairs then keep a factor of 1).
 :meth:`RowErrors.serial` gives the factor by which that exceeds ``gamma_0`` (the independent
 pairs' variance; at least 1) and
 whether those lags fall short of :data:`WINDOW_TAUS` times the integrated correlation time
 (``factor / 2`` pairs; ``open``: the run is too short, or its pairs too close in time, for
 their correlation to be known; its errors are then lower bounds).
-Independent pairs give a factor near 1 (by ``1 + O(P^-1/2)``: the estimate is conservative).
+Independent pairs give a factor of 1 but in the few rows where chance correlation passes that
+test (there the estimate is conservative).
 Rows with fewer than :data:`MIN_PAIRS` pairs get NaN.
 
 Units: those of the fields added (px per pair in a campaign); errors of the stresses in their
@@ -75,6 +78,7 @@ __all__ = [
     "LAG_SHARE",
     "MIN_BATCHES",
     "MIN_PAIRS",
+    "SEEN_SIGMAS",
     "SMOOTH_ROWS",
     "WINDOW_TAUS",
     "RowErrors",
@@ -108,6 +112,9 @@ WINDOW_TAUS = 5.0
 #: (one row's estimate from its pairs alone is noisy: over 200 independent pairs its factor
 #: strays to 1.4 in a tenth of the rows).
 SMOOTH_ROWS = 9
+#: A row's averaged lag-1 correlation is taken as seen beyond this many of its sampling errors
+#: for independent pairs; below, the row's pairs count as independent (factor 1).
+SEEN_SIGMAS = 2.0
 
 # the ten per-pair row sums: count, u, v, uu, vv, uv, u^3, v^3, u^4, v^4 (the first six: the
 # sums of states written before the higher powers were)
@@ -463,17 +470,23 @@ def lag_factor(
     """:func:`serial_factor` of a statistic's autocovariances per row (``gamma0`` (rows,),
     ``gamma`` (lags x rows), as :meth:`RowErrors.result`'s ``gamma_`` holds them), each row's
     correlations averaged over :data:`SMOOTH_ROWS` neighbours first; rows of fewer than
-    :data:`MIN_PAIRS` ``pairs`` or no variance are left out of the average (factor 1)."""
-    ok = (np.asarray(pairs) >= MIN_PAIRS) & (gamma0 > 0)
+    :data:`MIN_PAIRS` ``pairs`` or no variance are left out of the average (factor 1), and so
+    are rows whose averaged lag-1 correlation is within :data:`SEEN_SIGMAS` of its sampling
+    error for independent pairs, ``1 / sqrt(pairs x rows averaged)`` (a correlation not seen:
+    the sequence would otherwise add the noise of its first terms, a factor of 1.5-2 on one
+    row of 40 independent pairs)."""
+    pairs = np.asarray(pairs, np.float64)
+    ok = (pairs >= MIN_PAIRS) & (gamma0 > 0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rho = _along_rows(np.where(ok, gamma / np.where(ok, gamma0, 1.0), np.nan))
-    return serial_factor(ok.astype(np.float64), rho, kmax)
+        rho, count = _along_rows(np.where(ok, gamma / np.where(ok, gamma0, 1.0), np.nan))
+        seen = rho[0] > SEEN_SIGMAS / np.sqrt(pairs * count[0])
+    return serial_factor((ok & seen).astype(np.float64), rho, kmax)
 
 
-def _along_rows(rho: np.ndarray) -> np.ndarray:
+def _along_rows(rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``rho`` (lags x rows, NaN where unknown) averaged over :data:`SMOOTH_ROWS` neighbouring
-    rows (those known): the correlation time changes slowly with height, its estimate from one
-    row's pairs is noisy."""
+    rows (those known; the correlation time changes slowly with height, its estimate from one
+    row's pairs is noisy), and how many rows each average holds."""
     half = SMOOTH_ROWS // 2
     known = np.isfinite(rho)
     pad = ((0, 0), (half + 1, half))
@@ -482,7 +495,7 @@ def _along_rows(rho: np.ndarray) -> np.ndarray:
     w = SMOOTH_ROWS
     total, count = s[:, w:] - s[:, :-w], c[:, w:] - c[:, :-w]
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(known, total / count, np.nan)
+        return np.where(known, total / count, np.nan), count
 
 
 def serial_factor(

@@ -48,7 +48,9 @@ Outputs (atomic)
     the tracks' counts, the warnings the pairs gave (each once, with how many pairs and the
     figures of the first pair that gave it), the tracks' own error at most
     (``track_error_px2``: the single-track stresses less the two-track ones), the sublayer fit
-    (``u_tau`` from it with its standard error against the campaign's) and the fields'
+    (``u_tau`` from it with its standard error against the campaign's), the pairs' serial
+    correlation (``serial_factor_U``, ``serial_open`` and, where the errors are lower bounds,
+    ``serial_warning``, also in ``profile_warning``, said in the log) and the fields'
     fingerprint. ``OUT/ptv_<run>.png``:
     the profile's figure (:func:`rspiv.plots.ptv.plot_track_profile`, beside the campaign's
     windowed profile and the DNS).
@@ -105,6 +107,7 @@ from rspiv.outputs import (
     read_profile_csv,
     write_profile_csv,
 )
+from rspiv.profiles import VERDICT_PAIRS
 from rspiv.ptv_profile import TrackProfile, WallLine, sublayer_fit
 from rspiv.reference import dns_profile_for_re_tau
 
@@ -298,7 +301,7 @@ def campaign_ptv(
             skipped[pid] = str(exc)
             camp.say(f"ptv {name}: pair {pid} skipped: {exc}")
             continue
-        prof.add(tracks)
+        prof.add(tracks, pair_id=pid)
         counts.update(tracks.status)
         counts["tracks"] += len(tracks)
         counts["detected_a"] += tracks.detected[0]
@@ -500,9 +503,13 @@ def _write(camp, summary, ctx, name, prof, settings, done, counts, said, skipped
         "seconds": round(seconds, 3), "counts": dict(counts),
         "diameter_px": float(res["diameter_px"]),
         "track_error_px2": (err := _track_error(cols)),
-        "profile_warning": _error_warning(cols, err),
         "warnings": said,
     }  # fmt: skip
+    serial = _serial(res, len(done))
+    info.update(serial)
+    info["profile_warning"] = "; ".join(
+        w for w in (_error_warning(cols, err), serial.get("serial_warning", "")) if w
+    )
     si = bool(dt and m_per_px and dt > 0)
     if si:
         v = m_per_px / dt
@@ -557,6 +564,31 @@ def _track_error(cols: dict[str, Any]) -> dict[str, float]:
         d = d[np.isfinite(d)]
         out[c] = float(np.median(d)) if d.size else float("nan")
         out[f"se_{c}"] = float(1.2533 * np.std(d) / np.sqrt(d.size)) if d.size > 1 else float("nan")
+    return out
+
+
+def _serial(res: dict[str, Any], pairs: int) -> dict[str, Any]:
+    """The pairs' serial correlation over the bins off the wall with
+    :data:`rspiv.profiles.VERDICT_PAIRS` pairs or more (:mod:`rspiv.ptv_profile`): the median
+    factor on the variance of U (``serial_factor_U``), the share of those bins where it is a
+    lower bound (``serial_open``) and, where that is over a quarter, ``serial_warning``; empty
+    for profiles pickled before the lags or without such bins."""
+    if "serial_U" not in res:
+        return {}
+    judged = (res["pairs"] >= VERDICT_PAIRS) & ~res["near_wall"] & np.isfinite(res["U"])
+    if not judged.any():
+        return {}
+    factor, still = res["serial_U"][judged], res["open_U"][judged]
+    out: dict[str, Any] = {"serial_factor_U": float(np.median(factor)),
+                           "serial_open": float(np.mean(still))}  # fmt: skip
+    if out["serial_open"] > 0.25:
+        out["serial_warning"] = (
+            f"the pairs follow each other too closely for {pairs} of them to say how far the "
+            f"tracks' statistics are from the flow's: in {100 * out['serial_open']:.0f} % of "
+            "the bins the pairs' correlation lasts longer than a fifth of the lags followed "
+            f"(the variance of U {np.median(factor[still]):.1f} times that of independent "
+            "pairs and more), so the errors are lower bounds"
+        )
     return out
 
 
