@@ -13,8 +13,10 @@ import copy
 import pickle
 
 import numpy as np
+import pytest
 from rspiv import row_errors
 from rspiv.convergence import run_convergence
+from rspiv.errors import InvalidInputError
 from rspiv.profiles import pair_errors
 from rspiv.row_errors import RowErrors, serial_factor
 from rspiv.stats import FieldAccumulator
@@ -176,6 +178,10 @@ def test_the_lags_do_not_depend_on_the_order_and_merge_with_their_shifts():
     del old.rows.__dict__["lags"], old.rows.__dict__["recent"]  # pickled before the lags
     old.rows = pickle.loads(pickle.dumps(old.rows))
     assert old.rows.lags is None and old.rows.serial() is None
+    with pytest.raises(InvalidInputError, match="no serial factor of 'S_u'"):
+        fwd.rows.serial("S_u")
+    factor, still = fwd.rows.serial("uu")
+    np.testing.assert_array_equal(factor, fwd.rows.result()["serial_uu"])
     assert "serial_U" not in old.rows.result()
     pe = pair_errors(old)
     assert not pe["open_U"].any()

@@ -209,7 +209,7 @@ def _within_parts(
     with np.errstate(invalid="ignore", divide="ignore"):
         step = np.nan_to_num(d_px * d_px * (n1 * n2 * n - k * (n * n - n1 * n2)) / n**4)
     g = res[f"gamma_{key}"] - step
-    factor, still = lag_factor(g[0], g[1:], res["pairs"], res["lag_max"])
+    factor, still = lag_factor(g[0], g[1:], res["pairs"])
     # a correlation within the parts that outlasts the lags (a change inside a part, or scales
     # longer than the lags): not known, and the test takes the per-vector lag-1 factor
     return plain, np.where(still, lag1, np.maximum(factor, lag1))

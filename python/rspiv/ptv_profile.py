@@ -82,7 +82,7 @@ import numpy as np
 
 from rspiv.errors import InvalidInputError
 from rspiv.ptv import wall_sign
-from rspiv.row_errors import LAG_SHARE, LAGS, lag_factor
+from rspiv.row_errors import LAGS, chain_lags, lag_factor
 
 __all__ = ["SublayerFit", "TrackProfile", "WallLine", "sublayer_fit"]
 
@@ -219,12 +219,8 @@ class TrackProfile:
         self.outer += t[:, :, None] * t[:, None, :]
         self.pairs_in += t[:, 0] > 0
         if self.lags is not None:
-            pid, single = self.pairs if pair_id is None else int(pair_id), t[:, :_SINGLE].copy()
-            for q, tq in self.recent:
-                if 1 <= abs(pid - q) <= LAGS:
-                    early, late = (tq, single) if q < pid else (single, tq)
-                    self.lags[abs(pid - q) - 1] += early[:, :, None] * late[:, None, :]
-            self.recent = [*self.recent[-(2 * LAGS - 1) :], (pid, single)]
+            pid = self.pairs if pair_id is None else int(pair_id)
+            chain_lags(self.lags, self.recent, pid, t[:, :_SINGLE].copy())
         self.pairs += 1
         if np.isfinite(getattr(tracks, "diameter", np.nan)):
             self.diameters.append(float(tracks.diameter))
@@ -346,15 +342,13 @@ class TrackProfile:
         it is a lower bound (module docstring); empty for profiles pickled before the lags."""
         if self.lags is None:
             return {}
-        p = self.pairs_in
-        kmax = np.minimum(LAGS, np.floor(LAG_SHARE * p)).astype(np.int64)
         M = self.outer[:, :_SINGLE, :_SINGLE]
         out = {}
         for k in ("U", "V", "uu", "vv", "uv"):
             g = np.nan_to_num(grads[k][:, :_SINGLE])
             gam0 = np.einsum("bi,bij,bj->b", g, M, g)
             gam = np.einsum("bi,kbij,bj->kb", g, self.lags, g)
-            out[k] = lag_factor(gam0, gam, p, kmax)
+            out[k] = lag_factor(gam0, gam, self.pairs_in)
         return out
 
 

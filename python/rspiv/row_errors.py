@@ -49,15 +49,13 @@ adds them, a chain never joined across two merged parts). For a statistic of gra
 monotone sequence, 1992), up to lag ``min(LAGS, pairs / 4)``, each ``gamma_k / gamma_0``
 averaged first over :data:`SMOOTH_ROWS` neighbouring rows (one row's estimate is noisy), and
 none taken where the averaged lag-1 correlation is within :data:`SEEN_SIGMAS` sampling errors
-of none (independent pairs then keep a factor of 1).
-:meth:`RowErrors.serial` gives the factor by which that exceeds ``gamma_0`` (the independent
-pairs' variance; at least 1) and
-whether those lags fall short of :data:`WINDOW_TAUS` times the integrated correlation time
-(``factor / 2`` pairs; ``open``: the run is too short, or its pairs too close in time, for
-their correlation to be known; its errors are then lower bounds).
-Independent pairs give a factor of 1 but in the few rows where chance correlation passes that
-test (there the estimate is conservative).
-Rows with fewer than :data:`MIN_PAIRS` pairs get NaN.
+of none (independent pairs then keep a factor of 1, but in the few rows where chance
+correlation passes that test: there the estimate is conservative). :meth:`RowErrors.serial`
+gives the factor by which that exceeds ``gamma_0`` (the independent pairs' variance; at least
+1) and whether those lags fall short of :data:`WINDOW_TAUS` times the integrated correlation
+time (``factor / 2`` pairs; ``open``: the run is too short, or its pairs too close in time, for
+their correlation to be known; its errors are then lower bounds). Rows with fewer than
+:data:`MIN_PAIRS` pairs get NaN.
 
 Units: those of the fields added (px per pair in a campaign); errors of the stresses in their
 square.
@@ -82,7 +80,9 @@ __all__ = [
     "SMOOTH_ROWS",
     "WINDOW_TAUS",
     "RowErrors",
+    "chain_lags",
     "lag_factor",
+    "lag_max",
     "serial_factor",
 ]
 
@@ -226,23 +226,10 @@ class RowErrors:
                  m[:, _UV] + a * m[:, _V] + b * su], axis=-1,
             )  # fmt: skip
         if self.lags is not None:
-            self._chain(pid, m[:, :6].copy())
+            chain_lags(self.lags, self.recent, pid, m[:, :6].copy())
         self.n_fields += 1
         if pair_id is not None:
             self.pair_ids.add(int(pair_id))
-
-    def _chain(self, pid: int, m6: np.ndarray) -> None:
-        """Add the products of pair ``pid``'s six sums ``m6`` (rows x 6, about the shift) with
-        those of the recent pairs up to :data:`LAGS` ids away (the earlier pair's on the left,
-        whichever came first), and keep it among the recent ones."""
-        for q, mq in self.recent:
-            k = abs(pid - q)
-            if 1 <= k <= LAGS:
-                early, late = (mq, m6) if q < pid else (m6, mq)
-                self.lags[k - 1] += early[:, :, None] * late[:, None, :]
-        self.recent.append((pid, m6))
-        if len(self.recent) > 2 * LAGS:  # pairs a little out of order still meet
-            del self.recent[0]
 
     def merge(self, other: RowErrors) -> RowErrors:
         """Add ``other``'s sums (the same rows, no pair in both); returns self. The chains of
@@ -325,9 +312,8 @@ class RowErrors:
                         grads[f"{key}_{comp}"] = tuple(grad)
             p = self.pairs_in.astype(np.float64)
             scale = np.where(p >= MIN_PAIRS, p / np.maximum(p - 1, 1), np.nan)
-            kmax = np.minimum(LAGS, np.floor(LAG_SHARE * p)).astype(np.int64)
             if self.lags is not None:
-                out["lag_max"] = kmax
+                out["lag_max"] = lag_max(p)
             for key, g in grads.items():
                 g = tuple(g) + (zero,) * (t.shape[1] - len(g))
                 w = np.stack(g, axis=-1) / n[:, None]
@@ -338,7 +324,7 @@ class RowErrors:
                     gam0 = np.einsum("ri,rij,rj->r", w6, q[:, :6, :6], w6)
                     gam = np.einsum("ri,krij,rj->kr", w6, self.lags, w6)
                     out[f"gamma_{key}"] = np.concatenate([gam0[None], gam])
-                    factor, still = lag_factor(gam0, gam, p, kmax)
+                    factor, still = lag_factor(gam0, gam, p)
                     ok = p >= MIN_PAIRS
                     out[f"serial_{key}"] = np.where(ok, factor, np.nan)
                     out[f"open_{key}"] = ok & still
@@ -464,11 +450,36 @@ class RowErrors:
         return acc
 
 
+def chain_lags(
+    lags: np.ndarray, recent: list[tuple[int, np.ndarray]], pid: int, sums: np.ndarray
+) -> None:
+    """Add to ``lags`` (LAGS x rows x S x S) the products of pair ``pid``'s sums ``sums``
+    (rows x S) with those of the ``recent`` pairs up to :data:`LAGS` ids away (the earlier
+    pair's on the left, whichever came first), and keep it among the recent ones (the last
+    ``2 LAGS``: pairs a little out of order still meet). The one chain of
+    :class:`RowErrors` and :class:`rspiv.ptv_profile.TrackProfile`."""
+    for q, sq in recent:
+        k = abs(pid - q)
+        if 1 <= k <= LAGS:
+            early, late = (sq, sums) if q < pid else (sums, sq)
+            lags[k - 1] += early[:, :, None] * late[:, None, :]
+    recent.append((pid, sums))
+    if len(recent) > 2 * LAGS:
+        del recent[0]
+
+
+def lag_max(pairs: np.ndarray) -> np.ndarray:
+    """The lags followed per row of ``pairs`` pairs: :data:`LAG_SHARE` of them, at most
+    :data:`LAGS`."""
+    return np.minimum(LAGS, np.floor(LAG_SHARE * np.asarray(pairs, np.float64))).astype(np.int64)
+
+
 def lag_factor(
-    gamma0: np.ndarray, gamma: np.ndarray, pairs: np.ndarray, kmax: np.ndarray
+    gamma0: np.ndarray, gamma: np.ndarray, pairs: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`serial_factor` of a statistic's autocovariances per row (``gamma0`` (rows,),
-    ``gamma`` (lags x rows), as :meth:`RowErrors.result`'s ``gamma_`` holds them), each row's
+    ``gamma`` (lags x rows), as :meth:`RowErrors.result`'s ``gamma_`` holds them) over the
+    lags :func:`lag_max` follows for ``pairs``, each row's
     correlations averaged over :data:`SMOOTH_ROWS` neighbours first; rows of fewer than
     :data:`MIN_PAIRS` ``pairs`` or no variance are left out of the average (factor 1), and so
     are rows whose averaged lag-1 correlation is within :data:`SEEN_SIGMAS` of its sampling
@@ -480,7 +491,7 @@ def lag_factor(
     with np.errstate(invalid="ignore", divide="ignore"):
         rho, count = _along_rows(np.where(ok, gamma / np.where(ok, gamma0, 1.0), np.nan))
         seen = rho[0] > SEEN_SIGMAS / np.sqrt(pairs * count[0])
-    return serial_factor((ok & seen).astype(np.float64), rho, kmax)
+    return serial_factor((ok & seen).astype(np.float64), rho, lag_max(pairs))
 
 
 def _along_rows(rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
