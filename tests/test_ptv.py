@@ -693,6 +693,10 @@ def test_tracks_of_pairs_that_follow_each_other_take_their_serial_correlation():
         same.add(t)
     ri = indep.result()
     assert np.median(ri["serial_U"]) < 1.1 and not ri["open_U"].any()
+    before = indep.total.copy()
+    with pytest.raises(InvalidInputError, match="pair_id: expected an integer id, got 'p7'"):
+        indep.add(t, pair_id="p7")
+    np.testing.assert_array_equal(indep.total, before)  # refused before anything was added
     np.testing.assert_array_equal(same.result()["se_U"], ri["se_U"])
     old = pickle.loads(pickle.dumps(indep))
     del old.__dict__["lags"], old.__dict__["recent"]

@@ -194,7 +194,10 @@ class TrackProfile:
     def add(self, tracks: Any, pair_id: int | None = None) -> int:
         """Add one pair's tracks (:class:`rspiv.ptv.Tracks`); returns how many fell in the
         band. ``pair_id``: the pair's place in time (its id in the campaign), for the pairs'
-        serial correlation (module docstring); default the number of pairs added before."""
+        serial correlation (module docstring); default the number of pairs added before.
+        Raises InvalidInputError, before anything is added, for an id that is not an integer."""
+        if pair_id is not None and not isinstance(pair_id, (int, np.integer)):
+            raise InvalidInputError(f"pair_id: expected an integer id, got {pair_id!r}")
         x, y = np.asarray(tracks.x, dtype=np.float64), np.asarray(tracks.y, dtype=np.float64)
         keep = np.isfinite(tracks.u) & np.isfinite(tracks.v)
         if not self.keep_saturated:

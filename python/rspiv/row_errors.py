@@ -80,11 +80,9 @@ __all__ = [
     "SMOOTH_ROWS",
     "WINDOW_TAUS",
     "RowErrors",
-    "chain_lags",
-    "lag_factor",
-    "lag_max",
-    "serial_factor",
 ]
+# chain_lags, lag_max, lag_factor and serial_factor are the serial correlation's kernels,
+# shared with rspiv.ptv_profile and rspiv.convergence (arrays in, no checks): not the API
 
 #: Fewer pairs in a row than this: no error (a scatter of fewer pairs says little).
 MIN_PAIRS = 3
